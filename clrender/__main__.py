@@ -1,0 +1,5 @@
+import sys
+
+from clrender.cli import main
+
+sys.exit(main())

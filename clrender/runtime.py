@@ -1,0 +1,162 @@
+"""OpenCL runtime: device selection, program building and launch-size helpers.
+
+A device is chosen from an explicit request (index or name substring), else from the
+PYOPENCL_CTX environment variable, else the first device of the first platform. Nothing here
+ever prompts. Programs are built from the kernels/ folder with ``-I`` so compiler messages
+keep their file:line, and each (source, options) pair is built once per process.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+
+from clrender.errors import DeviceError, KernelBuildError
+
+# One fixed local size: PoCL JIT-compiles a work-group function per new local size.
+LOCAL_SIZE = 64
+
+INSTALL_HINT = (
+    'no OpenCL platform found: install a CPU device with `pip install "pyopencl[pocl]"` '
+    "(no root needed), or Debian's `pocl-opencl-icd`, or your GPU vendor's OpenCL driver"
+)
+
+
+def kernels_dir() -> Path:
+    """The folder of OpenCL sources: inside the installed package, else the source checkout."""
+    packaged = Path(str(resources.files("clrender"))) / "kernels"
+    if packaged.is_dir():
+        return packaged
+    checkout = Path(__file__).resolve().parent.parent / "kernels"
+    if checkout.is_dir():
+        return checkout
+    raise FileNotFoundError(f"OpenCL kernel sources not found (looked in {packaged}, {checkout})")
+
+
+def list_devices() -> list[cl.Device]:
+    """Every device of every platform, in platform order; DeviceError if there are none."""
+    try:
+        platforms = cl.get_platforms()
+    except cl.LogicError as err:  # the ICD loader reports 'no platforms' as an error
+        raise DeviceError(INSTALL_HINT) from err
+    devices = [dev for plat in platforms for dev in plat.get_devices()]
+    if not devices:
+        raise DeviceError(INSTALL_HINT)
+    return devices
+
+
+def describe_device(device: cl.Device) -> str:
+    return f"{device.name.strip()} [{device.platform.name.strip()}, {device.version.strip()}]"
+
+
+def _pick_from_pyopencl_ctx(spec: str, platforms: list[cl.Platform]) -> cl.Device:
+    """PYOPENCL_CTX syntax: 'platform[:device]', each an index or a name substring."""
+    plat_spec, _, dev_spec = spec.partition(":")
+    platform = _match_one(plat_spec, platforms, "PYOPENCL_CTX platform") if plat_spec else platforms[0]
+    devices = platform.get_devices()
+    return _match_one(dev_spec, devices, "PYOPENCL_CTX device") if dev_spec else devices[0]
+
+
+def _match_one(spec: str, items: list, what: str):
+    names = [item.name.strip() for item in items]
+    if spec.isdigit():
+        index = int(spec)
+        if index < len(items):
+            return items[index]
+    else:
+        for item, name in zip(items, names, strict=True):
+            if spec.lower() in name.lower():
+                return item
+    accepted = ", ".join(f"{i}: {name}" for i, name in enumerate(names))
+    raise DeviceError(f"{what} {spec!r} matches nothing; accepted: {accepted}")
+
+
+def select_device(request: str | None = None) -> cl.Device:
+    """The device for `--device REQUEST` (index or name substring), else PYOPENCL_CTX, else
+    the first available device."""
+    devices = list_devices()
+    if request is not None and request != "":
+        return _match_one(str(request), devices, "--device")
+    env = os.environ.get("PYOPENCL_CTX", "").strip()
+    if env:
+        return _pick_from_pyopencl_ctx(env, cl.get_platforms())
+    return devices[0]
+
+
+@dataclass
+class Runtime:
+    """One OpenCL context and in-order queue on one device."""
+
+    device: cl.Device
+    context: cl.Context
+    queue: cl.CommandQueue
+
+    def build(self, source_file: str, defines: dict[str, object] | None = None) -> cl.Program:
+        """Build kernels/<source_file> with -D defines; cached per (context, file, defines)."""
+        items = tuple(sorted((defines or {}).items()))
+        return _build_cached(self.context, source_file, items)
+
+    def describe(self) -> str:
+        return describe_device(self.device)
+
+
+def create_runtime(request: str | None = None) -> Runtime:
+    device = select_device(request)
+    context = cl.Context([device])
+    return Runtime(device, context, cl.CommandQueue(context))
+
+
+@functools.cache
+def default_runtime() -> Runtime:
+    """The process-wide runtime on the default device (PYOPENCL_CTX or the first one)."""
+    return create_runtime(None)
+
+
+def build_options(defines: tuple[tuple[str, object], ...]) -> list[str]:
+    options = [f"-I{kernels_dir()}", "-cl-std=CL1.2"]
+    for name, value in defines:
+        options.append(f"-D{name}" if value is True else f"-D{name}={_c_literal(value)}")
+    return options
+
+
+def _c_literal(value: object) -> str:
+    if isinstance(value, bool | np.bool_):
+        return "1" if value else "0"
+    if isinstance(value, float | np.floating):
+        return repr(float(value)) + "f"
+    return str(value)
+
+
+@functools.cache
+def _build_cached(
+    context: cl.Context, source_file: str, defines: tuple[tuple[str, object], ...]
+) -> cl.Program:
+    path = kernels_dir() / source_file
+    # Compile from an #include of the real file so the compiler log names it with its line.
+    source = f'#include "{path.name}"\n'
+    options = build_options(defines)
+    try:
+        return cl.Program(context, source).build(options=options)
+    except cl.RuntimeError as err:
+        log = _build_log(err)
+        raise KernelBuildError(
+            f"OpenCL build of {path} failed (options: {' '.join(options)}):\n{log}"
+        ) from None
+
+
+def _build_log(err: cl.RuntimeError) -> str:
+    text = str(err)
+    marker = "Build on <pyopencl.Device"
+    return text[text.find(marker):] if marker in text else text
+
+
+def padded_global_size(count: int, local_size: int = LOCAL_SIZE) -> int:
+    """Round count up to a multiple of the local size (PoCL rejects other global sizes);
+    kernels return early for ids >= count."""
+    return max(local_size, -(-count // local_size) * local_size)
