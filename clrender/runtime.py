@@ -58,7 +58,9 @@ def describe_device(device: cl.Device) -> str:
 def _pick_from_pyopencl_ctx(spec: str, platforms: list[cl.Platform]) -> cl.Device:
     """PYOPENCL_CTX syntax: 'platform[:device]', each an index or a name substring."""
     plat_spec, _, dev_spec = spec.partition(":")
-    platform = _match_one(plat_spec, platforms, "PYOPENCL_CTX platform") if plat_spec else platforms[0]
+    platform = (
+        _match_one(plat_spec, platforms, "PYOPENCL_CTX platform") if plat_spec else platforms[0]
+    )
     devices = platform.get_devices()
     return _match_one(dev_spec, devices, "PYOPENCL_CTX device") if dev_spec else devices[0]
 
@@ -96,11 +98,19 @@ class Runtime:
     device: cl.Device
     context: cl.Context
     queue: cl.CommandQueue
+    local_size: int = LOCAL_SIZE
 
     def build(self, source_file: str, defines: dict[str, object] | None = None) -> cl.Program:
         """Build kernels/<source_file> with -D defines; cached per (context, file, defines)."""
         items = tuple(sorted((defines or {}).items()))
         return _build_cached(self.context, source_file, items)
+
+    def kernel(
+        self, source_file: str, name: str, defines: dict[str, object] | None = None
+    ) -> cl.Kernel:
+        """One kernel of a built program, retrieved once per process (retrieval is costly)."""
+        items = tuple(sorted((defines or {}).items()))
+        return _kernel_cached(self.context, source_file, items, name)
 
     def describe(self) -> str:
         return describe_device(self.device)
@@ -150,10 +160,17 @@ def _build_cached(
         ) from None
 
 
+@functools.cache
+def _kernel_cached(
+    context: cl.Context, source_file: str, defines: tuple[tuple[str, object], ...], name: str
+) -> cl.Kernel:
+    return cl.Kernel(_build_cached(context, source_file, defines), name)
+
+
 def _build_log(err: cl.RuntimeError) -> str:
     text = str(err)
     marker = "Build on <pyopencl.Device"
-    return text[text.find(marker):] if marker in text else text
+    return text[text.find(marker) :] if marker in text else text
 
 
 def padded_global_size(count: int, local_size: int = LOCAL_SIZE) -> int:

@@ -29,8 +29,9 @@ def check_intensity(n: float) -> None:
 
 def check_alpha(alpha: float) -> None:
     if not (isinstance(alpha, int | float | np.floating) and 0.0 < alpha < 1.0):
-        raise ParameterError(f"alpha (rejection bound) must lie in the open interval (0, 1), "
-                             f"got {alpha!r}")
+        raise ParameterError(
+            f"alpha (rejection bound) must lie in the open interval (0, 1), got {alpha!r}"
+        )
 
 
 def sppp_eps(n: float, alpha: float = DEFAULT_ALPHA) -> float:
@@ -42,8 +43,13 @@ def sppp_eps(n: float, alpha: float = DEFAULT_ALPHA) -> float:
     target = math.log(4.0 * n / alpha)
     if target <= 1.0:  # u - ln u >= 1 everywhere: the bound is below alpha for any eps
         return 0.0
-    u = brentq(lambda u: u - math.log(u) - target, 1.0, target + math.log(target) + 2.0,
-               xtol=1e-14, rtol=1e-15)
+    u = brentq(
+        lambda u: u - math.log(u) - target,
+        1.0,
+        target + math.log(target) + 2.0,
+        xtol=1e-14,
+        rtol=1e-15,
+    )
     return math.sqrt(u / (math.pi * n))
 
 
@@ -66,9 +72,9 @@ class SpppBatch:
     auxiliary nuclei in the strip. Positions are pixel-local, in W = [-1/2, 1/2]^2.
     """
 
-    traced: np.ndarray       # (T, 2) float64
-    offsets: np.ndarray      # (P + 1,) int64
-    aux: np.ndarray          # (A, 2) float64
+    traced: np.ndarray  # (T, 2) float64
+    offsets: np.ndarray  # (P + 1,) int64
+    aux: np.ndarray  # (A, 2) float64
     aux_offsets: np.ndarray  # (P + 1,) int64
     eps: float
 
@@ -105,8 +111,13 @@ def sample_strip(rng: np.random.Generator, count: int, eps: float) -> np.ndarray
     return pts
 
 
-def draw_sppp(rng: np.random.Generator, n: float, pixels: int,
-              alpha: float = DEFAULT_ALPHA, eps: float | None = None) -> SpppBatch:
+def draw_sppp(
+    rng: np.random.Generator,
+    n: float,
+    pixels: int,
+    alpha: float = DEFAULT_ALPHA,
+    eps: float | None = None,
+) -> SpppBatch:
     """SPPP sample sets for `pixels` independent pixels (NumPy reference generator)."""
     eps = sppp_eps(n, alpha) if eps is None else float(eps)
     counts = rng.poisson(n, size=pixels)

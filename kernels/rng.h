@@ -1,0 +1,75 @@
+// Philox4x32-10 counter-based RNG (Salmon et al., SC 2011; the Random123 reference).
+//
+// Stream layout used everywhere in clrender:
+//   key     = (seed, pixel)                pixel = y * image_width + x (global, tile-independent)
+//   counter = (sample, dimension, redraw, 0)
+// so any number is a pure function of (seed, pixel, sample, dimension, redraw): the same seed
+// gives the same image whatever the tile size or launch order.
+// Reserved sample indices: traced samples use 0 .. RNG_AUX_BASE-1, auxiliary nuclei
+// RNG_AUX_BASE + j, and per-pixel draws (the Poisson count) use RNG_PIXEL_STREAM.
+// Dimension 0 of a traced sample is its position in the pixel; the integrator uses 1 and up.
+#ifndef CLRENDER_RNG_H
+#define CLRENDER_RNG_H
+
+#define PHILOX_M0 0xD2511F53u
+#define PHILOX_M1 0xCD9E8D57u
+#define PHILOX_W0 0x9E3779B9u
+#define PHILOX_W1 0xBB67AE85u
+
+#define RNG_AUX_BASE 0x40000000u
+#define RNG_PIXEL_STREAM 0xFFFFFFFFu
+
+// One Philox round: two 32x32->64 multiplies, then the Feistel-like mix with the key.
+inline uint4 philox_round(uint4 ctr, uint2 key)
+{
+    uint hi0 = mul_hi(PHILOX_M0, ctr.x);
+    uint lo0 = PHILOX_M0 * ctr.x;
+    uint hi1 = mul_hi(PHILOX_M1, ctr.z);
+    uint lo1 = PHILOX_M1 * ctr.z;
+    return (uint4)(hi1 ^ ctr.y ^ key.x, lo1, hi0 ^ ctr.w ^ key.y, lo0);
+}
+
+// Ten rounds with the Weyl key schedule between them.
+inline uint4 philox4x32_10(uint4 ctr, uint2 key)
+{
+    for (int round = 0; round < 10; ++round) {
+        if (round > 0)
+            key += (uint2)(PHILOX_W0, PHILOX_W1);
+        ctr = philox_round(ctr, key);
+    }
+    return ctr;
+}
+
+// 32 random bits to a float strictly inside (0, 1): the top 23 bits plus half a step, so
+// every value (k + 1/2) 2^-23 is exact in float (24 bits would round the largest up to 1).
+inline float rng_to_unit(uint bits)
+{
+    return ((float)(bits >> 9) + 0.5f) * 0x1p-23f;
+}
+
+// 32 random bits to a float strictly inside (-1/2, 1/2) with 2^-24 resolution, exactly.
+inline float rng_to_centered(uint bits)
+{
+    return ((float)((int)(bits >> 8) - 0x800000) + 0.5f) * 0x1p-24f;
+}
+
+inline uint4 rng_bits4(uint seed, uint pixel, uint sample, uint dim, uint redraw)
+{
+    return philox4x32_10((uint4)(sample, dim, redraw, 0u), (uint2)(seed, pixel));
+}
+
+// Four independent uniforms in (0, 1) for one (sample, dimension) slot of a pixel.
+inline float4 rng_uniform4(uint seed, uint pixel, uint sample, uint dim, uint redraw)
+{
+    uint4 b = rng_bits4(seed, pixel, sample, dim, redraw);
+    return (float4)(rng_to_unit(b.x), rng_to_unit(b.y), rng_to_unit(b.z), rng_to_unit(b.w));
+}
+
+// Two coordinates strictly inside the pixel W = (-1/2, 1/2)^2 for one (sample, dimension).
+inline float2 rng_centered2(uint seed, uint pixel, uint sample, uint dim, uint redraw)
+{
+    uint4 b = rng_bits4(seed, pixel, sample, dim, redraw);
+    return (float2)(rng_to_centered(b.x), rng_to_centered(b.y));
+}
+
+#endif
