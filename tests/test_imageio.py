@@ -1,0 +1,96 @@
+"""Image output: EXR round trip with metadata, PNG encoding, atomic writes, early path checks."""
+
+import numpy as np
+import pytest
+
+from clrender.imageio import (
+    OutputPathError,
+    check_writable,
+    decode_png,
+    read_exr,
+    srgb8,
+    write_atomically,
+    write_exr,
+    write_png,
+)
+
+
+def test_exr_round_trip_keeps_pixels_and_metadata(tmp_path):
+    rng = np.random.default_rng(1)
+    image = rng.random((5, 7, 3)).astype(np.float32) * 30.0
+    image[0, 0] = [0.0, 1e-30, 65504.0 * 4]  # beyond half range: float32 must survive
+    metadata = {"scene": "cornell-box", "spp": 64, "seed": 4_000_000_000, "partial": True,
+                "render_time_s": 1.25, "nonfinite_samples": 0}  # fmt: skip
+    write_exr(tmp_path / "out.exr", image, metadata)
+    pixels, meta = read_exr(tmp_path / "out.exr")
+    assert pixels.dtype == np.float32 and pixels.shape == (5, 7, 3)
+    assert np.array_equal(pixels, image)
+    assert meta == {"scene": "cornell-box", "spp": 64, "seed": "4000000000", "partial": 1,
+                    "render_time_s": 1.25, "nonfinite_samples": 0}  # fmt: skip
+
+
+def test_exr_writes_non_contiguous_and_float64_images_correctly(tmp_path):
+    image = np.arange(4 * 6 * 3, dtype=np.float64).reshape(4, 6, 3)
+    flipped = image[::-1, ::2]  # a strided view, the case the bindings get wrong
+    write_exr(tmp_path / "view.exr", flipped)
+    pixels, _ = read_exr(tmp_path / "view.exr")
+    assert np.array_equal(pixels, flipped.astype(np.float32))
+
+
+def test_srgb_transfer_function_values():
+    linear = np.array([-1.0, 0.0, 0.0031308, 0.18, 0.5, 1.0, 7.0, np.nan])
+    # 0.18 -> 0.46135 * 255 = 117.6; 0.5 -> 0.73536 * 255 = 187.5 (rounds up); clamped ends.
+    assert srgb8(linear).tolist() == [0, 0, 10, 118, 188, 255, 255, 0]
+
+
+def test_png_decodes_to_the_right_size_and_srgb_values(tmp_path):
+    height, width = 3, 5  # not square: a transposed image would fail
+    image = np.zeros((height, width, 3), np.float32)
+    image[0, 4] = [1.0, 0.5, 0.18]
+    image[2, 0] = [0.0031308, 2.0, -0.5]
+    write_png(tmp_path / "preview.png", image)
+    decoded = decode_png((tmp_path / "preview.png").read_bytes())
+    assert decoded.shape == (height, width, 3)
+    assert decoded[0, 4].tolist() == [255, 188, 118]
+    assert decoded[2, 0].tolist() == [10, 255, 0]
+    assert decoded.sum() == 255 + 188 + 118 + 10 + 255
+
+
+def test_failed_write_leaves_no_file_under_the_requested_name(tmp_path):
+    target = tmp_path / "out.png"
+
+    def half_write_then_fail(temp):
+        temp.write_bytes(b"half")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OutputPathError, match="out.png"):
+        write_atomically(target, half_write_then_fail)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_interrupted_write_keeps_the_previous_file(tmp_path):
+    target = tmp_path / "out.exr"
+    write_exr(target, np.ones((2, 2, 3)))
+
+    def interrupted(temp):
+        temp.write_bytes(b"partial bytes")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_atomically(target, interrupted)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
+    assert np.array_equal(read_exr(target)[0], np.ones((2, 2, 3), np.float32))
+
+
+@pytest.mark.parametrize("relative", ["missing-dir/out.exr", "a-file/out.exr", "."])
+def test_unwritable_paths_fail_with_the_path_named(tmp_path, relative):
+    (tmp_path / "a-file").write_text("not a directory")
+    path = tmp_path / relative
+    with pytest.raises(OutputPathError, match="cannot write"):
+        check_writable(path)
+    with pytest.raises(OutputPathError, match=str(path.parent.name)):
+        write_png(path, np.zeros((1, 1, 3)))
+
+
+def test_writable_path_in_an_existing_directory(tmp_path):
+    assert check_writable(tmp_path / "new.exr") == tmp_path / "new.exr"
