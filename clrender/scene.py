@@ -1,0 +1,654 @@
+"""Scene files: TOML in, packed arrays ready for the device out.
+
+A scene file has three parts: ``[camera]``, named ``[materials.NAME]`` tables and a
+``[[shapes]]`` array. Unknown keys, missing fields, wrong types and non-finite numbers are
+errors (`SceneError`, naming the file, the object and the field). Lengths are in scene units
+(whatever the file uses), angles in degrees, colours are linear RGB.
+
+``[camera]`` (a pinhole; image row 0 is the top of the image, image right is
+``cross(forward, up)``, the usual right-handed look-at camera):
+
+=============  ============  =========  =====================================================
+field          type          default    meaning
+=============  ============  =========  =====================================================
+look_from      [x, y, z]     required   eye position
+look_at        [x, y, z]     required   point at the image centre
+up             [x, y, z]     [0, 1, 0]  up direction (need not be orthogonal to the view)
+fov            degrees       required   vertical field of view, in (0, 180)
+resolution     [w, h]        required   default image size in pixels
+=============  ============  =========  =====================================================
+
+``[materials.NAME]``, selected by ``type``:
+
+=================  ===========  =========  ===================================================
+type / field       type         default    meaning
+=================  ===========  =========  ===================================================
+diffuse.albedo     RGB in [0,1] required   Lambertian reflectance
+diffuse.two_sided  bool         true       false: a back-side hit is black (like Mitsuba)
+dielectric.ior     number > 0   1.5        interior index of refraction (exterior is 1);
+                                           smooth interface, exact unpolarised Fresnel,
+                                           reflection and refraction; the side is given
+                                           by the surface normal (sphere: outwards)
+roughconductor     (GGX)                   glossy metal: GGX microfacet distribution,
+                                           height-correlated Smith masking, exact conductor
+                                           Fresnel, visible-normal sampling
+ .alpha            [1e-3, 1]    0.1        the microfacet alpha itself (Mitsuba's
+                                           convention; pbrt's `roughness` is remapped)
+ .eta              RGB > 0      aluminium  real part of the index of refraction
+                                           (default 1.657, 0.880, 0.521)
+ .k                RGB >= 0     aluminium  imaginary part (default 9.224, 6.270, 4.837)
+ .two_sided        bool         true       false: a back-side hit is black
+=================  ===========  =========  ===================================================
+
+``[[shapes]]``, selected by ``type``; every shape has an optional ``name`` (used in messages)
+and ``material`` (a material name; required except on an emitter, which then only emits):
+
+==================  ===========  =========  ==================================================
+type / field        type         default    meaning
+==================  ===========  =========  ==================================================
+quad.corner         [x, y, z]    (a)        one corner of a parallelogram
+quad.edge1, .edge2  [x, y, z]    (a)        its two edges from the corner; the normal
+                                            cross(edge1, edge2) gives the front side
+quad.vertices       4 x [x,y,z]  (a)        alternative: v0, v1, v2, v3 in order, a planar
+                                            parallelogram (v2 = v1 + v3 - v0, checked);
+                                            corner v0, edges v1 - v0 and v3 - v0
+quad.emission       RGB >= 0     none       makes the quad a one-sided area emitter of this
+                                            radiance, emitting on its front side
+box.min, .max       [x, y, z]    required   opposite corners, min < max on every axis
+box.rotate_y        degrees      0          rotation about the y axis (right-handed),
+                                            applied first
+box.translate       [x, y, z]    [0,0,0]    then this translation; the box becomes 6
+                                            quads with outward normals
+sphere.center       [x, y, z]    required   centre
+sphere.radius       number > 0   required   radius; the normal points outwards
+==================  ===========  =========  ==================================================
+
+(a) a quad takes either ``corner`` + ``edge1`` + ``edge2`` or ``vertices``.
+
+Optional top-level ``description`` (string). A scene without an emitter renders black: loading
+it warns (`SceneWarning`).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+import warnings
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from clrender.errors import ClrenderError
+
+
+class SceneError(ClrenderError, ValueError):
+    """A scene file cannot be read: the message names the file, the object and the field."""
+
+
+class SceneWarning(UserWarning):
+    """A scene loads but will not render what one expects (e.g. it has no emitter)."""
+
+
+# Material type tags, shared with kernels/scene_types.h.
+MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
+MATERIAL_NONE = -1  # a pure emitter: absorbs everything that reaches it
+
+# Device structs (kernels/scene_types.h): only 4-byte fields, so no padding on any device.
+QUAD_DTYPE = np.dtype(
+    [
+        ("corner", "<f4", 3),
+        ("edge1", "<f4", 3),
+        ("edge2", "<f4", 3),
+        ("normal", "<f4", 3),
+        ("u_dual", "<f4", 3),
+        ("v_dual", "<f4", 3),
+        ("plane_d", "<f4"),
+        ("material", "<i4"),
+        ("emitter", "<i4"),
+    ]
+)
+SPHERE_DTYPE = np.dtype([("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4")])
+MATERIAL_DTYPE = np.dtype(
+    [
+        ("type", "<i4"),
+        ("two_sided", "<i4"),
+        ("albedo", "<f4", 3),
+        ("eta", "<f4", 3),
+        ("k", "<f4", 3),
+        ("alpha", "<f4"),
+    ]
+)
+EMITTER_DTYPE = np.dtype(
+    [
+        ("quad", "<i4"),
+        ("radiance", "<f4", 3),
+        ("area", "<f4"),
+        ("pick_pdf", "<f4"),
+        ("pick_cdf", "<f4"),
+    ]
+)
+CAMERA_DTYPE = np.dtype(
+    [("origin", "<f4", 3), ("forward", "<f4", 3), ("right", "<f4", 3), ("up", "<f4", 3)]
+)
+
+ALUMINIUM_ETA = (1.657, 0.880, 0.521)
+ALUMINIUM_K = (9.224, 6.270, 4.837)
+# Secondary rays start this fraction of the scene's bounding-box diagonal off their surface.
+RAY_EPSILON_SCALE = 1e-5
+# Relative tolerance of the parallelogram check of quad vertices.
+PARALLELOGRAM_TOLERANCE = 1e-5
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera; `basis` gives the vectors the kernel uses."""
+
+    look_from: tuple[float, float, float]
+    look_at: tuple[float, float, float]
+    up: tuple[float, float, float]
+    fov: float  # vertical field of view, degrees
+    resolution: tuple[int, int]  # (width, height)
+
+    def basis(self, width: int, height: int) -> np.ndarray:
+        """CAMERA_DTYPE record: origin, unit forward, and right/up scaled so that the ray
+        through normalised image coordinates (sx, sy) in [-1, 1]^2 (sx right, sy up) is
+        forward + sx * right + sy * up."""
+        origin = np.array(self.look_from, np.float64)
+        forward = _unit(np.array(self.look_at, np.float64) - origin)
+        right = _unit(np.cross(forward, np.array(self.up, np.float64)))
+        up = np.cross(right, forward)
+        half_height = math.tan(math.radians(self.fov) / 2.0)
+        record = np.zeros((), CAMERA_DTYPE)
+        record["origin"] = origin
+        record["forward"] = forward
+        record["right"] = right * half_height * (width / height)
+        record["up"] = up * half_height
+        return record
+
+
+@dataclass
+class Scene:
+    """A loaded scene: camera plus device-ready structured arrays (see the dtypes above).
+
+    quads: every quad, boxes expanded (6 each); spheres; materials (indexed by the shapes'
+    `material`, -1 for a pure emitter); emitters (one per emitting quad, with the light
+    selection pdf proportional to power = area * mean radiance).
+    """
+
+    path: Path
+    name: str
+    description: str
+    camera: Camera
+    materials: np.ndarray
+    quads: np.ndarray
+    spheres: np.ndarray
+    emitters: np.ndarray
+    material_names: list[str]
+    quad_names: list[str]
+    sphere_names: list[str]
+    ray_epsilon: float
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self.camera.resolution
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return _bounds(self.quads, self.spheres)
+
+
+# --------------------------------------------------------------------------- locating files
+
+
+def scenes_dir() -> Path:
+    """The shipped scenes: inside the installed package, else the source checkout."""
+    packaged = Path(str(resources.files("clrender"))) / "scenes"
+    if packaged.is_dir():
+        return packaged
+    checkout = Path(__file__).resolve().parent.parent / "scenes"
+    if checkout.is_dir():
+        return checkout
+    raise FileNotFoundError(f"shipped scenes not found (looked in {packaged}, {checkout})")
+
+
+def list_scenes() -> list[str]:
+    """Names of the shipped scenes (load them with `load_scene(name)`)."""
+    return sorted(path.stem for path in scenes_dir().glob("*.toml"))
+
+
+def resolve_scene_path(path_or_name: str | Path) -> Path:
+    """A path to an existing file, or a bare shipped scene name ("cornell-box")."""
+    path = Path(path_or_name)
+    if path.is_file():
+        return path
+    text = str(path_or_name)
+    if "/" not in text and "\\" not in text:
+        shipped = scenes_dir() / (text if text.endswith(".toml") else f"{text}.toml")
+        if shipped.is_file():
+            return shipped
+        known = list_scenes()
+        hint = _did_you_mean(text.removesuffix(".toml"), known)
+        raise SceneError(
+            f"no scene file {text!r} and no shipped scene of that name{hint}; "
+            f"shipped scenes: {', '.join(known)}"
+        )
+    raise SceneError(f"scene file {text!r} does not exist")
+
+
+def load_scene(path_or_name: str | Path) -> Scene:
+    """Read and validate a scene file (or a shipped scene by name)."""
+    path = resolve_scene_path(path_or_name)
+    try:
+        with open(path, "rb") as handle:
+            document = tomllib.load(handle)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: TOML syntax error: {err}") from None
+    except OSError as err:
+        raise SceneError(f"{path}: cannot read: {err.strerror}") from None
+    return SceneBuilder(path).build(document)
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _did_you_mean(word: str, choices: list[str] | tuple[str, ...]) -> str:
+    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+class _Table:
+    """One TOML table being read: every access is checked and named in error messages."""
+
+    def __init__(self, path: Path, where: str, data: object):
+        self.path = path
+        self.where = where
+        if not isinstance(data, dict):
+            self.fail(None, f"expected a table, got {_describe(data)}")
+        self.data = data
+
+    def fail(self, key: str | None, message: str):
+        field_part = f", field {key!r}" if key else ""
+        raise SceneError(f"{self.path}: {self.where}{field_part}: {message}")
+
+    def check_keys(self, allowed: tuple[str, ...]) -> None:
+        for key in self.data:
+            if key not in allowed:
+                hint = _did_you_mean(key, allowed)
+                self.fail(key, f"unknown field{hint}; accepted: {', '.join(allowed)}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def _get(self, key: str, default: object):
+        if key in self.data:
+            return self.data[key]
+        if default is _REQUIRED:
+            self.fail(key, "missing (required)")
+        return default
+
+    def string(self, key: str, default: object = None) -> str | None:
+        value = self._get(key, default)
+        if value is not None and not isinstance(value, str):
+            self.fail(key, f"expected a string, got {_describe(value)}")
+        return value
+
+    def boolean(self, key: str, default: object) -> bool:
+        value = self._get(key, default)
+        if not isinstance(value, bool):
+            self.fail(key, f"expected true or false, got {_describe(value)}")
+        return value
+
+    def number(self, key: str, default: object = None, low=None, high=None, what="") -> float:
+        value = self._get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            self.fail(key, f"expected a number{what}, got {_describe(value)}")
+        value = float(value)
+        if not math.isfinite(value):
+            self.fail(key, f"expected a finite number{what}, got {value}")
+        if (low is not None and value < low) or (high is not None and value > high):
+            self.fail(key, f"expected a number{what}, got {value:g}")
+        return value
+
+    def vector(self, key: str, default: object = None, length: int = 3, what: str = "") -> tuple:
+        value = self._get(key, default)
+        expected = f"a list of {length} finite numbers{what}"
+        if not isinstance(value, list | tuple) or len(value) != length:
+            self.fail(key, f"expected {expected}, got {_describe(value)}")
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, int | float):
+                self.fail(key, f"expected {expected}, got {_describe(value)}")
+            if not math.isfinite(float(item)):
+                self.fail(key, f"expected {expected}, got a non-finite entry in {value}")
+        return tuple(float(item) for item in value)
+
+    def rgb(self, key: str, default: object = None, high: float | None = None) -> tuple:
+        bound = f" in [0, {high:g}]" if high is not None else " >= 0"
+        value = self.vector(key, default, 3, what=bound)
+        if any(c < 0.0 or (high is not None and c > high) for c in value):
+            self.fail(key, f"expected 3 numbers{bound} (RGB), got {list(value)}")
+        return value
+
+
+_REQUIRED = object()
+
+
+def _describe(value: object) -> str:
+    kind = {bool: "a boolean", str: "a string", int: "an integer", float: "a number"}
+    if isinstance(value, list):
+        return f"a list of {len(value)} ({value!r})" if len(value) < 8 else "a long list"
+    if isinstance(value, dict):
+        return "a table"
+    return f"{kind.get(type(value), type(value).__name__)} ({value!r})"
+
+
+SHAPE_FIELDS = {
+    "quad": ("type", "name", "material", "corner", "edge1", "edge2", "vertices", "emission"),
+    "box": ("type", "name", "material", "min", "max", "rotate_y", "translate"),
+    "sphere": ("type", "name", "material", "center", "radius"),
+}
+MATERIAL_FIELDS = {
+    "diffuse": ("type", "albedo", "two_sided"),
+    "dielectric": ("type", "ior"),
+    "roughconductor": ("type", "alpha", "eta", "k", "two_sided"),
+}
+CAMERA_FIELDS = ("look_from", "look_at", "up", "fov", "resolution")
+TOP_FIELDS = ("description", "camera", "materials", "shapes")
+
+
+class SceneBuilder:
+    """Turns a parsed TOML document into a Scene, validating as it goes."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.material_index: dict[str, int] = {}
+        self.materials: list[np.ndarray] = []
+        self.quads: list[dict] = []
+        self.quad_names: list[str] = []
+        self.spheres: list[dict] = []
+        self.sphere_names: list[str] = []
+
+    def build(self, document: dict) -> Scene:
+        top = _Table(self.path, "top level", document)
+        top.check_keys(TOP_FIELDS)
+        description = top.string("description", "") or ""
+        camera = self.read_camera(_Table(self.path, "[camera]", top._get("camera", _REQUIRED)))
+        materials = top._get("materials", {})
+        if not isinstance(materials, dict):
+            top.fail("materials", f"expected tables [materials.NAME], got {_describe(materials)}")
+        for name, data in materials.items():
+            self.read_material(name, _Table(self.path, f"[materials.{name}]", data))
+        shapes = top._get("shapes", _REQUIRED)
+        if not isinstance(shapes, list):
+            top.fail("shapes", f"expected an array of tables [[shapes]], got {_describe(shapes)}")
+        for index, data in enumerate(shapes):
+            self.read_shape(index, data)
+        return self.finish(camera, description)
+
+    # -- camera
+    def read_camera(self, table: _Table) -> Camera:
+        table.check_keys(CAMERA_FIELDS)
+        look_from = table.vector("look_from", _REQUIRED)
+        look_at = table.vector("look_at", _REQUIRED)
+        up = table.vector("up", [0.0, 1.0, 0.0])
+        fov = table.number("fov", _REQUIRED, 1e-3, 179.0, " of degrees in (0, 180)")
+        resolution = table._get("resolution", _REQUIRED)
+        if (
+            not isinstance(resolution, list)
+            or len(resolution) != 2
+            or not all(isinstance(r, int) and not isinstance(r, bool) and r > 0 for r in resolution)
+        ):
+            table.fail("resolution", f"expected [width, height], positive integers, got "
+                                     f"{_describe(resolution)}")  # fmt: skip
+        forward = np.subtract(look_at, look_from)
+        if np.linalg.norm(forward) == 0.0:
+            table.fail("look_at", "must differ from look_from")
+        if np.linalg.norm(np.cross(forward, up)) <= 1e-9 * np.linalg.norm(forward) * max(
+            np.linalg.norm(up), 1e-300
+        ):
+            table.fail("up", f"must not be zero or parallel to the view direction, got {list(up)}")
+        return Camera(look_from, look_at, up, fov, (resolution[0], resolution[1]))
+
+    # -- materials
+    def read_material(self, name: str, table: _Table) -> None:
+        kind = table.string("type", _REQUIRED)
+        if kind not in MATERIAL_FIELDS:
+            hint = _did_you_mean(kind, tuple(MATERIAL_FIELDS))
+            table.fail("type", f"unknown material type {kind!r}{hint}; accepted: "
+                               f"{', '.join(MATERIAL_FIELDS)}")  # fmt: skip
+        table.check_keys(MATERIAL_FIELDS[kind])
+        record = np.zeros((), MATERIAL_DTYPE)
+        record["type"] = MATERIAL_TYPES[kind]
+        record["two_sided"] = 1
+        if kind == "diffuse":
+            record["albedo"] = table.rgb("albedo", _REQUIRED, high=1.0)
+            record["two_sided"] = int(table.boolean("two_sided", True))
+        elif kind == "dielectric":
+            ior = table.number("ior", 1.5, what=" > 0")
+            if ior <= 0.0:
+                table.fail("ior", f"expected a number > 0, got {ior:g}")
+            record["eta"] = (ior, ior, ior)
+        else:
+            record["alpha"] = table.number("alpha", 0.1, 1e-3, 1.0, " in [0.001, 1]")
+            eta = table.rgb("eta", list(ALUMINIUM_ETA))
+            if min(eta) <= 0.0:
+                table.fail("eta", f"expected 3 numbers > 0, got {list(eta)}")
+            record["eta"] = eta
+            record["k"] = table.rgb("k", list(ALUMINIUM_K))
+            record["two_sided"] = int(table.boolean("two_sided", True))
+        self.material_index[name] = len(self.materials)
+        self.materials.append(record)
+
+    # -- shapes
+    def read_shape(self, index: int, data: object) -> None:
+        label = f"shapes[{index}]"
+        if isinstance(data, dict) and isinstance(data.get("name"), str):
+            label += f" ({data['name']!r})"
+        table = _Table(self.path, label, data)
+        kind = table.string("type", _REQUIRED)
+        if kind not in SHAPE_FIELDS:
+            hint = _did_you_mean(kind, tuple(SHAPE_FIELDS))
+            table.fail("type", f"unknown shape type {kind!r}{hint}; accepted: "
+                               f"{', '.join(SHAPE_FIELDS)}")  # fmt: skip
+        table.check_keys(SHAPE_FIELDS[kind])
+        name = table.string("name", None) or f"shapes[{index}]"
+        emission = table.rgb("emission", None) if table.has("emission") else None
+        if emission is not None and max(emission) == 0.0:
+            emission = None
+        material = self.material_reference(table, required=emission is None)
+        if kind == "quad":
+            corner, edge1, edge2 = self.read_quad_frame(table)
+            self.add_quad(table, name, corner, edge1, edge2, material, emission)
+        elif kind == "box":
+            self.read_box(table, name, material)
+        else:
+            center = table.vector("center", _REQUIRED)
+            radius = table.number("radius", _REQUIRED, what=" > 0")
+            if radius <= 0.0:
+                table.fail("radius", f"expected a number > 0, got {radius:g}")
+            self.spheres.append({"center": center, "radius": radius, "material": material})
+            self.sphere_names.append(name)
+
+    def material_reference(self, table: _Table, required: bool) -> int:
+        name = table.string("material", _REQUIRED if required else None)
+        if name is None:
+            return MATERIAL_NONE
+        if name not in self.material_index:
+            known = tuple(self.material_index)
+            hint = _did_you_mean(name, known)
+            table.fail("material", f"unknown material {name!r}{hint}; defined: "
+                                   f"{', '.join(known) or 'none'}")  # fmt: skip
+        return self.material_index[name]
+
+    def read_quad_frame(self, table: _Table) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        frame_keys = [key for key in ("corner", "edge1", "edge2") if table.has(key)]
+        if table.has("vertices"):
+            if frame_keys:
+                table.fail(frame_keys[0], "give either corner/edge1/edge2 or vertices, not both")
+            return self.read_quad_vertices(table)
+        corner = np.array(table.vector("corner", _REQUIRED))
+        edge1 = np.array(table.vector("edge1", _REQUIRED))
+        edge2 = np.array(table.vector("edge2", _REQUIRED))
+        return corner, edge1, edge2
+
+    def read_quad_vertices(self, table: _Table) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        value = table.data["vertices"]
+        if not isinstance(value, list) or len(value) != 4:
+            table.fail("vertices", f"expected 4 points [x, y, z], got {_describe(value)}")
+        points = []
+        for i, point in enumerate(value):
+            inner = _Table(self.path, table.where, {f"vertices[{i}]": point})
+            points.append(np.array(inner.vector(f"vertices[{i}]")))
+        v0, v1, v2, v3 = points
+        scale = max(np.abs(np.array(points)).max(), np.linalg.norm(v1 - v0), 1e-30)
+        if np.abs(v1 + v3 - v0 - v2).max() > PARALLELOGRAM_TOLERANCE * scale:
+            table.fail("vertices", "not a parallelogram: v2 must equal v1 + v3 - v0 "
+                                   f"(off by {np.abs(v1 + v3 - v0 - v2).max():g})")  # fmt: skip
+        return v0, v1 - v0, v3 - v0
+
+    def add_quad(self, table, name, corner, edge1, edge2, material, emission) -> None:
+        normal = np.cross(edge1, edge2)
+        area = float(np.linalg.norm(normal))
+        scale = float(np.linalg.norm(edge1) * np.linalg.norm(edge2))
+        if not (area > 1e-9 * scale and area > 0.0):
+            key = "vertices" if table.has("vertices") else "edge2"
+            table.fail(key, "degenerate quad: its edges are zero or parallel")
+        self.quads.append(
+            {"corner": corner, "edge1": edge1, "edge2": edge2, "material": material,
+             "emission": emission}  # fmt: skip
+        )
+        self.quad_names.append(name)
+
+    def read_box(self, table: _Table, name: str, material: int) -> None:
+        low = np.array(table.vector("min", _REQUIRED))
+        high = np.array(table.vector("max", _REQUIRED))
+        if np.any(high <= low):
+            table.fail("max", f"expected max > min on every axis (a box of positive size), "
+                              f"got min {list(low)}, max {list(high)}")  # fmt: skip
+        angle = math.radians(table.number("rotate_y", 0.0))
+        translate = np.array(table.vector("translate", [0.0, 0.0, 0.0]))
+        for face, (corner, edge1, edge2) in enumerate(box_faces(low, high)):
+            rotated = [rotate_y(v, angle) for v in (corner, edge1, edge2)]
+            self.quads.append(
+                {"corner": rotated[0] + translate, "edge1": rotated[1], "edge2": rotated[2],
+                 "material": material, "emission": None}  # fmt: skip
+            )
+            self.quad_names.append(f"{name}/face{face}")
+
+    # -- packing
+    def finish(self, camera: Camera, description: str) -> Scene:
+        quads = pack_quads(self.quads)
+        spheres = np.zeros(len(self.spheres), SPHERE_DTYPE)
+        for record, sphere in zip(spheres, self.spheres, strict=True):
+            record["center"] = sphere["center"]
+            record["radius"] = sphere["radius"]
+            record["material"] = sphere["material"]
+        emitters = pack_emitters(self.quads, quads)
+        materials = np.array(self.materials, MATERIAL_DTYPE).reshape(-1)
+        if len(quads) + len(spheres) == 0:
+            raise SceneError(f"{self.path}: shapes: the scene has no shapes")
+        low, high = _bounds(quads, spheres)
+        diagonal = float(np.linalg.norm(high.astype(np.float64) - low))
+        notes = []
+        if len(emitters) == 0:
+            notes.append(f"{self.path}: the scene has no emitter (no quad with emission): "
+                         "it renders black")  # fmt: skip
+            warnings.warn(notes[-1], SceneWarning, stacklevel=3)
+        return Scene(
+            path=self.path,
+            name=self.path.stem,
+            description=description,
+            camera=camera,
+            materials=materials,
+            quads=quads,
+            spheres=spheres,
+            emitters=emitters,
+            material_names=list(self.material_index),
+            quad_names=self.quad_names,
+            sphere_names=self.sphere_names,
+            ray_epsilon=RAY_EPSILON_SCALE * max(diagonal, 1e-30),
+            warnings=notes,
+        )
+
+
+def rotate_y(v: np.ndarray, angle: float) -> np.ndarray:
+    """Right-handed rotation about +y: x' = cos x + sin z, z' = -sin x + cos z."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]])
+
+
+def box_faces(low: np.ndarray, high: np.ndarray) -> list[tuple[np.ndarray, ...]]:
+    """The 6 faces of an axis-aligned box as (corner, edge1, edge2), normals outwards."""
+    dx = np.array([high[0] - low[0], 0.0, 0.0])
+    dy = np.array([0.0, high[1] - low[1], 0.0])
+    dz = np.array([0.0, 0.0, high[2] - low[2]])
+    return [
+        (low.copy(), dy, dx),  # z = min, normal -z
+        (low + dz, dx, dy),  # z = max, normal +z
+        (low.copy(), dz, dy),  # x = min, normal -x
+        (low + dx, dy, dz),  # x = max, normal +x
+        (low.copy(), dx, dz),  # y = min, normal -y
+        (low + dy, dz, dx),  # y = max, normal +y
+    ]
+
+
+def pack_quads(quads: list[dict]) -> np.ndarray:
+    """QUAD_DTYPE records; dual vectors give the parallelogram coordinates of a point q:
+    a = dot(q - corner, u_dual), b = dot(q - corner, v_dual), inside iff both in [0, 1]."""
+    packed = np.zeros(len(quads), QUAD_DTYPE)
+    for record, quad in zip(packed, quads, strict=True):
+        corner, edge1, edge2 = (np.asarray(quad[k], np.float64) for k in ("corner", "edge1", "edge2"))
+        n = np.cross(edge1, edge2)
+        w = n / np.dot(n, n)
+        normal = _unit(n)
+        record["corner"] = corner
+        record["edge1"] = edge1
+        record["edge2"] = edge2
+        record["normal"] = normal
+        record["u_dual"] = np.cross(edge2, w)
+        record["v_dual"] = np.cross(w, edge1)
+        record["plane_d"] = np.dot(normal, corner)
+        record["material"] = quad["material"]
+        record["emitter"] = -1
+    return packed
+
+
+def pack_emitters(quads: list[dict], packed: np.ndarray) -> np.ndarray:
+    """One EMITTER_DTYPE record per emitting quad; selection pdf proportional to power."""
+    indices = [i for i, quad in enumerate(quads) if quad["emission"] is not None]
+    emitters = np.zeros(len(indices), EMITTER_DTYPE)
+    powers = []
+    for slot, i in enumerate(indices):
+        area = float(np.linalg.norm(np.cross(quads[i]["edge1"], quads[i]["edge2"])))
+        emitters[slot]["quad"] = i
+        emitters[slot]["radiance"] = quads[i]["emission"]
+        emitters[slot]["area"] = area
+        powers.append(area * float(np.mean(quads[i]["emission"])))
+        packed[i]["emitter"] = slot
+    if indices:
+        pdf = np.array(powers) / np.sum(powers)
+        emitters["pick_pdf"] = pdf
+        cdf = np.cumsum(pdf)
+        cdf[-1] = 1.0
+        emitters["pick_cdf"] = cdf
+    return emitters
+
+
+def _bounds(quads: np.ndarray, spheres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    points = []
+    for quad in quads:
+        c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
+        points += [c, c + e1, c + e2, c + e1 + e2]
+    for sphere in spheres:
+        r = float(sphere["radius"])
+        points += [sphere["center"] - r, sphere["center"] + r]
+    if not points:
+        return np.zeros(3), np.zeros(3)
+    stacked = np.array(points, np.float64)
+    return stacked.min(axis=0), stacked.max(axis=0)

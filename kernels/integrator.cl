@@ -1,0 +1,185 @@
+// Path tracing of per-sample camera rays: unidirectional paths with next event estimation
+// and multiple importance sampling (power heuristic) applied to emission only.
+//
+// One work-item per traced sample. Sample i belongs to the pixel whose traced_offsets range
+// holds it; its position (pixel-local, in W = [-1/2, 1/2]^2) comes from the sample-set buffer
+// (auxiliary nuclei, stored after the traced samples, are never read). Random numbers: the
+// Philox stream of (seed, pixel, sample, redraw); dimension 0 is the sample's position, the
+// path at depth d uses dimension 1 + 2d (light pick, light point, Russian roulette) and
+// 2 + 2d (BSDF direction, lobe choice).
+//
+// max_depth counts scattering vertices (pbrt's maxdepth; Mitsuba's max_depth minus 1):
+// 0 shows emitters only, 1 adds direct lighting, ... Specular vertices count too.
+#include "rng.h"
+#include "scene_types.h"
+#include "geometry.h"
+#include "bsdf.h"
+#include "lights.h"
+#include "camera.h"
+
+// counters[0]: samples whose radiance was not finite (stored as 0);
+// counters[1 + work-group id]: rays traced by that work-group (camera, bounce and shadow).
+#define COUNTER_NONFINITE 0
+#define COUNTER_RAYS 1
+
+inline float PowerHeuristic(float pdf_a, float pdf_b)
+{
+    float a2 = pdf_a * pdf_a;
+    return a2 / (a2 + pdf_b * pdf_b);
+}
+
+// The launch slot p of the pixel whose [offsets[p], offsets[p+1]) range holds sample i.
+inline uint Sample_Pixel(__global const uint *offsets, uint pixel_count, uint i)
+{
+    uint lo = 0u, hi = pixel_count;
+    while (hi - lo > 1u) {
+        uint mid = (lo + hi) / 2u;
+        if (offsets[mid] <= i)
+            lo = mid;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+// Next event estimation at a non-specular vertex: one emitter point, a shadow ray, and the
+// power-heuristic weight against the BSDF's pdf for the same direction.
+inline float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame,
+                           __global const Material *material, float3 wo_local, float3 u,
+                           uint *rays)
+{
+    float3 wi;
+    float dist, light_pdfW;
+    float3 Le = Light_SampleLi(scene, surface->p, u, &wi, &dist, &light_pdfW);
+    if (!(light_pdfW > 0.0f))
+        return (float3)(0.0f);
+    float3 wi_local = Frame_ToLocal(frame, wi);
+    float3 f = BSDF_Eval(material, wo_local, wi_local) * fabs(wi_local.z);
+    if (!any(f > 0.0f))
+        return (float3)(0.0f);
+    float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, scene->ray_eps);
+    *rays += 1u;
+    if (Scene_Occluded(scene, origin, wi, dist - 2.0f * scene->ray_eps))
+        return (float3)(0.0f);
+    float weight = PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
+    return f * Le * (weight / light_pdfW);
+}
+
+// Radiance along one camera ray (pbrt-v4's PathIntegrator::Li, emitters as the only lights).
+inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_depth,
+                 int russian_roulette, uint seed, uint pixel, uint sample, uint redraw,
+                 uint *rays)
+{
+    float3 L = (float3)(0.0f);
+    float3 beta = (float3)(1.0f);
+    bool specularBounce = false;
+    float prev_pdfW = 0.0f;
+    for (int depth = 0;; ++depth) {
+        // Find the closest surface along the ray
+        int prim;
+        *rays += 1u;
+        float t = Scene_Intersect(scene, origin, dir, INFINITY, &prim);
+        if (prim < 0)
+            break;
+        Surface surface = Scene_Surface(scene, origin, dir, t, prim);
+        float3 wo = -dir;
+
+        // Add emission found by the ray, MIS-weighted unless it came from the camera or a
+        // specular bounce (NEE cannot sample those paths)
+        if (surface.emitter >= 0 && dot(surface.ng, wo) > 0.0f) {
+            __global const Emitter *emitter = &scene->emitters[surface.emitter];
+            float3 Le = vload3(0, emitter->radiance);
+            if (depth == 0 || specularBounce) {
+                L += beta * Le;
+            } else {
+                float light_pdfW = Light_PdfW(emitter, t, dot(surface.ng, wo));
+                L += beta * Le * PowerHeuristic(prev_pdfW, light_pdfW);
+            }
+        }
+
+        // End the path at the maximum depth or on a surface that only emits
+        if (depth == max_depth || surface.material < 0)
+            break;
+        __global const Material *material = &scene->materials[surface.material];
+
+        // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
+        float3 n = surface.ng;
+        if (!BSDF_IsSpecular(material) && dot(n, wo) < 0.0f) {
+            if (!material->two_sided)
+                break;
+            n = -n;
+        }
+        Frame frame = Frame_FromNormal(n);
+        float3 wo_local = Frame_ToLocal(frame, wo);
+        float4 u_light = rng_uniform4(seed, pixel, sample, 1u + 2u * (uint)depth, redraw);
+        float4 u_bsdf = rng_uniform4(seed, pixel, sample, 2u + 2u * (uint)depth, redraw);
+
+        // Sample direct illumination from the emitters (skipped at specular vertices)
+        if (!BSDF_IsSpecular(material) && scene->emitter_count > 0u)
+            L += beta * SampleDirect(scene, &surface, frame, material, wo_local, u_light.xyz,
+                                     rays);
+
+        // Sample the BSDF to get the new path direction
+        float3 wi_local;
+        float pdfW;
+        float3 weight = BSDF_Sample(material, wo_local, u_bsdf.xyz, &wi_local, &pdfW);
+        if (!any(weight > 0.0f))
+            break;
+        beta *= weight;
+        specularBounce = BSDF_IsSpecular(material);
+        prev_pdfW = pdfW;
+        dir = Frame_ToWorld(frame, wi_local);
+        origin = Surface_OffsetOrigin(surface.p, surface.ng, dir, scene->ray_eps);
+
+        // Possibly terminate the path with Russian roulette
+        float beta_max = fmax(beta.x, fmax(beta.y, beta.z));
+        if (russian_roulette && depth >= 1 && beta_max < 1.0f) {
+            float q = fmax(0.0f, 1.0f - beta_max);
+            if (u_light.w < q)
+                break;
+            beta /= 1.0f - q;
+        }
+    }
+    return L;
+}
+
+// One work-item per traced sample: radiance (RGB float) to radiance[3 i .. 3 i + 2].
+__kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
+                          uint image_height, int max_depth, int russian_roulette,
+                          float ray_eps, __global const float2 *positions,
+                          __global const uint *traced_offsets, __global const uint *pixels,
+                          __global const uint *redraws, __global const Camera *camera,
+                          __global const Quad *quads, uint quad_count,
+                          __global const Sphere *spheres, uint sphere_count,
+                          __global const Material *materials,
+                          __global const Emitter *emitters, uint emitter_count,
+                          __global float *radiance, __global uint *counters)
+{
+    uint i = get_global_id(0);
+    if (i >= traced_total)
+        return;
+    SceneData scene = {quads, spheres, materials, emitters,
+                       quad_count, sphere_count, emitter_count, ray_eps};
+
+    // Find the sample's pixel, its index in the pixel and its image position
+    uint slot = Sample_Pixel(traced_offsets, pixel_count, i);
+    uint pixel = pixels[slot];
+    uint sample = i - traced_offsets[slot];
+    float2 u_pixel = positions[i];
+    float2 image_pos = (float2)((float)(pixel % image_width) + 0.5f + u_pixel.x,
+                                (float)(pixel / image_width) + 0.5f + u_pixel.y);
+
+    // Trace the camera ray's path
+    uint rays = 0u;
+    float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
+    float3 L = Li(&scene, vload3(0, camera->origin), dir, max_depth, russian_roulette, seed,
+                  pixel, sample, redraws[slot], &rays);
+
+    // Store the radiance; a non-finite value is counted and stored as 0 (as pbrt does)
+    if (!all(isfinite(L))) {
+        atomic_inc(&counters[COUNTER_NONFINITE]);
+        L = (float3)(0.0f);
+    }
+    vstore3(L, i, radiance);
+    atomic_add(&counters[COUNTER_RAYS + get_group_id(0)], rays);
+}

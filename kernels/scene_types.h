@@ -1,0 +1,75 @@
+// Scene records shared with the host (clrender/scene.py builds them as NumPy structured arrays).
+// Only 4-byte members and float[3] (never float3, which takes 16 bytes): the layout is the same
+// on the host and on every device. Read vectors with vload3(0, record->member).
+#ifndef CLRENDER_SCENE_TYPES_H
+#define CLRENDER_SCENE_TYPES_H
+
+// Material type tags (scene.MATERIAL_TYPES); MATERIAL_NONE marks a pure emitter.
+#define MATERIAL_NONE -1
+#define MATERIAL_DIFFUSE 0
+#define MATERIAL_DIELECTRIC 1
+#define MATERIAL_ROUGHCONDUCTOR 2
+
+// A parallelogram corner + a edge1 + b edge2, (a, b) in [0, 1]^2. The unit normal is along
+// cross(edge1, edge2) (the front side); for a point q, a = dot(q - corner, u_dual) and
+// b = dot(q - corner, v_dual); plane_d = dot(normal, corner).
+typedef struct {
+    float corner[3];
+    float edge1[3];
+    float edge2[3];
+    float normal[3];
+    float u_dual[3];
+    float v_dual[3];
+    float plane_d;
+    int material; // index into the materials, or MATERIAL_NONE
+    int emitter;  // index into the emitters, or -1
+} Quad;
+
+typedef struct {
+    float center[3];
+    float radius;
+    int material;
+} Sphere;
+
+// One record for every material type; each type reads its own members.
+typedef struct {
+    int type;
+    int two_sided;   // diffuse, roughconductor: 0 = a back-side hit is black
+    float albedo[3]; // diffuse reflectance
+    float eta[3];    // dielectric: interior ior (all three equal); conductor: real ior
+    float k[3];      // conductor: imaginary ior
+    float alpha;     // roughconductor: GGX alpha (the microfacet alpha itself)
+} Material;
+
+// An emitting quad; pick_pdf is its selection probability (proportional to power) and
+// pick_cdf the upper end of its interval in the selection CDF.
+typedef struct {
+    int quad;
+    float radiance[3];
+    float area;
+    float pick_pdf;
+    float pick_cdf;
+} Emitter;
+
+// Pinhole camera: the ray through normalised image coordinates (sx, sy) in [-1, 1]^2, sx to
+// the right and sy up, has direction forward + sx right + sy up (right and up are scaled).
+typedef struct {
+    float origin[3];
+    float forward[3];
+    float right[3];
+    float up[3];
+} Camera;
+
+// The scene as the device functions see it (private; built in the kernel from its arguments).
+typedef struct {
+    __global const Quad *quads;
+    __global const Sphere *spheres;
+    __global const Material *materials;
+    __global const Emitter *emitters;
+    uint quad_count;
+    uint sphere_count;
+    uint emitter_count;
+    float ray_eps; // secondary rays start this far off their surface
+} SceneData;
+
+#endif
