@@ -113,19 +113,6 @@ class _PointSet:
         return len(self.offsets) - 1
 
 
-@dataclass
-class _Triangulation:
-    """Concatenated Qhull output of all calls of a batch, in point-set indices."""
-
-    simplices: np.ndarray      # (M, 3)
-    hull_vertices: np.ndarray  # indices of points on the hull of their call
-    coplanar: np.ndarray       # (C, 2): (dropped coincident point, vertex it coincides with)
-    failed_alone: np.ndarray   # pixels whose own call (one pixel) Qhull rejected
-    failed_shared: np.ndarray  # pixels of rejected calls holding several pixels
-    multi_pixel: bool          # some call held more than one pixel
-    calls: int
-
-
 # ---------------------------------------------------------------------------------------------
 # Public entry points
 
@@ -336,34 +323,6 @@ def _call_layouts(point_set: _PointSet, one_pixel_per_call: bool):
         yield points, index, np.arange(p0, p1)
 
 
-def _triangulate(point_set: _PointSet, one_pixel_per_call: bool) -> _Triangulation:
-    simplices, hull, coplanar, failed_alone, failed_shared = [], [], [], [], []
-    calls = 0
-    multi = False
-    for points, index, pixels in _call_layouts(point_set, one_pixel_per_call):
-        if len(points) == 0:
-            continue
-        calls += 1
-        try:
-            tri = Delaunay(points, qhull_options=QHULL_OPTIONS)
-        except (QhullError, ValueError):
-            # Too few or collinear points: judged per pixel by _cells.
-            (failed_alone if len(pixels) == 1 else failed_shared).append(pixels)
-            continue
-        multi |= len(pixels) > 1
-        simplices.append(index[tri.simplices])
-        rows, cols = np.nonzero(tri.neighbors == -1)
-        hull.append(index[tri.simplices[rows, (cols + 1) % 3]])
-        hull.append(index[tri.simplices[rows, (cols + 2) % 3]])
-        if len(tri.coplanar):
-            coplanar.append(index[tri.coplanar[:, [0, 2]]])
-    return _Triangulation(
-        np.concatenate(simplices) if simplices else np.zeros((0, 3), np.int64),
-        np.concatenate(hull) if hull else np.zeros(0, np.int64),
-        np.concatenate(coplanar) if coplanar else np.zeros((0, 2), np.int64),
-        _concat_or_empty(failed_alone), _concat_or_empty(failed_shared), multi, calls)
-
-
 def _concat_or_empty(parts: list[np.ndarray]) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0, np.int64)
 
@@ -374,22 +333,63 @@ def _concat_or_empty(parts: list[np.ndarray]) -> np.ndarray:
 
 def _cells(point_set: _PointSet, box: float | None,
            one_pixel_per_call: bool = False) -> tuple[CellAreas, TessellationStats]:
-    """Areas and exactness flags of the originals' cells; see the module docstring."""
-    tri = _triangulate(point_set, one_pixel_per_call)
-    stats = TessellationStats(qhull_calls=tri.calls)
-    total = len(point_set.points)
-    s = tri.simplices
-    geometry = _triangle_geometry(point_set.points, s)
-    areas = (np.bincount(s[:, 0], geometry.area_a, total)
-             + np.bincount(s[:, 1], geometry.area_b, total)
-             + np.bincount(s[:, 2], geometry.area_c, total))
+    """Areas and exactness flags of the originals' cells; see the module docstring.
 
-    # Points whose cell is not provably the cell of their own pixel's diagram.
-    suspect = np.zeros(total, bool)
-    suspect[tri.hull_vertices] = True
+    Each Qhull call's triangles are processed right after the call, while they are in cache.
+    """
+    stats = TessellationStats()
+    total = len(point_set.points)
+    areas = np.zeros(total)
+    suspect = np.zeros(total, bool)    # cell not provably that of the pixel's own diagram
+    outside = np.zeros(total, bool) if box is not None else None
+    failed_alone, failed_shared = [], []
+    for points, index, pixels in _call_layouts(point_set, one_pixel_per_call):
+        if len(points) == 0:
+            continue
+        stats.qhull_calls += 1
+        try:
+            tri = Delaunay(points, qhull_options=QHULL_OPTIONS)
+        except (QhullError, ValueError):
+            # Too few or collinear points: judged per pixel below.
+            (failed_alone if len(pixels) == 1 else failed_shared).append(pixels)
+            continue
+        local = _call_cells(tri, point_set, index, len(pixels) > 1, box)
+        areas[index], suspect[index] = local[0], local[1]
+        if outside is not None:
+            outside[index] = local[2]
+
+    # Pixels Qhull could not triangulate: redone alone if they shared the call; alone, every
+    # cell is unbounded (or it is an error if the set was not degenerate).
+    failed_alone = _concat_or_empty(failed_alone)
+    _mark_pixels(point_set, _concat_or_empty(failed_shared), suspect)
+    _mark_pixels(point_set, failed_alone, suspect)
+    _check_degenerate(point_set, failed_alone)
+    stats.degenerate_pixels += len(failed_alone)
+
+    t = point_set.original_count
+    bounded = ~suspect[:t]
+    cell_areas = np.where(bounded, areas[:t], np.nan)
+    inside = None if outside is None else bounded & ~outside[:t]
+    return CellAreas(cell_areas, bounded, inside), stats
+
+
+def _call_cells(tri: Delaunay, point_set: _PointSet, index: np.ndarray, multi_pixel: bool,
+                box: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Areas, suspect flags and outside-box flags of one Qhull call's points."""
+    count = len(index)
+    s = tri.simplices
+    geometry = _triangle_geometry(point_set.points[index], s)
+    areas = (np.bincount(s[:, 0], geometry.area_a, count)
+             + np.bincount(s[:, 1], geometry.area_b, count)
+             + np.bincount(s[:, 2], geometry.area_c, count))
+
+    suspect = np.zeros(count, bool)
+    rows, cols = np.nonzero(tri.neighbors == -1)     # hull edge: opposite vertex has no neighbour
+    suspect[s[rows, (cols + 1) % 3]] = True
+    suspect[s[rows, (cols + 2) % 3]] = True
     bad_triangle = ~np.isfinite(geometry.area_a + geometry.area_b + geometry.area_c)
-    if tri.multi_pixel:
-        pixel_of_vertex = point_set.pixel[s]
+    if multi_pixel:
+        pixel_of_vertex = point_set.pixel[index][s]
         bad_triangle |= ((pixel_of_vertex[:, 0] != pixel_of_vertex[:, 1])
                          | (pixel_of_vertex[:, 0] != pixel_of_vertex[:, 2]))
     if point_set.disc_box is not None:
@@ -398,30 +398,18 @@ def _cells(point_set: _PointSet, box: float | None,
 
     outside = None
     if box is not None:
-        outside = np.zeros(total, bool)
+        outside = np.zeros(count, bool)
         outside[s[_centre_outside_box(geometry, box)].ravel()] = True
 
     # Coincident points: the vertex Qhull kept and the points it dropped share the cell.
-    dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 1]
-    sharers = 1.0 + np.bincount(kept, minlength=total)
-    areas /= sharers
-    areas[dropped] = areas[kept]
-    suspect[dropped] = suspect[kept]
-    if outside is not None:
-        outside[dropped] = outside[kept]
-
-    # Pixels Qhull could not triangulate: redone alone if they shared the call; alone, every
-    # cell is unbounded (or it is an error if the set was not degenerate).
-    _mark_pixels(point_set, tri.failed_shared, suspect)
-    _mark_pixels(point_set, tri.failed_alone, suspect)
-    _check_degenerate(point_set, tri.failed_alone)
-    stats.degenerate_pixels += len(tri.failed_alone)
-
-    t = point_set.original_count
-    bounded = ~suspect[:t]
-    cell_areas = np.where(bounded, areas[:t], np.nan)
-    inside = None if outside is None else bounded & ~outside[:t]
-    return CellAreas(cell_areas, bounded, inside), stats
+    if len(tri.coplanar):
+        dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
+        areas /= 1.0 + np.bincount(kept, minlength=count)
+        areas[dropped] = areas[kept]
+        suspect[dropped] = suspect[kept]
+        if outside is not None:
+            outside[dropped] = outside[kept]
+    return areas, suspect, outside
 
 
 @dataclass(frozen=True)
