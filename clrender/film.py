@@ -1,0 +1,54 @@
+"""The film: one RGB estimate per pixel, with which pixels are done and which were flagged.
+
+Pixels are addressed by their global index y * width + x (row 0 at the top). A pixel is
+*flagged* when its estimate could not be trusted: one of its samples had a non-finite radiance
+(NaN or Inf), or the estimator returned a non-finite value. A flagged pixel holds the defined
+value FLAGGED_VALUE (black) rather than a NaN, and the film counts it, so the closing summary
+and the EXR metadata report it instead of a NaN sitting silently in the image. Pixels never
+rendered (an interrupted render) hold UNRENDERED_VALUE (black) and are not counted as rendered.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+FLAGGED_VALUE = 0.0
+UNRENDERED_VALUE = 0.0
+
+
+class Film:
+    def __init__(self, width: int, height: int):
+        self.width = width
+        self.height = height
+        self.pixels = np.full((width * height, 3), UNRENDERED_VALUE, np.float32)
+        self.rendered = np.zeros(width * height, bool)
+        self.flagged = np.zeros(width * height, bool)
+
+    @property
+    def pixel_count(self) -> int:
+        return self.width * self.height
+
+    @property
+    def rendered_count(self) -> int:
+        return int(np.count_nonzero(self.rendered))
+
+    @property
+    def flagged_count(self) -> int:
+        return int(np.count_nonzero(self.flagged))
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.rendered.all())
+
+    def record(self, pixels: np.ndarray, estimates: np.ndarray, flagged: np.ndarray) -> None:
+        """Store the (P, 3) estimates of global pixels; flagged ones, or any with a
+        non-finite estimate, get FLAGGED_VALUE and are marked flagged."""
+        estimates = np.asarray(estimates, np.float64).reshape(len(pixels), 3)
+        bad = np.asarray(flagged, bool) | ~np.isfinite(estimates).all(axis=1)
+        self.pixels[pixels] = np.where(bad[:, None], FLAGGED_VALUE, estimates)
+        self.flagged[pixels] = bad
+        self.rendered[pixels] = True
+
+    def image(self) -> np.ndarray:
+        """(height, width, 3) float32 linear RGB, row 0 at the top."""
+        return self.pixels.reshape(self.height, self.width, 3)

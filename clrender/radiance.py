@@ -1,0 +1,69 @@
+"""Radiance sources: what the pipeline asks for the radiance of each traced sample.
+
+A source takes a launch's sample sets (on the device) and returns a pending result; the
+pipeline collects it with `to_host()` once it needs the values, so a source backed by an
+OpenCL kernel runs while the host does other work. Two sources exist: the path tracer
+(`PathTracerSource`, clrender.trace) and closed-form images of known pixel integrals
+(`AnalyticSource`, clrender.analytic) used to check the estimators end to end.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from clrender.sampling import DeviceSampleSets
+from clrender.trace import PathTracer, TraceResult
+
+
+@dataclass
+class SampleRadiance:
+    """Radiance of a launch's traced samples, in sample order, with the launch's counts."""
+
+    values: np.ndarray  # (T, 3) float32
+    ray_count: int  # rays cast (0 for analytic sources)
+    device_nonfinite: int = 0  # non-finite samples the source counted (and may have zeroed)
+
+
+class PendingRadiance(Protocol):
+    def to_host(self) -> SampleRadiance:
+        """Wait for the source's work and return the radiance on the host."""
+        ...
+
+
+class RadianceSource(Protocol):
+    """Anything that turns sample positions into radiance values, for one image size."""
+
+    description: str
+    width: int
+    height: int
+
+    def trace(self, sample_sets: DeviceSampleSets, seed: int) -> PendingRadiance:
+        """Start computing the radiance of every traced sample of `sample_sets` (pixel
+        indices y * width + x)."""
+        ...
+
+
+@dataclass
+class PendingTrace:
+    result: TraceResult
+
+    def to_host(self) -> SampleRadiance:
+        values = self.result.to_host()
+        return SampleRadiance(values, self.result.rays, self.result.nonfinite)
+
+
+@dataclass
+class PathTracerSource:
+    """The path tracer as a radiance source (it zeroes non-finite radiance on the device and
+    only counts it)."""
+
+    tracer: PathTracer
+    width: int
+    height: int
+    description: str = "path tracer"
+
+    def trace(self, sample_sets: DeviceSampleSets, seed: int) -> PendingTrace:
+        return PendingTrace(self.tracer.trace(sample_sets, seed, self.width, self.height))
