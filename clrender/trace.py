@@ -6,7 +6,9 @@
     radiance = result.to_host()  # (T, 3) float32, in the order of sets' traced samples
 
 The integrator is a unidirectional path tracer with next event estimation and MIS (power
-heuristic) on emission only; max_depth counts scattering vertices (pbrt's convention, Mitsuba's
+heuristic) on emission only (next_event_estimation=False: BSDF sampling only, emission at full
+weight; for checks and profiling); Russian roulette (off by default) starts after the second
+vertex; max_depth counts scattering vertices (pbrt's convention, Mitsuba's
 max_depth minus 1). Each number a path uses depends only on (seed, pixel, sample, dimension,
 redraw), so radiance is bit-identical whatever the tiling. A non-finite radiance is stored as 0
 and counted in `TraceResult.nonfinite`: report it.
@@ -80,6 +82,7 @@ class PathTracer:
         scene: Scene,
         max_depth: int = 8,
         russian_roulette: bool = False,
+        next_event_estimation: bool = True,
     ):
         if (
             isinstance(max_depth, bool)
@@ -93,6 +96,7 @@ class PathTracer:
         self.scene = scene
         self.max_depth = int(max_depth)
         self.russian_roulette = bool(russian_roulette)
+        self.next_event_estimation = bool(next_event_estimation)
         self._buffers = {
             name: _upload(runtime, getattr(scene, name))
             for name in ("quads", "spheres", "materials", "emitters")
@@ -157,6 +161,7 @@ class PathTracer:
             np.uint32(width),
             np.uint32(height),
             np.int32(self.max_depth),
+            np.int32(self.next_event_estimation),
             np.int32(self.russian_roulette),
             np.float32(scene.ray_epsilon),
             sample_sets.positions,

@@ -66,7 +66,8 @@ inline float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame
 }
 
 // Radiance along one camera ray (pbrt-v4's PathIntegrator::Li, emitters as the only lights).
-inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_depth,
+// With nee = 0 paths find emitters by BSDF sampling only, and emission takes full weight.
+inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_depth, int nee,
                  int russian_roulette, uint seed, uint pixel, uint sample, uint redraw,
                  uint *rays)
 {
@@ -89,7 +90,7 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
         if (surface.emitter >= 0 && dot(surface.ng, wo) > 0.0f) {
             __global const Emitter *emitter = &scene->emitters[surface.emitter];
             float3 Le = vload3(0, emitter->radiance);
-            if (depth == 0 || specularBounce) {
+            if (depth == 0 || specularBounce || !nee) {
                 L += beta * Le;
             } else {
                 float light_pdfW = Light_PdfW(emitter, t, dot(surface.ng, wo));
@@ -115,7 +116,7 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
         float4 u_bsdf = rng_uniform4(seed, pixel, sample, 2u + 2u * (uint)depth, redraw);
 
         // Sample direct illumination from the emitters (skipped at specular vertices)
-        if (!BSDF_IsSpecular(material) && scene->emitter_count > 0u)
+        if (nee && !BSDF_IsSpecular(material) && scene->emitter_count > 0u)
             L += beta * SampleDirect(scene, &surface, frame, material, wo_local, u_light.xyz,
                                      rays);
 
@@ -145,7 +146,7 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
 
 // One work-item per traced sample: radiance (RGB float) to radiance[3 i .. 3 i + 2].
 __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
-                          uint image_height, int max_depth, int russian_roulette,
+                          uint image_height, int max_depth, int nee, int russian_roulette,
                           float ray_eps, __global const float2 *positions,
                           __global const uint *traced_offsets, __global const uint *pixels,
                           __global const uint *redraws, __global const Camera *camera,
@@ -172,8 +173,8 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     // Trace the camera ray's path
     uint rays = 0u;
     float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
-    float3 L = Li(&scene, vload3(0, camera->origin), dir, max_depth, russian_roulette, seed,
-                  pixel, sample, redraws[slot], &rays);
+    float3 L = Li(&scene, vload3(0, camera->origin), dir, max_depth, nee, russian_roulette,
+                  seed, pixel, sample, redraws[slot], &rays);
 
     // Store the radiance; a non-finite value is counted and stored as 0 (as pbrt does)
     if (!all(isfinite(L))) {

@@ -200,3 +200,31 @@ def test_parameters_are_checked(runtime, furnace):
     with pytest.raises(ParameterError, match="outside the 8 x 8 image"):
         tracer.trace(sets, 1, 8, 8)
     assert tracer.image_size(64, None) == (64, 64)
+
+
+@pytest.mark.parametrize("name", ["mitsuba-cbox", "cornell-box-glossy"])
+def test_nee_and_bsdf_sampling_alone_agree(runtime, name):
+    """MIS must not bias: paths that find the light by BSDF sampling only give the same image
+    mean. Bound: 4.5 combined standard errors per channel."""
+    scene = load_scene(name)
+    with_nee = PathTracer(runtime, scene, max_depth=3)
+    without = PathTracer(runtime, scene, max_depth=3, next_event_estimation=False)
+    a, _, _ = render(with_nee, "uniform", 16, 301, 32, 32)
+    b, _, _ = render(without, "uniform", 64, 302, 32, 32)
+    (mean_a, se_a), (mean_b, se_b) = mean_and_se(a), mean_and_se(b)
+    z = (mean_a - mean_b) / np.hypot(se_a, se_b)
+    assert np.all(np.abs(z) < 4.5), (mean_a, mean_b, z)
+    # NEE is the better estimator for a small light: lower per-sample deviation
+    assert np.all(a.std(axis=0) < b.std(axis=0))
+
+
+def test_russian_roulette_is_unbiased(runtime, furnace):
+    """Furnace at depth 8 with Russian roulette: same answer. Bound: 5 standard errors."""
+    tracer = PathTracer(runtime, furnace, max_depth=8, russian_roulette=True)
+    radiance, result, _ = render(tracer, "uniform", 16, 8, 16, 16)
+    plain = PathTracer(runtime, furnace, max_depth=8)
+    _, plain_result, _ = render(plain, "uniform", 16, 8, 16, 16)
+    mean, se = mean_and_se(radiance)
+    expected = (1.0 - FURNACE_ALBEDO**9) / (1.0 - FURNACE_ALBEDO)
+    assert np.all(np.abs(mean - expected) <= 5 * se), (mean, se)
+    assert result.rays < plain_result.rays
