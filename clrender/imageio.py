@@ -53,6 +53,12 @@ def check_writable(path: str | os.PathLike) -> Path:
     return path
 
 
+def current_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside `path`; on success it replaces `path`, on any error
@@ -61,6 +67,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     fd, temp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
     temp = Path(temp_name)
+    temp.chmod(0o666 & ~current_umask())  # mkstemp's 0600 would outlive the rename
     try:
         yield temp
         os.replace(temp, path)

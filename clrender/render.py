@@ -12,9 +12,11 @@ pyopencl, NumPy and Qhull release the GIL in their long calls, so wall time appr
 max(device, host) instead of their sum.
 
 Rejections: a pixel whose SPPP tessellation leaves a nucleus of W with an unbounded cell is
-redrawn: its sample set is generated again with the redraw number incremented (the same
-launch path as a tile, on a list of pixels), traced and estimated again, up to MAX_REDRAWS
-times; a pixel still rejected after that is flagged. Non-finite radiance: see clrender.film.
+redrawn through clrender.voronoi.estimate_with_redraw: its sample set is generated again with
+its redraw number incremented (the same launch path as a tile, on a list of pixels), traced
+and estimated again; after a few redraws the driver widens eps, and after its last round it
+falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
+Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
 Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only, and
 the estimator of a pixel sees only that pixel's samples, so the image is bit-identical
@@ -40,16 +42,20 @@ from clrender.estimators import PixelSamples, estimate, estimator_info
 from clrender.film import Film
 from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime
-from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets
+from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets, make_sampler
+from clrender.sppp import SpppBatch
+from clrender.voronoi import estimate_with_redraw
 
 DEFAULT_TILE_SAMPLES = 4_000_000
 # Split even small images into this many tiles (when tiles of MIN_TILE_PIXELS allow it), so
 # that the device and the host stage have something to overlap and progress moves.
 TARGET_TILE_COUNT = 16
 MIN_TILE_PIXELS = 256
-# A pixel is redrawn at most this many times; the paper bounds one draw's rejection
-# probability by alpha = 1e-3, so a pixel failing 4 draws in a row means something is off.
-MAX_REDRAWS = 4
+# The redraw schedule of estimate_with_redraw's defaults (3 redraws at the sampler's eps, then
+# a widening eps, 12 draws in all), counted from the tile's first draw, which the pipeline
+# makes itself: the driver starts at the first redraw.
+REDRAWS_BEFORE_ENLARGE = 3 - 1
+MAX_REDRAW_ROUNDS = 12 - 1
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -78,7 +84,8 @@ class RenderStats:
     host_seconds: float = 0.0  # estimator stage (Voronoi cells and sums)
     wall_seconds: float = 0.0
     redrawn_pixels: int = 0  # pixel redraws after a rejection (a pixel may count twice)
-    unresolved_pixels: int = 0  # still rejected after MAX_REDRAWS redraws: flagged
+    eps_enlargements: int = 0  # redraw rounds that needed a wider eps
+    unresolved_pixels: int = 0  # still rejected after every redraw: mc estimate of the last
     nonfinite_samples: int = 0  # NaN/Inf radiance, from the source's count or found on the host
     interrupted: bool = False
 
@@ -150,13 +157,14 @@ def plan_tiles(settings: RenderSettings) -> list[np.ndarray]:
 def trace_tile(
     runtime: Runtime,
     source: RadianceSource,
-    settings: RenderSettings,
+    sampler: SamplerConfig,
+    seed: int,
     pixels: np.ndarray,
     redraws: np.ndarray,
 ) -> TileSamples:
     """Device stage: draw the pixels' sample sets, get their radiance, bring both to the host."""
-    device_sets = generate_sample_sets(runtime, settings.sampler, settings.seed, pixels, redraws)
-    pending = source.trace(device_sets, settings.seed)
+    device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
+    pending = source.trace(device_sets, seed)
     sets = device_sets.to_host(runtime.queue)
     radiance = pending.to_host()
     return TileSamples(
@@ -206,10 +214,14 @@ class TilePipeline:
         self.settings = settings
         self.film = Film(settings.width, settings.height)
         self.stats = RenderStats()
+        self.in_flight: Future | None = None  # the estimate of the previous tile
 
-    def trace(self, pixels: np.ndarray, redraws: np.ndarray) -> TileSamples:
+    def trace(
+        self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
+    ) -> TileSamples:
         start = time.perf_counter()
-        tile = trace_tile(self.runtime, self.source, self.settings, pixels, redraws)
+        sampler = sampler or self.settings.sampler
+        tile = trace_tile(self.runtime, self.source, sampler, self.settings.seed, pixels, redraws)
         self.stats.device_seconds += time.perf_counter() - start
         self.stats.traced_samples += len(tile.radiance)
         self.stats.rays += tile.rays
@@ -230,40 +242,54 @@ class TilePipeline:
         )
 
     def finish(self, result: TileEstimate) -> None:
-        """Record a tile, redrawing its rejected pixels (on the calling thread) until accepted
-        or MAX_REDRAWS is reached; pixels still rejected are flagged."""
+        """Record a tile and redraw its rejected pixels (device work: on the main thread)."""
         self.record(result)
         rejected = result.needs_redraw
-        while rejected.any() and int(result.redraws[rejected].max()) < MAX_REDRAWS:
-            pixels, redraws = result.pixels[rejected], result.redraws[rejected] + 1
-            self.stats.redrawn_pixels += len(pixels)
-            result = self.estimate(self.trace(pixels, redraws))
-            self.record(result)
-            rejected = result.needs_redraw
         if rejected.any():
-            self.stats.unresolved_pixels += int(rejected.sum())
-            pixels = result.pixels[rejected]
-            self.film.record(pixels, np.full((len(pixels), 3), np.nan), np.ones(len(pixels), bool))
+            self.redraw(result.pixels[rejected], result.redraws[rejected])
+
+    def redraw(self, pixels: np.ndarray, redraws: np.ndarray) -> None:
+        """Estimate rejected pixels again from new draws, through the bounded redraw driver.
+        Non-finite radiance is left in: it makes the pixel's estimate non-finite, which the
+        film flags."""
+        start = time.perf_counter()
+        device_before = self.stats.device_seconds
+        draws = PixelRedraws(self, pixels, redraws)
+        sampler = self.settings.sampler
+        outcome = estimate_with_redraw(
+            self.settings.estimator, draws.draw, draws.values, len(pixels), sampler.n,
+            eps=sampler.eps, alpha=sampler.alpha, redraws_before_enlarge=REDRAWS_BEFORE_ENLARGE,
+            max_rounds=MAX_REDRAW_ROUNDS, on_exhausted="mc",
+        )  # fmt: skip
+        estimates = outcome.estimates[self.settings.estimator].reshape(len(pixels), 3)
+        self.film.record(pixels, estimates, np.zeros(len(pixels), bool))
+        self.stats.redrawn_pixels += outcome.stats.redraws + len(pixels)
+        self.stats.eps_enlargements += outcome.stats.eps_enlargements
+        self.stats.unresolved_pixels += outcome.stats.exhausted_pixels
+        device = self.stats.device_seconds - device_before
+        self.stats.host_seconds += time.perf_counter() - start - device
 
     def run(self, tiles: list[np.ndarray], progress: ProgressCallback | None) -> None:
         """Trace tile k + 1 while tile k is estimated (on a worker thread if overlapping)."""
         self.stats.tiles = len(tiles)
-        in_flight: Future | None = None
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
                 for pixels in tiles:
                     tile = self.trace(pixels, np.zeros(len(pixels), np.uint32))
-                    if in_flight is not None:
-                        self.finish(in_flight.result())
-                        self.report(progress)
-                    in_flight = self.start_estimate(pool, tile)
-                if in_flight is not None:
-                    self.finish(in_flight.result())
-                    self.report(progress)
+                    self.finish_in_flight(progress)
+                    self.in_flight = self.start_estimate(pool, tile)
+                self.finish_in_flight(progress)
             except KeyboardInterrupt:
                 self.stats.interrupted = True
-                if in_flight is not None and not in_flight.cancel():
-                    self.record(in_flight.result())  # finished work is kept, redraws are not
+                if self.in_flight is not None and not self.in_flight.cancel():
+                    self.record(self.in_flight.result())  # finished work is kept, not redrawn
+                self.in_flight = None
+
+    def finish_in_flight(self, progress: ProgressCallback | None) -> None:
+        if self.in_flight is not None:
+            done, self.in_flight = self.in_flight, None
+            self.finish(done.result())
+            self.report(progress)
 
     def start_estimate(self, pool: ThreadPoolExecutor, tile: TileSamples) -> Future:
         if self.settings.overlap:
@@ -275,6 +301,38 @@ class TilePipeline:
     def report(self, progress: ProgressCallback | None) -> None:
         if progress is not None:
             progress(self.film.rendered_count, self.film.pixel_count)
+
+
+class PixelRedraws:
+    """draw_fn and values_fn of estimate_with_redraw for a list of rejected pixels: each draw
+    increments the drawn pixels' redraw numbers and traces them like a tile."""
+
+    def __init__(self, pipeline: TilePipeline, pixels: np.ndarray, redraws: np.ndarray):
+        self.pipeline = pipeline
+        self.pixels = pixels
+        self.redraws = redraws.astype(np.uint32)
+        self.radiance = np.empty((0, 3))
+
+    def draw(self, ids: np.ndarray, eps: float) -> SpppBatch:
+        self.redraws[ids] += 1
+        config = self.pipeline.settings.sampler
+        sampler = make_sampler(config.name, config.n, config.alpha, eps)
+        tile = self.pipeline.trace(self.pixels[ids], self.redraws[ids], sampler)
+        self.pipeline.stats.nonfinite_samples += tile.source_nonfinite + int(
+            np.count_nonzero(~np.isfinite(tile.radiance).all(axis=1))
+        )
+        self.radiance = tile.radiance.astype(np.float64)
+        sets = tile.sets
+        return SpppBatch(
+            sets.traced.astype(np.float64),
+            sets.offsets,
+            sets.aux.astype(np.float64),
+            sets.aux_offsets,
+            eps,
+        )
+
+    def values(self, batch: SpppBatch, ids: np.ndarray) -> np.ndarray:
+        return self.radiance
 
 
 def render(
