@@ -147,71 +147,83 @@ def generate_sample_sets(
     redraws: np.ndarray | None = None,
 ) -> DeviceSampleSets:
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill)."""
-    check_seed(seed)
-    pixels = np.ascontiguousarray(pixels, np.uint32)
-    redraws = (
-        np.zeros(len(pixels), np.uint32)
-        if redraws is None
-        else np.ascontiguousarray(redraws, np.uint32)
-    )
-    ctx, queue = runtime.context, runtime.queue
-    mf = cl.mem_flags
-    pixel_count = len(pixels)
-    pixels_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=pixels)
-    redraws_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=redraws)
-    counts = _count_samples(runtime, config, seed, pixels_buf, redraws_buf, pixel_count)
+    pixels, redraws = _check_launch(seed, pixels, redraws)
+    pixels_buf, redraws_buf = _upload(runtime, pixels), _upload(runtime, redraws)
+    counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     if offsets[-1] >= 2**32:
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
-    offsets_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=offsets.astype(np.uint32))
-    total = int(offsets[-1]) + config.n_aux * pixel_count
-    positions = cl.Buffer(ctx, mf.READ_WRITE, size=max(8, 8 * total))
-    fill = runtime.kernel("sampling.cl", "fill_samples")
-    fill(
-        queue,
-        (padded_global_size(total),),
-        (runtime.local_size,),
-        np.uint32(pixel_count),
-        np.uint32(seed),
-        np.int32(SAMPLERS[config.name]),
-        np.uint32(config.strata),
-        np.float32(config.eps),
-        np.uint32(config.n_aux),
-        np.uint32(offsets[-1]),
-        pixels_buf,
-        redraws_buf,
-        offsets_buf,
-        positions,
-    )
+    offsets_buf = _upload(runtime, offsets.astype(np.uint32))
+    total = int(offsets[-1]) + config.n_aux * len(pixels)
+    positions = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, size=max(8, 8 * total))
+    _launch_fill(runtime, config, seed, pixels_buf, redraws_buf, offsets_buf, positions,
+                 len(pixels), int(offsets[-1]))  # fmt: skip
     return DeviceSampleSets(config, pixels, redraws, offsets, positions, offsets_buf)
 
 
-def _count_samples(
+def _launch_fill(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,
+                 redraws_buf: cl.Buffer, offsets_buf: cl.Buffer, positions: cl.Buffer,
+                 pixel_count: int, traced_total: int) -> None:  # fmt: skip
+    queue, local = runtime.queue, (runtime.local_size,)
+    search_span = 1 << (pixel_count.bit_length() - 1) if pixel_count else 0
+    if traced_total:
+        fill = runtime.kernel("sampling.cl", "fill_traced")
+        fill(queue, (padded_global_size(traced_total),), local, np.uint32(pixel_count),
+             np.uint32(search_span), np.uint32(seed), np.int32(SAMPLERS[config.name]),
+             np.uint32(config.n), np.uint32(config.strata), np.uint32(traced_total), pixels_buf, redraws_buf,
+             offsets_buf, positions)  # fmt: skip
+    if config.n_aux and pixel_count:
+        fill = runtime.kernel("sampling.cl", "fill_auxiliary")
+        fill(queue, (padded_global_size(config.n_aux * pixel_count),), local,
+             np.uint32(pixel_count), np.uint32(seed), np.float32(config.eps),
+             np.uint32(config.n_aux), np.uint32(traced_total), pixels_buf, redraws_buf,
+             positions)  # fmt: skip
+
+
+def count_samples(
     runtime: Runtime,
     config: SamplerConfig,
     seed: int,
-    pixels_buf: cl.Buffer,
-    redraws_buf: cl.Buffer,
-    pixel_count: int,
+    pixels: np.ndarray,
+    redraws: np.ndarray | None = None,
 ) -> np.ndarray:
-    counts_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=4 * pixel_count)
+    """Only the first pass: each pixel's number of traced samples (N ~ Poisson(n) for SPPP)."""
+    pixels, redraws = _check_launch(seed, pixels, redraws)
+    return _launch_count(runtime, config, seed, _upload(runtime, pixels),
+                         _upload(runtime, redraws), len(pixels))  # fmt: skip
+
+
+def _launch_count(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,
+                  redraws_buf: cl.Buffer, pixel_count: int) -> np.ndarray:  # fmt: skip
+    counts_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=max(4, 4 * pixel_count))
     count = runtime.kernel("sampling.cl", "count_samples")
-    count(
-        runtime.queue,
-        (padded_global_size(pixel_count),),
-        (runtime.local_size,),
-        np.uint32(pixel_count),
-        np.uint32(seed),
-        np.int32(SAMPLERS[config.name]),
-        np.uint32(config.n),
-        np.float32(config.n),
-        pixels_buf,
-        redraws_buf,
-        counts_buf,
-    )
+    count(runtime.queue, (padded_global_size(pixel_count),), (runtime.local_size,),
+          np.uint32(pixel_count), np.uint32(seed), np.int32(SAMPLERS[config.name]),
+          np.uint32(config.n), np.float32(config.n), pixels_buf, redraws_buf,
+          counts_buf)  # fmt: skip
     counts = np.empty(pixel_count, np.uint32)
     cl.enqueue_copy(runtime.queue, counts, counts_buf)
     return counts
+
+
+def _upload(runtime: Runtime, array: np.ndarray) -> cl.Buffer:
+    flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    if array.nbytes == 0:
+        return cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY, size=4)
+    return cl.Buffer(runtime.context, flags, hostbuf=array)
+
+
+def _check_launch(seed: int, pixels: np.ndarray, redraws: np.ndarray | None
+                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    check_seed(seed)
+    pixels = np.ascontiguousarray(pixels, np.uint32)
+    if redraws is None:
+        return pixels, np.zeros(len(pixels), np.uint32)
+    redraws = np.ascontiguousarray(redraws, np.uint32)
+    if redraws.shape != pixels.shape:
+        raise ParameterError(f"redraws must match pixels in shape, got {redraws.shape} "
+                             f"and {pixels.shape}")  # fmt: skip
+    return pixels, redraws
 
 
 def check_seed(seed: int) -> None:

@@ -4,7 +4,7 @@
 // given by its global index and its redraw number. Two passes:
 //   count_samples: how many traced samples each pixel gets (n, or N ~ Poisson(n) for SPPP);
 //   (the host turns the counts into offsets with a prefix sum)
-//   fill_samples:  one work-item per output slot writes one position.
+//   fill_traced, fill_auxiliary: one work-item per output slot writes one position.
 // Output layout, one contiguous float2 buffer: all traced samples, pixel by pixel
 // (traced_offsets), then all auxiliary nuclei, pixel by pixel (n_aux each). Auxiliary nuclei are
 // never traced; they only shape Voronoi cells.
@@ -24,16 +24,16 @@ __kernel void count_samples(uint pixel_count, uint seed, int sampler, uint n, fl
     counts[p] = sampler == SAMPLER_SPPP ? poisson_sample(mean, seed, pixels[p], redraws[p]) : n;
 }
 
-// The pixel whose [offsets[p], offsets[p+1]) range holds slot i (binary search).
-inline uint owner_pixel(__global const uint *offsets, uint pixel_count, uint i)
+// The pixel whose [offsets[p], offsets[p+1]) range holds slot i: a binary search with the same
+// number of steps for every work-item (search_span = the largest power of two <= pixel_count),
+// so PoCL can still vectorise across work-items.
+inline uint owner_pixel(__global const uint *offsets, uint pixel_count, uint search_span, uint i)
 {
-    uint lo = 0u, hi = pixel_count;
-    while (hi - lo > 1u) {
-        uint mid = (lo + hi) / 2u;
-        if (offsets[mid] <= i)
+    uint lo = 0u;
+    for (uint step = search_span; step > 0u; step >>= 1) {
+        uint mid = lo + step;
+        if (mid < pixel_count && offsets[mid] <= i)
             lo = mid;
-        else
-            hi = mid;
     }
     return lo;
 }
@@ -48,40 +48,32 @@ inline float2 stratified_position(uint s, uint strata, float2 jitter)
 
 // A point uniform by area over the strip W' \ W: top and bottom rectangles (1 + 2 eps) x eps
 // hold the corners, left and right rectangles are 1 x eps; one is picked in proportion to area.
+// Written with selects, not branches: PoCL vectorises it across work-items (3x faster).
 inline float2 strip_position(float eps, float4 u)
 {
     float long_side = 1.0f + 2.0f * eps;
     float area_tb = long_side * eps;
     float pick = u.x * (2.0f * area_tb + 2.0f * eps);
-    float along = u.y;
-    float across = u.z * eps;
-    if (pick < area_tb)
-        return (float2)(-0.5f - eps + along * long_side, -0.5f - across);
-    if (pick < 2.0f * area_tb)
-        return (float2)(-0.5f - eps + along * long_side, 0.5f + across);
-    if (pick < 2.0f * area_tb + eps)
-        return (float2)(-0.5f - across, -0.5f + along);
-    return (float2)(0.5f + across, -0.5f + along);
+    bool top_or_bottom = pick < 2.0f * area_tb;
+    bool negative_side = top_or_bottom ? pick < area_tb : pick < 2.0f * area_tb + eps;
+    float outward = (negative_side ? -1.0f : 1.0f) * (0.5f + u.z * eps);
+    float2 on_top_or_bottom = (float2)(-0.5f - eps + u.y * long_side, outward);
+    float2 on_left_or_right = (float2)(outward, -0.5f + u.y);
+    return top_or_bottom ? on_top_or_bottom : on_left_or_right;
 }
 
-__kernel void fill_samples(uint pixel_count, uint seed, int sampler, uint strata, float eps,
-                           uint n_aux, uint traced_total, __global const uint *pixels,
-                           __global const uint *redraws, __global const uint *traced_offsets,
-                           __global float2 *positions)
+// Traced sample s of pixel p: dimension 0 of its stream is its position.
+__kernel void fill_traced(uint pixel_count, uint search_span, uint seed, int sampler,
+                          uint fixed_count, uint strata, uint traced_total, __global const uint *pixels,
+                          __global const uint *redraws, __global const uint *traced_offsets,
+                          __global float2 *positions)
 {
     uint i = get_global_id(0);
-    if (i >= traced_total + n_aux * pixel_count)
+    if (i >= traced_total)
         return;
-    // Auxiliary nucleus j of pixel p: its own sample index range, so it never shares numbers.
-    if (i >= traced_total) {
-        uint p = (i - traced_total) / n_aux;
-        uint j = (i - traced_total) % n_aux;
-        float4 u = rng_uniform4(seed, pixels[p], RNG_AUX_BASE + j, 0u, redraws[p]);
-        positions[i] = strip_position(eps, u);
-        return;
-    }
-    // Traced sample s of pixel p: dimension 0 of its stream is its position.
-    uint p = owner_pixel(traced_offsets, pixel_count, i);
+    // Fixed-count samplers find the pixel by a division, SPPP by searching the offsets.
+    uint p = sampler == SAMPLER_SPPP ? owner_pixel(traced_offsets, pixel_count, search_span, i)
+                                     : i / fixed_count;
     uint s = i - traced_offsets[p];
     if (sampler == SAMPLER_STRATIFIED) {
         float4 u = rng_uniform4(seed, pixels[p], s, 0u, redraws[p]);
@@ -89,4 +81,19 @@ __kernel void fill_samples(uint pixel_count, uint seed, int sampler, uint strata
     } else {
         positions[i] = rng_centered2(seed, pixels[p], s, 0u, redraws[p]);
     }
+}
+
+// Auxiliary nucleus j of pixel p, written after all traced samples; its sample index range is
+// its own, so it never shares random numbers with a traced sample.
+__kernel void fill_auxiliary(uint pixel_count, uint seed, float eps, uint n_aux,
+                             uint traced_total, __global const uint *pixels,
+                             __global const uint *redraws, __global float2 *positions)
+{
+    uint i = get_global_id(0);
+    if (i >= n_aux * pixel_count)
+        return;
+    uint p = i / n_aux;
+    uint j = i - p * n_aux;
+    float4 u = rng_uniform4(seed, pixels[p], RNG_AUX_BASE + j, 0u, redraws[p]);
+    positions[traced_total + i] = strip_position(eps, u);
 }

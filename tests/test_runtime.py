@@ -1,0 +1,130 @@
+"""OpenCL runtime: device selection without prompts, clear errors, program building."""
+
+import importlib.util
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pyopencl as cl
+import pytest
+
+from clrender import runtime as rt
+from clrender.errors import DeviceError, KernelBuildError
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_first_device_by_default(monkeypatch):
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    assert rt.select_device() == rt.list_devices()[0]
+
+
+def test_device_by_index_and_by_name_substring():
+    first = rt.list_devices()[0]
+    assert rt.select_device("0") == first
+    fragment = first.name.strip().split()[-1][:4].lower()
+    assert rt.select_device(fragment) == first
+
+
+def test_unknown_device_lists_the_accepted_ones():
+    with pytest.raises(DeviceError) as err:
+        rt.select_device("no-such-device-xyz")
+    assert "--device" in str(err.value) and "accepted: 0:" in str(err.value)
+    with pytest.raises(DeviceError):
+        rt.select_device("999")
+
+
+@pytest.mark.parametrize("spec", ["0", "0:0", ":0"])
+def test_pyopencl_ctx_is_honoured(monkeypatch, spec):
+    monkeypatch.setenv("PYOPENCL_CTX", spec)
+    assert rt.select_device() == rt.list_devices()[0]
+
+
+def test_explicit_device_wins_over_pyopencl_ctx(monkeypatch):
+    monkeypatch.setenv("PYOPENCL_CTX", "no-such-platform")
+    assert rt.select_device("0") == rt.list_devices()[0]
+    with pytest.raises(DeviceError, match="PYOPENCL_CTX platform"):
+        rt.select_device()
+
+
+def test_no_platform_says_what_to_install(monkeypatch):
+    def no_platforms():
+        raise cl.LogicError("clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR")
+
+    monkeypatch.setattr(cl, "get_platforms", no_platforms)
+    with pytest.raises(DeviceError, match=r'pip install "pyopencl\[pocl\]"'):
+        rt.list_devices()
+    monkeypatch.setattr(cl, "get_platforms", lambda: [])
+    with pytest.raises(DeviceError, match="no OpenCL platform"):
+        rt.list_devices()
+
+
+def test_build_failure_carries_the_compiler_log_with_file_and_line(runtime, tmp_path, monkeypatch):
+    (tmp_path / "broken.cl").write_text(
+        "// a kernel with a type error on line 3\n"
+        "__kernel void broken(__global float *out) {\n"
+        "    out[0] = undefined_symbol;\n"
+        "}\n"
+    )
+    monkeypatch.setattr(rt, "kernels_dir", lambda: tmp_path)
+    with pytest.raises(KernelBuildError) as err:
+        runtime.build("broken.cl")
+    message = str(err.value)
+    assert f"{tmp_path / 'broken.cl'}:3:" in message
+    assert "undefined_symbol" in message
+
+
+def test_defines_reach_the_kernel_as_compile_time_constants(runtime, tmp_path, monkeypatch):
+    (tmp_path / "defs.cl").write_text(
+        "__kernel void defs(__global float *out) { out[0] = SCALE * (float)COUNT; }\n"
+    )
+    monkeypatch.setattr(rt, "kernels_dir", lambda: tmp_path)
+    import numpy as np
+
+    out = np.zeros(1, np.float32)
+    buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=4)
+    runtime.kernel("defs.cl", "defs", {"SCALE": 0.5, "COUNT": 6})(runtime.queue, (1,), None, buf)
+    cl.enqueue_copy(runtime.queue, out, buf)
+    assert out[0] == 3.0
+
+
+def test_programs_are_built_once_per_process(runtime):
+    assert runtime.build("sampling.cl") is runtime.build("sampling.cl")
+    assert runtime.kernel("sampling.cl", "fill_traced") is runtime.kernel(
+        "sampling.cl", "fill_traced"
+    )
+
+
+@pytest.mark.parametrize("count, padded", [(1, 64), (64, 64), (65, 128), (0, 64), (1000, 1024)])
+def test_global_sizes_are_padded_to_the_local_size(count, padded):
+    assert rt.padded_global_size(count) == padded
+
+
+def test_kernels_are_found_from_the_source_checkout():
+    assert (rt.kernels_dir() / "rng.h").is_file()
+
+
+def test_an_installed_wheel_carries_the_kernels(tmp_path):
+    """Build the wheel, unpack it elsewhere and import clrender from there: kernels/ must be
+    found inside the package, whatever the current directory."""
+    if importlib.util.find_spec("hatchling") is None:
+        pytest.skip("hatchling is not installed (it comes with the test extras)")
+    build = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+         "-w", str(tmp_path), str(REPO)],
+        capture_output=True, text=True,
+    )  # fmt: skip
+    assert build.returncode == 0, build.stderr
+    wheel = next(tmp_path.glob("clrender-*.whl"))
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    assert (site / "clrender" / "kernels" / "sampling.cl").is_file()
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    probe = subprocess.run(
+        [sys.executable, "-c", "import clrender.runtime as r; print(r.kernels_dir())"],
+        capture_output=True, text=True, cwd=tmp_path, env=env,
+    )  # fmt: skip
+    assert probe.returncode == 0, probe.stderr
+    assert Path(probe.stdout.strip()) == site / "clrender" / "kernels"

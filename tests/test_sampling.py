@@ -1,0 +1,234 @@
+"""Per-pixel sample sets drawn on the device: distributions, layout, determinism, errors.
+
+Statistical tests use fixed seeds, so each outcome is deterministic; thresholds are stated
+where they are used (chi-square p-values above 1e-3, means within 4 standard errors).
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from clrender import rng
+from clrender.errors import ParameterError
+from clrender.sampling import (
+    count_samples,
+    generate_sample_sets,
+    make_sampler,
+    tile_pixels,
+)
+from clrender.sppp import auxiliary_count, rejection_bound, sppp_eps
+
+P_MIN = 1e-3  # smallest accepted chi-square / KS p-value (fixed seeds: deterministic outcomes)
+
+
+def host_sets(runtime, config, seed, pixels, redraws=None):
+    return generate_sample_sets(runtime, config, seed, pixels, redraws).to_host(runtime.queue)
+
+
+def poisson_chi_square(counts, mean):
+    """Chi-square of observed counts against the Poisson(mean) pmf, tail bins merged so
+    every expected count is at least 5."""
+    lo, hi = int(stats.poisson.ppf(1e-7, mean)), int(stats.poisson.ppf(1 - 1e-7, mean)) + 1
+    edges = np.arange(lo, hi + 1)
+    observed = np.array([np.sum(counts < lo)] + [np.sum(counts == k) for k in edges[:-1]]
+                        + [np.sum(counts >= hi)])  # fmt: skip
+    probs = np.concatenate([[stats.poisson.cdf(lo - 1, mean)], stats.poisson.pmf(edges[:-1], mean),
+                            [stats.poisson.sf(hi - 1, mean)]])  # fmt: skip
+    expected = probs * len(counts)
+    observed, expected = merge_small_bins(observed, expected)
+    chi2 = np.sum((observed - expected) ** 2 / expected)
+    return stats.chi2.sf(chi2, len(observed) - 1)
+
+
+def merge_small_bins(observed, expected, minimum=5.0):
+    merged_obs, merged_exp, acc_obs, acc_exp = [], [], 0.0, 0.0
+    for obs, exp in zip(observed, expected, strict=True):
+        acc_obs, acc_exp = acc_obs + obs, acc_exp + exp
+        if acc_exp >= minimum:
+            merged_obs.append(acc_obs)
+            merged_exp.append(acc_exp)
+            acc_obs, acc_exp = 0.0, 0.0
+    merged_obs[-1] += acc_obs
+    merged_exp[-1] += acc_exp
+    return np.array(merged_obs), np.array(merged_exp)
+
+
+@pytest.mark.parametrize("n", [1, 9, 10, 16, 256, 4096])
+def test_poisson_counts_follow_the_pmf(runtime, n):
+    pixels = np.arange(200_000, dtype=np.uint32)
+    counts = count_samples(runtime, make_sampler("sppp", n), 11, pixels).astype(np.float64)
+    assert poisson_chi_square(counts, n) > P_MIN
+    # Mean and variance within 4 standard errors (Var of the sample variance ~ (n + 2 n^2)/M).
+    assert abs(counts.mean() - n) < 4 * math.sqrt(n / len(counts))
+    assert abs(counts.var() - n) < 4 * math.sqrt((n + 2 * n * n) / len(counts))
+
+
+def test_poisson_counts_at_a_large_mean(runtime):
+    n = 65_536
+    counts = count_samples(runtime, make_sampler("sppp", n), 5, np.arange(100_000)).astype(float)
+    assert poisson_chi_square(counts, n) > P_MIN
+    assert abs(counts.mean() - n) < 4 * math.sqrt(n / len(counts))
+
+
+@pytest.mark.parametrize("sampler", ["uniform", "stratified"])
+def test_fixed_count_samplers_draw_exactly_n(runtime, sampler):
+    sets = host_sets(runtime, make_sampler(sampler, 16), 3, np.arange(500))
+    assert np.all(sets.counts() == 16)
+    assert len(sets.aux) == 0
+
+
+def test_uniform_positions_equal_the_numpy_reference(runtime):
+    pixels = np.array([0, 7, 1000, 65535], np.uint32)
+    sets = host_sets(runtime, make_sampler("uniform", 64), 99, pixels, np.array([0, 1, 2, 3]))
+    pixel_of = np.repeat(pixels, 64)
+    redraw_of = np.repeat([0, 1, 2, 3], 64)
+    sample = np.tile(np.arange(64), 4)
+    np.testing.assert_array_equal(sets.traced, rng.centered2(99, pixel_of, sample, 0, redraw_of))
+
+
+def test_stratified_positions_match_the_numpy_reference_one_per_stratum(runtime):
+    m = 8
+    sets = host_sets(runtime, make_sampler("stratified", m * m), 4, np.arange(50))
+    u = rng.uniform4(4, np.repeat(np.arange(50), m * m), np.tile(np.arange(m * m), 50), 0)
+    s = np.tile(np.arange(m * m), 50)
+    cell = np.column_stack([s % m, s // m]).astype(np.float32)
+    reference = (cell + u[:, :2]) / np.float32(m) - np.float32(0.5)
+    np.testing.assert_allclose(sets.traced, reference, atol=1e-6)
+    strata = np.floor((sets.traced.astype(np.float64) + 0.5) * m).astype(int)
+    np.testing.assert_array_equal(strata[:, 0] + m * strata[:, 1], s)
+
+
+@pytest.mark.parametrize("sampler, n", [("uniform", 64), ("sppp", 64), ("stratified", 64)])
+def test_positions_are_uniform_in_the_pixel(runtime, sampler, n):
+    sets = host_sets(runtime, make_sampler(sampler, n), 21, np.arange(2048))
+    xy = sets.traced.astype(np.float64)
+    assert np.all(np.abs(xy) < 0.5), "traced samples lie strictly inside W"
+    grid = 10  # 10 x 10 cells: not aligned with the 8 x 8 strata
+    cells = np.floor((xy + 0.5) * grid).astype(int)
+    observed = np.bincount(cells[:, 0] + grid * cells[:, 1], minlength=grid * grid)
+    assert stats.chisquare(observed).pvalue > P_MIN
+    for axis in range(2):
+        assert stats.kstest(xy[:, axis] + 0.5, "uniform").pvalue > P_MIN
+
+
+def strip_region(points, eps):
+    """Index of the strip region holding each point: 4 corners (eps x eps, ids 0-3), then each
+    of the 4 edges cut into 4 pieces of 1/4 x eps (ids 4-19); with the region areas."""
+    x, y = points[:, 0], points[:, 1]
+    out_x, out_y = np.abs(x) >= 0.5, np.abs(y) >= 0.5
+    corner = out_x & out_y
+    ids = np.full(len(points), -1)
+    ids[corner] = (x[corner] > 0) + 2 * (y[corner] > 0)
+    horizontal = out_y & ~out_x  # top and bottom edges, cut along x
+    piece_x = np.minimum(np.floor((x + 0.5) * 4), 3).astype(int)
+    ids[horizontal] = 4 + 4 * (y[horizontal] > 0) + piece_x[horizontal]
+    vertical = out_x & ~out_y
+    piece_y = np.minimum(np.floor((y + 0.5) * 4), 3).astype(int)
+    ids[vertical] = 12 + 4 * (x[vertical] > 0) + piece_y[vertical]
+    areas = np.concatenate([np.full(4, eps * eps), np.full(16, eps / 4)])
+    return ids, areas
+
+
+@pytest.mark.parametrize("n", [16, 256])
+def test_auxiliary_nuclei_are_uniform_by_area_over_the_strip(runtime, n):
+    config = make_sampler("sppp", n)
+    sets = host_sets(runtime, config, 8, np.arange(4096))
+    aux = sets.aux.astype(np.float64)
+    assert len(aux) == config.n_aux * 4096
+    reach = 0.5 + config.eps + 1e-6
+    assert np.all(np.max(np.abs(aux), axis=1) >= 0.5), "auxiliary nuclei never fall inside W"
+    assert np.all(np.abs(aux) <= reach), "auxiliary nuclei stay inside W'"
+    ids, areas = strip_region(aux, config.eps)
+    observed = np.bincount(ids, minlength=20)
+    expected = areas / areas.sum() * len(aux)
+    assert stats.chisquare(observed, expected).pvalue > P_MIN
+    # The corners get the same density as the edges (the authors' renderer doubles it).
+    corner_density = observed[:4].sum() / expected[:4].sum()
+    assert abs(corner_density - 1.0) < 4 / math.sqrt(expected[:4].sum())
+
+
+@pytest.mark.parametrize(
+    "n, expected",
+    [(64, 0.2747), (256, 0.1439), (1024, 0.07506), (4096, 0.03901), (10_000, 0.02556)],
+)
+def test_eps_values(n, expected):
+    eps = sppp_eps(n)
+    assert eps == pytest.approx(expected, rel=1e-3)
+    assert rejection_bound(n, eps) == pytest.approx(1e-3, rel=1e-9)
+    assert math.pi * n * eps * eps > 1.0, "the decreasing branch of the bound"
+    assert auxiliary_count(n, eps) == math.floor(n * (4 * eps + 4 * eps * eps))
+
+
+def test_eps_follows_alpha():
+    assert sppp_eps(256, 1e-6) > sppp_eps(256, 1e-3) > sppp_eps(256, 0.5)
+
+
+@pytest.mark.parametrize("sampler, n", [("uniform", 9), ("stratified", 9), ("sppp", 9),
+                                        ("sppp", 300)])  # fmt: skip
+def test_sample_sets_do_not_depend_on_the_tiling(runtime, sampler, n):
+    width, height = 13, 10
+    config = make_sampler(sampler, n)
+    whole = host_sets(runtime, config, 5, tile_pixels(width, 0, 0, width, height))
+    by_pixel = split_by_pixel(whole, tile_pixels(width, 0, 0, width, height))
+    for tile_w, tile_h in [(4, 3), (1, 1), (13, 1), (6, 10)]:
+        for y0 in range(0, height, tile_h):
+            for x0 in range(0, width, tile_w):
+                tw, th = min(tile_w, width - x0), min(tile_h, height - y0)
+                pixels = tile_pixels(width, x0, y0, tw, th)
+                tile = split_by_pixel(host_sets(runtime, config, 5, pixels), pixels)
+                for pixel, (traced, aux) in tile.items():
+                    np.testing.assert_array_equal(traced, by_pixel[pixel][0])
+                    np.testing.assert_array_equal(aux, by_pixel[pixel][1])
+
+
+def split_by_pixel(sets, pixels):
+    return {int(p): (sets.traced[sets.offsets[i]:sets.offsets[i + 1]],
+                     sets.aux[sets.aux_offsets[i]:sets.aux_offsets[i + 1]])
+            for i, p in enumerate(pixels)}  # fmt: skip
+
+
+def test_a_redraw_changes_only_the_redrawn_pixel(runtime):
+    config = make_sampler("sppp", 64)
+    pixels = np.arange(4, dtype=np.uint32)
+    first = split_by_pixel(host_sets(runtime, config, 1, pixels), pixels)
+    again = split_by_pixel(host_sets(runtime, config, 1, pixels, np.array([0, 1, 0, 0])), pixels)
+    for p in (0, 2, 3):
+        np.testing.assert_array_equal(first[p][0], again[p][0])
+    assert len(first[1][0]) != len(again[1][0]) or not np.array_equal(first[1][0], again[1][0])
+
+
+def test_different_seeds_give_different_sets(runtime):
+    config = make_sampler("uniform", 16)
+    a = host_sets(runtime, config, 1, np.arange(4))
+    b = host_sets(runtime, config, 2, np.arange(4))
+    assert not np.array_equal(a.traced, b.traced)
+
+
+@pytest.mark.parametrize("kwargs, names", [
+    (dict(name="sobol", n=16), ["sampler", "uniform, stratified, sppp"]),
+    (dict(name="uniform", n=0), ["n (samples per pixel)", "positive"]),
+    (dict(name="sppp", n=-4), ["n (samples per pixel)"]),
+    (dict(name="uniform", n=2.5), ["n (samples per pixel)", "integer"]),
+    (dict(name="stratified", n=10), ["perfect square", "9 or 16"]),
+    (dict(name="sppp", n=64, alpha=0.0), ["alpha", "(0, 1)"]),
+    (dict(name="sppp", n=64, alpha=1.5), ["alpha", "(0, 1)"]),
+    (dict(name="sppp", n=64, eps=-1.0), ["eps"]),
+])  # fmt: skip
+def test_bad_sampler_parameters_name_the_parameter(kwargs, names):
+    with pytest.raises(ParameterError) as err:
+        make_sampler(**kwargs)
+    for name in names:
+        assert name in str(err.value)
+
+
+@pytest.mark.parametrize("seed", [-1, 2**32, 1.5, "7"])
+def test_bad_seed_is_rejected(runtime, seed):
+    with pytest.raises(ParameterError, match="seed"):
+        generate_sample_sets(runtime, make_sampler("uniform", 4), seed, np.arange(2))
+
+
+def test_an_empty_pixel_list_gives_empty_sets(runtime):
+    sets = host_sets(runtime, make_sampler("sppp", 16), 1, np.array([], np.uint32))
+    assert sets.traced.shape == (0, 2) and sets.aux.shape == (0, 2)
