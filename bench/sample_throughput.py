@@ -68,6 +68,14 @@ def measure(runtime, sampler: str, n: int, args) -> dict:
     }  # fmt: skip
 
 
+def format_row(row: dict) -> str:
+    return (
+        f"{row['sampler']:>10} n={row['n']:>5}: {row['median_seconds']:7.3f} s, "
+        f"{row['traced_samples_per_second'] / 1e6:8.1f} M traced samples/s, "
+        f"{row['all_samples_per_second'] / 1e6:8.1f} M samples/s incl. auxiliary"
+    )
+
+
 def main() -> None:
     args = parse_args()
     runtime = create_runtime(args.device)
@@ -78,9 +86,7 @@ def main() -> None:
         for n in args.n:
             row = measure(runtime, sampler, n, args)
             results.append(row)
-            print(f"{sampler:>10} n={n:>5}: {row['median_seconds']:7.3f} s, "
-                  f"{row['traced_samples_per_second'] / 1e6:8.1f} M traced samples/s, "
-                  f"{row['all_samples_per_second'] / 1e6:8.1f} M samples/s incl. auxiliary")  # fmt: skip
+            print(format_row(row))
     report = {"device": runtime.describe(), "repeats": args.repeats, "results": results}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))

@@ -170,8 +170,8 @@ def _launch_fill(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf:
         fill = runtime.kernel("sampling.cl", "fill_traced")
         fill(queue, (padded_global_size(traced_total),), local, np.uint32(pixel_count),
              np.uint32(search_span), np.uint32(seed), np.int32(SAMPLERS[config.name]),
-             np.uint32(config.n), np.uint32(config.strata), np.uint32(traced_total), pixels_buf, redraws_buf,
-             offsets_buf, positions)  # fmt: skip
+             np.uint32(config.n), np.uint32(config.strata), np.uint32(traced_total),
+             pixels_buf, redraws_buf, offsets_buf, positions)  # fmt: skip
     if config.n_aux and pixel_count:
         fill = runtime.kernel("sampling.cl", "fill_auxiliary")
         fill(queue, (padded_global_size(config.n_aux * pixel_count),), local,
