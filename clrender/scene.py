@@ -110,6 +110,22 @@ QUAD_DTYPE = np.dtype(
         ("emitter", "<i4"),
     ]
 )
+QUAD_BLOCK_WIDTH = 8  # kernels/scene_types.h default; 16 also builds (-D QUAD_BLOCK_WIDTH=16)
+
+
+def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:
+    """QuadBlock: the quads' intersection data as structure of arrays, `width` quads each."""
+    return np.dtype(
+        [
+            ("corner", "<f4", (3, width)),
+            ("normal", "<f4", (3, width)),
+            ("u_dual", "<f4", (3, width)),
+            ("v_dual", "<f4", (3, width)),
+            ("plane_d", "<f4", width),
+        ]
+    )
+
+
 SPHERE_DTYPE = np.dtype([("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4")])
 MATERIAL_DTYPE = np.dtype(
     [
@@ -198,6 +214,9 @@ class Scene:
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return _bounds(self.quads, self.spheres)
+
+    def quad_blocks(self, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
+        return pack_quad_blocks(self.quads, width)
 
 
 # --------------------------------------------------------------------------- locating files
@@ -520,8 +539,13 @@ class SceneBuilder:
             key = "vertices" if table.has("vertices") else "edge2"
             table.fail(key, "degenerate quad: its edges are zero or parallel")
         self.quads.append(
-            {"corner": corner, "edge1": edge1, "edge2": edge2, "material": material,
-             "emission": emission}  # fmt: skip
+            {
+                "corner": corner,
+                "edge1": edge1,
+                "edge2": edge2,
+                "material": material,
+                "emission": emission,
+            }  # fmt: skip
         )
         self.quad_names.append(name)
 
@@ -536,8 +560,13 @@ class SceneBuilder:
         for face, (corner, edge1, edge2) in enumerate(box_faces(low, high)):
             rotated = [rotate_y(v, angle) for v in (corner, edge1, edge2)]
             self.quads.append(
-                {"corner": rotated[0] + translate, "edge1": rotated[1], "edge2": rotated[2],
-                 "material": material, "emission": None}  # fmt: skip
+                {
+                    "corner": rotated[0] + translate,
+                    "edge1": rotated[1],
+                    "edge2": rotated[2],
+                    "material": material,
+                    "emission": None,
+                }  # fmt: skip
             )
             self.quad_names.append(f"{name}/face{face}")
 
@@ -598,12 +627,15 @@ def box_faces(low: np.ndarray, high: np.ndarray) -> list[tuple[np.ndarray, ...]]
     ]
 
 
+QUAD_FRAME = ("corner", "edge1", "edge2")
+
+
 def pack_quads(quads: list[dict]) -> np.ndarray:
     """QUAD_DTYPE records; dual vectors give the parallelogram coordinates of a point q:
     a = dot(q - corner, u_dual), b = dot(q - corner, v_dual), inside iff both in [0, 1]."""
     packed = np.zeros(len(quads), QUAD_DTYPE)
     for record, quad in zip(packed, quads, strict=True):
-        corner, edge1, edge2 = (np.asarray(quad[k], np.float64) for k in ("corner", "edge1", "edge2"))
+        corner, edge1, edge2 = (np.asarray(quad[k], np.float64) for k in QUAD_FRAME)
         n = np.cross(edge1, edge2)
         w = n / np.dot(n, n)
         normal = _unit(n)
@@ -617,6 +649,23 @@ def pack_quads(quads: list[dict]) -> np.ndarray:
         record["material"] = quad["material"]
         record["emitter"] = -1
     return packed
+
+
+def pack_quad_blocks(quads: np.ndarray, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
+    """The quads in blocks of `width` lanes (structure of arrays); unused lanes never hit
+    (zero normal, plane_d = -1, so t = -inf)."""
+    blocks = np.zeros(-(-len(quads) // width), quad_block_dtype(width))
+    flat = blocks.reshape(-1)
+    for i, quad in enumerate(quads):
+        block, lane = flat[i // width], i % width
+        for key in ("corner", "normal", "u_dual", "v_dual"):
+            block[key][:, lane] = quad[key]
+        block["plane_d"][lane] = quad["plane_d"]
+    for block_index in range(len(blocks)):
+        used = len(quads) - block_index * width
+        if used < width:
+            blocks[block_index]["plane_d"][used:] = -1.0
+    return blocks
 
 
 def pack_emitters(quads: list[dict], packed: np.ndarray) -> np.ndarray:

@@ -101,6 +101,8 @@ class PathTracer:
             name: _upload(runtime, getattr(scene, name))
             for name in ("quads", "spheres", "materials", "emitters")
         }
+        self._quad_blocks = scene.quad_blocks()
+        self._buffers["quad_blocks"] = _upload(runtime, self._quad_blocks)
         self._cameras: dict[tuple[int, int], cl.Buffer] = {}
         self._kernel = runtime.kernel("integrator.cl", "trace_paths")
 
@@ -170,7 +172,9 @@ class PathTracer:
             _upload(runtime, np.ascontiguousarray(sample_sets.redraws, np.uint32)),
             self.camera_buffer(width, height),
             self._buffers["quads"],
+            self._buffers["quad_blocks"],
             np.uint32(len(scene.quads)),
+            np.uint32(len(self._quad_blocks)),
             self._buffers["spheres"],
             np.uint32(len(scene.spheres)),
             self._buffers["materials"],

@@ -35,7 +35,8 @@ __kernel void bsdf_eval(uint count, __global const Material *material,
 }
 
 // Closest hit of each ray (unit directions): distance (INFINITY on a miss) and primitive id.
-__kernel void intersect_rays(uint count, __global const Quad *quads, uint quad_count,
+__kernel void intersect_rays(uint count, __global const QuadBlock *quad_blocks,
+                             uint quad_count, uint quad_block_count,
                              __global const Sphere *spheres, uint sphere_count,
                              __global const float *origins, __global const float *directions,
                              __global float *t, __global int *prim)
@@ -43,7 +44,8 @@ __kernel void intersect_rays(uint count, __global const Quad *quads, uint quad_c
     uint i = get_global_id(0);
     if (i >= count)
         return;
-    SceneData scene = {quads, spheres, 0, 0, quad_count, sphere_count, 0u, 0.0f};
+    SceneData scene = {0, quad_blocks, spheres, 0, 0, quad_count, quad_block_count, sphere_count,
+                       0u, 0.0f};
     int id;
     t[i] = Scene_Intersect(&scene, vload3(i, origins), vload3(i, directions), INFINITY, &id);
     prim[i] = id;
@@ -57,4 +59,5 @@ __kernel void struct_sizes(__global uint *sizes)
     sizes[2] = sizeof(Material);
     sizes[3] = sizeof(Emitter);
     sizes[4] = sizeof(Camera);
+    sizes[5] = sizeof(QuadBlock);
 }

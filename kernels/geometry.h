@@ -1,4 +1,5 @@
-// Ray-primitive intersection: brute force over every quad, then every sphere.
+// Ray-primitive intersection: brute force over every quad (a block of quads per vector test),
+// then every sphere.
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
 #define CLRENDER_GEOMETRY_H
@@ -14,16 +15,65 @@ typedef struct {
     int emitter;
 } Surface;
 
-// Distance along d (unit) to the quad, or tmax when it is missed or not closer than tmax.
-inline float Quad_Intersect(__global const Quad *q, float3 o, float3 d, float tmax)
+#if QUAD_BLOCK_WIDTH == 16
+#define floatB float16
+#define intB int16
+#define vloadB vload16
+#define LANE_IDS (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
+#elif QUAD_BLOCK_WIDTH == 8
+#define floatB float8
+#define intB int8
+#define vloadB vload8
+#define LANE_IDS (int8)(0, 1, 2, 3, 4, 5, 6, 7)
+#else
+#error "QUAD_BLOCK_WIDTH must be 8 or 16"
+#endif
+
+inline float Lanes_Min(floatB v)
 {
-    float3 n = vload3(0, q->normal);
-    float t = (q->plane_d - dot(n, o)) / dot(n, d);
-    float3 rel = o + t * d - vload3(0, q->corner);
-    float a = dot(rel, vload3(0, q->u_dual));
-    float b = dot(rel, vload3(0, q->v_dual));
-    bool hit = t > 0.0f && t < tmax && a >= 0.0f && a <= 1.0f && b >= 0.0f && b <= 1.0f;
-    return hit ? t : tmax;
+#if QUAD_BLOCK_WIDTH == 16
+    float8 v8 = fmin(v.lo, v.hi);
+#else
+    float8 v8 = v;
+#endif
+    float4 v4 = fmin(v8.lo, v8.hi);
+    float2 v2 = fmin(v4.lo, v4.hi);
+    return fmin(v2.x, v2.y);
+}
+
+inline int Lanes_MinInt(intB v)
+{
+#if QUAD_BLOCK_WIDTH == 16
+    int8 v8 = min(v.lo, v.hi);
+#else
+    int8 v8 = v;
+#endif
+    int4 v4 = min(v8.lo, v8.hi);
+    int2 v2 = min(v4.lo, v4.hi);
+    return min(v2.x, v2.y);
+}
+
+// The nearest quad of a block hit before tmax: its distance (tmax if none) and lane in *lane.
+inline float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, float3 d,
+                                 float tmax, int *lane)
+{
+    floatB nx = vloadB(0, block->normal[0]);
+    floatB ny = vloadB(0, block->normal[1]);
+    floatB nz = vloadB(0, block->normal[2]);
+    floatB t = (vloadB(0, block->plane_d) - (nx * o.x + ny * o.y + nz * o.z)) /
+               (nx * d.x + ny * d.y + nz * d.z);
+    floatB rx = o.x + t * d.x - vloadB(0, block->corner[0]);
+    floatB ry = o.y + t * d.y - vloadB(0, block->corner[1]);
+    floatB rz = o.z + t * d.z - vloadB(0, block->corner[2]);
+    floatB a = rx * vloadB(0, block->u_dual[0]) + ry * vloadB(0, block->u_dual[1]) +
+               rz * vloadB(0, block->u_dual[2]);
+    floatB b = rx * vloadB(0, block->v_dual[0]) + ry * vloadB(0, block->v_dual[1]) +
+               rz * vloadB(0, block->v_dual[2]);
+    intB hit = (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+    floatB t_hit = select((floatB)(INFINITY), t, hit);
+    float t_min = Lanes_Min(t_hit);
+    *lane = Lanes_MinInt(select((intB)(QUAD_BLOCK_WIDTH), LANE_IDS, t_hit == t_min));
+    return t_min < tmax ? t_min : tmax;
 }
 
 // Distance along d (unit) to the nearest sphere crossing ahead, or tmax.
@@ -52,10 +102,11 @@ inline float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float t
 {
     float t = tmax;
     int id = -1;
-    for (uint i = 0; i < scene->quad_count; ++i) {
-        float ti = Quad_Intersect(&scene->quads[i], o, d, t);
-        id = ti < t ? (int)i : id;
-        t = ti;
+    for (uint b = 0; b < scene->quad_block_count; ++b) {
+        int lane;
+        float tb = QuadBlock_Intersect(&scene->quad_blocks[b], o, d, t, &lane);
+        id = tb < t ? (int)(QUAD_BLOCK_WIDTH * b) + lane : id;
+        t = tb;
     }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         float ti = Sphere_Intersect(&scene->spheres[i], o, d, t);

@@ -150,7 +150,9 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
                           float ray_eps, __global const float2 *positions,
                           __global const uint *traced_offsets, __global const uint *pixels,
                           __global const uint *redraws, __global const Camera *camera,
-                          __global const Quad *quads, uint quad_count,
+                          __global const Quad *quads,
+                          __global const QuadBlock *quad_blocks, uint quad_count,
+                          uint quad_block_count,
                           __global const Sphere *spheres, uint sphere_count,
                           __global const Material *materials,
                           __global const Emitter *emitters, uint emitter_count,
@@ -159,8 +161,8 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     uint i = get_global_id(0);
     if (i >= traced_total)
         return;
-    SceneData scene = {quads, spheres, materials, emitters,
-                       quad_count, sphere_count, emitter_count, ray_eps};
+    SceneData scene = {quads,      quad_blocks,      spheres,      materials,     emitters,
+                       quad_count, quad_block_count, sphere_count, emitter_count, ray_eps};
 
     // Find the sample's pixel, its index in the pixel and its image position
     uint slot = Sample_Pixel(traced_offsets, pixel_count, i);

@@ -25,6 +25,21 @@ typedef struct {
     int emitter;  // index into the emitters, or -1
 } Quad;
 
+// The same quads for intersection, QUAD_BLOCK_WIDTH at a time (structure of arrays, so one
+// ray is tested against a whole block with vector instructions). Unused lanes at the end have
+// a zero normal and plane_d = -1: t = -inf, never a hit. Lane j of block b is quad
+// QUAD_BLOCK_WIDTH * b + j.
+#ifndef QUAD_BLOCK_WIDTH
+#define QUAD_BLOCK_WIDTH 8
+#endif
+typedef struct {
+    float corner[3][QUAD_BLOCK_WIDTH];
+    float normal[3][QUAD_BLOCK_WIDTH];
+    float u_dual[3][QUAD_BLOCK_WIDTH];
+    float v_dual[3][QUAD_BLOCK_WIDTH];
+    float plane_d[QUAD_BLOCK_WIDTH];
+} QuadBlock;
+
 typedef struct {
     float center[3];
     float radius;
@@ -63,10 +78,12 @@ typedef struct {
 // The scene as the device functions see it (private; built in the kernel from its arguments).
 typedef struct {
     __global const Quad *quads;
+    __global const QuadBlock *quad_blocks;
     __global const Sphere *spheres;
     __global const Material *materials;
     __global const Emitter *emitters;
     uint quad_count;
+    uint quad_block_count;
     uint sphere_count;
     uint emitter_count;
     float ray_eps; // secondary rays start this far off their surface

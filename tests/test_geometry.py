@@ -60,11 +60,13 @@ def device_intersect(runtime, scene, origins, directions):
         return cl.Buffer(ctx, flags, hostbuf=data)
 
     count = len(origins)
+    blocks = scene.quad_blocks()
     t_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
     id_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
     kernel = runtime.kernel("bsdf_test.cl", "intersect_rays")
     kernel(queue, (padded_global_size(count),), (runtime.local_size,), np.uint32(count),
-           upload(scene.quads), np.uint32(len(scene.quads)), upload(scene.spheres),
+           upload(blocks), np.uint32(len(scene.quads)), np.uint32(len(blocks)),
+           upload(scene.spheres),
            np.uint32(len(scene.spheres)), upload(origins.astype(np.float32)),
            upload(directions.astype(np.float32)), t_buf, id_buf)  # fmt: skip
     t, ids = np.empty(count, np.float32), np.empty(count, np.int32)

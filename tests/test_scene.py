@@ -19,6 +19,7 @@ from clrender.scene import (
     SceneWarning,
     list_scenes,
     load_scene,
+    quad_block_dtype,
 )
 
 DATA = Path(__file__).parent / "data"
@@ -75,11 +76,12 @@ def test_load_by_path_and_by_name_agree():
 
 
 def test_struct_layouts_match_the_kernel(runtime):
-    sizes = np.zeros(5, np.uint32)
+    sizes = np.zeros(6, np.uint32)
     buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=sizes.nbytes)
     runtime.kernel("bsdf_test.cl", "struct_sizes")(runtime.queue, (1,), None, buf)
     cl.enqueue_copy(runtime.queue, sizes, buf)
-    dtypes = [QUAD_DTYPE, SPHERE_DTYPE, MATERIAL_DTYPE, EMITTER_DTYPE, CAMERA_DTYPE]
+    dtypes = [QUAD_DTYPE, SPHERE_DTYPE, MATERIAL_DTYPE, EMITTER_DTYPE, CAMERA_DTYPE,
+              quad_block_dtype()]  # fmt: skip
     assert list(sizes) == [d.itemsize for d in dtypes]
 
 
