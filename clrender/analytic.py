@@ -8,9 +8,11 @@ compared with the true integral of each pixel. Image coordinates: pixel (x, y) c
   edge    a tilted straight step edge (discontinuous; exact integrals in closed form)
   smooth  a separable product of sines, wavelengths of a few pixels (closed form)
   disc    the indicator of a disc (integrals of boundary pixels by adaptive quadrature, 1e-13)
+  bowl    a paraboloid repeated in every pixel, 0 at pixel centres and 1/2 at corners
+          (continuous and pixel-periodic: exactly what clipped Voronoi cells get wrong)
   mix     edge, smooth and disc in the red, green and blue channels
 
-Scene names: `analytic` (= analytic:mix), `analytic:edge`, `analytic:smooth`, `analytic:disc`.
+Scene names: `analytic` (= analytic:mix) and `analytic:KIND` for each kind above.
 """
 
 from __future__ import annotations
@@ -154,6 +156,22 @@ class Disc:
 
 
 @dataclass(frozen=True)
+class PixelBowl:
+    """(u^2 + v^2) scaled, with (u, v) the position relative to the pixel centre: the same
+    bowl in every pixel, integral scale / 6 over each."""
+
+    scale: float = 1.0
+
+    def value(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        u = x - np.floor(x) - 0.5
+        v = y - np.floor(y) - 0.5
+        return self.scale * (u * u + v * v)
+
+    def pixel_integrals(self, width: int, height: int) -> np.ndarray:
+        return np.full((height, width), self.scale / 6.0)
+
+
+@dataclass(frozen=True)
 class AnalyticImage:
     """Three analytic functions, one per RGB channel."""
 
@@ -176,6 +194,7 @@ def analytic_functions(width: int, height: int) -> dict[str, AnalyticFunction]:
         "edge": StepEdge(x0=0.5 * width + 0.137, y0=0.5 * height, slope=0.364),
         "smooth": SmoothSines(kx=2.0 * math.pi / 3.7, ky=2.0 * math.pi / 5.3),
         "disc": Disc(cx=0.45 * width + 0.21, cy=0.55 * height - 0.33, r=0.3 * size + 0.17),
+        "bowl": PixelBowl(),
     }
 
 
