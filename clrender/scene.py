@@ -110,7 +110,7 @@ QUAD_DTYPE = np.dtype(
         ("emitter", "<i4"),
     ]
 )
-QUAD_BLOCK_WIDTH = 8  # kernels/scene_types.h default; 16 also builds (-D QUAD_BLOCK_WIDTH=16)
+QUAD_BLOCK_WIDTH = 8  # fixed in kernels/scene_types.h
 
 
 def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:

@@ -24,7 +24,7 @@ import pyopencl as cl
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
 from clrender.sampling import DeviceSampleSets, check_seed
-from clrender.scene import Scene
+from clrender.scene import QUAD_BLOCK_WIDTH, Scene
 
 # Dimensions 1 + 2d and 2 + 2d of a 32-bit counter: any sane depth fits; this keeps a typo
 # (max_depth=10**9) from running for ever.
@@ -101,7 +101,7 @@ class PathTracer:
             name: _upload(runtime, getattr(scene, name))
             for name in ("quads", "spheres", "materials", "emitters")
         }
-        self._quad_blocks = scene.quad_blocks()
+        self._quad_blocks = scene.quad_blocks(QUAD_BLOCK_WIDTH)
         self._buffers["quad_blocks"] = _upload(runtime, self._quad_blocks)
         self._cameras: dict[tuple[int, int], cl.Buffer] = {}
         self._kernel = runtime.kernel("integrator.cl", "trace_paths")

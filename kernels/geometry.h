@@ -15,40 +15,17 @@ typedef struct {
     int emitter;
 } Surface;
 
-#if QUAD_BLOCK_WIDTH == 16
-#define floatB float16
-#define intB int16
-#define vloadB vload16
-#define LANE_IDS (int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15)
-#elif QUAD_BLOCK_WIDTH == 8
-#define floatB float8
-#define intB int8
-#define vloadB vload8
-#define LANE_IDS (int8)(0, 1, 2, 3, 4, 5, 6, 7)
-#else
-#error "QUAD_BLOCK_WIDTH must be 8 or 16"
-#endif
-
-inline float Lanes_Min(floatB v)
+// Smallest of the 8 lanes.
+inline float Lanes_Min(float8 v)
 {
-#if QUAD_BLOCK_WIDTH == 16
-    float8 v8 = fmin(v.lo, v.hi);
-#else
-    float8 v8 = v;
-#endif
-    float4 v4 = fmin(v8.lo, v8.hi);
+    float4 v4 = fmin(v.lo, v.hi);
     float2 v2 = fmin(v4.lo, v4.hi);
     return fmin(v2.x, v2.y);
 }
 
-inline int Lanes_MinInt(intB v)
+inline int Lanes_MinInt(int8 v)
 {
-#if QUAD_BLOCK_WIDTH == 16
-    int8 v8 = min(v.lo, v.hi);
-#else
-    int8 v8 = v;
-#endif
-    int4 v4 = min(v8.lo, v8.hi);
+    int4 v4 = min(v.lo, v.hi);
     int2 v2 = min(v4.lo, v4.hi);
     return min(v2.x, v2.y);
 }
@@ -57,22 +34,23 @@ inline int Lanes_MinInt(intB v)
 inline float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, float3 d,
                                  float tmax, int *lane)
 {
-    floatB nx = vloadB(0, block->normal[0]);
-    floatB ny = vloadB(0, block->normal[1]);
-    floatB nz = vloadB(0, block->normal[2]);
-    floatB t = (vloadB(0, block->plane_d) - (nx * o.x + ny * o.y + nz * o.z)) /
+    float8 nx = vload8(0, block->normal[0]);
+    float8 ny = vload8(0, block->normal[1]);
+    float8 nz = vload8(0, block->normal[2]);
+    float8 t = (vload8(0, block->plane_d) - (nx * o.x + ny * o.y + nz * o.z)) /
                (nx * d.x + ny * d.y + nz * d.z);
-    floatB rx = o.x + t * d.x - vloadB(0, block->corner[0]);
-    floatB ry = o.y + t * d.y - vloadB(0, block->corner[1]);
-    floatB rz = o.z + t * d.z - vloadB(0, block->corner[2]);
-    floatB a = rx * vloadB(0, block->u_dual[0]) + ry * vloadB(0, block->u_dual[1]) +
-               rz * vloadB(0, block->u_dual[2]);
-    floatB b = rx * vloadB(0, block->v_dual[0]) + ry * vloadB(0, block->v_dual[1]) +
-               rz * vloadB(0, block->v_dual[2]);
-    intB hit = (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
-    floatB t_hit = select((floatB)(INFINITY), t, hit);
+    float8 rx = o.x + t * d.x - vload8(0, block->corner[0]);
+    float8 ry = o.y + t * d.y - vload8(0, block->corner[1]);
+    float8 rz = o.z + t * d.z - vload8(0, block->corner[2]);
+    float8 a = rx * vload8(0, block->u_dual[0]) + ry * vload8(0, block->u_dual[1]) +
+               rz * vload8(0, block->u_dual[2]);
+    float8 b = rx * vload8(0, block->v_dual[0]) + ry * vload8(0, block->v_dual[1]) +
+               rz * vload8(0, block->v_dual[2]);
+    int8 hit = (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+    float8 t_hit = select((float8)(INFINITY), t, hit);
     float t_min = Lanes_Min(t_hit);
-    *lane = Lanes_MinInt(select((intB)(QUAD_BLOCK_WIDTH), LANE_IDS, t_hit == t_min));
+    int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    *lane = Lanes_MinInt(select((int8)(QUAD_BLOCK_WIDTH), lane_ids, t_hit == t_min));
     return t_min < tmax ? t_min : tmax;
 }
 

@@ -29,9 +29,8 @@ typedef struct {
 // ray is tested against a whole block with vector instructions). Unused lanes at the end have
 // a zero normal and plane_d = -1: t = -inf, never a hit. Lane j of block b is quad
 // QUAD_BLOCK_WIDTH * b + j.
-#ifndef QUAD_BLOCK_WIDTH
+// (Width 16 crashes the LLVM 14 of pip's PoCL 3.0: "Cannot emit physreg copy instruction".)
 #define QUAD_BLOCK_WIDTH 8
-#endif
 typedef struct {
     float corner[3][QUAD_BLOCK_WIDTH];
     float normal[3][QUAD_BLOCK_WIDTH];
