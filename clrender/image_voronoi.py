@@ -1,0 +1,557 @@
+"""Image-level Voronoi estimators: one Poisson-Voronoi tessellation of the whole image plane.
+
+When every pixel draws N ~ Poisson(n) nuclei uniform in its own square, the union over all
+pixels is a stationary Poisson process eta of intensity n on the plane (pixels are disjoint and
+the counts independent). So the nuclei of neighbouring pixels can play the part of the SPPP
+auxiliary nuclei: no strip, no rejection, and every traced sample shapes the cells.
+
+Conventions. Pixel (x, y) covers image coordinates [x, x+1] x [y, y+1]; a sample at pixel-local
+(u, v) in W = [-1/2, 1/2]^2 sits at (x + 1/2 + u, y + 1/2 + v). "Plane pixels" are all integer
+(x, y), inside the image or not. Cells C(x) are the Voronoi cells of eta itself, not clipped.
+
+Estimators (v(x) = |C(x)|, sums over the traced nuclei x of pixel P, i.e. x in eta cap P):
+
+| name    | estimate of pixel P         | bias                                               |
+|---------|-----------------------------|----------------------------------------------------|
+| ivor    | sum f(x) v(x)               | none: exactly unbiased (proof below)               |
+| ivor_sn | sum f(x) v(x) / sum v(x)    | ratio estimator, O(1/n); 0 when P has no nucleus   |
+
+Unbiasedness of ivor. Apply Proposition 1 (i) of the paper (Slivnyak-Mecke) to the integrand
+g = f 1_P: E[sum_{x in eta} g(x) v(x)] = n int g(x) E[v_{eta + x}(x)] dx = int_P f, because
+E[v_{eta + x}(x)] = 1/n for a stationary process. The sum only runs over nuclei inside P, which
+are exactly P's traced samples. A pixel with N = 0 contributes the empty sum 0: that is the
+value of the random variable on that event, already counted in the expectation above, so
+ivor needs no conditioning on N and stays unbiased at N = 0 (ivor_sn, a ratio, does not).
+The cells must be those of eta, unclipped: clipping cells to P, or summing
+f(x) |C(x) cap P| over neighbours' nuclei, estimates the nearest-neighbour interpolant of f
+(biased, and it needs the values of untraced guard nuclei).
+
+Exactness (the guard band). A block of pixels is tessellated with the nuclei of the plane
+pixels around it within a guard distance delta (positions only: guard nuclei are never
+traced). A nucleus's cell in this finite set equals its cell in eta if it is not on the hull
+and every Delaunay triangle around it has its circumdisc inside the "known" rectangle (block
+grown by delta), where all nuclei of eta are present: nuclei outside that rectangle are outside
+every such disc, so those triangles stay Delaunay in eta and the cell (the polygon of their
+circumcentres) is unchanged. This is the empty-disc check of clrender.voronoi_cells. A disc
+through x has radius at most R(C(x)), the cell's circumradius, so it stays within 2 R of x; the
+default delta = 2 eps(n) uses the paper's tail bound P(R > eps) and is almost never exceeded.
+Fallback: a block with an uncertified cell is redone with delta doubled (up to MAX_GUARD
+pixels); a cell still uncertified after that keeps its finite-set area and is counted.
+
+Image border. The guard band reaches beyond the image; its pixels need RNG keys:
+- "frame" (default): the plane outside the image is more of the same Poisson process. Plane
+  pixel (x, y) outside the image in ring k = max(-x, x - W + 1, -y, y - H + 1) >= 1 gets
+  the key W H + (k - 1)(2 W + 2 H + 4 k - 4) + (its place on ring k: top row left to right,
+  bottom row, left column top to bottom, right column). The keys of a ring do not depend on how
+  many rings are drawn. Border pixels are then estimated exactly like interior ones.
+- "periodic": the image is a torus; plane pixel (x, y) takes the key of (x mod W, y mod H)
+  (its nuclei are copies, shifted). Also exactly unbiased (E[v] = 1/n on a torus), but it
+  correlates the errors of opposite border pixels, so "frame" is the default.
+
+Computation. A run of pixels (a render tile) is cut into rectangular blocks of about
+BLOCK_POINTS nuclei; each block is one Qhull Delaunay, cell areas come from the circumcentre
+quadrilaterals summed with np.bincount (clrender.voronoi_cells), per-pixel sums from
+np.bincount. Triangles are put in a canonical order (vertices sorted by a unique point id, rows
+sorted) before summing, so a certified cell's area does not depend on the tiling or blocking.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.spatial import Delaunay, QhullError
+
+from clrender.errors import ParameterError
+from clrender.sppp import DEFAULT_ALPHA, sppp_eps
+from clrender.voronoi_cells import QHULL_OPTIONS, _triangle_geometry
+
+ESTIMATOR_NAMES = ("ivor", "ivor_sn")
+BORDERS = ("frame", "periodic")
+DEFAULT_BORDER = "frame"
+BLOCK_POINTS = 6000          # nuclei per Qhull call (block pixels only, guard excluded)
+MAX_GUARD = 16.0             # widest guard (pixels) the fallback tries
+# Unique point ids: plane pixel (x, y) and sample s -> ((y + ID_OFFSET) 2^16 + x + ID_OFFSET)
+# 2^30 + s, for |x|, |y| < 2^15 and s < 2^30.
+ID_OFFSET = 1 << 15
+SAMPLE_BITS = 30
+
+
+def guard_distance(n: float, alpha: float = DEFAULT_ALPHA) -> float:
+    """Default guard width delta = 2 eps(n) in pixels: the discs around a nucleus stay within
+    2 R of it, and eps bounds R(C(x)) with the paper's tail bound alpha."""
+    return 2.0 * sppp_eps(n, alpha)
+
+
+# ---------------------------------------------------------------------------------------------
+# Pixel rectangles and RNG keys
+
+
+@dataclass(frozen=True)
+class PixelRect:
+    """Plane pixels [x0, x1) x [y0, y1), row-major."""
+
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+
+    @property
+    def width(self) -> int:
+        return self.x1 - self.x0
+
+    @property
+    def height(self) -> int:
+        return self.y1 - self.y0
+
+    @property
+    def count(self) -> int:
+        return self.width * self.height
+
+    def grown(self, ring: int) -> PixelRect:
+        return PixelRect(self.x0 - ring, self.y0 - ring, self.x1 + ring, self.y1 + ring)
+
+    def coords(self) -> tuple[np.ndarray, np.ndarray]:
+        ys, xs = np.mgrid[self.y0:self.y1, self.x0:self.x1]
+        return xs.ravel(), ys.ravel()
+
+    def contains(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        return (xs >= self.x0) & (xs < self.x1) & (ys >= self.y0) & (ys < self.y1)
+
+
+def frame_keys(xs: np.ndarray, ys: np.ndarray, width: int, height: int) -> np.ndarray:
+    """RNG pixel keys of plane pixels for the "frame" border (module docstring)."""
+    xs, ys = np.asarray(xs, np.int64), np.asarray(ys, np.int64)
+    ring = np.maximum.reduce([-xs, xs - width + 1, -ys, ys - height + 1, np.zeros_like(xs)])
+    k = np.maximum(ring, 1)
+    side = width + 2 * k              # length of ring k's top and bottom rows
+    top, bottom = ys == -k, ys == height - 1 + k
+    left = ~top & ~bottom & (xs == -k)
+    place = np.where(top, xs + k,
+                     np.where(bottom, side + xs + k,
+                              np.where(left, 2 * side + ys + k - 1,
+                                       2 * side + height + 2 * k - 2 + ys + k - 1)))
+    outside = width * height + (k - 1) * (2 * width + 2 * height + 4 * k - 4) + place
+    keys = np.where(ring > 0, outside, ys * width + xs)
+    if len(keys) and keys.max() >= 2**32:
+        raise ParameterError("frame keys overflow 32 bits: image or guard band too large")
+    return keys.astype(np.uint32)
+
+
+def periodic_keys(xs: np.ndarray, ys: np.ndarray, width: int, height: int) -> np.ndarray:
+    """RNG pixel keys of plane pixels for the "periodic" border: the image pixel (x mod W,
+    y mod H)."""
+    xs, ys = np.asarray(xs, np.int64), np.asarray(ys, np.int64)
+    return (np.mod(ys, height) * width + np.mod(xs, width)).astype(np.uint32)
+
+
+def pixel_keys(xs, ys, width: int, height: int, border: str) -> np.ndarray:
+    check_border(border)
+    keys = frame_keys if border == "frame" else periodic_keys
+    return keys(xs, ys, width, height)
+
+
+def check_border(border: str) -> None:
+    if border not in BORDERS:
+        raise ParameterError(f"unknown border {border!r}; accepted: {', '.join(BORDERS)}")
+
+
+def point_ids(xs: np.ndarray, ys: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Unique ids of the nuclei of plane pixels (xs, ys), counts[i] nuclei each, in order."""
+    counts = np.asarray(counts, np.int64)
+    if (np.abs(xs) >= ID_OFFSET).any() or (np.abs(ys) >= ID_OFFSET).any():
+        raise ParameterError(f"plane pixel coordinates must stay below {ID_OFFSET} in size")
+    pixel_id = (np.asarray(ys, np.int64) + ID_OFFSET) * (2 * ID_OFFSET) + xs + ID_OFFSET
+    starts = np.cumsum(counts) - counts
+    sample = np.arange(counts.sum()) - np.repeat(starts, counts)
+    return (np.repeat(pixel_id, counts) << SAMPLE_BITS) + sample
+
+
+# ---------------------------------------------------------------------------------------------
+# Point grids: nuclei of a rectangle of plane pixels, sorted by pixel
+
+
+@dataclass
+class PixelPoints:
+    """Nuclei of a list of plane pixels, pixel by pixel: positions in image coordinates."""
+
+    positions: np.ndarray   # (M, 2) float64
+    counts: np.ndarray      # (len(pixels),) int64
+    ids: np.ndarray         # (M,) int64, unique
+    values: np.ndarray      # (M,) or (M, C) float64; meaningful for traced pixels only
+
+
+@dataclass
+class PointGrid:
+    """The nuclei of every pixel of `rect`, row-major by pixel (offsets has rect.count + 1
+    entries). Pixels outside rect have no nuclei as far as take() is concerned."""
+
+    rect: PixelRect
+    positions: np.ndarray
+    offsets: np.ndarray
+    ids: np.ndarray
+    values: np.ndarray
+
+    def take(self, xs: np.ndarray, ys: np.ndarray) -> PixelPoints:
+        inside = self.rect.contains(xs, ys)
+        cell = (ys - self.rect.y0) * self.rect.width + (xs - self.rect.x0)
+        cell = np.where(inside, cell, 0)
+        starts = self.offsets[cell]
+        counts = np.where(inside, self.offsets[cell + 1] - starts, 0)
+        index = _segment_index(starts, counts)
+        return PixelPoints(self.positions[index], counts, self.ids[index], self.values[index])
+
+
+def _segment_index(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Indices start[i] .. start[i] + counts[i] - 1, concatenated."""
+    ends = np.cumsum(counts)
+    return np.arange(ends[-1] if len(ends) else 0) - np.repeat(ends - counts - starts, counts)
+
+
+def grid_from_points(rect: PixelRect, positions: np.ndarray, values: np.ndarray,
+                     ids: np.ndarray) -> PointGrid:
+    """Sort image-coordinate nuclei into the pixels of rect (nuclei outside rect dropped)."""
+    px = np.floor(positions[:, 0]).astype(np.int64)
+    py = np.floor(positions[:, 1]).astype(np.int64)
+    keep = rect.contains(px, py)
+    cell = (py - rect.y0) * rect.width + (px - rect.x0)
+    order = np.flatnonzero(keep)[np.argsort(cell[keep], kind="stable")]
+    counts = np.bincount(cell[order], minlength=rect.count)
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    return PointGrid(rect, positions[order], offsets, ids[order], values[order])
+
+
+# ---------------------------------------------------------------------------------------------
+# Cells of one block
+
+
+@dataclass
+class RegionCells:
+    """Cells of the traced nuclei (the first traced_count points) of one tessellation."""
+
+    areas: np.ndarray       # (T,) float64, NaN where the cell is unbounded in the finite set
+    certified: np.ndarray   # (T,) bool: provably the cell of the complete process
+
+
+def region_cells(points: np.ndarray, traced_count: int, known: tuple[float, ...],
+                 ids: np.ndarray | None = None) -> RegionCells:
+    """Voronoi cell areas of points[:traced_count] among all points, one Qhull call.
+
+    known = (x0, y0, x1, y1): the rectangle in which `points` hold every nucleus of the
+    process; a cell is certified when it is bounded and all its Delaunay circumdiscs lie in
+    `known`. ids (unique per point) fix a canonical triangle order (bit-reproducible areas).
+    """
+    t = traced_count
+    if t == 0:
+        return RegionCells(np.zeros(0), np.zeros(0, bool))
+    origin = np.floor(np.asarray(known[:2], np.float64))   # integer shift: exact
+    local = np.asarray(points, np.float64) - origin
+    try:
+        tri = Delaunay(local, qhull_options=QHULL_OPTIONS)
+    except (QhullError, ValueError):   # < 3 points or collinear: no bounded cell
+        return RegionCells(np.full(t, np.nan), np.zeros(t, bool))
+    simplices = tri.simplices if ids is None else _canonical(tri.simplices, ids)
+    areas, bad = _areas_and_flags(tri, local, simplices, np.asarray(known) - np.tile(origin, 2))
+    return RegionCells(np.where(bad[:t], np.nan, areas[:t]), ~bad[:t])
+
+
+def _canonical(simplices: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Each triangle's vertices sorted by id, triangles sorted by their id triples."""
+    order = np.argsort(ids[simplices], axis=1)
+    s = np.take_along_axis(simplices, order, axis=1)
+    key = ids[s]
+    return s[np.lexsort((key[:, 2], key[:, 1], key[:, 0]))]
+
+
+def _areas_and_flags(tri: Delaunay, points: np.ndarray, s: np.ndarray,
+                     known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cell areas of every point and the flags "not certified" (hull, disc outside known)."""
+    count = len(points)
+    g = _triangle_geometry(points, s)
+    areas = (np.bincount(s[:, 0], g.area_a, count) + np.bincount(s[:, 1], g.area_b, count)
+             + np.bincount(s[:, 2], g.area_c, count))
+    bad = np.zeros(count, bool)
+    bad[np.unique(tri.convex_hull)] = True
+    with np.errstate(invalid="ignore"):
+        cx, cy = g.ax + g.ux, g.ay + g.uy
+        radius = np.sqrt(g.ux * g.ux + g.uy * g.uy)
+        inside = ((cx - radius >= known[0]) & (cx + radius <= known[2])
+                  & (cy - radius >= known[1]) & (cy + radius <= known[3]))
+    bad[s[~(inside & np.isfinite(g.area_a + g.area_b + g.area_c))].ravel()] = True
+    # Coincident points: the vertex Qhull kept and the points it dropped share the cell.
+    if len(tri.coplanar):
+        dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
+        areas /= 1.0 + np.bincount(kept, minlength=count)
+        areas[dropped] = areas[kept]
+        bad[dropped] = bad[kept]
+    return areas, bad
+
+
+# ---------------------------------------------------------------------------------------------
+# Estimates over a run of pixels
+
+
+@dataclass
+class ImageVoronoiStats:
+    blocks: int = 0
+    qhull_calls: int = 0
+    traced_nuclei: int = 0
+    guard_nuclei: int = 0         # untraced nuclei handed to Qhull
+    widened_blocks: int = 0       # blocks redone with a doubled guard (fallback)
+    uncertified_nuclei: int = 0   # cells still not provably exact after the last widening
+    empty_pixels: int = 0         # pixels with N = 0
+
+    def add(self, other: ImageVoronoiStats) -> None:
+        for name in self.__dataclass_fields__:
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+
+
+@dataclass
+class BlockResult:
+    sums: np.ndarray          # (P,) or (P, C): sum f v per block pixel
+    area_sums: np.ndarray     # (P,): sum v per block pixel
+    counts: np.ndarray        # (P,): nuclei per block pixel
+    ids: np.ndarray           # traced nuclei ids
+    areas: np.ndarray         # their cell areas
+    stats: ImageVoronoiStats = field(default_factory=ImageVoronoiStats)
+
+
+# A source of nuclei: (xs, ys) plane pixels -> their PixelPoints, in that order.
+PointSource = Callable[[np.ndarray, np.ndarray], PixelPoints]
+
+
+def estimate_block(source: PointSource, rect: PixelRect, delta: float,
+                   extent: tuple[float, ...] | None = None) -> BlockResult:
+    """One block: tessellate rect's nuclei with the guard nuclei within delta of rect, and
+    widen the guard (doubling delta, up to MAX_GUARD) while a cell is not certified."""
+    stats = ImageVoronoiStats(blocks=1)
+    traced = source(*rect.coords())
+    while True:
+        cells, guard_count = _block_cells(source, rect, delta, traced, extent)
+        stats.qhull_calls += 1
+        if cells.certified.all() or delta >= MAX_GUARD:
+            break
+        delta = min(2.0 * delta, MAX_GUARD)
+        stats.widened_blocks += 1
+    owner = np.repeat(np.arange(rect.count), traced.counts)
+    areas = np.where(cells.certified, cells.areas, np.nan_to_num(cells.areas))
+    weighted = traced.values * (areas if traced.values.ndim == 1 else areas[:, None])
+    stats.traced_nuclei = len(owner)
+    stats.guard_nuclei = guard_count
+    stats.uncertified_nuclei = int((~cells.certified).sum())
+    stats.empty_pixels = int((traced.counts == 0).sum())
+    return BlockResult(_bincount_columns(owner, weighted, rect.count),
+                       np.bincount(owner, areas, rect.count), traced.counts, traced.ids, areas,
+                       stats)
+
+
+def _block_cells(source: PointSource, rect: PixelRect, delta: float, traced: PixelPoints,
+                 extent: tuple[float, ...] | None) -> tuple[RegionCells, int]:
+    known = (rect.x0 - delta, rect.y0 - delta, rect.x1 + delta, rect.y1 + delta)
+    if extent is not None:   # a finite realisation holds no nuclei beyond its extent
+        known = (max(known[0], extent[0]), max(known[1], extent[1]),
+                 min(known[2], extent[2]), min(known[3], extent[3]))
+    xs, ys = rect.grown(math.ceil(delta)).coords()
+    ring = ~rect.contains(xs, ys)
+    guard = source(xs[ring], ys[ring])
+    p = guard.positions
+    near = ((p[:, 0] > known[0]) & (p[:, 0] < known[2]) & (p[:, 1] > known[1])
+            & (p[:, 1] < known[3]))
+    points = np.concatenate([traced.positions, p[near]])
+    ids = np.concatenate([traced.ids, guard.ids[near]])
+    return region_cells(points, len(traced.positions), known, ids), int(near.sum())
+
+
+def _bincount_columns(owner: np.ndarray, weights: np.ndarray, count: int) -> np.ndarray:
+    if weights.ndim == 1:
+        return np.bincount(owner, weights, count)
+    return np.column_stack([np.bincount(owner, weights[:, c], count)
+                            for c in range(weights.shape[1])])
+
+
+def run_blocks(width: int, start: int, stop: int, n: float) -> list[PixelRect]:
+    """Rectangular blocks covering the scanline run of pixels [start, stop) of an image of the
+    given width: the partial first row, the full rows, the partial last row, each cut into
+    blocks of about BLOCK_POINTS nuclei."""
+    rows = []
+    y_first, x_first = divmod(start, width)
+    y_last, x_last = divmod(stop, width)       # stop is exclusive
+    if y_first == y_last:
+        rows.append(PixelRect(x_first, y_first, x_last, y_first + 1))
+    else:
+        rows.append(PixelRect(x_first, y_first, width, y_first + 1))
+        rows.append(PixelRect(0, y_first + 1, width, y_last))
+        rows.append(PixelRect(0, y_last, x_last, y_last + 1))
+    pixels = max(1, round(BLOCK_POINTS / n))
+    side = max(1, math.isqrt(pixels))
+    return [block for rect in rows if rect.count for block in _cut(rect, side, pixels)]
+
+
+def _cut(rect: PixelRect, side: int, pixels: int) -> list[PixelRect]:
+    bh = min(rect.height, side)
+    bw = min(rect.width, max(1, pixels // bh))
+    return [PixelRect(x, y, min(x + bw, rect.x1), min(y + bh, rect.y1))
+            for y in range(rect.y0, rect.y1, bh) for x in range(rect.x0, rect.x1, bw)]
+
+
+@dataclass
+class RunEstimate:
+    """Estimates of a scanline run of pixels, in run order: name -> (P,) or (P, C)."""
+
+    estimates: dict[str, np.ndarray]
+    ids: np.ndarray      # traced nuclei ids, block by block
+    areas: np.ndarray    # their cell areas
+    stats: ImageVoronoiStats
+
+
+def estimate_run(source: PointSource, width: int, start: int, stop: int, n: float,
+                 delta: float, extent: tuple[float, ...] | None = None) -> RunEstimate:
+    """ivor and ivor_sn of the image pixels start .. stop - 1 (scanline order)."""
+    stats = ImageVoronoiStats()
+    blocks = run_blocks(width, start, stop, n)
+    results = [estimate_block(source, block, delta, extent) for block in blocks]
+    index = np.concatenate([ys * width + xs - start for xs, ys in (b.coords() for b in blocks)])
+    order = np.argsort(index)
+    sums = np.concatenate([r.sums for r in results])[order]
+    area_sums = np.concatenate([r.area_sums for r in results])[order]
+    for r in results:
+        stats.add(r.stats)
+    normaliser = np.where(area_sums > 0, area_sums, 1.0)
+    ratio = sums / (normaliser if sums.ndim == 1 else normaliser[:, None])
+    return RunEstimate({"ivor": sums, "ivor_sn": ratio},
+                       np.concatenate([r.ids for r in results]),
+                       np.concatenate([r.areas for r in results]), stats)
+
+
+# ---------------------------------------------------------------------------------------------
+# Plain NumPy entry point (analytic tests and benchmarks)
+
+
+def draw_plane_poisson(rng: np.random.Generator, n: float,
+                       extent: tuple[float, float, float, float]) -> np.ndarray:
+    """A Poisson process of intensity n on the rectangle extent = (x0, y0, x1, y1)."""
+    x0, y0, x1, y1 = extent
+    count = rng.poisson(n * (x1 - x0) * (y1 - y0))
+    return np.column_stack([rng.uniform(x0, x1, count), rng.uniform(y0, y1, count)])
+
+
+@dataclass
+class ImageEstimate:
+    """Per-pixel estimates (name -> (H, W) or (H, W, C)), the cell area of every input point
+    (NaN outside the image) and the statistics."""
+
+    estimates: dict[str, np.ndarray]
+    areas: np.ndarray
+    stats: ImageVoronoiStats
+
+
+def estimate_image(positions: np.ndarray, values: np.ndarray, width: int, height: int,
+                   n: float, frame: float, delta: float | None = None,
+                   start: int = 0, stop: int | None = None) -> ImageEstimate:
+    """ivor and ivor_sn of every image pixel from one realisation of the process.
+
+    positions: (M, 2) image coordinates of a Poisson(n) realisation on the image grown by
+    `frame` on each side, i.e. [-frame, W + frame] x [-frame, H + frame]; values: (M,) or
+    (M, C), used for the points inside the image only. start/stop select a scanline run of
+    pixels (the tiling a renderer would use); pixels outside the run are NaN.
+    """
+    positions = np.asarray(positions, np.float64)
+    values = np.asarray(values, np.float64)
+    if positions.ndim != 2 or positions.shape[1] != 2 or len(values) != len(positions):
+        raise ParameterError("positions must be (M, 2) and values (M,) or (M, C)")
+    stop = width * height if stop is None else stop
+    delta = guard_distance(n) if delta is None else delta
+    ring = math.ceil(frame)
+    grid = grid_from_points(PixelRect(0, 0, width, height).grown(ring), positions, values,
+                            np.arange(len(positions)))
+    extent = (-frame, -frame, width + frame, height + frame)
+    run = estimate_run(grid.take, width, start, stop, n, delta, extent)
+    areas = np.full(len(positions), np.nan)
+    areas[run.ids] = run.areas
+    estimates = {}
+    for name, est in run.estimates.items():
+        full = np.full((width * height,) + est.shape[1:], np.nan)
+        full[start:stop] = est
+        estimates[name] = full.reshape((height, width) + est.shape[1:])
+    return ImageEstimate(estimates, areas, run.stats)
+
+
+# ---------------------------------------------------------------------------------------------
+# Renderer adapter: a tile of traced samples, guard nuclei regenerated on the device
+
+
+def tile_point_source(runtime, config, seed: int, width: int, height: int,
+                      pixels: np.ndarray, traced: np.ndarray, offsets: np.ndarray,
+                      values: np.ndarray, ring: int, border: str = DEFAULT_BORDER) -> PointSource:
+    """A PointSource for a render tile: the tile's traced samples (pixel-local positions,
+    offsets per tile pixel, values) plus the nuclei of every plane pixel within `ring` pixels
+    of it, drawn with generate_sample_sets under the border's keys (positions only, no
+    auxiliary nuclei). Pixels beyond that ring are generated on demand (guard fallback)."""
+    from clrender.sampling import generate_sample_sets
+
+    guard_config = replace(config, n_aux=0)
+
+    def generate(xs: np.ndarray, ys: np.ndarray) -> PixelPoints:
+        keys = pixel_keys(xs, ys, width, height, border)
+        sets = generate_sample_sets(runtime, guard_config, seed, keys).to_host(runtime.queue)
+        counts = sets.counts().astype(np.int64)
+        shift = np.repeat(np.column_stack([xs, ys]) + 0.5, counts, axis=0)
+        zeros = np.zeros((len(sets.traced),) + values.shape[1:])
+        return PixelPoints(sets.traced.astype(np.float64) + shift, counts,
+                           point_ids(xs, ys, counts), zeros)
+
+    grid = _tile_grid(pixels, traced, offsets, values, width, ring, generate)
+
+    def source(xs: np.ndarray, ys: np.ndarray) -> PixelPoints:
+        if grid.rect.contains(xs, ys).all():
+            return grid.take(xs, ys)
+        return generate(xs, ys)
+
+    return source
+
+
+def _tile_grid(pixels, traced, offsets, values, width, ring, generate) -> PointGrid:
+    """The tile's rows grown by `ring`: traced samples of the tile, generated guard nuclei."""
+    ty, tx = np.divmod(np.asarray(pixels, np.int64), width)
+    rect = PixelRect(int(tx.min()), int(ty.min()), int(tx.max()) + 1,
+                     int(ty.max()) + 1).grown(ring)
+    xs, ys = rect.coords()
+    in_tile = np.zeros(rect.count, bool)
+    in_tile[(ty - rect.y0) * rect.width + tx - rect.x0] = True
+    guard = generate(xs[~in_tile], ys[~in_tile])
+    counts = np.diff(offsets).astype(np.int64)
+    own = traced.astype(np.float64) + np.repeat(np.column_stack([tx, ty]) + 0.5, counts, axis=0)
+    positions = np.concatenate([own, guard.positions])
+    cell = np.concatenate([np.repeat((ty - rect.y0) * rect.width + tx - rect.x0, counts),
+                           np.repeat(np.flatnonzero(~in_tile), guard.counts)])
+    order = np.argsort(cell, kind="stable")
+    all_counts = np.zeros(rect.count, np.int64)
+    all_counts[in_tile] = counts[np.argsort((ty - rect.y0) * rect.width + tx - rect.x0)]
+    all_counts[~in_tile] = guard.counts
+    ids = np.concatenate([point_ids(tx, ty, counts), guard.ids])
+    vals = np.concatenate([np.asarray(values, np.float64), guard.values])
+    return PointGrid(rect, positions[order], np.concatenate([[0], np.cumsum(all_counts)]),
+                     ids[order], vals[order])
+
+
+def estimate_tile_image(runtime, config, seed: int, width: int, height: int,
+                        pixels: np.ndarray, traced: np.ndarray, offsets: np.ndarray,
+                        values: np.ndarray, border: str = DEFAULT_BORDER,
+                        delta: float | None = None) -> RunEstimate:
+    """ivor and ivor_sn of a render tile (a scanline run of global pixel indices, each drawn
+    with redraw number 0 by an SPPP sampler config); traced/offsets/values as in
+    HostSampleSets and the tile's radiance. Returns estimates in tile order."""
+    pixels = np.asarray(pixels, np.int64)
+    if config.name != "sppp":
+        raise ParameterError("image-level Voronoi estimators need Poisson counts: use the "
+                             f"sppp sampler, got {config.name!r}")
+    start = int(pixels[0]) if len(pixels) else 0
+    if len(pixels) and not np.array_equal(pixels, np.arange(start, start + len(pixels))):
+        raise ParameterError("image-level Voronoi estimation needs a scanline run of pixels")
+    check_border(border)
+    delta = guard_distance(config.n, config.alpha) if delta is None else float(delta)
+    source = tile_point_source(runtime, config, seed, width, height, pixels, traced, offsets,
+                               values, math.ceil(delta), border)
+    return estimate_run(source, width, start, start + len(pixels), config.n, delta)
