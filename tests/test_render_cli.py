@@ -1,0 +1,186 @@
+"""`python -m clrender render`: outputs and metadata, one-line errors and exit codes, Ctrl-C."""
+
+import os
+import pty
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from clrender import cli
+from clrender.estimators import ESTIMATORS
+from clrender.film import Film
+from clrender.imageio import decode_png, read_exr, srgb8
+from clrender.render import RenderResult, RenderStats
+from clrender.sampling import make_sampler
+
+
+def run_cli(capsys, *argv):
+    """(exit status, stdout, stderr) of an in-process run."""
+    try:
+        status = cli.main(list(argv))
+    except SystemExit as exit_:  # argparse's own errors
+        status = exit_.code
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_path):
+    out = tmp_path / "mix.exr"
+    status, stdout, _ = run_cli(capsys, "render", "analytic:mix", "--res", "24x16",
+                                "--spp", "16", "--seed", "7", "-o", str(out))  # fmt: skip
+    assert status == 0
+    assert "done: 384/384 pixels" in stdout and "host Voronoi" in stdout
+    pixels, meta = read_exr(out)
+    assert pixels.shape == (16, 24, 3) and np.isfinite(pixels).all() and pixels.min() > 0
+    assert meta["scene"] == "analytic:mix" and meta["spp"] == 16 and meta["seed"] == 7
+    assert (meta["sampler"], meta["estimator"]) == ("sppp", "vor_sn")
+    assert meta["partial"] == 0 and meta["rendered_pixels"] == 384
+    assert meta["nonfinite_samples"] == 0 and meta["flagged_pixels"] == 0
+    assert meta["render_time_s"] > 0 and "device" in meta
+    png = decode_png(out.with_suffix(".png").read_bytes())
+    assert np.array_equal(png, srgb8(pixels))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mix.exr", "mix.png"]
+
+
+def test_default_output_name_is_the_scene_name_in_the_current_directory(capsys, tmp_path,
+                                                                         monkeypatch):  # fmt: skip
+    monkeypatch.chdir(tmp_path)
+    status, _, _ = run_cli(capsys, "render", "analytic:edge", "--res", "8", "--spp", "4")
+    assert status == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["analytic-edge.exr", "analytic-edge.png"]
+
+
+@pytest.mark.parametrize("estimator", list(ESTIMATORS))
+def test_every_registered_estimator_renders_over_sppp(capsys, tmp_path, estimator):
+    out = tmp_path / "e.exr"
+    status, _, err = run_cli(capsys, "render", "analytic", "--res", "8", "--spp", "9",
+                             "--estimator", estimator, "-o", str(out))  # fmt: skip
+    assert status == 0, err
+    assert read_exr(out)[1]["estimator"] == estimator
+
+
+@pytest.mark.parametrize("sampler", ["uniform", "stratified"])
+def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
+    out = tmp_path / "s.exr"
+    status, _, _ = run_cli(capsys, "render", "analytic", "--res", "8", "--spp", "9",
+                           "--sampler", sampler, "-o", str(out))  # fmt: skip
+    assert status == 0
+    assert (read_exr(out)[1]["sampler"], read_exr(out)[1]["estimator"]) == (sampler, "mc")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--spp", "0"], "--spp must be a positive integer, got 0"),
+        (["--spp", "-3"], "--spp must be a positive integer"),
+        (["--sampler", "halton"], "unknown sampler 'halton'; accepted: uniform, stratified, sppp"),
+        (["--estimator", "median"], "unknown estimator 'median'; accepted: mc, mc_n, vor"),
+        (["--sampler", "uniform", "--estimator", "vor"],
+         "estimator 'vor' needs the auxiliary nuclei of the sppp sampler, and the 'uniform' "
+         "sampler draws none: use --sampler sppp"),
+        (["--sampler", "stratified", "--estimator", "fvor"], "'fvor' needs the auxiliary"),
+        (["--sampler", "stratified", "--spp", "10"], "perfect square"),
+        (["--res", "0x4"], "--res must be WxH"),
+        (["--res", "wide"], "--res must be WxH"),
+        (["--seed", "-1"], "seed must be an integer in [0, 2^32)"),
+        (["--tile-samples", "0"], "--tile-samples must be a positive integer"),
+        (["--max-depth", "-2"], "--max-depth must be a non-negative integer"),
+        (["analytic:plaid"], "unknown analytic scene 'analytic:plaid'; accepted:"),
+        (["no-such-scene"], "no shipped scene of that name"),
+        (["-o", "picture.png"], "-o/--output must name an .exr file"),
+        (["--spp", "many"], "argument --spp: invalid int value: 'many'"),
+        (["--frobnicate"], "unrecognized arguments: --frobnicate"),
+    ],
+)  # fmt: skip
+def test_bad_arguments_give_one_line_errors_and_status_2(capsys, tmp_path, argv, message):
+    status, _, err = run_cli(capsys, "render", *argv)
+    assert status == 2
+    assert err.count("\n") == 1 and err.startswith("clrender: error: ")
+    assert message in err
+    assert "Traceback" not in err
+
+
+def test_unwritable_output_fails_before_any_device_work(capsys, tmp_path, monkeypatch):
+    def no_device(*args, **kwargs):
+        raise AssertionError("a runtime was created before the output path was checked")
+
+    monkeypatch.setattr(cli, "create_runtime", no_device)
+    target = tmp_path / "missing" / "out.exr"
+    status, _, err = run_cli(capsys, "render", "-o", str(target))
+    assert status == 2
+    assert err == f"clrender: error: cannot write {target}: directory {target.parent} " \
+                  "does not exist\n"  # fmt: skip
+
+
+def test_debug_shows_the_traceback(capsys):
+    with pytest.raises(Exception, match="--spp must be a positive integer"):
+        cli.main(["--debug", "render", "--spp", "0"])
+
+
+def fake_result(nonfinite: int, flagged: int, interrupted: bool = False) -> RenderResult:
+    film = Film(4, 2)
+    film.record(np.arange(8), np.ones((8, 3)), np.arange(8) < flagged)
+    stats = RenderStats(nonfinite_samples=nonfinite, interrupted=interrupted)
+    settings = cli.settings_from_args(cli.build_parser().parse_args(["render"]), 4, 2)
+    assert settings.sampler == make_sampler("sppp", 64)
+    return RenderResult(film, stats, settings)
+
+
+@pytest.mark.parametrize(
+    "strict, nonfinite, flagged, interrupted, status",
+    [(False, 0, 0, False, 0), (False, 5, 2, False, 0), (True, 5, 2, False, 3),
+     (True, 0, 0, False, 0), (True, 5, 2, True, 130)],
+)  # fmt: skip
+def test_exit_status(capsys, strict, nonfinite, flagged, interrupted, status):
+    args = cli.build_parser().parse_args(["render"] + (["--strict"] if strict else []))
+    result = fake_result(nonfinite, flagged, interrupted)
+    assert cli.exit_status(args, result, interrupted_while_writing=False) == status
+    err = capsys.readouterr().err
+    if nonfinite and not interrupted:
+        assert "5 samples had NaN or infinite radiance; 2 pixels flagged" in err
+
+
+def read_until(fd: int, marker: bytes) -> bytes:
+    """Read a pty until `marker` shows up or the writer is gone."""
+    seen = b""
+    while marker not in seen:
+        try:
+            chunk = os.read(fd, 4096)
+        except OSError:  # EIO: the child closed its side
+            break
+        if not chunk:
+            break
+        seen += chunk
+    return seen
+
+
+def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
+    # stderr on a pseudo-terminal, so the progress bar draws: its first line says a tile is
+    # done, which is when the interrupt is sent (no timing guesses).
+    out = tmp_path / "slow.exr"
+    controller, terminal = pty.openpty()
+    command = [sys.executable, "-m", "clrender", "render", "analytic", "--res", "256",
+               "--spp", "64", "-o", str(out)]  # fmt: skip
+    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=terminal, cwd=tmp_path)
+    os.close(terminal)
+    try:
+        progress = read_until(controller, b"elapsed")
+        assert b"%" in progress, progress
+        child.send_signal(signal.SIGINT)
+        messages = read_until(controller, b"(partial=1)")
+        stdout, _ = child.communicate()
+    finally:
+        os.close(controller)
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 130, messages
+    assert b"interrupted" in messages and b"interrupted:" in stdout
+    pixels, meta = read_exr(out)
+    total = 256 * 256
+    assert meta["partial"] == 1 and 0 < meta["rendered_pixels"] < total
+    # Every channel of the analytic image is positive: rendered pixels are exactly the nonzero.
+    assert np.count_nonzero(pixels.max(axis=2)) == meta["rendered_pixels"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.exr", "slow.png"]
