@@ -77,6 +77,8 @@ def add_device_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_render_options(parser: argparse.ArgumentParser) -> None:
+    from clrender.render import ESTIMATOR_NAMES
+
     add = parser.add_argument
     add("scene", nargs="?", default=DEFAULT_SCENE,
         help=f"scene name, .toml file or analytic[:KIND] (default: {DEFAULT_SCENE})")
@@ -90,7 +92,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     add("--sampler", default=DEFAULT_SAMPLER, metavar="NAME",
         help=f"uniform, stratified (spp a perfect square) or sppp (default: {DEFAULT_SAMPLER})")
     add("--estimator", default=None, metavar="NAME",
-        help="per-pixel estimator: mc, mc_n, vor, vor_sn, fvor, cvor, pvor "
+        help=f"pixel estimator: {', '.join(ESTIMATOR_NAMES)} "
              "(default: vor_sn with sppp, mc otherwise)")
     add("--seed", type=int, default=0, help="random seed, 0 <= S < 2^32 (default: 0)")
     add("--max-depth", type=int, default=8, metavar="D",

@@ -36,9 +36,11 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+import pyopencl as cl
 
+from clrender import image_voronoi
 from clrender.errors import ParameterError
-from clrender.estimators import PixelSamples, estimate, estimator_info
+from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimator_info
 from clrender.film import Film
 from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime
@@ -58,6 +60,10 @@ REDRAWS_BEFORE_ENLARGE = 3 - 1
 MAX_REDRAW_ROUNDS = 12 - 1
 
 ProgressCallback = Callable[[int, int], None]
+# Per-pixel estimators (clrender.estimators) and image-level ones (clrender.image_voronoi:
+# one tessellation of the whole image plane, neighbours' nuclei shaping each pixel's cells).
+IMAGE_ESTIMATORS = tuple(image_voronoi.ESTIMATOR_NAMES)
+ESTIMATOR_NAMES = (*ESTIMATORS, *IMAGE_ESTIMATORS)
 
 
 @dataclass(frozen=True)
@@ -121,14 +127,27 @@ class TileEstimate:
     nonfinite_samples: int
 
 
+def check_estimator(name: str) -> None:
+    if name not in ESTIMATOR_NAMES:
+        raise ParameterError(f"unknown estimator {name!r}; accepted: {', '.join(ESTIMATOR_NAMES)}")
+
+
+def needs_sppp(estimator: str) -> bool:
+    """Whether the estimator needs the SPPP sampler (auxiliary nuclei or Poisson counts)."""
+    check_estimator(estimator)
+    return estimator in IMAGE_ESTIMATORS or estimator_info(estimator).needs_aux
+
+
 def check_compatible(estimator: str, sampler: str) -> None:
-    """A one-line error if the estimator needs auxiliary nuclei the sampler does not draw."""
-    info = estimator_info(estimator)
-    if info.needs_aux and sampler != "sppp":
+    """A one-line error if the estimator needs what only the sppp sampler draws."""
+    if needs_sppp(estimator) and sampler != "sppp":
+        what = ("Poisson sample counts" if estimator in IMAGE_ESTIMATORS
+                else "auxiliary nuclei")  # fmt: skip
+        anywhere = ", ".join(name for name in ESTIMATOR_NAMES if not needs_sppp(name))
         raise ParameterError(
-            f"estimator {estimator!r} needs the auxiliary nuclei of the sppp sampler, and the "
+            f"estimator {estimator!r} needs the {what} of the sppp sampler, and the "
             f"{sampler!r} sampler draws none: use --sampler sppp, or an estimator that works "
-            "with any sampler (mc, mc_n, cvor, pvor)"
+            f"with any sampler ({anywhere})"
         )
 
 
@@ -172,16 +191,35 @@ def trace_tile(
     )
 
 
-def estimate_tile(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
+def estimate_tile(
+    settings: RenderSettings, tile: TileSamples, host_runtime: Runtime
+) -> TileEstimate:
     """Host stage: one estimate per pixel. Samples with non-finite radiance are counted, enter
-    the estimator as 0 and flag their pixel."""
+    the estimator as 0 and flag their pixel. host_runtime serves the image-level estimators,
+    which draw their guard nuclei on the device."""
     values = tile.radiance.astype(np.float64)
     bad_samples = ~np.isfinite(values).all(axis=1)
     values[bad_samples] = 0.0
-    counts = tile.sets.counts()
-    owner = np.repeat(np.arange(len(tile.pixels)), counts)
+    owner = np.repeat(np.arange(len(tile.pixels)), tile.sets.counts())
     flagged = np.bincount(owner, bad_samples, len(tile.pixels)) > 0
-    sets = tile.sets
+    if settings.estimator in IMAGE_ESTIMATORS:
+        estimates, needs_redraw = image_estimates(settings, tile, values, host_runtime)
+    else:
+        estimates, needs_redraw = pixel_estimates(settings, tile.sets, values)
+    return TileEstimate(
+        tile.pixels,
+        tile.redraws,
+        estimates.reshape(len(tile.pixels), 3),
+        flagged,
+        needs_redraw,
+        int(np.count_nonzero(bad_samples)) + tile.source_nonfinite,
+    )
+
+
+def pixel_estimates(
+    settings: RenderSettings, sets: HostSampleSets, values: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators)."""
     samples = PixelSamples(
         sets.traced.astype(np.float64),
         values,
@@ -192,14 +230,25 @@ def estimate_tile(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
         settings.sampler.eps,
     )
     result = estimate(settings.estimator, samples)
-    return TileEstimate(
-        tile.pixels,
-        tile.redraws,
-        result.estimates.reshape(len(tile.pixels), 3),
-        flagged,
-        result.needs_redraw,
-        int(np.count_nonzero(bad_samples)) + tile.source_nonfinite,
-    )
+    return result.estimates, result.needs_redraw
+
+
+def image_estimates(
+    settings: RenderSettings, tile: TileSamples, values: np.ndarray, host_runtime: Runtime
+) -> tuple[np.ndarray, np.ndarray]:
+    """(estimates, no redraws) of an image-level estimator (clrender.image_voronoi)."""
+    run = image_voronoi.estimate_tile_image(
+        host_runtime, settings.sampler, settings.seed, settings.width, settings.height,
+        tile.pixels, tile.sets.traced, tile.sets.offsets, values,
+    )  # fmt: skip
+    return run.estimates[settings.estimator], np.zeros(len(tile.pixels), bool)
+
+
+def sibling_runtime(runtime: Runtime) -> Runtime:
+    """A second context and queue on the same device, for device calls from the estimator
+    thread: kernel objects (and their arguments) are never shared between threads."""
+    context = cl.Context([runtime.device])
+    return Runtime(runtime.device, context, cl.CommandQueue(context), runtime.local_size)
 
 
 # --- the pipeline ------------------------------------------------------------------------
@@ -215,6 +264,8 @@ class TilePipeline:
         self.film = Film(settings.width, settings.height)
         self.stats = RenderStats()
         self.in_flight: Future | None = None  # the estimate of the previous tile
+        needs_device = settings.estimator in IMAGE_ESTIMATORS and settings.overlap
+        self.host_runtime = sibling_runtime(runtime) if needs_device else runtime
 
     def trace(
         self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
@@ -229,7 +280,7 @@ class TilePipeline:
 
     def estimate(self, tile: TileSamples) -> TileEstimate:
         start = time.perf_counter()
-        result = estimate_tile(self.settings, tile)
+        result = estimate_tile(self.settings, tile, self.host_runtime)
         self.stats.host_seconds += time.perf_counter() - start
         return result
 

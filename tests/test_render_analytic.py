@@ -102,7 +102,7 @@ def test_pixel_estimates_land_on_the_right_pixels(runtime):
 @pytest.mark.parametrize(
     "estimator, sampler",
     [("mc", "uniform"), ("mc", "stratified"), ("mc", "sppp"), ("vor", "sppp"),
-     ("pvor", "uniform"), ("pvor", "sppp")],
+     ("pvor", "uniform"), ("pvor", "sppp"), ("ivor", "sppp")],
 )  # fmt: skip
 def test_unbiased_estimators_within_4_standard_errors(runtime, estimator, sampler):
     errors = render_errors(runtime, check_image(WIDTH, HEIGHT), estimator, sampler)
@@ -117,12 +117,12 @@ def check_errors(runtime):
     image = check_image(WIDTH, HEIGHT)
     return {
         name: render_errors(runtime, image, name, sampler)
-        for name, sampler in [("vor_sn", "sppp"), ("fvor", "sppp"), ("mc", "uniform"),
-                              ("mc_n", "sppp")]
+        for name, sampler in [("vor_sn", "sppp"), ("fvor", "sppp"), ("ivor_sn", "sppp"),
+                              ("mc", "uniform"), ("mc_n", "sppp")]
     }  # fmt: skip
 
 
-@pytest.mark.parametrize("estimator", ["vor_sn", "fvor"])
+@pytest.mark.parametrize("estimator", ["vor_sn", "fvor", "ivor_sn"])
 def test_normalised_voronoi_bias_below_2_percent(check_errors, estimator):
     # Ratio estimators: biased by O(1/n); at n = 16 the bowl shows about 1.2 % (z ~ -4.5).
     mean_integrals = check_image(WIDTH, HEIGHT).pixel_integrals(WIDTH, HEIGHT).mean(axis=(0, 1))
@@ -130,7 +130,7 @@ def test_normalised_voronoi_bias_below_2_percent(check_errors, estimator):
     assert np.all(np.abs(bias) < 0.02 * mean_integrals), bias
 
 
-@pytest.mark.parametrize("estimator", ["vor_sn", "fvor"])
+@pytest.mark.parametrize("estimator", ["vor_sn", "fvor", "ivor_sn"])
 def test_normalised_voronoi_beats_mc_on_smooth_and_discontinuous_channels(
     check_errors, estimator
 ):

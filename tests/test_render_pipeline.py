@@ -29,7 +29,8 @@ def settings(sampler="sppp", estimator="vor_sn", spp=16, eps=None, **options):
 
 
 @pytest.mark.parametrize(
-    "sampler, estimator", [("sppp", "vor_sn"), ("sppp", "fvor"), ("stratified", "pvor")]
+    "sampler, estimator",
+    [("sppp", "vor_sn"), ("sppp", "fvor"), ("stratified", "pvor"), ("sppp", "ivor_sn")],
 )
 def test_image_is_bit_identical_whatever_the_tiling_and_overlap(runtime, sampler, estimator):
     source = analytic_source(runtime)
@@ -79,6 +80,10 @@ def test_rejected_pixels_are_redrawn_deterministically_and_stay_accurate(runtime
 def test_sampler_without_auxiliary_nuclei_is_rejected_with_advice():
     with pytest.raises(ParameterError, match="'vor'.*sppp.*mc, mc_n, cvor, pvor"):
         check_compatible("vor", "uniform")
+    with pytest.raises(ParameterError, match="'ivor_sn' needs the Poisson sample counts"):
+        check_compatible("ivor_sn", "stratified")
+    with pytest.raises(ParameterError, match="unknown estimator 'vr'; accepted: mc, "):
+        check_compatible("vr", "sppp")
     check_compatible("pvor", "stratified")
     check_compatible("mc", "sppp")
 
