@@ -30,6 +30,7 @@ from clrender.radiance import SampleRadiance
 from clrender.sampling import DeviceSampleSets
 
 ANALYTIC_PREFIX = "analytic"
+ANALYTIC_KINDS = ("edge", "smooth", "disc", "bowl", "mix")
 DEFAULT_RESOLUTION = (64, 64)
 
 
@@ -211,7 +212,7 @@ def analytic_image(name: str, width: int, height: int) -> AnalyticImage:
     elif kind in functions:
         channels = (functions[kind],) * 3
     else:
-        accepted = ", ".join(f"{ANALYTIC_PREFIX}:{k}" for k in [*functions, "mix"])
+        accepted = ", ".join(f"{ANALYTIC_PREFIX}:{k}" for k in ANALYTIC_KINDS)
         raise ParameterError(f"unknown analytic scene {name!r}; accepted: {accepted}")
     return AnalyticImage(f"{ANALYTIC_PREFIX}:{kind}", channels)
 

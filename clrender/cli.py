@@ -41,7 +41,7 @@ several times below mc's on the same samples, and unlike cvor/pvor it needs no e
 time). --estimator defaults to vor_sn with sppp and mc with uniform or stratified samples.
 vor, vor_sn and fvor need the auxiliary nuclei only the sppp sampler draws; mc, mc_n, cvor
 and pvor work with every sampler. SCENE is a shipped scene name, a .toml path, or
-analytic[:edge|smooth|disc|mix] (images with exact pixel integrals, for checks).
+analytic[:edge|smooth|disc|bowl|mix] (images with exact pixel integrals, for checks).
 exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 130 interrupted
 (Ctrl-C writes the pixels done so far, with partial=1 in the EXR metadata)."""
 
@@ -203,11 +203,18 @@ def make_source(args: argparse.Namespace, runtime):
         width, height = DEFAULT_RESOLUTION if size is None else size
         height = width if height is None else height
         return AnalyticSource.for_scene(args.scene, runtime.queue, width, height), None
+    from clrender.analytic import ANALYTIC_KINDS
     from clrender.radiance import PathTracerSource
-    from clrender.scene import load_scene
+    from clrender.scene import SceneError, load_scene
     from clrender.trace import PathTracer
 
-    tracer = PathTracer(runtime, load_scene(args.scene), max_depth=args.max_depth)
+    try:
+        scene = load_scene(args.scene)
+    except SceneError as err:
+        if Path(args.scene).exists():
+            raise
+        raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
+    tracer = PathTracer(runtime, scene, max_depth=args.max_depth)
     width, height = tracer.image_size(*(size or (None, None)))
     return PathTracerSource(tracer, width, height), args.max_depth
 
