@@ -393,6 +393,18 @@ def storm_section(pixels: int, rng) -> dict:
             "defaults_on_exhausted_raise": raised}
 
 
+def storm_reference(all_runs: dict[int, Runs]) -> dict | None:
+    """holder_1 at n = STORM_N and the paper's eps (no storm), for comparison."""
+    if STORM_N not in all_runs:
+        return None
+    c, exact = col("holder_1"), EXACT[col("holder_1")]
+    out = {}
+    for name in SPPP_NAMES:
+        d = describe(all_runs[STORM_N].estimates[name][:, c], exact)
+        out[name] = {**d, "z": d["bias"] / d["se"]}
+    return out
+
+
 def discontinuity_section(all_runs: dict[int, Runs], ns) -> dict:
     c, exact = col("discontinuity"), EXACT[col("discontinuity")]
     return {n: {name: describe(all_runs[n].estimates[name][:, c], exact)
@@ -483,7 +495,7 @@ def storm_atlas_row(runs: Runs, storm: dict, rng) -> dict:
     for name in SPPP_NAMES:
         r = ratio_ci(storm["runs"][label]["holder_1"][name] - exact, base, "RMSE", rng)
         cells[name] = {**r, "verdict": verdict(r)}
-    return {"situation": f"storm: eps = {STORM_EPS:g}, n = {STORM_N} ({label}), holder_1",
+    return {"situation": f"storm (eps {STORM_EPS:g}, {label}): holder_1, n = {STORM_N}",
             "n": STORM_N, "column": "holder_1", "metric": "RMSE", "cells": cells}
 
 
@@ -502,7 +514,7 @@ def plot_atlas(atlas: list[dict], out: Path) -> str:
     ratios = np.array([[row["cells"][name]["ratio"] if name in row["cells"] else np.nan
                         for name in ROW_NAMES] for row in atlas])
     shown = np.clip(np.log2(np.where(np.isinf(ratios), 8.0, ratios)), -3, 3)
-    fig, ax = plt.subplots(figsize=(10, 0.45 * len(atlas) + 1.5))
+    fig, ax = plt.subplots(figsize=(13, 0.45 * len(atlas) + 1.5))
     image = ax.imshow(shown, cmap="RdBu_r", vmin=-3, vmax=3, aspect="auto")
     for i, row in enumerate(atlas):
         for j, name in enumerate(ROW_NAMES):
@@ -523,10 +535,11 @@ def plot_small_n(small: dict, out: Path) -> str:
     ns = [r["n"] for r in rows]
     fig, (ax0, ax1, ax2) = plt.subplots(1, 3, figsize=(15, 4.5))
     ax0.semilogy(ns, [max(r["p_empty"], 1e-6) for r in rows], "o", label="measured P(N = 0)")
-    ax0.semilogy(ns, [r["p_empty_poisson"] for r in rows], "-", label="exp(-n)")
+    ax0.semilogy(ns, [max(r["p_empty_poisson"], 1e-7) for r in rows], "-", label="exp(-n)")
     for k in (1, 2, 3):
         ax0.semilogy(ns, [max(r[f"p_N{k}"], 1e-6) for r in rows], ".--", label=f"P(N = {k})")
-    ax0.set(xscale="log", xlabel="n", ylabel="fraction of pixels", title="Poisson count")
+    ax0.set(xscale="log", ylim=(5e-7, 1.5), xlabel="n",
+            ylabel="fraction of pixels (0 drawn at 1e-6)", title="Poisson count of the SPPP draws")
     for name in ROW_NAMES:
         bias = np.array([r["estimators"][name]["bias"] for r in rows])
         se = np.array([r["estimators"][name]["se"] for r in rows])
@@ -575,6 +588,9 @@ def plot_storm(storm: dict, out: Path) -> str:
         z = [storm["runs"][label]["summary"]["holder_1"][name]["z"] for name in SPPP_NAMES]
         ax0.bar(np.arange(len(SPPP_NAMES)) + i * width, np.clip(z, -60, 60), width,
                 label=label)
+    if storm["reference"] is not None:
+        z = [storm["reference"][name]["z"] for name in SPPP_NAMES]
+        ax0.plot(np.arange(len(SPPP_NAMES)) + 0.4, z, "kD", label="paper's eps, no storm")
     ax0.axhspan(-4, 4, color="g", alpha=0.15, label="|z| < 4")
     ax0.set_xticks(np.arange(len(SPPP_NAMES)) + 0.4, SPPP_NAMES)
     ax0.set(ylabel="bias / SE (clipped to +-60)", title="Storm: holder_1 bias in SE")
@@ -614,10 +630,12 @@ def plot_fireflies(fire: dict, out: Path) -> str:
     ns = list(fire["by_n"])
     fig, axes = plt.subplots(1, len(ns) + 1, figsize=(5 * (len(ns) + 1), 4.5))
     for ax, n in zip(axes, ns, strict=False):
-        for name, d in fire["by_n"][n].items():
-            ax.loglog(fire["gains"], d["rmse_by_gain"], marker="o", ms=3,
-                      label="mc (uniform)" if name == "baseline" else name)
-        ax.set(xlabel="firefly gain (1 = no firefly)", ylabel="RMSE",
+        base = np.array(fire["by_n"][n]["baseline"]["rmse_by_gain"])
+        for name in ROW_NAMES:
+            ratio = np.array(fire["by_n"][n][name]["rmse_by_gain"]) / base
+            ax.loglog(fire["gains"], ratio, marker="o", ms=3, label=name)
+        ax.axhline(1, color="k", lw=0.8, ls="--")
+        ax.set(xlabel="firefly gain (1 = no firefly)", ylabel="RMSE / RMSE(mc uniform)",
                title=f"smooth pixel, one firefly, n = {n}")
         ax.legend(fontsize=7)
     n = ns[-1]
@@ -625,7 +643,7 @@ def plot_fireflies(fire: dict, out: Path) -> str:
     axes[-1].bar(names, [fire["by_n"][n][m]["n_weight_rms"] for m in names], label="rms")
     axes[-1].plot(names, [fire["by_n"][n][m]["n_weight_max"] for m in names], "v", color="C3",
                   label="max")
-    axes[-1].set(yscale="log", ylabel="n x weight of the firefly sample",
+    axes[-1].set(yscale="log", ylabel="n x weight of the firefly sample (rms, max)",
                  title=f"firefly weight, n = {n}")
     axes[-1].tick_params(axis="x", labelsize=7)
     axes[-1].legend(fontsize=7)
@@ -712,11 +730,12 @@ def small_n_markdown(small: dict, near: dict, fvor_rows: list[dict]) -> list[str
         rows.append([label, entry["pixels"], *cells])
     lines += table(["N", "pixels", *SPPP_NAMES], rows)
     lines += ["", "### fvor with an empty filtered set (no W cell inside W')", "",
-              *table(["n", "eps", "valid pixels with N >= 1", "empty filter", "frequency",
+              *table(["n", "eps", "valid pixels with N >= 1", "empty filter",
+                      "stats.empty_filtered", "frequency",
                       "mean N when empty", "max abs(fvor - vor_sn) there",
                       "RMS error: empty / kept"],
                      [[r["n"], fmt(r["eps"]), r["valid_nonempty"], r["empty_filtered"],
-                       fmt(r["frequency"]), fmt(r["mean_N_when_empty"]),
+                       r["stats_empty_filtered"], fmt(r["frequency"]), fmt(r["mean_N_when_empty"]),
                        fmt(r["max_abs_fvor_minus_vor_sn"]),
                        f"{fmt(r['rms_error_empty'])} / {fmt(r['rms_error_kept'])}"]
                       for r in fvor_rows])]
@@ -742,6 +761,12 @@ def storm_markdown(storm: dict) -> list[str]:
     header = ["driver", "seconds", "rounds", "redraws", "eps enlargements", "final eps",
               "exhausted", "Qhull calls", *[f"{m} z" for m in SPPP_NAMES]]
     rows = []
+    reference = storm["reference"]
+    if reference is not None:
+        pixels = reference["mc"]["runs"]
+        rows.append([f"reference: paper's eps, no storm ({pixels} pixels)", "-", "-", "-", "-",
+                     fmt(storm["paper_eps"]), "-", "-",
+                     *[f"{reference[m]['z']:+.1f}" for m in SPPP_NAMES]])
     for label, run in storm["runs"].items():
         s = run["redraw"]
         rows.append([label, f"{run['seconds']:.1f}", s["rounds"], s["redraws"],
@@ -935,7 +960,7 @@ def analyse(cfg: Config, measured: dict, all_runs: dict[int, Runs], rng) -> dict
         "near_empty": near_empty_section(all_runs[cfg.near_empty_n]),
         "fvor_empty": measured["fvor_empty"],
         "rejection": measured["rejection"],
-        "storm": measured["storm"],
+        "storm": {**measured["storm"], "reference": storm_reference(all_runs)},
         "discontinuity": discontinuity_section(all_runs, cfg.discontinuity_ns),
         "fireflies": firefly_section(all_runs, cfg.firefly_ns),
         "flat": flat_section(all_runs),
