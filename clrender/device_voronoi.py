@@ -1,0 +1,273 @@
+"""Voronoi cell areas of per-pixel SPPP sample sets on the OpenCL device.
+
+The device counterpart of clrender.voronoi_cells.sppp_cells (SciPy Qhull on the host): the same
+cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas result, so the
+estimators vor, vor_sn and fvor can use either. kernels/voronoi_cells.cl sorts each pixel's
+nuclei into a grid, then clips one polygon per traced nucleus with its neighbours' bisectors
+until a security radius proves the cell exact (see the kernel's header).
+
+Entry points:
+  device_sppp_cells(runtime, sample_sets, box)     the positions already on the device
+                                                   (clrender.sampling.DeviceSampleSets)
+  device_sppp_cells_from_arrays(runtime, positions, offsets, aux, aux_offsets, box)
+                                                   NumPy arrays, uploaded (tests, benchmarks)
+
+Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
+bounded cell reaching beyond the start box, exactly collinear neighbours) flag their pixel;
+those pixels are recomputed on the host with sppp_cells, so the result is always the exact
+diagram. stats.recomputed_pixels counts them (and stats.qhull_calls the host calls they took).
+
+Precision: the device sees float32 positions (the sampler's format); arrays are rounded to
+float32 on upload, and host fallbacks use the rounded values, so every pixel's cells are those
+of one point set. precision="double" runs the geometry in float64 (needs cl_khr_fp64).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+
+from clrender.errors import DeviceError, ParameterError
+from clrender.runtime import Runtime, padded_global_size
+from clrender.sampling import DeviceSampleSets
+from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
+
+KERNEL_FILE = "voronoi_cells.cl"
+STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK = 1, 2, 4
+# Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
+GRID_NUCLEI_PER_CELL = 2.0
+MAX_GRID_SIDE = 256
+# The start box is the grid's square grown by this many pixel widths on every side: a bounded
+# cell that reaches beyond it is recomputed on the host.
+START_BOX_MARGIN = 1.0
+MAX_VERTICES = 32
+PRECISIONS = ("single", "double")
+
+# Reads pixels' (traced, aux) positions as float64 arrays with their offsets, for fallbacks.
+FetchPixels = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """A launch's point layout: traced nuclei then auxiliary ones in one float2 buffer."""
+
+    positions: cl.Buffer
+    traced_offsets: np.ndarray   # (P + 1,) int64
+    aux_offsets: np.ndarray      # (P + 1,) int64, relative to the first auxiliary nucleus
+    half_extent: float           # the grid covers [-half_extent, half_extent]^2
+
+    @property
+    def pixel_count(self) -> int:
+        return len(self.traced_offsets) - 1
+
+    @property
+    def traced_total(self) -> int:
+        return int(self.traced_offsets[-1])
+
+
+# ---------------------------------------------------------------------------------------------
+# Public entry points
+
+
+def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: float | None = None,
+                      precision: str = "single") -> CellAreas:
+    """Cells of the W nuclei of a launch's SPPP sample sets, from the positions on the device.
+
+    box: also report which cells lie inside [-box, box]^2 (box = 1/2 + eps is W' for fvor).
+    """
+    config = sample_sets.config
+    pixels = sample_sets.pixel_count
+    aux_offsets = np.arange(pixels + 1, dtype=np.int64) * config.n_aux
+    layout = _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
+                     aux_offsets, 0.5 + config.eps)
+
+    def fetch(wanted: np.ndarray):
+        return _read_pixels(runtime.queue, layout, wanted)
+
+    return _cells(runtime, layout, box, precision, fetch)
+
+
+def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offsets: np.ndarray,
+                                  aux: np.ndarray, aux_offsets: np.ndarray,
+                                  box: float | None = None,
+                                  precision: str = "single") -> CellAreas:
+    """The same cells from NumPy arrays (sppp_cells' arguments), uploaded as float32."""
+    traced32, aux32 = _check_arrays(positions, offsets, aux, aux_offsets)
+    offsets = np.asarray(offsets, np.int64)
+    aux_offsets = np.asarray(aux_offsets, np.int64)
+    flat = np.concatenate([traced32, aux32])
+    extent = float(np.abs(flat).max()) if len(flat) else 0.5
+    buffer = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                       hostbuf=flat if len(flat) else np.zeros((1, 2), np.float32))
+    layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5))
+
+    def fetch(wanted: np.ndarray):
+        return _slice_pixels(traced32, offsets, aux32, aux_offsets, wanted)
+
+    return _cells(runtime, layout, box, precision, fetch)
+
+
+def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
+    """Build options for the precision; DeviceError if the device has no double support."""
+    if precision not in PRECISIONS:
+        raise ParameterError(f"unknown precision {precision!r}; accepted: {', '.join(PRECISIONS)}")
+    defines: dict[str, object] = {"VORONOI_MAX_VERTICES": MAX_VERTICES}
+    if precision == "double":
+        if "cl_khr_fp64" not in runtime.device.extensions.split():
+            raise DeviceError(f"device {runtime.describe()} has no cl_khr_fp64 (double "
+                              "precision): use precision='single'")
+        defines["VORONOI_DOUBLE"] = True
+    return defines
+
+
+def grid_side(layout_points: int, pixels: int) -> int:
+    """Cells per side of each pixel's neighbour grid, from the mean nuclei per pixel."""
+    mean = layout_points / max(pixels, 1)
+    side = round(math.sqrt(mean / GRID_NUCLEI_PER_CELL))
+    return int(min(max(side, 1), MAX_GRID_SIDE))
+
+
+# ---------------------------------------------------------------------------------------------
+# Launch and host fallback
+
+
+def _cells(runtime: Runtime, layout: _Layout, box: float | None, precision: str,
+           fetch: FetchPixels) -> CellAreas:
+    defines = kernel_defines(runtime, precision)
+    real = np.float64 if precision == "double" else np.float32
+    areas, status = _launch(runtime, layout, box, defines, real)
+    bounded = (status & STATUS_BOUNDED) != 0
+    cells = CellAreas(np.where(bounded, areas.astype(np.float64), np.nan), bounded,
+                      (status & STATUS_INSIDE) != 0 if box is not None else None,
+                      TessellationStats())
+    fallback = _fallback_pixels(layout.traced_offsets, (status & STATUS_FALLBACK) != 0)
+    if fallback.size:
+        _recompute_on_host(cells, layout.traced_offsets, fallback, fetch, box)
+    return cells
+
+
+def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[str, object],
+            real: type) -> tuple[np.ndarray, np.ndarray]:
+    """Run both kernels; (areas, status) of every traced nucleus."""
+    traced = layout.traced_total
+    areas = np.empty(traced, real)
+    status = np.empty(traced, np.uint8)
+    if traced == 0:
+        return areas, status
+    context, queue, local = runtime.context, runtime.queue, (runtime.local_size,)
+    pixels = layout.pixel_count
+    total = traced + int(layout.aux_offsets[-1])
+    side = grid_side(total, pixels)
+    if total >= 2**32 or pixels * (side * side + 1) >= 2**32:
+        raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
+    traced_off = _upload(context, layout.traced_offsets.astype(np.uint32))
+    aux_off = _upload(context, layout.aux_offsets.astype(np.uint32))
+    rw = cl.mem_flags.READ_WRITE
+    cell_start = cl.Buffer(context, rw, size=4 * pixels * (side * side + 1))
+    sorted_points = cl.Buffer(context, rw, size=8 * total)
+    sorted_ids = cl.Buffer(context, rw, size=4 * total)
+    areas_buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, size=areas.nbytes)
+    status_buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, size=status.nbytes)
+    half = np.float32(layout.half_extent)
+
+    build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
+    build(queue, (padded_global_size(pixels, local[0]),), local, np.uint32(pixels),
+          np.uint32(traced), np.int32(side), half, layout.positions, traced_off, aux_off,
+          cell_start, sorted_points, sorted_ids)
+    compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
+    compute(queue, (padded_global_size(traced, local[0]),), local, np.uint32(pixels),
+            np.uint32(1 << (pixels.bit_length() - 1)), np.uint32(traced), np.int32(side), half,
+            np.float32(layout.half_extent + START_BOX_MARGIN),
+            np.float32(box if box is not None else np.inf), layout.positions, traced_off,
+            aux_off, cell_start, sorted_points, sorted_ids, areas_buf, status_buf)
+    cl.enqueue_copy(queue, areas, areas_buf)
+    cl.enqueue_copy(queue, status, status_buf)
+    return areas, status
+
+
+def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndarray:
+    if not flagged.any():
+        return np.zeros(0, np.int64)
+    owner = np.repeat(np.arange(len(traced_offsets) - 1), np.diff(traced_offsets))
+    return np.unique(owner[flagged])
+
+
+def _recompute_on_host(cells: CellAreas, traced_offsets: np.ndarray, pixels: np.ndarray,
+                       fetch: FetchPixels, box: float | None) -> None:
+    """Exact cells of the given pixels from Qhull, written over the device's."""
+    traced, offsets, aux, aux_offsets = fetch(pixels)
+    redo = sppp_cells(traced, offsets, aux, aux_offsets, box)
+    index = _pixel_slots(traced_offsets, pixels)
+    cells.areas[index] = redo.areas
+    cells.bounded[index] = redo.bounded
+    if cells.inside_box is not None:
+        cells.inside_box[index] = redo.inside_box
+    cells.stats.add(redo.stats)
+    cells.stats.recomputed_pixels = redo.stats.recomputed_pixels + len(pixels)
+
+
+def _pixel_slots(offsets: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """Concatenated ranges offsets[p]:offsets[p+1] for p in pixels."""
+    if len(pixels) == 0:
+        return np.zeros(0, np.int64)
+    return np.concatenate([np.arange(offsets[p], offsets[p + 1]) for p in pixels])
+
+
+def _slice_pixels(traced: np.ndarray, offsets: np.ndarray, aux: np.ndarray,
+                  aux_offsets: np.ndarray, pixels: np.ndarray):
+    """Some pixels' positions (float64) with offsets of their own."""
+    t_index = _pixel_slots(offsets, pixels)
+    a_index = _pixel_slots(aux_offsets, pixels)
+    t_counts = offsets[pixels + 1] - offsets[pixels]
+    a_counts = aux_offsets[pixels + 1] - aux_offsets[pixels]
+    return (traced[t_index].astype(np.float64), _counts_to_offsets(t_counts),
+            aux[a_index].astype(np.float64), _counts_to_offsets(a_counts))
+
+
+def _read_pixels(queue: cl.CommandQueue, layout: _Layout, pixels: np.ndarray):
+    """Some pixels' positions read back from the device buffer, one copy per range."""
+    parts = []
+    for first, offsets in ((0, layout.traced_offsets),
+                           (layout.traced_total, layout.aux_offsets)):
+        for p in pixels:
+            chunk = np.empty((int(offsets[p + 1] - offsets[p]), 2), np.float32)
+            if len(chunk):
+                cl.enqueue_copy(queue, chunk, layout.positions,
+                                src_offset=8 * (first + int(offsets[p])))
+            parts.append(chunk)
+    half = len(pixels)
+    traced, aux = parts[:half], parts[half:]
+    return (np.concatenate(traced).astype(np.float64),
+            _counts_to_offsets(np.array([len(c) for c in traced])),
+            np.concatenate(aux).astype(np.float64),
+            _counts_to_offsets(np.array([len(c) for c in aux])))
+
+
+def _counts_to_offsets(counts: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
+def _upload(context: cl.Context, array: np.ndarray) -> cl.Buffer:
+    flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    return cl.Buffer(context, flags, hostbuf=array)
+
+
+def _check_arrays(positions, offsets, aux, aux_offsets) -> tuple[np.ndarray, np.ndarray]:
+    """float32 (T, 2) and (A, 2) copies; ParameterError on bad shapes, offsets or values."""
+    traced = np.ascontiguousarray(positions, np.float32).reshape(-1, 2)
+    aux32 = np.ascontiguousarray(aux, np.float32).reshape(-1, 2)
+    offsets, aux_offsets = np.asarray(offsets), np.asarray(aux_offsets)
+    for name, off, total in (("offsets", offsets, len(traced)),
+                             ("aux_offsets", aux_offsets, len(aux32))):
+        if (off.ndim != 1 or len(off) < 1 or off[0] != 0 or off[-1] != total
+                or (np.diff(off) < 0).any()):
+            raise ParameterError(f"{name} must rise from 0 to {total}")
+    if len(offsets) != len(aux_offsets):
+        raise ParameterError("offsets and aux_offsets must describe the same pixels")
+    if not (np.isfinite(traced).all() and np.isfinite(aux32).all()):
+        raise ParameterError("positions must be finite")
+    return traced, aux32

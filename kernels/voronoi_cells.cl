@@ -1,0 +1,439 @@
+// Voronoi cell areas of per-pixel SPPP sample sets, one work-item per traced nucleus.
+//
+// Each pixel's nuclei (its traced samples in W plus its auxiliary nuclei in the strip W' \ W)
+// form their own diagram; only the cells of the traced nuclei are computed. Two kernels:
+//   voronoi_build_grid: one work-item per pixel sorts the pixel's nuclei into a uniform
+//     grid_side x grid_side grid over [-half_extent, half_extent]^2 (counting sort: counts,
+//     prefix sums, fill), so a cell's nuclei are contiguous and a row of cells is one range.
+//   voronoi_cell_areas: one work-item per traced nucleus clips a start box with the bisectors
+//     of the pixel's other nuclei, visiting grid rings outward ("meshless Voronoi"). Once every
+//     unvisited nucleus is at least 2 R away (R = farthest polygon vertex from the nucleus), no
+//     bisector can cut the polygon any more, so it is the exact cell.
+// All geometry is relative to the nucleus. Final vertices are recomputed as the intersection of
+// their two bisectors from the neighbours' coordinates, so the area does not inherit the
+// rounding of the clipping history (float32 keeps ~1e-6 relative accuracy; -DVORONOI_DOUBLE
+// switches to double).
+//
+// A polygon that still has an edge of the start box after the search is either unbounded (the
+// nucleus lies on the convex hull of its pixel's nuclei) or larger than the box; an O(N) test
+// of the cell's recession cone tells them apart. Status bits per traced nucleus:
+//   VORONOI_BOUNDED   the cell is bounded (area valid)
+//   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test)
+//   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
+//                     collinear configuration): the host recomputes the pixel with Qhull.
+// Coincident nuclei share their cell equally, as in the host reference.
+
+#ifdef VORONOI_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real;
+typedef double2 real2;
+#define REAL2(v) convert_double2(v)
+#else
+typedef float real;
+typedef float2 real2;
+#define REAL2(v) (v)
+#endif
+
+#ifndef VORONOI_MAX_VERTICES
+#define VORONOI_MAX_VERTICES 32
+#endif
+
+#define VORONOI_BOUNDED 1
+#define VORONOI_INSIDE 2
+#define VORONOI_FALLBACK 4
+
+// Stop and skip tests keep a relative safety margin for rounding (they only cost extra clips).
+#define VORONOI_RADIUS_SLACK 1.0001f
+
+// A convex polygon around the nucleus (at the origin). Edge k runs from vertex k to vertex
+// k + 1 and lies on the bisector of the origin and neighbour vector e[k]; e[k] = 0 marks an
+// edge of the start box.
+typedef struct {
+    real vx[VORONOI_MAX_VERTICES];
+    real vy[VORONOI_MAX_VERTICES];
+    real ex[VORONOI_MAX_VERTICES];
+    real ey[VORONOI_MAX_VERTICES];
+    int count;
+    real radius2;  // squared distance of the farthest vertex
+} VoronoiPolygon;
+
+// ---------------------------------------------------------------------------------------------
+// Pixels and grid
+
+// The pixel whose [offsets[p], offsets[p+1]) range holds slot i: a binary search with the same
+// number of steps for every work-item (search_span = the largest power of two <= pixel_count).
+inline uint Voronoi_OwnerPixel(__global const uint *offsets, uint pixel_count, uint search_span,
+                               uint i)
+{
+    uint lo = 0u;
+    for (uint step = search_span; step > 0u; step >>= 1) {
+        uint mid = lo + step;
+        if (mid < pixel_count && offsets[mid] <= i)
+            lo = mid;
+    }
+    return lo;
+}
+
+// Grid column (or row) of coordinate x; points outside the grid go to the border cells, which
+// keeps the ring search's distance bound valid (they lie beyond those cells).
+inline int VoronoiGrid_Index(float x, float half_extent, float inv_cell, int grid_side)
+{
+    int c = (int)floor((x + half_extent) * inv_cell);
+    return clamp(c, 0, grid_side - 1);
+}
+
+inline int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, int grid_side)
+{
+    return VoronoiGrid_Index(x.y, half_extent, inv_cell, grid_side) * grid_side
+           + VoronoiGrid_Index(x.x, half_extent, inv_cell, grid_side);
+}
+
+// One pixel per work-item: counting sort of its nuclei into grid cells. Slot s of the sorted
+// arrays (from base = traced_offsets[p] + aux_offsets[p]) holds a position and its index in the
+// positions buffer (aux nucleus j of the launch is traced_total + j).
+__kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
+                                 float half_extent, __global const float2 *positions,
+                                 __global const uint *traced_offsets,
+                                 __global const uint *aux_offsets, __global uint *cell_start,
+                                 __global float2 *sorted_points, __global uint *sorted_ids)
+{
+    uint p = get_global_id(0);
+    if (p >= pixel_count)
+        return;
+    int cells = grid_side * grid_side;
+    float inv_cell = (float)grid_side / (2.0f * half_extent);
+    __global uint *start = cell_start + (size_t)p * (uint)(cells + 1);
+    uint t0 = traced_offsets[p], t1 = traced_offsets[p + 1];
+    uint a0 = traced_total + aux_offsets[p], a1 = traced_total + aux_offsets[p + 1];
+    uint base = t0 + aux_offsets[p];
+
+    // Count the nuclei of each grid cell
+    for (int c = 0; c <= cells; ++c)
+        start[c] = 0u;
+    for (uint j = t0; j < t1; ++j)
+        start[VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side)] += 1u;
+    for (uint j = a0; j < a1; ++j)
+        start[VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side)] += 1u;
+
+    // Inclusive prefix sums: start[c] becomes the end of cell c
+    uint running = 0u;
+    for (int c = 0; c < cells; ++c) {
+        running += start[c];
+        start[c] = running;
+    }
+    start[cells] = running;
+
+    // Fill back to front: each decrement leaves start[c] at the first slot of cell c
+    for (uint j = a1; j > a0; --j) {
+        float2 x = positions[j - 1u];
+        uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
+        sorted_points[base + s] = x;
+        sorted_ids[base + s] = j - 1u;
+    }
+    for (uint j = t1; j > t0; --j) {
+        float2 x = positions[j - 1u];
+        uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
+        sorted_points[base + s] = x;
+        sorted_ids[base + s] = j - 1u;
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Polygon clipping
+
+// The start box [-box, box]^2 seen from the nucleus x, counter-clockwise, edges marked as box.
+inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, real2 x, real box)
+{
+    real lo_x = -box - x.x, hi_x = box - x.x, lo_y = -box - x.y, hi_y = box - x.y;
+    poly->vx[0] = lo_x; poly->vy[0] = lo_y;
+    poly->vx[1] = hi_x; poly->vy[1] = lo_y;
+    poly->vx[2] = hi_x; poly->vy[2] = hi_y;
+    poly->vx[3] = lo_x; poly->vy[3] = hi_y;
+    poly->radius2 = 0;
+    for (int k = 0; k < 4; ++k) {
+        poly->ex[k] = 0;
+        poly->ey[k] = 0;
+        poly->radius2 = fmax(poly->radius2, poly->vx[k] * poly->vx[k] + poly->vy[k] * poly->vy[k]);
+    }
+    poly->count = 4;
+}
+
+// Keep the half-plane closer to the origin than to v: v.p <= |v|^2 / 2. Returns false on
+// vertex overflow (the polygon is then unusable).
+bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
+{
+    int m = poly->count;
+    real level = 0.5f * (v.x * v.x + v.y * v.y);
+    real d[VORONOI_MAX_VERTICES];
+    bool any_out = false;
+    for (int k = 0; k < m; ++k) {
+        d[k] = v.x * poly->vx[k] + v.y * poly->vy[k] - level;
+        any_out |= d[k] > 0;
+    }
+    if (!any_out)
+        return true;
+
+    // Sutherland-Hodgman: walk the edges, keeping inside vertices and the two crossings
+    real nx[VORONOI_MAX_VERTICES], ny[VORONOI_MAX_VERTICES];
+    real nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
+    int out = 0;
+    for (int k = 0; k < m; ++k) {
+        int k1 = k + 1 == m ? 0 : k + 1;
+        bool in_a = d[k] <= 0, in_b = d[k1] <= 0;
+        if (in_a) {
+            if (out >= VORONOI_MAX_VERTICES)
+                return false;
+            nx[out] = poly->vx[k]; ny[out] = poly->vy[k];
+            nex[out] = poly->ex[k]; ney[out] = poly->ey[k];
+            ++out;
+        }
+        if (in_a != in_b) {
+            if (out >= VORONOI_MAX_VERTICES)
+                return false;
+            real t = d[k] / (d[k] - d[k1]);
+            nx[out] = poly->vx[k] + t * (poly->vx[k1] - poly->vx[k]);
+            ny[out] = poly->vy[k] + t * (poly->vy[k1] - poly->vy[k]);
+            // Leaving: the new edge runs along the bisector; entering: along edge k
+            nex[out] = in_a ? v.x : poly->ex[k];
+            ney[out] = in_a ? v.y : poly->ey[k];
+            ++out;
+        }
+    }
+
+    // Copy back and update the farthest vertex distance
+    real radius2 = 0;
+    for (int k = 0; k < out; ++k) {
+        poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
+        poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
+        radius2 = fmax(radius2, nx[k] * nx[k] + ny[k] * ny[k]);
+    }
+    poly->count = out;
+    poly->radius2 = radius2;
+    return true;
+}
+
+inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly)
+{
+    bool touches = false;
+    for (int k = 0; k < poly->count; ++k)
+        touches |= poly->ex[k] == 0 && poly->ey[k] == 0;
+    return touches;
+}
+
+// Vertex k recomputed from the bisectors of edges k - 1 and k (falls back to the clipped
+// coordinates when the two bisectors are parallel).
+inline real2 VoronoiPolygon_Vertex(const VoronoiPolygon *poly, int k)
+{
+    int prev = k == 0 ? poly->count - 1 : k - 1;
+    real2 a = (real2)(poly->ex[prev], poly->ey[prev]);
+    real2 b = (real2)(poly->ex[k], poly->ey[k]);
+    real ca = 0.5f * dot(a, a), cb = 0.5f * dot(b, b);
+    real det = a.x * b.y - a.y * b.x;
+    if (det == 0)
+        return (real2)(poly->vx[k], poly->vy[k]);
+    return (real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
+}
+
+// Shoelace area from the recomputed vertices; inside: all vertices (absolute, nucleus at x)
+// lie in [-inside_box, inside_box]^2.
+inline real VoronoiPolygon_Area(const VoronoiPolygon *poly, real2 x, real inside_box,
+                                bool *inside)
+{
+    real twice_area = 0;
+    bool in_box = true;
+    real2 first = VoronoiPolygon_Vertex(poly, 0);
+    real2 prev = first;
+    for (int k = 1; k <= poly->count; ++k) {
+        real2 cur = k == poly->count ? first : VoronoiPolygon_Vertex(poly, k);
+        twice_area += prev.x * cur.y - prev.y * cur.x;
+        real2 absolute = x + prev;
+        in_box &= fabs(absolute.x) <= inside_box && fabs(absolute.y) <= inside_box;
+        prev = cur;
+    }
+    *inside = in_box;
+    return 0.5f * twice_area;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Neighbour search
+
+// Clip by the nuclei in sorted slots [s0, s1) of the pixel (skipping the nucleus itself and
+// counting its duplicates). Returns false on vertex overflow.
+bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint self, uint s0, uint s1,
+                           __global const float2 *sorted_points,
+                           __global const uint *sorted_ids, int *duplicates)
+{
+    for (uint s = s0; s < s1; ++s) {
+        real2 v = REAL2(sorted_points[s]) - x;
+        real dist2 = dot(v, v);
+        if (sorted_ids[s] == self)
+            continue;
+        if (dist2 == 0) {
+            *duplicates += 1;
+            continue;
+        }
+        // A bisector at distance >= R cannot cut a polygon within radius R
+        if (dist2 >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
+            continue;
+        if (!VoronoiPolygon_Clip(poly, v))
+            return false;
+    }
+    return true;
+}
+
+// Clip by the grid cells of ring k (Chebyshev distance k from cell (cx, cy)): full rows at the
+// ring's top and bottom (contiguous slots), two cells on each row in between.
+bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, uint self, int cx, int cy, int k,
+                          int grid_side, __global const uint *start, uint base,
+                          __global const float2 *sorted_points, __global const uint *sorted_ids,
+                          int *duplicates)
+{
+    int y0 = max(cy - k, 0), y1 = min(cy + k, grid_side - 1);
+    int x0 = max(cx - k, 0), x1 = min(cx + k, grid_side - 1);
+    bool ok = true;
+    for (int y = y0; y <= y1 && ok; ++y) {
+        int row = y * grid_side;
+        if (y == cy - k || y == cy + k) {
+            ok = VoronoiCell_ClipRange(poly, x, self, base + start[row + x0],
+                                       base + start[row + x1 + 1], sorted_points, sorted_ids,
+                                       duplicates);
+            continue;
+        }
+        if (cx - k >= 0)
+            ok = VoronoiCell_ClipRange(poly, x, self, base + start[row + cx - k],
+                                       base + start[row + cx - k + 1], sorted_points,
+                                       sorted_ids, duplicates);
+        if (ok && cx + k < grid_side)
+            ok = VoronoiCell_ClipRange(poly, x, self, base + start[row + cx + k],
+                                       base + start[row + cx + k + 1], sorted_points,
+                                       sorted_ids, duplicates);
+    }
+    return ok;
+}
+
+// Distance from x to the nearest grid cell outside the block of rings 0..k around (cx, cy)
+// (infinite on sides where the grid ends: no nucleus lies beyond the border cells' block).
+inline real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side,
+                                   real half_extent, real cell)
+{
+    real radius = INFINITY;
+    if (cx - k > 0)
+        radius = fmin(radius, x.x - (-half_extent + (cx - k) * cell));
+    if (cx + k < grid_side - 1)
+        radius = fmin(radius, -half_extent + (cx + k + 1) * cell - x.x);
+    if (cy - k > 0)
+        radius = fmin(radius, x.y - (-half_extent + (cy - k) * cell));
+    if (cy + k < grid_side - 1)
+        radius = fmin(radius, -half_extent + (cy + k + 1) * cell - x.y);
+    return radius;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Unbounded cells
+
+// Whether x's cell among the pixel's nuclei is unbounded: some direction u has u.v <= 0 for
+// every neighbour vector v (the cell's recession cone is not empty). The feasible directions
+// form an arc [lo, hi] (counter-clockwise, at most a half-turn), cut by one half-circle per
+// neighbour. Returns 1 unbounded, 0 bounded, -1 degenerate (collinear: left to the host).
+int VoronoiCell_Unbounded(real2 x, uint self, uint s0, uint s1,
+                          __global const float2 *sorted_points, __global const uint *sorted_ids)
+{
+    bool full = true;
+    real2 lo = (real2)(0, 0), hi = (real2)(0, 0);
+    for (uint s = s0; s < s1; ++s) {
+        real2 v = REAL2(sorted_points[s]) - x;
+        if (sorted_ids[s] == self || (v.x == 0 && v.y == 0))
+            continue;
+        real2 left = (real2)(-v.y, v.x), right = (real2)(v.y, -v.x);
+        if (full) {
+            // The half-circle u.v <= 0 runs counter-clockwise from left to right
+            lo = left;
+            hi = right;
+            full = false;
+            continue;
+        }
+        real dlo = dot(lo, v), dhi = dot(hi, v);
+        if (dlo == 0 && dhi == 0)
+            return -1;
+        if (dlo > 0 && dhi > 0)
+            return 0;
+        if (dlo > 0)
+            lo = left;
+        else if (dhi > 0)
+            hi = right;
+    }
+    return 1;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The cell of one traced nucleus
+
+// Clip ring by ring until no unvisited nucleus can cut; returns false on vertex overflow.
+bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, uint self, int grid_side,
+                        real half_extent, __global const uint *start, uint base,
+                        __global const float2 *sorted_points, __global const uint *sorted_ids,
+                        int *duplicates)
+{
+    real cell = 2 * half_extent / grid_side;
+    float inv_cell = (float)grid_side / (2.0f * (float)half_extent);
+    int cx = VoronoiGrid_Index((float)x.x, (float)half_extent, inv_cell, grid_side);
+    int cy = VoronoiGrid_Index((float)x.y, (float)half_extent, inv_cell, grid_side);
+    for (int k = 0; k < grid_side; ++k) {
+        if (!VoronoiCell_ClipRing(poly, x, self, cx, cy, k, grid_side, start, base,
+                                  sorted_points, sorted_ids, duplicates))
+            return false;
+        // Stop once every unvisited nucleus is at least 2 R away
+        real safe = VoronoiCell_SafeRadius(x, cx, cy, k, grid_side, half_extent, cell);
+        // Grid rounding may misplace a nucleus by ~1e-6 cell: shrink the safe radius by that
+        safe -= 1e-5f * cell;
+        if (safe > 0 && safe * safe >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
+            break;
+    }
+    return true;
+}
+
+__kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced_total,
+                                 int grid_side, float half_extent, float start_box,
+                                 float inside_box, __global const float2 *positions,
+                                 __global const uint *traced_offsets,
+                                 __global const uint *aux_offsets,
+                                 __global const uint *cell_start,
+                                 __global const float2 *sorted_points,
+                                 __global const uint *sorted_ids, __global real *areas,
+                                 __global uchar *status)
+{
+    uint i = get_global_id(0);
+    if (i >= traced_total)
+        return;
+    uint p = Voronoi_OwnerPixel(traced_offsets, pixel_count, search_span, i);
+    uint base = traced_offsets[p] + aux_offsets[p];
+    uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
+    __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
+    real2 x = REAL2(positions[i]);
+
+    // Clip the start box by the neighbours' bisectors, nearest grid rings first
+    VoronoiPolygon poly;
+    VoronoiPolygon_InitBox(&poly, x, start_box);
+    int duplicates = 0;
+    if (!VoronoiCell_Search(&poly, x, i, grid_side, half_extent, start, base, sorted_points,
+                            sorted_ids, &duplicates)) {
+        areas[i] = NAN;
+        status[i] = VORONOI_FALLBACK;
+        return;
+    }
+
+    // A box edge left: the cell is unbounded, or reaches beyond the box (host decides)
+    if (VoronoiPolygon_TouchesBox(&poly)) {
+        int unbounded = VoronoiCell_Unbounded(x, i, base, base + count, sorted_points,
+                                              sorted_ids);
+        areas[i] = NAN;
+        status[i] = unbounded == 1 ? 0 : VORONOI_FALLBACK;
+        return;
+    }
+
+    // Exact cell: its area, shared equally with coincident nuclei
+    bool inside;
+    real area = VoronoiPolygon_Area(&poly, x, inside_box, &inside);
+    areas[i] = area / (1 + duplicates);
+    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0);
+}
