@@ -125,6 +125,7 @@ class TileEstimate:
     flagged: np.ndarray  # (P,) bool: a sample with non-finite radiance
     needs_redraw: np.ndarray  # (P,) bool
     nonfinite_samples: int
+    seconds: float = 0.0  # time the estimate took (added to the stats on the main thread)
 
 
 def check_estimator(name: str) -> None:
@@ -279,13 +280,15 @@ class TilePipeline:
         return tile
 
     def estimate(self, tile: TileSamples) -> TileEstimate:
+        """The host stage (on the worker thread when overlapping: it touches no stats)."""
         start = time.perf_counter()
         result = estimate_tile(self.settings, tile, self.host_runtime)
-        self.stats.host_seconds += time.perf_counter() - start
+        result.seconds = time.perf_counter() - start
         return result
 
     def record(self, result: TileEstimate) -> None:
         """Store the accepted pixels of an estimate on the film."""
+        self.stats.host_seconds += result.seconds
         self.stats.nonfinite_samples += result.nonfinite_samples
         accepted = ~result.needs_redraw
         self.film.record(
