@@ -160,15 +160,18 @@ def pixels_per_tile(settings: RenderSettings) -> int:
     return min(budget, spread)
 
 
-def plan_tiles(settings: RenderSettings) -> list[np.ndarray]:
-    """Consecutive runs of global pixel indices covering the image."""
+def plan_tiles(settings: RenderSettings) -> range:
+    """The first pixel of each tile; tile k covers [starts[k], starts[k] + step) clipped to
+    the image, in scanline order (pixel arrays are made one tile at a time)."""
     if settings.tile_samples <= 0:
         raise ParameterError(f"tile_samples must be positive, got {settings.tile_samples}")
-    step = pixels_per_tile(settings)
-    return [
-        np.arange(start, min(start + step, settings.pixel_count), dtype=np.uint32)
-        for start in range(0, settings.pixel_count, step)
-    ]
+    return range(0, settings.pixel_count, pixels_per_tile(settings))
+
+
+def tile_pixels(settings: RenderSettings, start: int) -> np.ndarray:
+    """Global indices of the tile starting at pixel `start`."""
+    stop = min(start + pixels_per_tile(settings), settings.pixel_count)
+    return np.arange(start, stop, dtype=np.uint32)
 
 
 # --- the two stages ----------------------------------------------------------------------
@@ -323,12 +326,13 @@ class TilePipeline:
         device = self.stats.device_seconds - device_before
         self.stats.host_seconds += time.perf_counter() - start - device
 
-    def run(self, tiles: list[np.ndarray], progress: ProgressCallback | None) -> None:
+    def run(self, tiles: range, progress: ProgressCallback | None) -> None:
         """Trace tile k + 1 while tile k is estimated (on a worker thread if overlapping)."""
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
-                for pixels in tiles:
+                for start in tiles:
+                    pixels = tile_pixels(self.settings, start)
                     tile = self.trace(pixels, np.zeros(len(pixels), np.uint32))
                     self.finish_in_flight(progress)
                     self.in_flight = self.start_estimate(pool, tile)

@@ -9,7 +9,7 @@ import pytest
 from clrender.analytic import AnalyticSource, sample_image_positions
 from clrender.errors import ParameterError
 from clrender.radiance import SampleRadiance
-from clrender.render import RenderSettings, check_compatible, plan_tiles, render
+from clrender.render import RenderSettings, check_compatible, plan_tiles, render, tile_pixels
 from clrender.sampling import make_sampler
 
 WIDTH, HEIGHT = 40, 24
@@ -45,7 +45,7 @@ def test_image_is_bit_identical_whatever_the_tiling_and_overlap(runtime, sampler
 def test_tiles_cover_the_image_in_order_within_the_sample_budget():
     for budget in [1, 100, 5000, 10**7]:
         config = settings(tile_samples=budget)
-        tiles = plan_tiles(config)
+        tiles = [tile_pixels(config, start) for start in plan_tiles(config)]
         assert np.array_equal(np.concatenate(tiles), np.arange(WIDTH * HEIGHT))
         per_pixel = config.sampler.n + config.sampler.n_aux
         assert all(len(t) == 1 or len(t) * per_pixel <= budget for t in tiles)
