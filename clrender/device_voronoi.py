@@ -169,7 +169,6 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     rw = cl.mem_flags.READ_WRITE
     cell_start = cl.Buffer(context, rw, size=4 * pixels * (side * side + 1))
     sorted_points = cl.Buffer(context, rw, size=8 * total)
-    sorted_ids = cl.Buffer(context, rw, size=4 * total)
     areas_buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, size=areas.nbytes)
     status_buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, size=status.nbytes)
     half = np.float32(layout.half_extent)
@@ -177,13 +176,13 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
     build(queue, (padded_global_size(pixels, local[0]),), local, np.uint32(pixels),
           np.uint32(traced), np.int32(side), half, layout.positions, traced_off, aux_off,
-          cell_start, sorted_points, sorted_ids)
+          cell_start, sorted_points)
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
     compute(queue, (padded_global_size(traced, local[0]),), local, np.uint32(pixels),
             np.uint32(1 << (pixels.bit_length() - 1)), np.uint32(traced), np.int32(side), half,
             np.float32(layout.half_extent + START_BOX_MARGIN),
             np.float32(box if box is not None else np.inf), layout.positions, traced_off,
-            aux_off, cell_start, sorted_points, sorted_ids, areas_buf, status_buf)
+            aux_off, cell_start, sorted_points, areas_buf, status_buf)
     cl.enqueue_copy(queue, areas, areas_buf)
     cl.enqueue_copy(queue, status, status_buf)
     return areas, status

@@ -38,6 +38,10 @@ typedef float2 real2;
 #define VORONOI_MAX_VERTICES 32
 #endif
 
+#ifndef VORONOI_FIRST_BOX_SPACINGS
+#define VORONOI_FIRST_BOX_SPACINGS 2.5f
+#endif
+
 #define VORONOI_BOUNDED 1
 #define VORONOI_INSIDE 2
 #define VORONOI_FALLBACK 4
@@ -88,14 +92,13 @@ inline int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, int g
            + VoronoiGrid_Index(x.x, half_extent, inv_cell, grid_side);
 }
 
-// One pixel per work-item: counting sort of its nuclei into grid cells. Slot s of the sorted
-// arrays (from base = traced_offsets[p] + aux_offsets[p]) holds a position and its index in the
-// positions buffer (aux nucleus j of the launch is traced_total + j).
+// One pixel per work-item: counting sort of its nuclei into grid cells, written from slot
+// base = traced_offsets[p] + aux_offsets[p] of sorted_points.
 __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
                                  float half_extent, __global const float2 *positions,
                                  __global const uint *traced_offsets,
                                  __global const uint *aux_offsets, __global uint *cell_start,
-                                 __global float2 *sorted_points, __global uint *sorted_ids)
+                                 __global float2 *sorted_points)
 {
     uint p = get_global_id(0);
     if (p >= pixel_count)
@@ -128,39 +131,36 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
         float2 x = positions[j - 1u];
         uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
         sorted_points[base + s] = x;
-        sorted_ids[base + s] = j - 1u;
     }
     for (uint j = t1; j > t0; --j) {
         float2 x = positions[j - 1u];
         uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
         sorted_points[base + s] = x;
-        sorted_ids[base + s] = j - 1u;
     }
 }
 
 // ---------------------------------------------------------------------------------------------
 // Polygon clipping
 
-// The start box [-box, box]^2 seen from the nucleus x, counter-clockwise, edges marked as box.
-inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, real2 x, real box)
+// The box [lo, hi] (relative to the nucleus), counter-clockwise, edges marked as box edges.
+inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, real2 lo, real2 hi)
 {
-    real lo_x = -box - x.x, hi_x = box - x.x, lo_y = -box - x.y, hi_y = box - x.y;
-    poly->vx[0] = lo_x; poly->vy[0] = lo_y;
-    poly->vx[1] = hi_x; poly->vy[1] = lo_y;
-    poly->vx[2] = hi_x; poly->vy[2] = hi_y;
-    poly->vx[3] = lo_x; poly->vy[3] = hi_y;
-    poly->radius2 = 0;
+    poly->vx[0] = lo.x; poly->vy[0] = lo.y;
+    poly->vx[1] = hi.x; poly->vy[1] = lo.y;
+    poly->vx[2] = hi.x; poly->vy[2] = hi.y;
+    poly->vx[3] = lo.x; poly->vy[3] = hi.y;
+    real2 far = fmax(fabs(lo), fabs(hi));
+    poly->radius2 = far.x * far.x + far.y * far.y;
     for (int k = 0; k < 4; ++k) {
         poly->ex[k] = 0;
         poly->ey[k] = 0;
-        poly->radius2 = fmax(poly->radius2, poly->vx[k] * poly->vx[k] + poly->vy[k] * poly->vy[k]);
     }
     poly->count = 4;
 }
 
 // Keep the half-plane closer to the origin than to v: v.p <= |v|^2 / 2. Returns false on
 // vertex overflow (the polygon is then unusable).
-bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
+inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
 {
     int m = poly->count;
     real level = 0.5f * (v.x * v.x + v.y * v.y);
@@ -225,13 +225,12 @@ inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly)
 inline real2 VoronoiPolygon_Vertex(const VoronoiPolygon *poly, int k)
 {
     int prev = k == 0 ? poly->count - 1 : k - 1;
-    real2 a = (real2)(poly->ex[prev], poly->ey[prev]);
-    real2 b = (real2)(poly->ex[k], poly->ey[k]);
-    real ca = 0.5f * dot(a, a), cb = 0.5f * dot(b, b);
-    real det = a.x * b.y - a.y * b.x;
+    real ax = poly->ex[prev], ay = poly->ey[prev], bx = poly->ex[k], by = poly->ey[k];
+    real ca = 0.5f * (ax * ax + ay * ay), cb = 0.5f * (bx * bx + by * by);
+    real det = ax * by - ay * bx;
     if (det == 0)
         return (real2)(poly->vx[k], poly->vy[k]);
-    return (real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
+    return (real2)(ca * by - cb * ay, ax * cb - bx * ca) / det;
 }
 
 // Shoelace area from the recomputed vertices; inside: all vertices (absolute, nucleus at x)
@@ -257,19 +256,16 @@ inline real VoronoiPolygon_Area(const VoronoiPolygon *poly, real2 x, real inside
 // ---------------------------------------------------------------------------------------------
 // Neighbour search
 
-// Clip by the nuclei in sorted slots [s0, s1) of the pixel (skipping the nucleus itself and
-// counting its duplicates). Returns false on vertex overflow.
-bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint self, uint s0, uint s1,
-                           __global const float2 *sorted_points,
-                           __global const uint *sorted_ids, int *duplicates)
+// Clip by the nuclei in sorted slots [s0, s1) that are close enough to cut, counting those that
+// coincide with the nucleus (itself included). Returns false on vertex overflow.
+inline bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s1,
+                                  __global const float2 *sorted_points, int *coincident)
 {
     for (uint s = s0; s < s1; ++s) {
         real2 v = REAL2(sorted_points[s]) - x;
-        real dist2 = dot(v, v);
-        if (sorted_ids[s] == self)
-            continue;
+        real dist2 = v.x * v.x + v.y * v.y;
         if (dist2 == 0) {
-            *duplicates += 1;
+            *coincident += 1;
             continue;
         }
         // A bisector at distance >= R cannot cut a polygon within radius R
@@ -283,10 +279,9 @@ bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint self, uint s0, ui
 
 // Clip by the grid cells of ring k (Chebyshev distance k from cell (cx, cy)): full rows at the
 // ring's top and bottom (contiguous slots), two cells on each row in between.
-bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, uint self, int cx, int cy, int k,
-                          int grid_side, __global const uint *start, uint base,
-                          __global const float2 *sorted_points, __global const uint *sorted_ids,
-                          int *duplicates)
+inline bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, int cy, int k,
+                                 int grid_side, __global const uint *start, uint base,
+                                 __global const float2 *sorted_points, int *coincident)
 {
     int y0 = max(cy - k, 0), y1 = min(cy + k, grid_side - 1);
     int x0 = max(cx - k, 0), x1 = min(cx + k, grid_side - 1);
@@ -294,19 +289,18 @@ bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, uint self, int cx, int 
     for (int y = y0; y <= y1 && ok; ++y) {
         int row = y * grid_side;
         if (y == cy - k || y == cy + k) {
-            ok = VoronoiCell_ClipRange(poly, x, self, base + start[row + x0],
-                                       base + start[row + x1 + 1], sorted_points, sorted_ids,
-                                       duplicates);
+            ok = VoronoiCell_ClipRange(poly, x, base + start[row + x0],
+                                       base + start[row + x1 + 1], sorted_points, coincident);
             continue;
         }
         if (cx - k >= 0)
-            ok = VoronoiCell_ClipRange(poly, x, self, base + start[row + cx - k],
+            ok = VoronoiCell_ClipRange(poly, x, base + start[row + cx - k],
                                        base + start[row + cx - k + 1], sorted_points,
-                                       sorted_ids, duplicates);
+                                       coincident);
         if (ok && cx + k < grid_side)
-            ok = VoronoiCell_ClipRange(poly, x, self, base + start[row + cx + k],
+            ok = VoronoiCell_ClipRange(poly, x, base + start[row + cx + k],
                                        base + start[row + cx + k + 1], sorted_points,
-                                       sorted_ids, duplicates);
+                                       coincident);
     }
     return ok;
 }
@@ -328,21 +322,46 @@ inline real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side
     return radius;
 }
 
+// Clip ring by ring until no unvisited nucleus can cut; returns false on vertex overflow.
+inline bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, real half_extent,
+                               __global const uint *start, uint base,
+                               __global const float2 *sorted_points, int *coincident)
+{
+    real cell = 2 * half_extent / grid_side;
+    float inv_cell = (float)grid_side / (2.0f * (float)half_extent);
+    int cx = VoronoiGrid_Index((float)x.x, (float)half_extent, inv_cell, grid_side);
+    int cy = VoronoiGrid_Index((float)x.y, (float)half_extent, inv_cell, grid_side);
+    *coincident = 0;
+    for (int k = 0; k < grid_side; ++k) {
+        if (!VoronoiCell_ClipRing(poly, x, cx, cy, k, grid_side, start, base, sorted_points,
+                                  coincident))
+            return false;
+        // Stop once every unvisited nucleus is at least 2 R away (the grid may misplace a
+        // nucleus by rounding, ~1e-6 cell: the safe radius is shrunk by more than that)
+        real safe = VoronoiCell_SafeRadius(x, cx, cy, k, grid_side, half_extent, cell);
+        safe -= 1e-5f * cell;
+        if (safe > 0 && safe * safe >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
+            break;
+    }
+    return true;
+}
+
 // ---------------------------------------------------------------------------------------------
 // Unbounded cells
 
-// Whether x's cell among the pixel's nuclei is unbounded: some direction u has u.v <= 0 for
-// every neighbour vector v (the cell's recession cone is not empty). The feasible directions
-// form an arc [lo, hi] (counter-clockwise, at most a half-turn), cut by one half-circle per
-// neighbour. Returns 1 unbounded, 0 bounded, -1 degenerate (collinear: left to the host).
-int VoronoiCell_Unbounded(real2 x, uint self, uint s0, uint s1,
-                          __global const float2 *sorted_points, __global const uint *sorted_ids)
+// Whether x's cell among the nuclei in slots [s0, s1) is unbounded: some direction u has
+// u.v <= 0 for every neighbour vector v (the cell's recession cone is not empty). The feasible
+// directions form an arc [lo, hi] (counter-clockwise, at most a half-turn), cut by one
+// half-circle per neighbour. Returns 1 unbounded, 0 bounded, -1 degenerate (collinear: left
+// to the host).
+inline int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
+                                 __global const float2 *sorted_points)
 {
     bool full = true;
     real2 lo = (real2)(0, 0), hi = (real2)(0, 0);
     for (uint s = s0; s < s1; ++s) {
         real2 v = REAL2(sorted_points[s]) - x;
-        if (sorted_ids[s] == self || (v.x == 0 && v.y == 0))
+        if (v.x == 0 && v.y == 0)
             continue;
         real2 left = (real2)(-v.y, v.x), right = (real2)(v.y, -v.x);
         if (full) {
@@ -352,7 +371,7 @@ int VoronoiCell_Unbounded(real2 x, uint self, uint s0, uint s1,
             full = false;
             continue;
         }
-        real dlo = dot(lo, v), dhi = dot(hi, v);
+        real dlo = lo.x * v.x + lo.y * v.y, dhi = hi.x * v.x + hi.y * v.y;
         if (dlo == 0 && dhi == 0)
             return -1;
         if (dlo > 0 && dhi > 0)
@@ -368,38 +387,13 @@ int VoronoiCell_Unbounded(real2 x, uint self, uint s0, uint s1,
 // ---------------------------------------------------------------------------------------------
 // The cell of one traced nucleus
 
-// Clip ring by ring until no unvisited nucleus can cut; returns false on vertex overflow.
-bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, uint self, int grid_side,
-                        real half_extent, __global const uint *start, uint base,
-                        __global const float2 *sorted_points, __global const uint *sorted_ids,
-                        int *duplicates)
-{
-    real cell = 2 * half_extent / grid_side;
-    float inv_cell = (float)grid_side / (2.0f * (float)half_extent);
-    int cx = VoronoiGrid_Index((float)x.x, (float)half_extent, inv_cell, grid_side);
-    int cy = VoronoiGrid_Index((float)x.y, (float)half_extent, inv_cell, grid_side);
-    for (int k = 0; k < grid_side; ++k) {
-        if (!VoronoiCell_ClipRing(poly, x, self, cx, cy, k, grid_side, start, base,
-                                  sorted_points, sorted_ids, duplicates))
-            return false;
-        // Stop once every unvisited nucleus is at least 2 R away
-        real safe = VoronoiCell_SafeRadius(x, cx, cy, k, grid_side, half_extent, cell);
-        // Grid rounding may misplace a nucleus by ~1e-6 cell: shrink the safe radius by that
-        safe -= 1e-5f * cell;
-        if (safe > 0 && safe * safe >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
-            break;
-    }
-    return true;
-}
-
 __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced_total,
                                  int grid_side, float half_extent, float start_box,
                                  float inside_box, __global const float2 *positions,
                                  __global const uint *traced_offsets,
                                  __global const uint *aux_offsets,
                                  __global const uint *cell_start,
-                                 __global const float2 *sorted_points,
-                                 __global const uint *sorted_ids, __global real *areas,
+                                 __global const float2 *sorted_points, __global real *areas,
                                  __global uchar *status)
 {
     uint i = get_global_id(0);
@@ -411,12 +405,24 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
     real2 x = REAL2(positions[i]);
 
-    // Clip the start box by the neighbours' bisectors, nearest grid rings first
+    // First try a box of a few mean spacings around the nucleus: it keeps the early clips and
+    // the radius test tight; a cell that reaches its border is redone from the full start box
     VoronoiPolygon poly;
-    VoronoiPolygon_InitBox(&poly, x, start_box);
-    int duplicates = 0;
-    if (!VoronoiCell_Search(&poly, x, i, grid_side, half_extent, start, base, sorted_points,
-                            sorted_ids, &duplicates)) {
+    real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / sqrt((real)count);
+    bool small_box = reach < start_box;
+    if (small_box)
+        VoronoiPolygon_InitBox(&poly, (real2)(-reach, -reach), (real2)(reach, reach));
+    else
+        VoronoiPolygon_InitBox(&poly, -start_box - x, start_box - x);
+    int coincident;
+    bool ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
+                                 &coincident);
+    if (ok && small_box && VoronoiPolygon_TouchesBox(&poly)) {
+        VoronoiPolygon_InitBox(&poly, -start_box - x, start_box - x);
+        ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
+                                &coincident);
+    }
+    if (!ok) {
         areas[i] = NAN;
         status[i] = VORONOI_FALLBACK;
         return;
@@ -424,8 +430,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
 
     // A box edge left: the cell is unbounded, or reaches beyond the box (host decides)
     if (VoronoiPolygon_TouchesBox(&poly)) {
-        int unbounded = VoronoiCell_Unbounded(x, i, base, base + count, sorted_points,
-                                              sorted_ids);
+        int unbounded = VoronoiCell_Unbounded(x, base, base + count, sorted_points);
         areas[i] = NAN;
         status[i] = unbounded == 1 ? 0 : VORONOI_FALLBACK;
         return;
@@ -434,6 +439,6 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     // Exact cell: its area, shared equally with coincident nuclei
     bool inside;
     real area = VoronoiPolygon_Area(&poly, x, inside_box, &inside);
-    areas[i] = area / (1 + duplicates);
+    areas[i] = area / max(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0);
 }
