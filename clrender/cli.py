@@ -29,18 +29,19 @@ DEFAULT_SCENE = "cornell-box"
 DEFAULT_SPP = 64
 DEFAULT_WIDTH = 128
 DEFAULT_SAMPLER = "sppp"
-# vor_sn over SPPP samples, the paper's method in its self-normalised form. Cornell box 64x64,
-# 64 spp, MSE against 4096 spp (mean of 2 seeds): mc uniform 0.0138, mc_n sppp 0.0132,
-# vor 0.0096, vor_sn 0.0056 (= fvor), ivor_sn 0.0051, pvor 0.0049, cvor 0.0042, and mc over
-# stratified samples 0.0028; host time per render: vor_sn 2.9 s, ivor_sn 4.6 s, cvor/pvor 7.3 s.
+# vor_sn over SPPP samples, the paper's method in its self-normalised form. Measured with
+# bench/render_estimators.py (Cornell box 64x64, 64 spp, MSE against 4096 spp, 2 seeds):
+# mc uniform 0.0138, mc_n sppp 0.0132, vor 0.0096, vor_sn 0.0056 (= fvor), ivor_sn 0.0051,
+# pvor 0.0049, cvor 0.0042, mc over stratified samples 0.0028. Host time: vor_sn is the
+# cheapest of the Voronoi family (ivor_sn 1.1-1.6x, cvor and pvor 1.5-2.5x, on a loaded machine).
 DEFAULT_ESTIMATOR = {"sppp": "vor_sn", "uniform": "mc", "stratified": "mc"}
 
 RENDER_EPILOG = """\
 defaults: the authors' Cornell box at 128x128, 64 spp, the sppp sampler with the vor_sn
 estimator: the paper's Voronoi weights, self-normalised. On the Cornell box at 64 spp its
-mean squared error is 0.41x that of mc over uniform samples and 0.6x that of the unnormalised
-vor, at the lowest host cost of the Voronoi family (ivor_sn: 0.37x, 1.6x the host time).
-mc over --sampler stratified does better still there (0.20x): use it for the least noise.
+mean squared error is 0.41x that of mc over uniform samples and 0.6x that of the
+unnormalised vor, at the lowest host cost of the Voronoi family (ivor_sn: 0.37x, at 1.1-1.6x
+the host time). mc over --sampler stratified does better still there (0.20x).
 --estimator defaults to vor_sn with sppp and mc with uniform or stratified samples.
 vor, vor_sn, fvor (auxiliary nuclei) and ivor, ivor_sn (Poisson counts) need the sppp
 sampler; mc, mc_n, cvor and pvor work with every sampler. SCENE is a shipped scene name, a

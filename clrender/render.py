@@ -18,9 +18,15 @@ and estimated again; after a few redraws the driver widens eps, and after its la
 falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
 Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
-Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only, and
-the estimator of a pixel sees only that pixel's samples, so the image is bit-identical
-whatever the tile size and with or without overlap.
+Timing: `device_seconds` is the time the main thread spends drawing sample sets, tracing and
+downloading; `host_seconds` the estimator stage's own time (the image-level estimators ivor
+and ivor_sn also draw their guard nuclei there, on a second OpenCL context so that no kernel
+object is shared between threads).
+
+Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only;
+a per-pixel estimator sees only its pixel's samples, and the image-level ones sum their
+triangles in a canonical order; so the image is bit-identical whatever the tile size and
+with or without overlap.
 
 Ctrl-C (KeyboardInterrupt) stops the render between device calls: the tile whose estimates
 are in flight is finished (without its redraws), and `render` returns the partial film with
