@@ -699,10 +699,16 @@ def atlas_markdown(atlas: list[dict]) -> list[str]:
     return table(["situation", "metric", *ROW_NAMES], rows)
 
 
+def ratio_text(cell: dict) -> str:
+    if math.isinf(cell["ratio"]):
+        return f"{cell['metric']} {fmt(cell['value'])} where mc is exact"
+    return f"{fmt(cell['ratio'])}x"
+
+
 def worse_than_mc_markdown(atlas: list[dict]) -> list[str]:
     lines = []
     for name in ROW_NAMES:
-        worse = [f"{row['situation']} ({fmt(row['cells'][name]['ratio'])}x)" for row in atlas
+        worse = [f"{row['situation']} ({ratio_text(row['cells'][name])})" for row in atlas
                  if name in row["cells"] and row["cells"][name]["verdict"].startswith("worse")]
         lines.append(f"- **{name}**: " + ("; ".join(worse) if worse else "never worse here"))
     return lines
@@ -861,7 +867,7 @@ EXPLANATIONS = {
 def build_report(results: dict, charts: dict, argv: list[str]) -> str:
     cfg = results["config"]
     lines = ["# Stability of the pixel estimators: the failure atlas", "",
-             f"Command: `python bench/stability_study.py {' '.join(argv)}` "
+             f"Command: `{' '.join(['python bench/stability_study.py', *argv])}` "
              f"(seed {cfg['seed']}, {'quick' if cfg['quick'] else 'full'} run, "
              f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}.", "",
              "## Failure atlas", "", EXPLANATIONS["atlas"], "",
