@@ -121,7 +121,7 @@ def test_rejection_frequency_at_n16_is_below_the_paper_bound():
     assert low <= low_bound and low < high
     # At the paper's eps (bound 1e-3): at most 1e-3 * 4000 = 4 rejected pixels of 4000.
     default, default_bound = rejection_frequency(303, 16, 1e-3, 4000)
-    assert default * 4000 <= default_bound * 4000 + 1e-9
+    assert default <= default_bound
 
 
 def test_rejected_pixels_are_those_with_a_w_nucleus_on_the_hull():
@@ -253,7 +253,8 @@ GAINS = (1e4, 1e12)
 @pytest.fixture(scope="module")
 def fireflies():
     """n = 64; columns: smooth, indicator of the firefly (each pixel's first sample), then
-    smooth with the firefly multiplied by each gain. One tessellation serves every column."""
+    smooth with the firefly multiplied by each gain. One tessellation serves every column.
+    Also returns f at each pixel's firefly (meaningful for pixels with N >= 1)."""
     n = 64
     batch = draw_sppp(np.random.default_rng(601), n, 150)
     f = smooth(batch.traced)
@@ -267,7 +268,7 @@ def fireflies():
 def test_firefly_moves_each_estimate_by_value_times_its_weight(fireflies):
     samples, f_k, results = fireflies
     for name, result in results.items():
-        ok = ~result.needs_redraw
+        ok = ~result.needs_redraw & (counts_of(samples) > 0)
         est = result.estimates[ok]
         weight = est[:, 1]
         for j, gain in enumerate(GAINS, start=2):
@@ -286,7 +287,7 @@ def test_firefly_error_is_bounded_by_the_largest_weight(fireflies):
         np.cos(-0.75 + 1.1) - np.cos(0.75 + 1.1)) / 1.5
     w_max = {"mc": np.full(len(counts), 1.0 / n), "mc_n": 1.0 / np.maximum(counts, 1)}
     for name, result in results.items():
-        ok = ~result.needs_redraw
+        ok = ~result.needs_redraw & (counts > 0)
         weight = result.estimates[ok, 1]
         if name == "vor":
             assert (weight > 0).all() and np.isfinite(weight).all()
