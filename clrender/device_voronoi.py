@@ -45,7 +45,8 @@ MAX_GRID_SIDE = 256
 # cell that reaches beyond it is recomputed on the host.
 START_BOX_MARGIN = 1.0
 MAX_VERTICES = 32
-PRECISIONS = ("single", "double")
+# auto: "mixed" where the device has cl_khr_fp64, else "single".
+PRECISIONS = ("auto", "single", "mixed", "double")
 
 # Reads pixels' (traced, aux) positions as float64 arrays with their offsets, for fallbacks.
 FetchPixels = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
@@ -74,7 +75,7 @@ class _Layout:
 
 
 def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: float | None = None,
-                      precision: str = "single") -> CellAreas:
+                      precision: str = "auto") -> CellAreas:
     """Cells of the W nuclei of a launch's SPPP sample sets, from the positions on the device.
 
     box: also report which cells lie inside [-box, box]^2 (box = 1/2 + eps is W' for fvor).
@@ -94,7 +95,7 @@ def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: floa
 def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offsets: np.ndarray,
                                   aux: np.ndarray, aux_offsets: np.ndarray,
                                   box: float | None = None,
-                                  precision: str = "single") -> CellAreas:
+                                  precision: str = "auto") -> CellAreas:
     """The same cells from NumPy arrays (sppp_cells' arguments), uploaded as float32."""
     traced32, aux32 = _check_arrays(positions, offsets, aux, aux_offsets)
     offsets = np.asarray(offsets, np.int64)
@@ -113,15 +114,26 @@ def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offse
 
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
     """Build options for the precision; DeviceError if the device has no double support."""
-    if precision not in PRECISIONS:
-        raise ParameterError(f"unknown precision {precision!r}; accepted: {', '.join(PRECISIONS)}")
     defines: dict[str, object] = {"VORONOI_MAX_VERTICES": MAX_VERTICES}
-    if precision == "double":
-        if "cl_khr_fp64" not in runtime.device.extensions.split():
-            raise DeviceError(f"device {runtime.describe()} has no cl_khr_fp64 (double "
-                              "precision): use precision='single'")
+    precision = resolve_precision(runtime, precision)
+    if precision == "mixed":
+        defines["VORONOI_AREA_DOUBLE"] = True
+    elif precision == "double":
         defines["VORONOI_DOUBLE"] = True
     return defines
+
+
+def resolve_precision(runtime: Runtime, precision: str) -> str:
+    """"single", "mixed" or "double"; DeviceError if double is asked of a device without it."""
+    if precision not in PRECISIONS:
+        raise ParameterError(f"unknown precision {precision!r}; accepted: {', '.join(PRECISIONS)}")
+    has_fp64 = "cl_khr_fp64" in runtime.device.extensions.split()
+    if precision == "auto":
+        return "mixed" if has_fp64 else "single"
+    if precision != "single" and not has_fp64:
+        raise DeviceError(f"device {runtime.describe()} has no cl_khr_fp64 (double precision), "
+                          f"which precision={precision!r} needs: use 'single' or 'auto'")
+    return precision
 
 
 def grid_side(layout_points: int, pixels: int) -> int:
@@ -138,7 +150,7 @@ def grid_side(layout_points: int, pixels: int) -> int:
 def _cells(runtime: Runtime, layout: _Layout, box: float | None, precision: str,
            fetch: FetchPixels) -> CellAreas:
     defines = kernel_defines(runtime, precision)
-    real = np.float64 if precision == "double" else np.float32
+    real = np.float32 if resolve_precision(runtime, precision) == "single" else np.float64
     areas, status = _launch(runtime, layout, box, defines, real)
     bounded = (status & STATUS_BOUNDED) != 0
     cells = CellAreas(np.where(bounded, areas.astype(np.float64), np.nan), bounded,

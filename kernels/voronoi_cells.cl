@@ -9,10 +9,12 @@
 //     of the pixel's other nuclei, visiting grid rings outward ("meshless Voronoi"). Once every
 //     unvisited nucleus is at least 2 R away (R = farthest polygon vertex from the nucleus), no
 //     bisector can cut the polygon any more, so it is the exact cell.
-// All geometry is relative to the nucleus. Final vertices are recomputed as the intersection of
-// their two bisectors from the neighbours' coordinates, so the area does not inherit the
-// rounding of the clipping history (float32 keeps ~1e-6 relative accuracy; -DVORONOI_DOUBLE
-// switches to double).
+// All geometry is relative to the nucleus. Each polygon edge remembers the neighbour whose
+// bisector carries it, and the final vertices are recomputed as intersections of two bisectors
+// from the input coordinates, so the area does not inherit the rounding of the clipping
+// history. Precision: float clipping with the final vertices in float (~1e-5 relative on the
+// worst cells), or in double with -DVORONOI_AREA_DOUBLE (~1e-14); -DVORONOI_DOUBLE runs all
+// of it in double.
 //
 // A polygon that still has an edge of the start box after the search is either unbounded (the
 // nucleus lies on the convex hull of its pixel's nuclei) or larger than the box; an O(N) test
@@ -23,8 +25,12 @@
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 // Coincident nuclei share their cell equally, as in the host reference.
 
-#ifdef VORONOI_DOUBLE
+#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+
+// real: the clipping arithmetic; area_real: final vertices, areas and the inside test
+#ifdef VORONOI_DOUBLE
 typedef double real;
 typedef double2 real2;
 #define REAL2(v) convert_double2(v)
@@ -32,6 +38,15 @@ typedef double2 real2;
 typedef float real;
 typedef float2 real2;
 #define REAL2(v) (v)
+#endif
+#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
+typedef double area_real;
+typedef double2 area_real2;
+#define AREA_REAL2(v) convert_double2(v)
+#else
+typedef float area_real;
+typedef float2 area_real2;
+#define AREA_REAL2(v) (v)
 #endif
 
 #ifndef VORONOI_MAX_VERTICES
@@ -42,6 +57,9 @@ typedef float2 real2;
 #define VORONOI_FIRST_BOX_SPACINGS 2.5f
 #endif
 
+// Inline min (PoCL calls the fmin builtin out of line)
+#define VORONOI_MIN(a, b) ((a) < (b) ? (a) : (b))
+
 #define VORONOI_BOUNDED 1
 #define VORONOI_INSIDE 2
 #define VORONOI_FALLBACK 4
@@ -49,14 +67,15 @@ typedef float2 real2;
 // Stop and skip tests keep a relative safety margin for rounding (they only cost extra clips).
 #define VORONOI_RADIUS_SLACK 1.0001f
 
-// A convex polygon around the nucleus (at the origin). Edge k runs from vertex k to vertex
-// k + 1 and lies on the bisector of the origin and neighbour vector e[k]; e[k] = 0 marks an
-// edge of the start box.
+// A convex polygon around the nucleus x (vertices relative to x). Edge k runs from vertex k to
+// vertex k + 1 and lies on the bisector of x and the neighbour at absolute position e[k] (the
+// input coordinates, exact); e[k] = x marks an edge of the start box (a nucleus coincident
+// with x never cuts).
 typedef struct {
     real vx[VORONOI_MAX_VERTICES];
     real vy[VORONOI_MAX_VERTICES];
-    real ex[VORONOI_MAX_VERTICES];
-    real ey[VORONOI_MAX_VERTICES];
+    float ex[VORONOI_MAX_VERTICES];
+    float ey[VORONOI_MAX_VERTICES];
     int count;
     real radius2;  // squared distance of the farthest vertex
 } VoronoiPolygon;
@@ -143,7 +162,7 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
 // Polygon clipping
 
 // The box [lo, hi] (relative to the nucleus), counter-clockwise, edges marked as box edges.
-inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, real2 lo, real2 hi)
+inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2 lo, real2 hi)
 {
     poly->vx[0] = lo.x; poly->vy[0] = lo.y;
     poly->vx[1] = hi.x; poly->vy[1] = lo.y;
@@ -152,15 +171,15 @@ inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, real2 lo, real2 hi)
     real2 far = fmax(fabs(lo), fabs(hi));
     poly->radius2 = far.x * far.x + far.y * far.y;
     for (int k = 0; k < 4; ++k) {
-        poly->ex[k] = 0;
-        poly->ey[k] = 0;
+        poly->ex[k] = x.x;
+        poly->ey[k] = x.y;
     }
     poly->count = 4;
 }
 
-// Keep the half-plane closer to the origin than to v: v.p <= |v|^2 / 2. Returns false on
-// vertex overflow (the polygon is then unusable).
-inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
+// Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
+// Returns false on vertex overflow (the polygon is then unusable).
+inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v, float2 neighbour)
 {
     int m = poly->count;
     real level = 0.5f * (v.x * v.x + v.y * v.y);
@@ -175,7 +194,7 @@ inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
 
     // Sutherland-Hodgman: walk the edges, keeping inside vertices and the two crossings
     real nx[VORONOI_MAX_VERTICES], ny[VORONOI_MAX_VERTICES];
-    real nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
+    float nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
     int out = 0;
     for (int k = 0; k < m; ++k) {
         int k1 = k + 1 == m ? 0 : k + 1;
@@ -194,8 +213,8 @@ inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
             nx[out] = poly->vx[k] + t * (poly->vx[k1] - poly->vx[k]);
             ny[out] = poly->vy[k] + t * (poly->vy[k1] - poly->vy[k]);
             // Leaving: the new edge runs along the bisector; entering: along edge k
-            nex[out] = in_a ? v.x : poly->ex[k];
-            ney[out] = in_a ? v.y : poly->ey[k];
+            nex[out] = in_a ? neighbour.x : poly->ex[k];
+            ney[out] = in_a ? neighbour.y : poly->ey[k];
             ++out;
         }
     }
@@ -205,47 +224,50 @@ inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v)
     for (int k = 0; k < out; ++k) {
         poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
         poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
-        radius2 = fmax(radius2, nx[k] * nx[k] + ny[k] * ny[k]);
+        real r2 = nx[k] * nx[k] + ny[k] * ny[k];
+        radius2 = r2 > radius2 ? r2 : radius2;  // not fmax: PoCL calls it out of line
     }
     poly->count = out;
     poly->radius2 = radius2;
     return true;
 }
 
-inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly)
+inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
 {
     bool touches = false;
     for (int k = 0; k < poly->count; ++k)
-        touches |= poly->ex[k] == 0 && poly->ey[k] == 0;
+        touches |= poly->ex[k] == x.x && poly->ey[k] == x.y;
     return touches;
 }
 
-// Vertex k recomputed from the bisectors of edges k - 1 and k (falls back to the clipped
-// coordinates when the two bisectors are parallel).
-inline real2 VoronoiPolygon_Vertex(const VoronoiPolygon *poly, int k)
+// Vertex k (relative to x) recomputed from the bisectors of edges k - 1 and k, in area_real
+// from the input coordinates (the clipped coordinates when the two bisectors are parallel).
+inline area_real2 VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int k)
 {
     int prev = k == 0 ? poly->count - 1 : k - 1;
-    real ax = poly->ex[prev], ay = poly->ey[prev], bx = poly->ex[k], by = poly->ey[k];
-    real ca = 0.5f * (ax * ax + ay * ay), cb = 0.5f * (bx * bx + by * by);
-    real det = ax * by - ay * bx;
+    area_real2 a = (area_real2)(poly->ex[prev], poly->ey[prev]) - x;
+    area_real2 b = (area_real2)(poly->ex[k], poly->ey[k]) - x;
+    area_real ca = 0.5f * (a.x * a.x + a.y * a.y), cb = 0.5f * (b.x * b.x + b.y * b.y);
+    area_real det = a.x * b.y - a.y * b.x;
     if (det == 0)
-        return (real2)(poly->vx[k], poly->vy[k]);
-    return (real2)(ca * by - cb * ay, ax * cb - bx * ca) / det;
+        return (area_real2)(poly->vx[k], poly->vy[k]);
+    return (area_real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
 }
 
-// Shoelace area from the recomputed vertices; inside: all vertices (absolute, nucleus at x)
-// lie in [-inside_box, inside_box]^2.
-inline real VoronoiPolygon_Area(const VoronoiPolygon *poly, real2 x, real inside_box,
-                                bool *inside)
+// Shoelace area from the recomputed vertices; inside: all vertices (absolute) lie in
+// [-inside_box, inside_box]^2.
+inline area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
+                                     area_real inside_box, bool *inside)
 {
-    real twice_area = 0;
+    area_real2 x = AREA_REAL2(nucleus);
+    area_real twice_area = 0;
     bool in_box = true;
-    real2 first = VoronoiPolygon_Vertex(poly, 0);
-    real2 prev = first;
+    area_real2 first = VoronoiPolygon_Vertex(poly, x, 0);
+    area_real2 prev = first;
     for (int k = 1; k <= poly->count; ++k) {
-        real2 cur = k == poly->count ? first : VoronoiPolygon_Vertex(poly, k);
+        area_real2 cur = k == poly->count ? first : VoronoiPolygon_Vertex(poly, x, k);
         twice_area += prev.x * cur.y - prev.y * cur.x;
-        real2 absolute = x + prev;
+        area_real2 absolute = x + prev;
         in_box &= fabs(absolute.x) <= inside_box && fabs(absolute.y) <= inside_box;
         prev = cur;
     }
@@ -262,7 +284,8 @@ inline bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s
                                   __global const float2 *sorted_points, int *coincident)
 {
     for (uint s = s0; s < s1; ++s) {
-        real2 v = REAL2(sorted_points[s]) - x;
+        float2 neighbour = sorted_points[s];
+        real2 v = REAL2(neighbour) - x;
         real dist2 = v.x * v.x + v.y * v.y;
         if (dist2 == 0) {
             *coincident += 1;
@@ -271,7 +294,7 @@ inline bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s
         // A bisector at distance >= R cannot cut a polygon within radius R
         if (dist2 >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
             continue;
-        if (!VoronoiPolygon_Clip(poly, v))
+        if (!VoronoiPolygon_Clip(poly, v, neighbour))
             return false;
     }
     return true;
@@ -312,13 +335,13 @@ inline real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side
 {
     real radius = INFINITY;
     if (cx - k > 0)
-        radius = fmin(radius, x.x - (-half_extent + (cx - k) * cell));
+        radius = VORONOI_MIN(radius, x.x - (-half_extent + (cx - k) * cell));
     if (cx + k < grid_side - 1)
-        radius = fmin(radius, -half_extent + (cx + k + 1) * cell - x.x);
+        radius = VORONOI_MIN(radius, -half_extent + (cx + k + 1) * cell - x.x);
     if (cy - k > 0)
-        radius = fmin(radius, x.y - (-half_extent + (cy - k) * cell));
+        radius = VORONOI_MIN(radius, x.y - (-half_extent + (cy - k) * cell));
     if (cy + k < grid_side - 1)
-        radius = fmin(radius, -half_extent + (cy + k + 1) * cell - x.y);
+        radius = VORONOI_MIN(radius, -half_extent + (cy + k + 1) * cell - x.y);
     return radius;
 }
 
@@ -393,7 +416,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
                                  __global const uint *traced_offsets,
                                  __global const uint *aux_offsets,
                                  __global const uint *cell_start,
-                                 __global const float2 *sorted_points, __global real *areas,
+                                 __global const float2 *sorted_points, __global area_real *areas,
                                  __global uchar *status)
 {
     uint i = get_global_id(0);
@@ -403,7 +426,8 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     uint base = traced_offsets[p] + aux_offsets[p];
     uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
     __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
-    real2 x = REAL2(positions[i]);
+    float2 nucleus = positions[i];
+    real2 x = REAL2(nucleus);
 
     // First try a box of a few mean spacings around the nucleus: it keeps the early clips and
     // the radius test tight; a cell that reaches its border is redone from the full start box
@@ -411,14 +435,14 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / sqrt((real)count);
     bool small_box = reach < start_box;
     if (small_box)
-        VoronoiPolygon_InitBox(&poly, (real2)(-reach, -reach), (real2)(reach, reach));
+        VoronoiPolygon_InitBox(&poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
     else
-        VoronoiPolygon_InitBox(&poly, -start_box - x, start_box - x);
+        VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
     int coincident;
     bool ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
                                  &coincident);
-    if (ok && small_box && VoronoiPolygon_TouchesBox(&poly)) {
-        VoronoiPolygon_InitBox(&poly, -start_box - x, start_box - x);
+    if (ok && small_box && VoronoiPolygon_TouchesBox(&poly, nucleus)) {
+        VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
         ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
                                 &coincident);
     }
@@ -429,7 +453,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     }
 
     // A box edge left: the cell is unbounded, or reaches beyond the box (host decides)
-    if (VoronoiPolygon_TouchesBox(&poly)) {
+    if (VoronoiPolygon_TouchesBox(&poly, nucleus)) {
         int unbounded = VoronoiCell_Unbounded(x, base, base + count, sorted_points);
         areas[i] = NAN;
         status[i] = unbounded == 1 ? 0 : VORONOI_FALLBACK;
@@ -438,7 +462,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
 
     // Exact cell: its area, shared equally with coincident nuclei
     bool inside;
-    real area = VoronoiPolygon_Area(&poly, x, inside_box, &inside);
+    area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
     areas[i] = area / max(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0);
 }
