@@ -41,9 +41,9 @@ STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK = 1, 2, 4
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
 GRID_NUCLEI_PER_CELL = 2.0
 MAX_GRID_SIDE = 256
-# The start box is the grid's square grown by this many pixel widths on every side: a bounded
-# cell that reaches beyond it is recomputed on the host.
-START_BOX_MARGIN = 1.0
+# The start box is the grid's square scaled by this factor: a bounded cell that reaches beyond it
+# is recomputed on the host (rare: such cells belong to sets of a handful of nuclei).
+START_BOX_SCALE = 8.0
 MAX_VERTICES = 32
 # auto: "mixed" where the device has cl_khr_fp64, else "single".
 PRECISIONS = ("auto", "single", "mixed", "double")
@@ -192,7 +192,7 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
     compute(queue, (padded_global_size(traced, local[0]),), local, np.uint32(pixels),
             np.uint32(1 << (pixels.bit_length() - 1)), np.uint32(traced), np.int32(side), half,
-            np.float32(layout.half_extent + START_BOX_MARGIN),
+            np.float32(layout.half_extent * START_BOX_SCALE),
             np.float32(box if box is not None else np.inf), layout.positions, traced_off,
             aux_off, cell_start, sorted_points, areas_buf, status_buf)
     cl.enqueue_copy(queue, areas, areas_buf)
