@@ -70,8 +70,8 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
         f"host Voronoi {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "
         f"overlap {overlap})",
-        f"paths {stats.traced_samples} ({rate(stats.traced_samples, stats.wall_seconds)}), "
-        f"rays {stats.rays} ({rate(stats.rays, stats.wall_seconds)})",
+        f"paths {stats.traced_samples:,} ({rate(stats.traced_samples, stats.wall_seconds)}), "
+        f"rays {stats.rays:,} ({rate(stats.rays, stats.wall_seconds)})",
         f"rejections: {stats.redrawn_pixels} pixel redraws, {stats.unresolved_pixels} pixels "
         f"unresolved (mc fallback); non-finite samples: {stats.nonfinite_samples}, "
         f"flagged pixels: {film.flagged_count}",
