@@ -1,5 +1,6 @@
 """`python -m clrender render`: outputs and metadata, one-line errors and exit codes, Ctrl-C."""
 
+import io
 import os
 import pty
 import signal
@@ -12,6 +13,7 @@ import pytest
 from clrender import cli
 from clrender.film import Film
 from clrender.imageio import decode_png, read_exr, srgb8
+from clrender.progress import ProgressBar
 from clrender.render import ESTIMATOR_NAMES, RenderResult, RenderStats
 from clrender.sampling import make_sampler
 
@@ -183,3 +185,20 @@ def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
     # Every channel of the analytic image is positive: rendered pixels are exactly the nonzero.
     assert np.count_nonzero(pixels.max(axis=2)) == meta["rendered_pixels"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.exr", "slow.png"]
+
+
+def test_progress_bar_is_quiet_unless_stderr_is_a_terminal():
+    quiet = io.StringIO()  # isatty() is False
+    bar = ProgressBar("x", stream=quiet)
+    bar(5, 10)
+    bar.close()
+    assert quiet.getvalue() == ""
+    shown = io.StringIO()
+    bar = ProgressBar("cornell", stream=shown, enabled=True)
+    bar(0, 8)
+    bar(4, 8)
+    bar.close()
+    lines = shown.getvalue().split("\r")
+    assert "  0.0%" in lines[1] and "ETA ?" in lines[1]
+    assert lines[2].startswith("cornell [" + "#" * 15 + "." * 15 + "]  50.0%")
+    assert shown.getvalue().endswith("\n")
