@@ -107,6 +107,9 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         help="run the host estimator after each tile instead of during the next one")
     add("--strict", action="store_true",
         help="exit with status 3 if any sample's radiance was NaN or infinite")
+    # SUPPRESS: without a default here, `--debug render` keeps the top-level flag's value.
+    add("--debug", action="store_true", default=argparse.SUPPRESS,
+        help="show tracebacks on errors")
     add_device_option(parser)  # fmt: skip
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from clrender import cli
+from clrender.errors import ParameterError
 from clrender.film import Film
 from clrender.imageio import decode_png, read_exr, srgb8
 from clrender.progress import ProgressBar
@@ -116,9 +117,10 @@ def test_unwritable_output_fails_before_any_device_work(capsys, tmp_path, monkey
                   "does not exist\n"  # fmt: skip
 
 
-def test_debug_shows_the_traceback(capsys):
-    with pytest.raises(Exception, match="--spp must be a positive integer"):
-        cli.main(["--debug", "render", "--spp", "0"])
+@pytest.mark.parametrize("argv", [["--debug", "render"], ["render", "--debug"]])
+def test_debug_shows_the_traceback(argv):
+    with pytest.raises(ParameterError, match="--spp must be a positive integer"):
+        cli.main([*argv, "--spp", "0"])
 
 
 def fake_result(nonfinite: int, flagged: int, interrupted: bool = False) -> RenderResult:
