@@ -41,6 +41,11 @@ def parse_args(argv=None):
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--max-depth", type=int, default=8)
     parser.add_argument("--no-nee", action="store_true", help="BSDF sampling only (profiling)")
+    parser.add_argument(
+        "--russian-roulette",
+        action="store_true",
+        help="Russian roulette (ours starts after the second vertex, Mitsuba's at depth 5)",
+    )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--device", default=None)
@@ -64,7 +69,11 @@ def time_traces(tracer, sets, seed, size, repeats):
 def bench_one(runtime, scene_name, sampler, args):
     scene = load_scene(scene_name)
     tracer = PathTracer(
-        runtime, scene, max_depth=args.max_depth, next_event_estimation=not args.no_nee
+        runtime,
+        scene,
+        max_depth=args.max_depth,
+        russian_roulette=args.russian_roulette,
+        next_event_estimation=not args.no_nee,
     )
     pixels = tile_pixels(args.size, 0, 0, args.size, args.size)
     sets = generate_sample_sets(runtime, make_sampler(sampler, args.spp), args.seed, pixels)
@@ -109,6 +118,7 @@ def main(argv=None):
         "spp": args.spp,
         "max_depth": args.max_depth,
         "next_event_estimation": not args.no_nee,
+        "russian_roulette": args.russian_roulette,
         "repeats": args.repeats,
         "loadavg_before": load_before,
         "loadavg_after": os.getloadavg(),
