@@ -305,7 +305,7 @@ class _Table:
     def has(self, key: str) -> bool:
         return key in self.data
 
-    def _get(self, key: str, default: object):
+    def get(self, key: str, default: object):
         if key in self.data:
             return self.data[key]
         if default is _REQUIRED:
@@ -313,19 +313,19 @@ class _Table:
         return default
 
     def string(self, key: str, default: object = None) -> str | None:
-        value = self._get(key, default)
+        value = self.get(key, default)
         if value is not None and not isinstance(value, str):
             self.fail(key, f"expected a string, got {_describe(value)}")
         return value
 
     def boolean(self, key: str, default: object) -> bool:
-        value = self._get(key, default)
+        value = self.get(key, default)
         if not isinstance(value, bool):
             self.fail(key, f"expected true or false, got {_describe(value)}")
         return value
 
     def number(self, key: str, default: object = None, low=None, high=None, what="") -> float:
-        value = self._get(key, default)
+        value = self.get(key, default)
         if isinstance(value, bool) or not isinstance(value, int | float):
             self.fail(key, f"expected a number{what}, got {_describe(value)}")
         value = float(value)
@@ -336,7 +336,7 @@ class _Table:
         return value
 
     def vector(self, key: str, default: object = None, length: int = 3, what: str = "") -> tuple:
-        value = self._get(key, default)
+        value = self.get(key, default)
         expected = f"a list of {length} finite numbers{what}"
         if not isinstance(value, list | tuple) or len(value) != length:
             self.fail(key, f"expected {expected}, got {_describe(value)}")
@@ -397,13 +397,13 @@ class SceneBuilder:
         top = _Table(self.path, "top level", document)
         top.check_keys(TOP_FIELDS)
         description = top.string("description", "") or ""
-        camera = self.read_camera(_Table(self.path, "[camera]", top._get("camera", _REQUIRED)))
-        materials = top._get("materials", {})
+        camera = self.read_camera(_Table(self.path, "[camera]", top.get("camera", _REQUIRED)))
+        materials = top.get("materials", {})
         if not isinstance(materials, dict):
             top.fail("materials", f"expected tables [materials.NAME], got {_describe(materials)}")
         for name, data in materials.items():
             self.read_material(name, _Table(self.path, f"[materials.{name}]", data))
-        shapes = top._get("shapes", _REQUIRED)
+        shapes = top.get("shapes", _REQUIRED)
         if not isinstance(shapes, list):
             top.fail("shapes", f"expected an array of tables [[shapes]], got {_describe(shapes)}")
         for index, data in enumerate(shapes):
@@ -417,7 +417,7 @@ class SceneBuilder:
         look_at = table.vector("look_at", _REQUIRED)
         up = table.vector("up", [0.0, 1.0, 0.0])
         fov = table.number("fov", _REQUIRED, 1e-3, 179.0, " of degrees in (0, 180)")
-        resolution = table._get("resolution", _REQUIRED)
+        resolution = table.get("resolution", _REQUIRED)
         if (
             not isinstance(resolution, list)
             or len(resolution) != 2
