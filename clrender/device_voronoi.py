@@ -11,6 +11,7 @@ Entry points:
                                                    (clrender.sampling.DeviceSampleSets)
   device_sppp_cells_from_arrays(runtime, positions, offsets, aux, aux_offsets, box)
                                                    NumPy arrays, uploaded (tests, benchmarks)
+  sppp_cells_backend(runtime)                      a drop-in for voronoi_cells.sppp_cells
 
 Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
 bounded cell reaching beyond the start box, exactly collinear neighbours) flag their pixel;
@@ -19,7 +20,10 @@ diagram. stats.recomputed_pixels counts them (and stats.qhull_calls the host cal
 
 Precision: the device sees float32 positions (the sampler's format); arrays are rounded to
 float32 on upload, and host fallbacks use the rounded values, so every pixel's cells are those
-of one point set. precision="double" runs the geometry in float64 (needs cl_khr_fp64).
+of one point set. precision: "single" (all float32: areas within ~1e-5 relative of Qhull's on
+the worst cells), "mixed" (float32 clipping, final vertices and areas in float64 from the input
+coordinates: ~1e-14), "double" (all float64), "auto" (mixed where the device has cl_khr_fp64,
+else single). On PoCL mixed costs the same as single.
 """
 
 from __future__ import annotations
@@ -110,6 +114,18 @@ def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offse
         return _slice_pixels(traced32, offsets, aux32, aux_offsets, wanted)
 
     return _cells(runtime, layout, box, precision, fetch)
+
+
+def sppp_cells_backend(runtime: Runtime, precision: str = "auto"
+                       ) -> Callable[..., CellAreas]:  # fmt: skip
+    """A drop-in for voronoi_cells.sppp_cells (same arguments, same result) that runs on the
+    device: lets the host estimators use device cells without other changes."""
+
+    def cells(positions, offsets, aux, aux_offsets, box: float | None = None) -> CellAreas:
+        return device_sppp_cells_from_arrays(runtime, positions, offsets, aux, aux_offsets, box,
+                                             precision)
+
+    return cells
 
 
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:

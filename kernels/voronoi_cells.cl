@@ -241,8 +241,11 @@ inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
 }
 
 // Vertex k (relative to x) recomputed from the bisectors of edges k - 1 and k, in area_real
-// from the input coordinates (the clipped coordinates when the two bisectors are parallel).
-inline area_real2 VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int k)
+// from the input coordinates. False when the two bisectors are parallel: the edges are then
+// collinear (the same neighbour twice, or a coincident one), and the vertex, lying on a
+// straight side, is not a corner of the cell.
+inline bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int k,
+                                  area_real2 *vertex)
 {
     int prev = k == 0 ? poly->count - 1 : k - 1;
     area_real2 a = (area_real2)(poly->ex[prev], poly->ey[prev]) - x;
@@ -250,27 +253,33 @@ inline area_real2 VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x
     area_real ca = 0.5f * (a.x * a.x + a.y * a.y), cb = 0.5f * (b.x * b.x + b.y * b.y);
     area_real det = a.x * b.y - a.y * b.x;
     if (det == 0)
-        return (area_real2)(poly->vx[k], poly->vy[k]);
-    return (area_real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
+        return false;
+    *vertex = (area_real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
+    return true;
 }
 
-// Shoelace area from the recomputed vertices; inside: all vertices (absolute) lie in
+// Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
 // [-inside_box, inside_box]^2.
 inline area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
                                      area_real inside_box, bool *inside)
 {
     area_real2 x = AREA_REAL2(nucleus);
     area_real twice_area = 0;
-    bool in_box = true;
-    area_real2 first = VoronoiPolygon_Vertex(poly, x, 0);
-    area_real2 prev = first;
-    for (int k = 1; k <= poly->count; ++k) {
-        area_real2 cur = k == poly->count ? first : VoronoiPolygon_Vertex(poly, x, k);
-        twice_area += prev.x * cur.y - prev.y * cur.x;
-        area_real2 absolute = x + prev;
+    bool in_box = true, have_first = false;
+    area_real2 first = (area_real2)(0, 0), prev = first, cur;
+    for (int k = 0; k < poly->count; ++k) {
+        if (!VoronoiPolygon_Vertex(poly, x, k, &cur))
+            continue;
+        if (have_first)
+            twice_area += prev.x * cur.y - prev.y * cur.x;
+        else
+            first = cur;
+        have_first = true;
+        area_real2 absolute = x + cur;
         in_box &= fabs(absolute.x) <= inside_box && fabs(absolute.y) <= inside_box;
         prev = cur;
     }
+    twice_area += prev.x * first.y - prev.y * first.x;
     *inside = in_box;
     return 0.5f * twice_area;
 }

@@ -1,0 +1,222 @@
+"""Device Voronoi cells (clrender.device_voronoi, kernels/voronoi_cells.cl) against the host
+reference (clrender.voronoi_cells.sppp_cells, SciPy Qhull) and against exact geometry.
+
+Inputs are rounded to float32 first (the device's format), so both sides see one point set.
+Tolerances: precision "auto" (mixed on PoCL: final vertices in float64) must match Qhull to
+1e-9 relative; "single" to 1e-4 relative (typical 1e-6). Flags must be identical.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from clrender import device_voronoi, estimators
+from clrender.device_voronoi import (
+    device_sppp_cells,
+    device_sppp_cells_from_arrays,
+    sppp_cells_backend,
+)
+from clrender.errors import ParameterError
+from clrender.estimators import PixelSamples, estimate_all
+from clrender.sampling import generate_sample_sets, make_sampler
+from clrender.sppp import draw_sppp
+from clrender.voronoi_cells import sppp_cells
+
+AREA_RTOL = 1e-9
+SINGLE_RTOL = 1e-4
+
+
+def rounded(array: np.ndarray) -> np.ndarray:
+    return np.asarray(array, np.float32).astype(np.float64).reshape(-1, 2)
+
+
+def offsets_of(counts) -> np.ndarray:
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
+def both(runtime, traced, offsets, aux, aux_offsets, box, precision="auto"):
+    """(device cells, host cells) of one float32-rounded batch."""
+    traced, aux = rounded(traced), rounded(aux)
+    host = sppp_cells(traced, offsets, aux, aux_offsets, box)
+    device = device_sppp_cells_from_arrays(runtime, traced, offsets, aux, aux_offsets, box,
+                                           precision)
+    return device, host
+
+
+def assert_same_cells(device, host, rtol=AREA_RTOL):
+    np.testing.assert_array_equal(device.bounded, host.bounded)
+    np.testing.assert_allclose(device.areas, host.areas, rtol=rtol, atol=0, equal_nan=True)
+    if host.inside_box is not None:
+        np.testing.assert_array_equal(device.inside_box, host.inside_box)
+
+
+def sppp_batch(n, pixels, seed, eps=None):
+    batch = draw_sppp(np.random.default_rng(seed), n, pixels, eps=eps)
+    return batch, float(np.float32(0.5 + batch.eps))
+
+
+# 1. Random SPPP pixels: areas, bounded and inside-W' flags equal Qhull's
+@pytest.mark.parametrize("n, pixels", [(1, 3000), (4, 3000), (16, 1500), (64, 600),
+                                       (256, 150), (1024, 40)])
+def test_areas_and_flags_match_qhull(runtime, n, pixels):
+    batch, box = sppp_batch(n, pixels, seed=100 + n)
+    device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
+    assert_same_cells(device, host)
+    assert device.bounded.mean() > 0.99
+
+
+# 1b. The inside flag against a box that many cells cross (W itself)
+@pytest.mark.parametrize("n", [4, 64, 256])
+def test_inside_flags_match_qhull(runtime, n):
+    batch, _ = sppp_batch(n, 200, seed=n)
+    device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5)
+    assert_same_cells(device, host)
+    assert 0.05 < device.inside_box.mean() < 0.95
+
+
+# 2. Float32 geometry throughout (for devices without cl_khr_fp64) stays within 1e-4
+def test_single_precision_close_to_qhull(runtime):
+    batch, box = sppp_batch(64, 400, seed=7)
+    device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box,
+                        precision="single")
+    assert_same_cells(device, host, rtol=SINGLE_RTOL)
+    ok = host.bounded
+    assert np.median(np.abs(device.areas[ok] / host.areas[ok] - 1)) < 1e-6
+
+
+# 3. Mirror frame: with every nucleus mirrored across the four edges of W as auxiliary nuclei,
+# the W cells are the cells clipped to W, so they tile W exactly (no Qhull involved)
+@pytest.mark.parametrize("n", [1, 16, 256])
+def test_mirror_frame_cells_tile_the_pixel(runtime, n):
+    rng = np.random.default_rng(n)
+    counts = rng.poisson(n, 300)
+    counts[0] = 1
+    offsets = offsets_of(counts)
+    # Dyadic coordinates (multiples of 2^-20) keep the mirrors exact in float32
+    traced = rng.integers(0, 2**20, (offsets[-1], 2)) / 2**20 - 0.5
+    x, y = traced[:, 0], traced[:, 1]
+    mirrors = np.stack([np.column_stack([1 - x, y]), np.column_stack([-1 - x, y]),
+                        np.column_stack([x, 1 - y]), np.column_stack([x, -1 - y])], axis=1)
+    aux = mirrors.reshape(-1, 2)  # pixel by pixel, since traced is
+    cells = device_sppp_cells_from_arrays(runtime, traced, offsets, aux, offsets * 4)
+    assert cells.bounded.all()
+    pixel = np.repeat(np.arange(len(counts)), counts)
+    sums = np.bincount(pixel, cells.areas, len(counts))
+    np.testing.assert_allclose(sums[counts > 0], 1.0, rtol=0, atol=1e-12)
+
+
+# 4. A square lattice (cocircular vertices everywhere): every cell is the lattice square
+def test_lattice_cells_are_squares(runtime):
+    k = 8
+    h = 1.0 / k
+    centres = (np.arange(k) + 0.5) * h - 0.5
+    grid = np.array([(cx, cy) for cy in centres for cx in centres])
+    ring = (np.arange(-1, k + 1) + 0.5) * h - 0.5
+    aux = np.array([(cx, cy) for cy in ring for cx in ring
+                    if max(abs(cx), abs(cy)) > 0.5])
+    offsets, aux_offsets = offsets_of([len(grid)]), offsets_of([len(aux)])
+    device, host = both(runtime, grid, offsets, aux, aux_offsets, 0.5 + h)
+    assert device.bounded.all()
+    np.testing.assert_allclose(device.areas, h * h, rtol=1e-6)
+    assert_same_cells(device, host, rtol=1e-6)
+
+
+# 5. Tiny eps: many W nuclei on the hull. Flags equal Qhull's, and the device decides the
+# unbounded cells itself (the host only redoes pixels with a bounded cell beyond the start box)
+@pytest.mark.parametrize("n", [16, 64])
+def test_forced_unbounded_cells_flagged_like_qhull(runtime, n, monkeypatch):
+    redone = []
+
+    def host_fallback(traced, offsets, aux, aux_offsets, box=None):
+        cells = sppp_cells(traced, offsets, aux, aux_offsets, box)
+        redone.append(int((~cells.bounded).sum()))
+        return cells
+
+    monkeypatch.setattr(device_voronoi, "sppp_cells", host_fallback)
+    batch, box = sppp_batch(n, 1500, seed=n, eps=0.003)
+    device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
+    assert_same_cells(device, host)
+    assert (~host.bounded).sum() - sum(redone) > 100
+
+
+# 6. Degenerate pixels give the host path's results
+def degenerate_pixels():
+    rng = np.random.default_rng(3)
+    line = np.column_stack([np.linspace(-0.4, 0.4, 5), np.full(5, 0.1)])
+    spread = rng.random((6, 2)) - 0.5
+    strip = np.array([[-0.6, -0.6], [0.6, -0.6], [0.6, 0.6], [-0.6, 0.6]])
+    pixels = [
+        (np.zeros((0, 2)), strip),                    # N = 0 with aux nuclei
+        (np.zeros((0, 2)), np.zeros((0, 2))),         # N = 0, nothing at all
+        (spread[:1], np.zeros((0, 2))),               # N = 1 alone: unbounded
+        (spread[:1], strip),                          # N = 1 in a frame: bounded
+        (spread[:2], np.zeros((0, 2))),               # N = 2
+        (line, np.zeros((0, 2))),                     # collinear
+        (line, np.column_stack([[-0.55, 0.55], [0.1, 0.1]])),   # collinear with aux on the line
+        (np.concatenate([spread, spread[:2]]), strip),          # duplicated W nuclei
+        (np.concatenate([spread[:3], strip[:1]]), strip),       # a W nucleus on an aux nucleus
+        (np.repeat(spread[:1], 3, axis=0), np.zeros((0, 2))),   # one point three times
+    ]
+    traced = np.concatenate([t for t, _ in pixels])
+    aux = np.concatenate([a for _, a in pixels])
+    return (traced, offsets_of([len(t) for t, _ in pixels]), aux,
+            offsets_of([len(a) for _, a in pixels]))
+
+
+def test_degenerate_pixels_match_host(runtime):
+    traced, offsets, aux, aux_offsets = degenerate_pixels()
+    device, host = both(runtime, traced, offsets, aux, aux_offsets, 0.55)
+    assert_same_cells(device, host)
+    assert host.bounded.any() and not host.bounded.all()
+
+
+# 7. From the sampler's device buffers, without a host copy of the positions
+def test_device_sample_sets_match_host(runtime):
+    config = make_sampler("sppp", 64)
+    sets = generate_sample_sets(runtime, config, 11, np.arange(700, dtype=np.uint32))
+    box = float(np.float32(0.5 + config.eps))
+    device = device_sppp_cells(runtime, sets, box)
+    host_sets = sets.to_host(runtime.queue)
+    host = sppp_cells(host_sets.traced.astype(np.float64), host_sets.offsets,
+                      host_sets.aux.astype(np.float64), host_sets.aux_offsets, box)
+    assert_same_cells(device, host)
+
+
+# 8. Cells the kernel cannot finish (vertex overflow) are recomputed on the host, exactly
+def test_overflow_falls_back_to_host(runtime, monkeypatch):
+    monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
+    batch, box = sppp_batch(64, 60, seed=5)
+    device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
+    assert device.stats.recomputed_pixels > 30
+    assert_same_cells(device, host)
+
+
+# 9. The estimators give the same estimates from device cells as from Qhull's
+def test_estimates_from_device_cells_match(runtime, monkeypatch):
+    batch, _ = sppp_batch(64, 500, seed=9)
+    traced, aux = rounded(batch.traced), rounded(batch.aux)
+    values = np.column_stack([np.abs(traced[:, 0] * traced[:, 1]) ** 0.5,
+                              (traced[:, 0] > 0.1).astype(float), np.ones(len(traced))])
+    samples = PixelSamples(traced, values, batch.offsets, 64.0, aux, batch.aux_offsets,
+                           batch.eps)
+    names = ["vor", "vor_sn", "fvor"]
+    host = estimate_all(names, samples)
+    monkeypatch.setattr(estimators, "sppp_cells", sppp_cells_backend(runtime))
+    device = estimate_all(names, samples)
+    for name in names:
+        np.testing.assert_array_equal(device[name].needs_redraw, host[name].needs_redraw)
+        np.testing.assert_allclose(device[name].estimates, host[name].estimates, rtol=1e-9,
+                                   atol=1e-12, equal_nan=True)
+
+
+def test_bad_arguments_are_rejected(runtime):
+    with pytest.raises(ParameterError, match="precision"):
+        device_sppp_cells_from_arrays(runtime, np.zeros((1, 2)), [0, 1], np.zeros((0, 2)),
+                                      [0, 0], precision="quad")
+    with pytest.raises(ParameterError, match="offsets"):
+        device_sppp_cells_from_arrays(runtime, np.zeros((2, 2)), [0, 1], np.zeros((0, 2)),
+                                      [0, 0])
+    with pytest.raises(ParameterError, match="finite"):
+        device_sppp_cells_from_arrays(runtime, np.full((1, 2), np.nan), [0, 1],
+                                      np.zeros((0, 2)), [0, 0])
