@@ -1,0 +1,113 @@
+"""Device Voronoi cell areas (clrender.device_voronoi) against the host Qhull stage.
+
+    python bench/device_voronoi_speed.py [--quick] [--repeats K] [--precision P] [--out FILE]
+
+For n = 64, 256, 1024, 4096 the SPPP sample sets of a batch of pixels are drawn on the device
+(clrender.sampling, as in a render tile); then, on the same points, it times
+  device: device_sppp_cells(runtime, sets, box)  (positions already on the device; grid build,
+          cell kernel, read-back of areas and flags, host fallbacks)
+  host:   voronoi_cells.sppp_cells on the host copy (what the render's estimator stage runs).
+Reported per traced nucleus, as medians over K repeats after a warm-up run: wall time and
+process CPU time (all threads: PoCL's workers for the device, Qhull's one thread for the host),
+plus the largest relative area difference between the two and the host-fallback pixel count.
+The machine is shared: compare CPU times first. JSON goes to bench/results/ (git-ignored).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from clrender.device_voronoi import device_sppp_cells, resolve_precision  # noqa: E402
+from clrender.runtime import create_runtime  # noqa: E402
+from clrender.sampling import generate_sample_sets, make_sampler  # noqa: E402
+from clrender.voronoi_cells import sppp_cells  # noqa: E402
+
+# (n, pixels): about 260 000 traced nuclei each.
+CASES = [(64, 4096), (256, 1024), (1024, 256), (4096, 64)]
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "device_voronoi_speed.json"
+
+
+def timed(fn, repeats: int) -> tuple[float, float, object]:
+    """Median wall and CPU seconds of fn() over repeats (after one warm-up call), last result."""
+    result = fn()
+    walls, cpus = [], []
+    for _ in range(repeats):
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        result = fn()
+        walls.append(time.perf_counter() - wall0)
+        cpus.append(time.process_time() - cpu0)
+    return float(np.median(walls)), float(np.median(cpus)), result
+
+
+def measure(runtime, n: int, pixels: int, repeats: int, precision: str) -> dict:
+    config = make_sampler("sppp", n)
+    sets = generate_sample_sets(runtime, config, 1, np.arange(pixels, dtype=np.uint32))
+    host_sets = sets.to_host(runtime.queue)
+    box = float(np.float32(0.5 + config.eps))
+    traced = host_sets.traced.astype(np.float64)
+    aux = host_sets.aux.astype(np.float64)
+    nuclei = len(traced)
+
+    dev_wall, dev_cpu, device = timed(lambda: device_sppp_cells(runtime, sets, box, precision),
+                                      repeats)
+    host_repeats = max(1, repeats // 2)
+    host_wall, host_cpu, host = timed(
+        lambda: sppp_cells(traced, host_sets.offsets, aux, host_sets.aux_offsets, box),
+        host_repeats)
+    both = device.bounded & host.bounded
+    rel = np.abs(device.areas[both] / host.areas[both] - 1.0)
+    us = 1e6 / nuclei
+    return {
+        "n": n, "pixels": pixels, "traced_nuclei": nuclei,
+        "aux_nuclei": int(len(aux)),
+        "device_wall_us_per_nucleus": dev_wall * us,
+        "device_cpu_us_per_nucleus": dev_cpu * us,
+        "host_wall_us_per_nucleus": host_wall * us,
+        "host_cpu_us_per_nucleus": host_cpu * us,
+        "wall_speedup": host_wall / dev_wall,
+        "cpu_speedup": host_cpu / dev_cpu,
+        "max_relative_area_difference": float(rel.max()) if rel.size else 0.0,
+        "flags_identical": bool((device.bounded == host.bounded).all()
+                                and (device.inside_box == host.inside_box).all()),
+        "host_fallback_pixels": device.stats.recomputed_pixels,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="1/8 of the pixels, 3 repeats")
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--precision", default="auto", help="auto, single, mixed or double")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = parser.parse_args(argv)
+    runtime = create_runtime()
+    repeats = 3 if args.quick else args.repeats
+    rows = []
+    for n, pixels in CASES:
+        row = measure(runtime, n, max(8, pixels // 8) if args.quick else pixels, repeats,
+                      args.precision)
+        rows.append(row)
+        print(f"n={n:5d} pixels={row['pixels']:5d}  device {row['device_wall_us_per_nucleus']:.3f}"
+              f" us wall {row['device_cpu_us_per_nucleus']:.3f} us cpu  |  host "
+              f"{row['host_wall_us_per_nucleus']:.3f} us wall {row['host_cpu_us_per_nucleus']:.3f}"
+              f" us cpu  |  cpu x{row['cpu_speedup']:.1f} wall x{row['wall_speedup']:.1f}  "
+              f"max rel diff {row['max_relative_area_difference']:.1e}  "
+              f"fallback {row['host_fallback_pixels']}", flush=True)
+    report = {"device": runtime.describe(),
+              "precision": resolve_precision(runtime, args.precision),
+              "repeats": repeats, "cases": rows}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
