@@ -97,7 +97,9 @@ class DeviceSampleSets:
     redraws: np.ndarray  # (P,) uint32 redraw numbers
     traced_offsets: np.ndarray  # (P + 1,) int64 host copy
     positions: cl.Buffer
-    offsets_buffer: cl.Buffer
+    offsets_buffer: cl.Buffer   # traced_offsets as uint32, on the device
+    pixels_buffer: cl.Buffer    # pixels as uint32, on the device
+    redraws_buffer: cl.Buffer   # redraws as uint32, on the device
 
     @property
     def pixel_count(self) -> int:
@@ -158,7 +160,8 @@ def generate_sample_sets(
     positions = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, size=max(8, 8 * total))
     _launch_fill(runtime, config, seed, pixels_buf, redraws_buf, offsets_buf, positions,
                  len(pixels), int(offsets[-1]))  # fmt: skip
-    return DeviceSampleSets(config, pixels, redraws, offsets, positions, offsets_buf)
+    return DeviceSampleSets(config, pixels, redraws, offsets, positions, offsets_buf,
+                            pixels_buf, redraws_buf)  # fmt: skip
 
 
 def _launch_fill(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,

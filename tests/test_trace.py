@@ -121,13 +121,16 @@ def explicit_sample_sets(runtime, positions):
     positions = np.ascontiguousarray(positions, np.float32)
     offsets = np.array([0, len(positions)], np.int64)
     flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    zero = np.zeros(1, np.uint32)
     return DeviceSampleSets(
         make_sampler("uniform", len(positions)),
-        np.zeros(1, np.uint32),
-        np.zeros(1, np.uint32),
+        zero,
+        zero,
         offsets,
         cl.Buffer(runtime.context, flags, hostbuf=positions),
         cl.Buffer(runtime.context, flags, hostbuf=offsets.astype(np.uint32)),
+        cl.Buffer(runtime.context, flags, hostbuf=zero),
+        cl.Buffer(runtime.context, flags, hostbuf=zero),
     )
 
 
