@@ -64,6 +64,7 @@ class _Layout:
     traced_offsets: np.ndarray   # (P + 1,) int64
     aux_offsets: np.ndarray      # (P + 1,) int64, relative to the first auxiliary nucleus
     half_extent: float           # the grid covers [-half_extent, half_extent]^2
+    grid_side: int               # cells per side of every pixel's grid
 
     @property
     def pixel_count(self) -> int:
@@ -87,8 +88,10 @@ def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: floa
     config = sample_sets.config
     pixels = sample_sets.pixel_count
     aux_offsets = np.arange(pixels + 1, dtype=np.int64) * config.n_aux
+    # The grid follows the sampler, not the launch: a pixel's cells are then bit-identical
+    # whatever tile it is computed in.
     layout = _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
-                     aux_offsets, 0.5 + config.eps)
+                     aux_offsets, 0.5 + config.eps, grid_side(config.n + config.n_aux, 1))
 
     def fetch(wanted: np.ndarray):
         return _read_pixels(runtime.queue, layout, wanted)
@@ -108,7 +111,8 @@ def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offse
     extent = float(np.abs(flat).max()) if len(flat) else 0.5
     buffer = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                        hostbuf=flat if len(flat) else np.zeros((1, 2), np.float32))
-    layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5))
+    side = grid_side(len(flat), len(offsets) - 1)
+    layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side)
 
     def fetch(wanted: np.ndarray):
         return _slice_pixels(traced32, offsets, aux32, aux_offsets, wanted)
@@ -189,7 +193,7 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     context, queue, local = runtime.context, runtime.queue, (runtime.local_size,)
     pixels = layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
-    side = grid_side(total, pixels)
+    side = layout.grid_side
     if total >= 2**32 or pixels * (side * side + 1) >= 2**32:
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
     traced_off = _upload(context, layout.traced_offsets.astype(np.uint32))

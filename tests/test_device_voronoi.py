@@ -183,6 +183,19 @@ def test_device_sample_sets_match_host(runtime):
     assert_same_cells(device, host)
 
 
+# 7b. A pixel's cells do not depend on the launch it is part of (tiling invariance)
+def test_cells_bit_identical_across_launches(runtime):
+    config = make_sampler("sppp", 64)
+    every = np.arange(300, dtype=np.uint32)
+    whole_sets = generate_sample_sets(runtime, config, 4, every)
+    whole = device_sppp_cells(runtime, whole_sets, 0.6)
+    part = device_sppp_cells(runtime, generate_sample_sets(runtime, config, 4, every[100:140]), 0.6)
+    first, last = whole_sets.traced_offsets[100], whole_sets.traced_offsets[140]
+    assert last - first == len(part.areas)
+    np.testing.assert_array_equal(part.areas, whole.areas[first:last])
+    np.testing.assert_array_equal(part.inside_box, whole.inside_box[first:last])
+
+
 # 8. Cells the kernel cannot finish (vertex overflow) are recomputed on the host, exactly
 def test_overflow_falls_back_to_host(runtime, monkeypatch):
     monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
