@@ -24,9 +24,10 @@ and ivor_sn also draw their guard nuclei there, on a second OpenCL context so th
 object is shared between threads).
 
 Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only;
-a per-pixel estimator sees only its pixel's samples, and the image-level ones sum their
-triangles in a canonical order; so the image is bit-identical whatever the tile size and
-with or without overlap.
+a per-pixel estimator sees only its pixel's samples; the image-level ones (ivor, ivor_sn) see
+neighbouring pixels' nuclei too, regenerated from the same random numbers whatever the tile,
+and sum their triangles in a canonical order; so the image is bit-identical whatever the tile
+size and with or without overlap.
 
 Ctrl-C (KeyboardInterrupt) stops the render between device calls: the tile whose estimates
 are in flight is finished (without its redraws), and `render` returns the partial film with
@@ -39,7 +40,7 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pyopencl as cl
@@ -407,6 +408,9 @@ def render(
 ) -> RenderResult:
     """Render the source's image with the given sampler and estimator."""
     check_compatible(settings.estimator, settings.sampler.name)
+    if settings.estimator in IMAGE_ESTIMATORS and settings.sampler.n_aux:
+        # Neighbouring pixels' nuclei shape the cells: auxiliary nuclei would be drawn for nothing.
+        settings = replace(settings, sampler=replace(settings.sampler, n_aux=0))
     if (source.width, source.height) != (settings.width, settings.height):
         raise ParameterError(
             f"the radiance source renders {source.width} x {source.height}, "
