@@ -8,6 +8,7 @@
 #define CLRENDER_BSDF_H
 
 #include "scene_types.h"
+#include "vecmath.h"
 
 typedef struct {
     float3 s;
@@ -16,9 +17,9 @@ typedef struct {
 } Frame;
 
 // An orthonormal frame around the unit normal n (Duff et al. 2017, branchless).
-inline Frame Frame_FromNormal(float3 n)
+CL_INLINE Frame Frame_FromNormal(float3 n)
 {
-    float sign = copysign(1.0f, n.z);
+    float sign = Copysign(1.0f, n.z);
     float a = -1.0f / (sign + n.z);
     float b = n.x * n.y * a;
     Frame frame;
@@ -28,12 +29,12 @@ inline Frame Frame_FromNormal(float3 n)
     return frame;
 }
 
-inline float3 Frame_ToLocal(Frame frame, float3 v)
+CL_INLINE float3 Frame_ToLocal(Frame frame, float3 v)
 {
-    return (float3)(dot(v, frame.s), dot(v, frame.t), dot(v, frame.n));
+    return (float3)(Dot3(v, frame.s), Dot3(v, frame.t), Dot3(v, frame.n));
 }
 
-inline float3 Frame_ToWorld(Frame frame, float3 v)
+CL_INLINE float3 Frame_ToWorld(Frame frame, float3 v)
 {
     return v.x * frame.s + v.y * frame.t + v.z * frame.n;
 }
@@ -42,9 +43,9 @@ inline float3 Frame_ToWorld(Frame frame, float3 v)
 
 // Unpolarised Fresnel reflectance of a smooth dielectric interface; eta = eta_inside /
 // eta_outside, cos_i > 0 on the outside. Total internal reflection gives 1.
-inline float Fresnel_Dielectric(float cos_i, float eta)
+CL_INLINE float Fresnel_Dielectric(float cos_i, float eta)
 {
-    cos_i = clamp(cos_i, -1.0f, 1.0f);
+    cos_i = Fmin(Fmax(cos_i, -1.0f), 1.0f);
     if (cos_i < 0.0f) {
         eta = 1.0f / eta;
         cos_i = -cos_i;
@@ -52,7 +53,7 @@ inline float Fresnel_Dielectric(float cos_i, float eta)
     float sin2_t = (1.0f - cos_i * cos_i) / (eta * eta);
     if (sin2_t >= 1.0f)
         return 1.0f;
-    float cos_t = sqrt(1.0f - sin2_t);
+    float cos_t = Sqrt(1.0f - sin2_t);
     float r_parallel = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
     float r_perpendicular = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
     return 0.5f * (r_parallel * r_parallel + r_perpendicular * r_perpendicular);
@@ -60,16 +61,16 @@ inline float Fresnel_Dielectric(float cos_i, float eta)
 
 // Unpolarised Fresnel reflectance of a conductor of complex index eta + i k (outside: 1),
 // per RGB channel, for 0 <= cos_i <= 1 (pbrt-v3 FrConductor).
-inline float3 Fresnel_Conductor(float cos_i, float3 eta, float3 k)
+CL_INLINE float3 Fresnel_Conductor(float cos_i, float3 eta, float3 k)
 {
     float cos2 = cos_i * cos_i;
     float sin2 = 1.0f - cos2;
     float3 eta2 = eta * eta;
     float3 k2 = k * k;
     float3 t0 = eta2 - k2 - sin2;
-    float3 a2_plus_b2 = sqrt(t0 * t0 + 4.0f * eta2 * k2);
+    float3 a2_plus_b2 = Sqrt3(t0 * t0 + 4.0f * eta2 * k2);
     float3 t1 = a2_plus_b2 + cos2;
-    float3 a = sqrt(fmax(0.5f * (a2_plus_b2 + t0), 0.0f));
+    float3 a = Sqrt3(Fmax3(0.5f * (a2_plus_b2 + t0), 0.0f));
     float3 t2 = 2.0f * cos_i * a;
     float3 rs = (t1 - t2) / (t1 + t2);
     float3 t3 = cos2 * a2_plus_b2 + sin2 * sin2;
@@ -80,34 +81,34 @@ inline float3 Fresnel_Conductor(float cos_i, float3 eta, float3 k)
 
 // ----------------------------------------------------------------------------- diffuse
 
-inline float3 Diffuse_Eval(__global const Material *m, float3 wo, float3 wi)
+CL_INLINE float3 Diffuse_Eval(__global const Material *m, float3 wo, float3 wi)
 {
     bool same_side = wo.z > 0.0f && wi.z > 0.0f;
-    return same_side ? vload3(0, m->albedo) * M_1_PI_F : (float3)(0.0f);
+    return same_side ? Load3(m->albedo) * M_1_PI_F : (float3)(0.0f);
 }
 
-inline float Diffuse_PdfW(float3 wo, float3 wi)
+CL_INLINE float Diffuse_PdfW(float3 wo, float3 wi)
 {
     return (wo.z > 0.0f && wi.z > 0.0f) ? wi.z * M_1_PI_F : 0.0f;
 }
 
 // Cosine-weighted hemisphere: pdfW = cos(wi) / pi, weight = albedo.
-inline float3 Diffuse_Sample(__global const Material *m, float3 wo, float2 u, float3 *wi,
-                             float *pdfW)
+CL_INLINE float3 Diffuse_Sample(__global const Material *m, float3 wo, float2 u, float3 *wi,
+                                float *pdfW)
 {
-    float r = sqrt(u.x);
+    float r = Sqrt(u.x);
     float phi = 2.0f * M_PI_F * u.y;
     float cos_phi;
     float sin_phi = sincos(phi, &cos_phi);
-    *wi = (float3)(r * cos_phi, r * sin_phi, sqrt(fmax(0.0f, 1.0f - u.x)));
+    *wi = (float3)(r * cos_phi, r * sin_phi, Sqrt(Fmax(0.0f, 1.0f - u.x)));
     *pdfW = Diffuse_PdfW(wo, *wi);
-    return *pdfW > 0.0f ? vload3(0, m->albedo) : (float3)(0.0f);
+    return *pdfW > 0.0f ? Load3(m->albedo) : (float3)(0.0f);
 }
 
 // ----------------------------------------------------------------------------- GGX
 
 // GGX normal distribution D(m) for a microfacet normal m with m.z > 0.
-inline float GGX_D(float3 m, float alpha)
+CL_INLINE float GGX_D(float3 m, float alpha)
 {
     float a2 = alpha * alpha;
     float d = m.z * m.z * (a2 - 1.0f) + 1.0f;
@@ -115,61 +116,62 @@ inline float GGX_D(float3 m, float alpha)
 }
 
 // Smith's Lambda for GGX: G1(w) = 1 / (1 + Lambda(w)).
-inline float GGX_Lambda(float3 w, float alpha)
+CL_INLINE float GGX_Lambda(float3 w, float alpha)
 {
     float tan2 = (w.x * w.x + w.y * w.y) / (w.z * w.z);
-    return 0.5f * (sqrt(1.0f + alpha * alpha * tan2) - 1.0f);
+    return 0.5f * (Sqrt(1.0f + alpha * alpha * tan2) - 1.0f);
 }
 
 // A microfacet normal from the distribution of normals visible from wo (Heitz 2018).
-inline float3 GGX_SampleVisibleNormal(float3 wo, float alpha, float2 u)
+CL_INLINE float3 GGX_SampleVisibleNormal(float3 wo, float alpha, float2 u)
 {
-    float3 vh = normalize((float3)(alpha * wo.x, alpha * wo.y, wo.z));
+    float3 vh = Normalize3((float3)(alpha * wo.x, alpha * wo.y, wo.z));
     float lensq = vh.x * vh.x + vh.y * vh.y;
-    float3 t1 = lensq > 0.0f ? (float3)(-vh.y, vh.x, 0.0f) * rsqrt(lensq) : (float3)(1, 0, 0);
-    float3 t2 = cross(vh, t1);
-    float r = sqrt(u.x);
+    float3 t1 =
+        lensq > 0.0f ? (float3)(-vh.y, vh.x, 0.0f) * (1.0f / Sqrt(lensq)) : (float3)(1, 0, 0);
+    float3 t2 = Cross3(vh, t1);
+    float r = Sqrt(u.x);
     float cos_phi;
     float sin_phi = sincos(2.0f * M_PI_F * u.y, &cos_phi);
     float p1 = r * cos_phi;
     float p2 = r * sin_phi;
     float s = 0.5f * (1.0f + vh.z);
-    p2 = (1.0f - s) * sqrt(fmax(0.0f, 1.0f - p1 * p1)) + s * p2;
-    float3 nh = p1 * t1 + p2 * t2 + sqrt(fmax(0.0f, 1.0f - p1 * p1 - p2 * p2)) * vh;
-    return normalize((float3)(alpha * nh.x, alpha * nh.y, fmax(1e-7f, nh.z)));
+    p2 = (1.0f - s) * Sqrt(Fmax(0.0f, 1.0f - p1 * p1)) + s * p2;
+    float3 nh = p1 * t1 + p2 * t2 + Sqrt(Fmax(0.0f, 1.0f - p1 * p1 - p2 * p2)) * vh;
+    return Normalize3((float3)(alpha * nh.x, alpha * nh.y, Fmax(1e-7f, nh.z)));
 }
 
 // ----------------------------------------------------------------------------- rough conductor
 
 // f = D(wh) G2(wo, wi) F(wo.wh) / (4 cos_o cos_i), height-correlated Smith G2.
-inline float3 Conductor_Eval(__global const Material *m, float3 wo, float3 wi)
+CL_INLINE float3 Conductor_Eval(__global const Material *m, float3 wo, float3 wi)
 {
     if (!(wo.z > 0.0f && wi.z > 0.0f))
         return (float3)(0.0f);
     float alpha = m->alpha;
-    float3 wh = normalize(wo + wi);
+    float3 wh = Normalize3(wo + wi);
     float g2 = 1.0f / (1.0f + GGX_Lambda(wo, alpha) + GGX_Lambda(wi, alpha));
-    float3 fresnel = Fresnel_Conductor(dot(wo, wh), vload3(0, m->eta), vload3(0, m->k));
+    float3 fresnel = Fresnel_Conductor(Dot3(wo, wh), Load3(m->eta), Load3(m->k));
     return fresnel * (GGX_D(wh, alpha) * g2 / (4.0f * wo.z * wi.z));
 }
 
 // Visible-normal sampling: pdfW = D(wh) G1(wo) / (4 cos_o).
-inline float Conductor_PdfW(__global const Material *m, float3 wo, float3 wi)
+CL_INLINE float Conductor_PdfW(__global const Material *m, float3 wo, float3 wi)
 {
     if (!(wo.z > 0.0f && wi.z > 0.0f))
         return 0.0f;
     float alpha = m->alpha;
-    float3 wh = normalize(wo + wi);
+    float3 wh = Normalize3(wo + wi);
     return GGX_D(wh, alpha) / ((1.0f + GGX_Lambda(wo, alpha)) * 4.0f * wo.z);
 }
 
 // Weight f cos_i / pdfW = F(wo.wh) G2 / G1(wo).
-inline float3 Conductor_Sample(__global const Material *m, float3 wo, float2 u, float3 *wi,
-                               float *pdfW)
+CL_INLINE float3 Conductor_Sample(__global const Material *m, float3 wo, float2 u, float3 *wi,
+                                  float *pdfW)
 {
     float alpha = m->alpha;
     float3 wh = GGX_SampleVisibleNormal(wo, alpha, u);
-    float wo_dot_wh = dot(wo, wh);
+    float wo_dot_wh = Dot3(wo, wh);
     *wi = 2.0f * wo_dot_wh * wh - wo;
     if (!(wo.z > 0.0f && wi->z > 0.0f)) {
         *pdfW = 0.0f;
@@ -178,7 +180,7 @@ inline float3 Conductor_Sample(__global const Material *m, float3 wo, float2 u, 
     float lambda_o = GGX_Lambda(wo, alpha);
     float lambda_i = GGX_Lambda(*wi, alpha);
     *pdfW = GGX_D(wh, alpha) / ((1.0f + lambda_o) * 4.0f * wo.z);
-    float3 fresnel = Fresnel_Conductor(wo_dot_wh, vload3(0, m->eta), vload3(0, m->k));
+    float3 fresnel = Fresnel_Conductor(wo_dot_wh, Load3(m->eta), Load3(m->k));
     return fresnel * ((1.0f + lambda_o) / (1.0f + lambda_o + lambda_i));
 }
 
@@ -186,8 +188,8 @@ inline float3 Conductor_Sample(__global const Material *m, float3 wo, float2 u, 
 
 // Smooth dielectric: reflect with probability F, else refract (Snell). pdfW is the discrete
 // probability of the choice; the refracted weight carries the radiance scaling 1 / eta'^2.
-inline float3 Dielectric_Sample(__global const Material *m, float3 wo, float u, float3 *wi,
-                                float *pdfW)
+CL_INLINE float3 Dielectric_Sample(__global const Material *m, float3 wo, float u, float3 *wi,
+                                   float *pdfW)
 {
     float eta = m->eta[0];
     float cos_o = wo.z;
@@ -199,7 +201,7 @@ inline float3 Dielectric_Sample(__global const Material *m, float3 wo, float u, 
     }
     float eta_rel = cos_o > 0.0f ? eta : 1.0f / eta;
     float sin2_t = (1.0f - cos_o * cos_o) / (eta_rel * eta_rel);
-    float cos_t = sqrt(fmax(0.0f, 1.0f - sin2_t));
+    float cos_t = Sqrt(Fmax(0.0f, 1.0f - sin2_t));
     *wi = (float3)(-wo.x / eta_rel, -wo.y / eta_rel, cos_o > 0.0f ? -cos_t : cos_t);
     *pdfW = 1.0f - fresnel;
     return (float3)(1.0f / (eta_rel * eta_rel));
@@ -207,12 +209,12 @@ inline float3 Dielectric_Sample(__global const Material *m, float3 wo, float u, 
 
 // ----------------------------------------------------------------------------- dispatch
 
-inline bool BSDF_IsSpecular(__global const Material *m)
+CL_INLINE bool BSDF_IsSpecular(__global const Material *m)
 {
     return m->type == MATERIAL_DIELECTRIC;
 }
 
-inline float3 BSDF_Eval(__global const Material *m, float3 wo, float3 wi)
+CL_INLINE float3 BSDF_Eval(__global const Material *m, float3 wo, float3 wi)
 {
     switch (m->type) {
     case MATERIAL_DIFFUSE:
@@ -224,7 +226,7 @@ inline float3 BSDF_Eval(__global const Material *m, float3 wo, float3 wi)
     }
 }
 
-inline float BSDF_PdfW(__global const Material *m, float3 wo, float3 wi)
+CL_INLINE float BSDF_PdfW(__global const Material *m, float3 wo, float3 wi)
 {
     switch (m->type) {
     case MATERIAL_DIFFUSE:
@@ -237,8 +239,8 @@ inline float BSDF_PdfW(__global const Material *m, float3 wo, float3 wi)
 }
 
 // Sample wi for wo with uniforms u; returns the weight f |cos wi| / pdfW (zero on failure).
-inline float3 BSDF_Sample(__global const Material *m, float3 wo, float3 u, float3 *wi,
-                          float *pdfW)
+CL_INLINE float3 BSDF_Sample(__global const Material *m, float3 wo, float3 u, float3 *wi,
+                             float *pdfW)
 {
     switch (m->type) {
     case MATERIAL_DIFFUSE:

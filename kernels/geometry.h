@@ -5,6 +5,7 @@
 #define CLRENDER_GEOMETRY_H
 
 #include "scene_types.h"
+#include "vecmath.h"
 
 // A surface point found by a ray: position, geometric normal (the quad's front side, the
 // sphere's outside), material and emitter.
@@ -15,68 +16,68 @@ typedef struct {
     int emitter;
 } Surface;
 
-// Smallest of the 8 lanes.
-inline float Lanes_Min(float8 v)
+// Smallest of the 8 lanes (no lane is NaN).
+CL_INLINE float Lanes_Min(float8 v)
 {
-    float4 v4 = fmin(v.lo, v.hi);
-    float2 v2 = fmin(v4.lo, v4.hi);
-    return fmin(v2.x, v2.y);
+    float4 v4 = v.lo < v.hi ? v.lo : v.hi;
+    float2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
+    return v2.x < v2.y ? v2.x : v2.y;
 }
 
-inline int Lanes_MinInt(int8 v)
+CL_INLINE int Lanes_MinInt(int8 v)
 {
-    int4 v4 = min(v.lo, v.hi);
-    int2 v2 = min(v4.lo, v4.hi);
-    return min(v2.x, v2.y);
+    int4 v4 = v.lo < v.hi ? v.lo : v.hi;
+    int2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
+    return v2.x < v2.y ? v2.x : v2.y;
 }
 
 // The nearest quad of a block hit before tmax: its distance (tmax if none) and lane in *lane.
-inline float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, float3 d,
-                                 float tmax, int *lane)
+CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, float3 d,
+                                    float tmax, int *lane)
 {
-    float8 nx = vload8(0, block->normal[0]);
-    float8 ny = vload8(0, block->normal[1]);
-    float8 nz = vload8(0, block->normal[2]);
-    float8 t = (vload8(0, block->plane_d) - (nx * o.x + ny * o.y + nz * o.z)) /
+    float8 nx = Load8(block->normal[0]);
+    float8 ny = Load8(block->normal[1]);
+    float8 nz = Load8(block->normal[2]);
+    float8 t = (Load8(block->plane_d) - (nx * o.x + ny * o.y + nz * o.z)) /
                (nx * d.x + ny * d.y + nz * d.z);
-    float8 rx = o.x + t * d.x - vload8(0, block->corner[0]);
-    float8 ry = o.y + t * d.y - vload8(0, block->corner[1]);
-    float8 rz = o.z + t * d.z - vload8(0, block->corner[2]);
-    float8 a = rx * vload8(0, block->u_dual[0]) + ry * vload8(0, block->u_dual[1]) +
-               rz * vload8(0, block->u_dual[2]);
-    float8 b = rx * vload8(0, block->v_dual[0]) + ry * vload8(0, block->v_dual[1]) +
-               rz * vload8(0, block->v_dual[2]);
+    float8 rx = o.x + t * d.x - Load8(block->corner[0]);
+    float8 ry = o.y + t * d.y - Load8(block->corner[1]);
+    float8 rz = o.z + t * d.z - Load8(block->corner[2]);
+    float8 a = rx * Load8(block->u_dual[0]) + ry * Load8(block->u_dual[1]) +
+               rz * Load8(block->u_dual[2]);
+    float8 b = rx * Load8(block->v_dual[0]) + ry * Load8(block->v_dual[1]) +
+               rz * Load8(block->v_dual[2]);
     int8 hit = (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
-    float8 t_hit = select((float8)(INFINITY), t, hit);
+    float8 t_hit = hit ? t : (float8)(INFINITY);
     float t_min = Lanes_Min(t_hit);
     int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    *lane = Lanes_MinInt(select((int8)(QUAD_BLOCK_WIDTH), lane_ids, t_hit == t_min));
+    *lane = Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(QUAD_BLOCK_WIDTH));
     return t_min < tmax ? t_min : tmax;
 }
 
 // Distance along d (unit) to the nearest sphere crossing ahead, or tmax.
 // (Ray Tracing Gems, ch. 7: discriminant from the closest-approach vector, stable roots.)
-inline float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, float tmax)
+CL_INLINE float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, float tmax)
 {
-    float3 oc = o - vload3(0, s->center);
+    float3 oc = o - Load3(s->center);
     float r = s->radius;
-    float b = dot(oc, d);
+    float b = Dot3(oc, d);
     float3 f = oc - b * d;
-    float disc = r * r - dot(f, f);
+    float disc = r * r - Dot3(f, f);
     if (disc < 0.0f)
         return tmax;
-    float c = dot(oc, oc) - r * r;
-    float q = -b - copysign(sqrt(disc), b);
+    float c = Dot3(oc, oc) - r * r;
+    float q = -b - Copysign(Sqrt(disc), b);
     float t0 = c / q;
     float t1 = q;
-    float tnear = fmin(t0, t1);
-    float tfar = fmax(t0, t1);
+    float tnear = Fmin(t0, t1);
+    float tfar = Fmax(t0, t1);
     float t = tnear > 0.0f ? tnear : tfar;
     return (t > 0.0f && t < tmax) ? t : tmax;
 }
 
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
-inline float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
+CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
 {
     float t = tmax;
     int id = -1;
@@ -96,7 +97,7 @@ inline float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float t
 }
 
 // Whether anything lies along the ray closer than tmax (shadow rays).
-inline bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
+CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
     int prim;
     Scene_Intersect(scene, o, d, tmax, &prim);
@@ -104,20 +105,20 @@ inline bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tma
 }
 
 // The surface record of a hit at distance t along the ray.
-inline Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, float t, int prim)
+CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, float t, int prim)
 {
     Surface s;
     if (prim < (int)scene->quad_count) {
         __global const Quad *q = &scene->quads[prim];
         s.p = o + t * d;
-        s.ng = vload3(0, q->normal);
+        s.ng = Load3(q->normal);
         s.material = q->material;
         s.emitter = q->emitter;
     } else {
         __global const Sphere *sp = &scene->spheres[prim - (int)scene->quad_count];
-        float3 center = vload3(0, sp->center);
+        float3 center = Load3(sp->center);
         // Re-project the hit onto the sphere so the ray offset is measured from its surface
-        s.ng = normalize(o + t * d - center);
+        s.ng = Normalize3(o + t * d - center);
         s.p = center + sp->radius * s.ng;
         s.material = sp->material;
         s.emitter = -1;
@@ -126,9 +127,9 @@ inline Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, float t
 }
 
 // A ray origin off the surface at p, on the side (of the normal ng) that direction w leaves to.
-inline float3 Surface_OffsetOrigin(float3 p, float3 ng, float3 w, float eps)
+CL_INLINE float3 Surface_OffsetOrigin(float3 p, float3 ng, float3 w, float eps)
 {
-    return p + (dot(w, ng) > 0.0f ? eps : -eps) * ng;
+    return p + (Dot3(w, ng) > 0.0f ? eps : -eps) * ng;
 }
 
 #endif

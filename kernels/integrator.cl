@@ -22,14 +22,14 @@
 #define COUNTER_NONFINITE 0
 #define COUNTER_RAYS 1
 
-inline float PowerHeuristic(float pdf_a, float pdf_b)
+CL_INLINE float PowerHeuristic(float pdf_a, float pdf_b)
 {
     float a2 = pdf_a * pdf_a;
     return a2 / (a2 + pdf_b * pdf_b);
 }
 
 // The launch slot p of the pixel whose [offsets[p], offsets[p+1]) range holds sample i.
-inline uint Sample_Pixel(__global const uint *offsets, uint pixel_count, uint i)
+CL_INLINE uint Sample_Pixel(__global const uint *offsets, uint pixel_count, uint i)
 {
     uint lo = 0u, hi = pixel_count;
     while (hi - lo > 1u) {
@@ -44,9 +44,9 @@ inline uint Sample_Pixel(__global const uint *offsets, uint pixel_count, uint i)
 
 // Next event estimation at a non-specular vertex: one emitter point, a shadow ray, and the
 // power-heuristic weight against the BSDF's pdf for the same direction.
-inline float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame,
-                           __global const Material *material, float3 wo_local, float3 u,
-                           uint *rays)
+CL_INLINE float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame,
+                              __global const Material *material, float3 wo_local, float3 u,
+                              uint *rays)
 {
     float3 wi;
     float dist, light_pdfW;
@@ -54,8 +54,8 @@ inline float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame
     if (!(light_pdfW > 0.0f))
         return (float3)(0.0f);
     float3 wi_local = Frame_ToLocal(frame, wi);
-    float3 f = BSDF_Eval(material, wo_local, wi_local) * fabs(wi_local.z);
-    if (!any(f > 0.0f))
+    float3 f = BSDF_Eval(material, wo_local, wi_local) * Fabs(wi_local.z);
+    if (!AnyPositive3(f))
         return (float3)(0.0f);
     float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, scene->ray_eps);
     *rays += 1u;
@@ -67,9 +67,9 @@ inline float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame
 
 // Radiance along one camera ray (pbrt-v4's PathIntegrator::Li, emitters as the only lights).
 // With nee = 0 paths find emitters by BSDF sampling only, and emission takes full weight.
-inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_depth, int nee,
-                 int russian_roulette, uint seed, uint pixel, uint sample, uint redraw,
-                 uint *rays)
+CL_INLINE float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_depth, int nee,
+                    int russian_roulette, uint seed, uint pixel, uint sample, uint redraw,
+                    uint *rays)
 {
     float3 L = (float3)(0.0f);
     float3 beta = (float3)(1.0f);
@@ -87,13 +87,13 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
 
         // Add emission found by the ray, MIS-weighted unless it came from the camera or a
         // specular bounce (NEE cannot sample those paths)
-        if (surface.emitter >= 0 && dot(surface.ng, wo) > 0.0f) {
+        if (surface.emitter >= 0 && Dot3(surface.ng, wo) > 0.0f) {
             __global const Emitter *emitter = &scene->emitters[surface.emitter];
-            float3 Le = vload3(0, emitter->radiance);
+            float3 Le = Load3(emitter->radiance);
             if (depth == 0 || specularBounce || !nee) {
                 L += beta * Le;
             } else {
-                float light_pdfW = Light_PdfW(emitter, t, dot(surface.ng, wo));
+                float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
                 L += beta * Le * PowerHeuristic(prev_pdfW, light_pdfW);
             }
         }
@@ -105,7 +105,7 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
 
         // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
         float3 n = surface.ng;
-        if (!BSDF_IsSpecular(material) && dot(n, wo) < 0.0f) {
+        if (!BSDF_IsSpecular(material) && Dot3(n, wo) < 0.0f) {
             if (!material->two_sided)
                 break;
             n = -n;
@@ -124,7 +124,7 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
         float3 wi_local;
         float pdfW;
         float3 weight = BSDF_Sample(material, wo_local, u_bsdf.xyz, &wi_local, &pdfW);
-        if (!any(weight > 0.0f))
+        if (!AnyPositive3(weight))
             break;
         beta *= weight;
         specularBounce = BSDF_IsSpecular(material);
@@ -133,9 +133,9 @@ inline float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_dept
         origin = Surface_OffsetOrigin(surface.p, surface.ng, dir, scene->ray_eps);
 
         // Possibly terminate the path with Russian roulette
-        float beta_max = fmax(beta.x, fmax(beta.y, beta.z));
+        float beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
         if (russian_roulette && depth >= 1 && beta_max < 1.0f) {
-            float q = fmax(0.0f, 1.0f - beta_max);
+            float q = Fmax(0.0f, 1.0f - beta_max);
             if (u_light.w < q)
                 break;
             beta /= 1.0f - q;
@@ -175,7 +175,7 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     // Trace the camera ray's path
     uint rays = 0u;
     float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
-    float3 L = Li(&scene, vload3(0, camera->origin), dir, max_depth, nee, russian_roulette,
+    float3 L = Li(&scene, Load3(camera->origin), dir, max_depth, nee, russian_roulette,
                   seed, pixel, sample, redraws[slot], &rays);
 
     // Store the radiance; a non-finite value is counted and stored as 0 (as pbrt does)

@@ -6,9 +6,10 @@
 #define CLRENDER_LIGHTS_H
 
 #include "scene_types.h"
+#include "vecmath.h"
 
 // The emitter whose selection-CDF interval holds u (linear scan: scenes have few emitters).
-inline uint Light_Pick(const SceneData *scene, float u)
+CL_INLINE uint Light_Pick(const SceneData *scene, float u)
 {
     uint last = scene->emitter_count - 1u;
     uint chosen = last;
@@ -19,30 +20,30 @@ inline uint Light_Pick(const SceneData *scene, float u)
 
 // Solid-angle pdf of NEE producing a point of `emitter` at distance dist whose normal makes
 // cosine cos_light with the direction back to the receiver.
-inline float Light_PdfW(__global const Emitter *emitter, float dist, float cos_light)
+CL_INLINE float Light_PdfW(__global const Emitter *emitter, float dist, float cos_light)
 {
     return emitter->pick_pdf * dist * dist / (cos_light * emitter->area);
 }
 
 // Sample an emitter point seen from p: returns its radiance towards p (zero if p is behind
 // the emitter), the unit direction *wi to it, its distance and the solid-angle pdf.
-inline float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, float3 *wi,
-                             float *dist, float *pdfW)
+CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, float3 *wi,
+                                float *dist, float *pdfW)
 {
     __global const Emitter *emitter = &scene->emitters[Light_Pick(scene, u.x)];
     __global const Quad *quad = &scene->quads[emitter->quad];
-    float3 y = vload3(0, quad->corner) + u.y * vload3(0, quad->edge1) +
-               u.z * vload3(0, quad->edge2);
+    float3 y = Load3(quad->corner) + u.y * Load3(quad->edge1) +
+               u.z * Load3(quad->edge2);
     float3 to_light = y - p;
-    *dist = length(to_light);
+    *dist = Length3(to_light);
     *wi = to_light / *dist;
-    float cos_light = -dot(vload3(0, quad->normal), *wi);
+    float cos_light = -Dot3(Load3(quad->normal), *wi);
     if (!(cos_light > 0.0f)) {
         *pdfW = 0.0f;
         return (float3)(0.0f);
     }
     *pdfW = Light_PdfW(emitter, *dist, cos_light);
-    return vload3(0, emitter->radiance);
+    return Load3(emitter->radiance);
 }
 
 #endif

@@ -1,0 +1,105 @@
+// Inline replacements for the OpenCL builtins the path tracer calls per ray, bit for bit equal.
+//
+// Why: pip's PoCL 3.0 builds its builtin library for another CPU target than the kernels it
+// compiles (target-cpu "skylake-avx512" for the library, the host's "znver3" for kernels), so
+// LLVM refuses to inline builtins ("conflicting attributes"): every dot, vload3, sqrt or fmax
+// becomes a real call, and each call spills all live vector registers to the stack. The
+// functions here mirror PoCL's own definitions (read from the LLVM IR it links): the same
+// operations in the same order. Products are taken in a separate statement from the sums that
+// use them, because OpenCL C contracts a * b + c into an fma only within one expression.
+// Rare cases (zero, tiny or huge vectors in Length3/Normalize3) fall back to the builtin.
+#ifndef CLRENDER_VECMATH_H
+#define CLRENDER_VECMATH_H
+
+// Device functions of the path tracer are always inlined: a call spills the vector registers.
+#define CL_INLINE inline __attribute__((always_inline))
+
+// 8 floats from a 4-byte aligned address (vload8 without the call).
+typedef float Float8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
+
+CL_INLINE float8 Load8(__global const float *p)
+{
+    return *(__global const Float8Unaligned *)p;
+}
+
+CL_INLINE float3 Load3(__global const float *p)
+{
+    return (float3)(p[0], p[1], p[2]);
+}
+
+CL_INLINE float Sqrt(float x)
+{
+    return __builtin_sqrtf(x);
+}
+
+CL_INLINE float Fabs(float x)
+{
+    return __builtin_fabsf(x);
+}
+
+CL_INLINE float Copysign(float x, float y)
+{
+    return __builtin_copysignf(x, y);
+}
+
+// fmax/fmin as PoCL defines them: a NaN y gives x.
+CL_INLINE float Fmax(float x, float y)
+{
+    return (y != y || x > y) ? x : y;
+}
+
+CL_INLINE float Fmin(float x, float y)
+{
+    return (y != y || x < y) ? x : y;
+}
+
+CL_INLINE float3 Fmax3(float3 v, float y)
+{
+    return (float3)(Fmax(v.x, y), Fmax(v.y, y), Fmax(v.z, y));
+}
+
+CL_INLINE float3 Sqrt3(float3 v)
+{
+    return (float3)(Sqrt(v.x), Sqrt(v.y), Sqrt(v.z));
+}
+
+// dot(a, b) = (ax bx + ay by) + az bz, without fma.
+CL_INLINE float Dot3(float3 a, float3 b)
+{
+    float3 p = a * b;
+    return (p.x + p.y) + p.z;
+}
+
+CL_INLINE float Length3(float3 v)
+{
+    float s = Dot3(v, v);
+    if (s >= 0x1p-126f && s < INFINITY)
+        return Sqrt(s);
+    return length(v);
+}
+
+CL_INLINE float3 Normalize3(float3 v)
+{
+    float s = Dot3(v, v);
+    if (s >= 0x1p-126f && s < INFINITY) {
+        float inv = 1.0f / Sqrt(s);
+        return v * inv;
+    }
+    return normalize(v);
+}
+
+// cross(a, b): each component a difference of two rounded products.
+CL_INLINE float3 Cross3(float3 a, float3 b)
+{
+    float3 p = a.yzx * b.zxy;
+    float3 q = a.zxy * b.yzx;
+    return p - q;
+}
+
+// Whether any component is > 0.
+CL_INLINE bool AnyPositive3(float3 v)
+{
+    return v.x > 0.0f || v.y > 0.0f || v.z > 0.0f;
+}
+
+#endif
