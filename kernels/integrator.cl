@@ -10,7 +10,10 @@
 //
 // max_depth counts scattering vertices (pbrt's maxdepth; Mitsuba's max_depth minus 1):
 // 0 shows emitters only, 1 adds direct lighting, ... Specular vertices count too.
+// Philox inlined at its call sites (a call spills the path state held in vector registers)
+#pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
 #include "rng.h"
+#pragma clang attribute pop
 #include "scene_types.h"
 #include "geometry.h"
 #include "bsdf.h"
