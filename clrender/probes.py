@@ -1,0 +1,307 @@
+"""Single-pixel probes: find telling pixels of a scene from its geometry, and trace one pixel
+many times over.
+
+    scene = load_scene("cornell-box")
+    edge = light_edge_pixel(scene, 256, 256)        # a pixel the light's outline crosses
+    wall = diffuse_wall_pixel(scene, 256, 256)      # deep inside a lit diffuse wall
+    ball = sphere_pixel(scene, 256, 256)            # the glass ball's centre
+    runs = trace_pixel_runs(runtime, tracer, make_sampler("sppp", 256), seed, edge.pixel,
+                            runs=200, width=256, height=256)
+
+Pixels are found on the host from the scene description, never hard-coded: the camera projects
+points (the inverse of kernels/camera.h), a small NumPy ray caster finds what each pixel sees
+and whether a point sees the light. `trace_pixel_runs` draws R independent sample sets of one
+pixel in one launch: run r uses redraw number first_redraw + r, and every random number depends
+on (seed, pixel, sample, dimension, redraw), so runs are independent and reproducible.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from clrender.errors import ParameterError
+from clrender.runtime import Runtime
+from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets
+from clrender.scene import MATERIAL_TYPES, Scene
+from clrender.trace import PathTracer
+
+NO_HIT = -1
+# Sub-pixel positions (pixel-local) whose rays must agree for a pixel to count as "inside" a
+# surface: the centre and four points near the corners.
+PIXEL_PROBES = np.array([[0.0, 0.0], [-0.45, -0.45], [0.45, -0.45], [-0.45, 0.45], [0.45, 0.45]])
+
+
+@dataclass(frozen=True)
+class ProbePixel:
+    """A chosen pixel: image coordinates (x, y), global index y * width + x, and why."""
+
+    x: int
+    y: int
+    width: int
+    what: str
+    detail: dict
+
+    @property
+    def pixel(self) -> int:
+        return self.y * self.width + self.x
+
+    def as_dict(self) -> dict:
+        return {"x": self.x, "y": self.y, "pixel": self.pixel, "what": self.what, **self.detail}
+
+
+# ---------------------------------------------------------------------------------------------
+# Camera and host ray casting
+
+
+def camera_frame(scene: Scene, width: int, height: int) -> tuple[np.ndarray, ...]:
+    """(origin, forward, right, up) in float64, right/up scaled as in Camera.basis."""
+    basis = scene.camera.basis(width, height)
+    return tuple(np.asarray(basis[key], np.float64) for key in ("origin", "forward", "right",
+                                                                 "up"))
+
+
+def project(scene: Scene, width: int, height: int, points: np.ndarray) -> np.ndarray:
+    """Image positions (x, y) in pixels of world points (..., 3) (kernels/camera.h inverted:
+    pixel (i, j) covers [i, i+1] x [j, j+1], y down)."""
+    origin, forward, right, up = camera_frame(scene, width, height)
+    v = np.asarray(points, np.float64) - origin
+    depth = v @ forward
+    sx = (v @ right) / (depth * (right @ right))
+    sy = (v @ up) / (depth * (up @ up))
+    return np.stack([(sx + 1.0) * width / 2.0, (1.0 - sy) * height / 2.0], axis=-1)
+
+
+def camera_rays(scene: Scene, width: int, height: int, image_pos: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(origins, unit directions) of the camera rays through image positions (..., 2)."""
+    origin, forward, right, up = camera_frame(scene, width, height)
+    sx = 2.0 * image_pos[..., 0] / width - 1.0
+    sy = 1.0 - 2.0 * image_pos[..., 1] / height
+    d = forward + sx[..., None] * right + sy[..., None] * up
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return np.broadcast_to(origin, d.shape), d
+
+
+def _quad_hits(scene: Scene, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(..., Q) ray parameter t of each quad hit, inf where missed."""
+    quads = scene.quads
+    corner, e1, e2 = (quads[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
+    n = np.cross(e1, e2)
+    nn = np.einsum("qi,qi->q", n, n)
+    u_dual, v_dual = np.cross(e2, n) / nn[:, None], np.cross(n, e1) / nn[:, None]
+    denom = d @ n.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("qi,qi->q", n, corner)[..., :] - o @ n.T
+        t = t / denom
+        p = o[..., None, :] + t[..., None] * d[..., None, :] - corner
+        u = np.einsum("...qi,qi->...q", p, u_dual)
+        v = np.einsum("...qi,qi->...q", p, v_dual)
+        ok = (np.abs(denom) > 1e-12) & (t > 1e-6) & (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+    return np.where(ok, t, np.inf)
+
+
+def _sphere_hits(scene: Scene, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(..., S) nearest positive ray parameter of each sphere hit, inf where missed."""
+    centre = scene.spheres["center"].astype(np.float64)
+    radius = scene.spheres["radius"].astype(np.float64)
+    oc = o[..., None, :] - centre
+    b = np.einsum("...si,...i->...s", oc, d)
+    c = np.einsum("...si,...si->...s", oc, oc) - radius**2
+    disc = b * b - c
+    root = np.sqrt(np.maximum(disc, 0.0))
+    near, far = -b - root, -b + root
+    t = np.where(near > 1e-6, near, far)
+    return np.where((disc >= 0) & (t > 1e-6), t, np.inf)
+
+
+def first_hits(scene: Scene, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(t, shape id) of the nearest hit: ids 0..Q-1 are quads, Q.. spheres, NO_HIT for none."""
+    t_all = np.concatenate([_quad_hits(scene, o, d), _sphere_hits(scene, o, d)], axis=-1)
+    shape = np.argmin(t_all, axis=-1)
+    t = np.take_along_axis(t_all, shape[..., None], axis=-1)[..., 0]
+    return t, np.where(np.isfinite(t), shape, NO_HIT)
+
+
+def shape_materials(scene: Scene) -> np.ndarray:
+    """Material index of every shape id (quads then spheres); -1 for a pure emitter."""
+    return np.concatenate([scene.quads["material"], scene.spheres["material"]]).astype(int)
+
+
+def pixel_hits(scene: Scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(shape ids (H, W, K), hit points (H, W, K, 3)) of the K = len(PIXEL_PROBES) probe rays
+    of every pixel."""
+    ys, xs = np.mgrid[0:height, 0:width]
+    pos = np.stack([xs, ys], -1)[:, :, None, :] + 0.5 + PIXEL_PROBES
+    o, d = camera_rays(scene, width, height, pos)
+    t, shape = first_hits(scene, o, d)
+    return shape, o + np.where(np.isfinite(t), t, 0.0)[..., None] * d
+
+
+def light_points(scene: Scene, emitter: int = 0) -> np.ndarray:
+    """The corners and centre of an emitting quad (5, 3)."""
+    quad = scene.quads[scene.emitters["quad"][emitter]]
+    c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
+    return np.array([c, c + e1, c + e2, c + e1 + e2, c + 0.5 * (e1 + e2)])
+
+
+def sees_points(scene: Scene, points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(...,) whether every target is unoccluded from each point (shadow rays, small offset)."""
+    to = targets - points[..., None, :]
+    dist = np.linalg.norm(to, axis=-1)
+    d = to / dist[..., None]
+    o = points[..., None, :] + 1e-3 * d
+    t, _ = first_hits(scene, o, d)
+    return (t >= dist * (1.0 - 1e-4)).all(axis=-1)
+
+
+# ---------------------------------------------------------------------------------------------
+# Pixel finders
+
+
+def polygon_pixel_coverage(polygon: np.ndarray, x: int, y: int) -> float:
+    """Area of the convex polygon (V, 2) inside pixel [x, x+1] x [y, y+1] (Sutherland-Hodgman
+    on the four pixel edges)."""
+    poly = np.asarray(polygon, np.float64)
+    for axis, bound, keep_below in ((0, x, False), (0, x + 1, True), (1, y, False),
+                                    (1, y + 1, True)):  # fmt: skip
+        if len(poly) == 0:
+            return 0.0
+        inside = poly[:, axis] <= bound if keep_below else poly[:, axis] >= bound
+        nxt = np.roll(poly, -1, axis=0)
+        nxt_in = np.roll(inside, -1)
+        out = []
+        for p, q, p_in, q_in in zip(poly, nxt, inside, nxt_in, strict=True):
+            if p_in:
+                out.append(p)
+            if p_in != q_in:
+                s = (bound - p[axis]) / (q[axis] - p[axis])
+                out.append(p + s * (q - p))
+        poly = np.array(out)
+    if len(poly) < 3:
+        return 0.0
+    xs, ys = poly[:, 0], poly[:, 1]
+    return float(0.5 * abs(np.dot(xs, np.roll(ys, -1)) - np.dot(ys, np.roll(xs, -1))))
+
+
+def light_edge_pixel(scene: Scene, width: int, height: int, emitter: int = 0) -> ProbePixel:
+    """A pixel the light's outline crosses, covered closest to half by the light (projected
+    analytically; the light must face the camera and be unoccluded at that pixel)."""
+    corners = light_points(scene, emitter)[[0, 1, 3, 2]]  # in order around the quad
+    polygon = project(scene, width, height, corners)
+    candidates = _outline_pixels(polygon, width, height)
+    coverage = np.array([polygon_pixel_coverage(polygon, x, y) for x, y in candidates])
+    best = int(np.argmin(np.abs(coverage - 0.5)))
+    x, y = (int(v) for v in candidates[best])
+    return ProbePixel(x, y, width, "light edge", {"light_coverage": float(coverage[best]),
+                                                  "light_polygon": polygon.tolist()})
+
+
+def _outline_pixels(polygon: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Distinct pixels (x, y) under points densely spaced along the polygon's edges."""
+    ends = np.roll(polygon, -1, axis=0)
+    s = np.linspace(0.02, 0.98, 200)[:, None, None]
+    points = (polygon + s * (ends - polygon)).reshape(-1, 2)
+    pixels = np.unique(np.floor(points).astype(int), axis=0)
+    inside = (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (
+        pixels[:, 1] < height)
+    if not inside.any():
+        raise ParameterError("the light's outline is outside the image")
+    return pixels[inside]
+
+
+def diffuse_wall_pixel(scene: Scene, width: int, height: int, wall: str = "back wall"
+                       ) -> ProbePixel:  # fmt: skip
+    """The pixel deepest inside the part of a wall that is seen directly and fully lit (every
+    probe ray hits the wall, and each hit sees the light's corners and centre): farthest from
+    any other pixel, ties broken towards the image centre."""
+    shape, points = pixel_hits(scene, width, height)
+    wall_id = scene.quad_names.index(wall)
+    on_wall = (shape == wall_id).all(axis=-1)
+    lit = np.zeros_like(on_wall)
+    lit[on_wall] = sees_points(scene, points[on_wall][:, 0], light_points(scene))
+    return _deepest(lit, width, height, f"diffuse wall ({wall})")
+
+
+def _deepest(mask: np.ndarray, width: int, height: int, what: str) -> ProbePixel:
+    if not mask.any():
+        raise ParameterError(f"no pixel qualifies for the {what} probe")
+    depth = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
+    ys, xs = np.mgrid[0:height, 0:width]
+    centre = np.hypot(xs + 0.5 - width / 2, ys + 0.5 - height / 2)
+    score = np.where(mask, depth - 1e-3 * centre, -np.inf)
+    y, x = np.unravel_index(int(np.argmax(score)), score.shape)
+    return ProbePixel(int(x), int(y), width, what, {"distance_to_region_edge_px":
+                                                    float(depth[y, x])})
+
+
+def sphere_pixel(scene: Scene, width: int, height: int, sphere: int = 0) -> ProbePixel:
+    """The pixel the sphere's centre projects to (checked to see that sphere)."""
+    centre = scene.spheres["center"][sphere].astype(np.float64)
+    x, y = (int(v) for v in np.floor(project(scene, width, height, centre)))
+    shape, _ = pixel_hits(scene, width, height)
+    sphere_id = len(scene.quads) + sphere
+    if not (shape[y, x] == sphere_id).all():
+        raise ParameterError(f"the pixel of sphere {sphere}'s centre does not see it")
+    return ProbePixel(x, y, width, f"sphere ({scene.sphere_names[sphere]})", {})
+
+
+def glossy_pixels(scene: Scene, width: int, height: int) -> np.ndarray:
+    """(H, W) mask of pixels whose probe rays all hit one rough-conductor shape."""
+    shape, _ = pixel_hits(scene, width, height)
+    materials = shape_materials(scene)[np.maximum(shape, 0)]
+    glossy = np.isin(materials, np.flatnonzero(scene.materials["type"]
+                                               == MATERIAL_TYPES["roughconductor"]))
+    same = (shape == shape[..., :1]).all(axis=-1)
+    return glossy.all(axis=-1) & same & (shape[..., 0] != NO_HIT)
+
+
+def glossy_highlight_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
+    """The brightest pixel (channel mean of a short render `image`, (H, W, 3)) among pixels
+    seeing one glossy surface and at least 2 pixels inside that surface's region."""
+    height, width, _ = image.shape
+    mask = glossy_pixels(scene, width, height)
+    depth = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
+    score = np.where(depth >= 3, image.mean(axis=-1), -np.inf)
+    if not np.isfinite(score).any():
+        raise ParameterError("the scene has no glossy surface in view")
+    y, x = np.unravel_index(int(np.argmax(score)), score.shape)
+    return ProbePixel(int(x), int(y), width, "glossy highlight",
+                      {"short_render_radiance": float(score[y, x])})
+
+
+# ---------------------------------------------------------------------------------------------
+# Tracing one pixel many times
+
+
+@dataclass
+class PixelRuns:
+    """R sample sets of one pixel with their radiance (traced-sample order), and the time the
+    device took to draw and trace them (seconds, whole launch)."""
+
+    sets: HostSampleSets
+    radiance: np.ndarray  # (T, 3) float64
+    trace_seconds: float
+
+    @property
+    def runs(self) -> int:
+        return len(self.sets.offsets) - 1
+
+
+def trace_pixel_runs(runtime: Runtime, tracer: PathTracer, sampler: SamplerConfig, seed: int,
+                     pixel: int, runs: int, width: int, height: int,
+                     first_redraw: int = 0) -> PixelRuns:  # fmt: skip
+    """Draw and trace `runs` independent sample sets of one pixel in one launch (run r uses
+    redraw number first_redraw + r)."""
+    pixels = np.full(runs, pixel, np.uint32)
+    redraws = np.arange(first_redraw, first_redraw + runs, dtype=np.uint32)
+    start = time.perf_counter()
+    device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
+    result = tracer.trace(device_sets, seed, width, height)
+    radiance = result.to_host()
+    sets = device_sets.to_host(runtime.queue)
+    seconds = time.perf_counter() - start
+    return PixelRuns(sets, radiance.astype(np.float64), seconds)
