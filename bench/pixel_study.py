@@ -1,0 +1,291 @@
+"""Single-pixel study on the authors' Cornell box: the paper's Figures 6 and 9.
+
+    python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--out DIR]
+
+Three pixels found from the scene's geometry (clrender.probes, never hard-coded): one the
+light's outline crosses (light covering closest to half of it), one deep inside the lit part
+of the back wall, one seeing the glass ball's centre. For each pixel and spp, R independent
+estimates of every estimator: R sample sets of that pixel drawn and traced in one launch (run r
+is redraw number r, so runs are independent), then each estimator applied to all R runs as one
+batch. SPPP runs a Voronoi estimator rejects (an unbounded W cell) are replaced by further
+draws, as the paper's redraw does; all SPPP estimators use the same accepted runs.
+
+The value of a pixel is the mean of its RGB channels. Per (pixel, estimator, spp): mean, std
+and variance over the R runs; milliseconds per estimate of the estimator alone (the batch's
+estimator time / runs; tessellation + sums, on the host) and of tracing (the launch's draw +
+trace + download time / runs); variance against their sum. mc over stratified samples only at
+square spp. Outputs (default bench/results/pixel_study/): results.json, report.md,
+fig6_<pixel>.png (mean +- std against spp), fig9_<pixel>.png (time against spp, variance
+against time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from common import (  # noqa: E402
+    RESULTS,
+    command_line,
+    machine,
+    make_tracer,
+    markdown_table,
+    write_json,
+)
+
+from clrender.estimators import PixelSamples, estimate  # noqa: E402
+from clrender.probes import (  # noqa: E402
+    PixelRuns,
+    diffuse_wall_pixel,
+    light_edge_pixel,
+    sphere_pixel,
+    trace_pixel_runs,
+)
+from clrender.runtime import create_runtime  # noqa: E402
+from clrender.sampling import make_sampler  # noqa: E402
+
+# sampler -> estimators computed on its runs; labels are "estimator/sampler".
+GROUPS = {"uniform": ["mc", "cvor", "pvor"], "stratified": ["mc"],
+          "sppp": ["mc_n", "vor", "vor_sn", "fvor"]}  # fmt: skip
+BASELINE = "mc/uniform"
+REJECTING = ("vor", "vor_sn", "fvor")
+SAMPLER_SEEDS = {"uniform": 11, "stratified": 12, "sppp": 13}
+
+
+class Study:
+    def __init__(self, args):
+        self.args = args
+        self.runtime = create_runtime()
+        self.tracer = make_tracer(self.runtime, args.scene)
+        self.scene = self.tracer.scene
+        self.size = args.size
+
+    def pixels(self) -> dict:
+        s = self.scene, self.size, self.size
+        return {"light_edge": light_edge_pixel(*s), "diffuse_wall": diffuse_wall_pixel(*s),
+                "glass_ball": sphere_pixel(*s)}  # fmt: skip
+
+    def runs(self, sampler, spp: int, pixel: int, count: int, first: int) -> PixelRuns:
+        return trace_pixel_runs(self.runtime, self.tracer, sampler, self.args.seed
+                                + SAMPLER_SEEDS[sampler.name], pixel, count, self.size,
+                                self.size, first)  # fmt: skip
+
+    def group(self, sampler_name: str, spp: int, pixel: int) -> dict:
+        """{label: {"values": (R,), "estimator_ms", "trace_ms"}} for one sampler's group."""
+        sampler = make_sampler(sampler_name, spp)
+        names = GROUPS[sampler_name]
+        R = self.args.runs
+        spare = 0 if sampler_name != "sppp" else max(4, R // 20)
+        values = {name: [] for name in names}
+        seconds = dict.fromkeys(names, 0.0)
+        trace_s, drawn, accepted = 0.0, 0, 0
+        while accepted < R:
+            runs = self.runs(sampler, spp, pixel, R - accepted + spare, drawn)
+            trace_s += runs.trace_seconds
+            drawn += runs.runs
+            batch = estimate_batch(runs, sampler, names)
+            keep = ~np.logical_or.reduce([batch[n][1] for n in names if n in REJECTING]
+                                         + [np.zeros(runs.runs, bool)])  # fmt: skip
+            for name in names:
+                values[name].append(batch[name][0][keep])
+                seconds[name] += batch[name][2]
+            accepted += int(keep.sum())
+        return {f"{name}/{sampler_name}": {
+            "values": np.concatenate(values[name])[:R], "estimator_ms": 1e3 * seconds[name]
+            / drawn, "trace_ms": 1e3 * trace_s / drawn, "rejected_runs": drawn - accepted,
+        } for name in names}  # fmt: skip
+
+
+def estimate_batch(runs: PixelRuns, sampler, names) -> dict:
+    """{name: (estimates (R,), needs_redraw (R,), seconds)}, each estimator timed alone."""
+    sets = runs.sets
+    samples = PixelSamples(sets.traced.astype(np.float64), runs.radiance.mean(axis=1),
+                           sets.offsets, float(sampler.n), sets.aux.astype(np.float64),
+                           sets.aux_offsets, sampler.eps)  # fmt: skip
+    out = {}
+    for name in names:
+        start = time.perf_counter()
+        result = estimate(name, samples)
+        out[name] = (result.estimates, result.needs_redraw, time.perf_counter() - start)
+    return out
+
+
+def summarise(entry: dict) -> dict:
+    v = entry["values"]
+    total = entry["estimator_ms"] + entry["trace_ms"]
+    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)), "var": float(v.var(ddof=1)),
+            "estimator_ms": entry["estimator_ms"], "trace_ms": entry["trace_ms"],
+            "total_ms": total, "rejected_runs": entry["rejected_runs"]}  # fmt: skip
+
+
+def study_pixel(study: Study, pixel) -> dict:
+    """{spp: {label: summary}} over the spp list."""
+    table = {}
+    for spp in study.args.spp:
+        row = {}
+        for sampler_name in GROUPS:
+            if sampler_name == "stratified" and math.isqrt(spp) ** 2 != spp:
+                continue
+            for label, entry in study.group(sampler_name, spp, pixel.pixel).items():
+                row[label] = summarise(entry)
+        table[spp] = row
+        print(f"  {pixel.what} spp {spp}: " + ", ".join(
+            f"{k} {v['std']:.3g}" for k, v in row.items()), flush=True)  # fmt: skip
+    return table
+
+
+def variance_ratios(table: dict) -> dict:
+    """{spp: {label: var(mc/uniform) / var(label)}}."""
+    return {spp: {label: row[BASELINE]["var"] / max(s["var"], 1e-300)
+                  for label, s in row.items()} for spp, row in table.items()}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# Charts
+
+
+def series(table: dict, label: str, key: str) -> tuple[np.ndarray, np.ndarray]:
+    spps = [spp for spp in table if label in table[spp]]
+    return np.array(spps), np.array([table[spp][label][key] for spp in spps])
+
+
+def labels_of(table: dict) -> list[str]:
+    return list(dict.fromkeys(label for row in table.values() for label in row))
+
+
+def plot_fig6(table: dict, name: str, pixel, reference: float, out: Path) -> None:
+    others = [label for label in labels_of(table) if label != BASELINE]
+    cols = 4
+    rows = math.ceil((len(others) + 1) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.3 * rows), squeeze=False)
+    for ax, label in zip(axes.flat, others, strict=False):
+        for lab, colour in ((BASELINE, "0.4"), (label, "C1")):
+            spp, mean = series(table, lab, "mean")
+            _, std = series(table, lab, "std")
+            ax.plot(spp, mean, color=colour, label=lab)
+            ax.fill_between(spp, mean - std, mean + std, color=colour, alpha=0.25)
+        ax.axhline(reference, color="k", lw=0.7, ls="--", label="reference")
+        ax.set_xscale("log", base=2)
+        ax.set(xlabel="spp (samples per pixel)", ylabel="radiance (RGB mean)", title=label)
+        ax.legend(fontsize=7)
+    ax = axes.flat[len(others)]
+    for label in labels_of(table):
+        spp, std = series(table, label, "std")
+        ax.loglog(spp, std, marker="o", ms=3, label=label)
+    ax.set(xlabel="spp", ylabel="std of the estimate", title="std against spp")
+    ax.legend(fontsize=6)
+    for ax in list(axes.flat)[len(others) + 1:]:
+        ax.set_visible(False)
+    fig.suptitle(f"Figure 6: pixel {name} ({pixel.x}, {pixel.y}), mean +- 1 std over "
+                 f"R runs")  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(out / f"fig6_{name}.png", dpi=100)
+    plt.close(fig)
+
+
+def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
+    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for i, label in enumerate(labels_of(table)):
+        spp, ms = series(table, label, "estimator_ms")
+        ax_t.loglog(spp, ms, marker="o", ms=3, color=f"C{i}", label=label)
+        _, total = series(table, label, "total_ms")
+        _, var = series(table, label, "var")
+        ax_v.loglog(total, var, marker="o", ms=3, color=f"C{i}", label=label)
+    spp, trace = series(table, BASELINE, "trace_ms")
+    ax_t.loglog(spp, trace, "k--", label="tracing (mc/uniform runs)")
+    ax_t.set(xlabel="spp (samples per pixel)", ylabel="ms per estimate",
+             title="(a) estimator time per pixel estimate (host, excl. tracing)")
+    ax_v.set(xlabel="ms per estimate (tracing + estimator)", ylabel="variance",
+             title="(b) variance against time")
+    ax_t.legend(fontsize=7)
+    ax_v.legend(fontsize=7)
+    fig.suptitle(f"Figure 9: pixel {name} ({pixel.x}, {pixel.y})")
+    fig.tight_layout()
+    fig.savefig(out / f"fig9_{name}.png", dpi=100)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# Main
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="smoke run (R = 16, spp 64, 256)")
+    parser.add_argument("--scene", default="cornell-box")
+    parser.add_argument("--size", type=int, default=256, help="image width = height")
+    parser.add_argument("--runs", type=int, default=None, help="R runs per point (default 200)")
+    parser.add_argument("--spp", type=int, nargs="+", default=None,
+                        help="default 64 128 ... 4096")
+    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--out", type=Path, default=RESULTS / "pixel_study")
+    args = parser.parse_args(argv)
+    args.runs = args.runs or (16 if args.quick else 200)
+    args.spp = args.spp or ([64, 256] if args.quick else [2**k for k in range(6, 13)])
+    return args
+
+
+def report(results: dict, args, argv) -> str:
+    lines = ["# Pixel study (paper Figures 6 and 9)", "",
+             f"Command: `{command_line('pixel_study.py', argv)}`", "",
+             f"{args.scene} at {args.size}x{args.size}, R = {args.runs} runs per point, spp "
+             f"{args.spp}, max depth 8, pixel value = mean of RGB. Machine: "
+             f"{results['machine']['uptime']}", ""]  # fmt: skip
+    for name, entry in results["pixels"].items():
+        table = entry["table"]
+        labels = labels_of(table)
+        lines += [f"## {name}: pixel ({entry['pixel']['x']}, {entry['pixel']['y']})", "",
+                  f"Found as: {entry['pixel']}", "",
+                  f"Reference (pooled mean of mc/stratified at {entry['reference_spp']} spp): "
+                  f"{entry['reference']:.4f}", "", "std over the runs:", "",
+                  markdown_table(["spp", *labels], [[spp, *[row[lab]["std"] if lab in row
+                                 else "" for lab in labels]] for spp, row in table.items()]),
+                  "", f"variance ratio var({BASELINE}) / var(estimator):", "",
+                  markdown_table(["spp", *labels], [[spp, *[r.get(lab, "") for lab in labels]]
+                                 for spp, r in entry["variance_ratio"].items()]),
+                  "", "ms per estimate, estimator only (tracing in the last column):", "",
+                  markdown_table(["spp", *labels, "trace (mc/uniform)"],
+                                 [[spp, *[row[lab]["estimator_ms"] if lab in row else ""
+                                          for lab in labels], row[BASELINE]["trace_ms"]]
+                                  for spp, row in table.items()]),
+                  "", f"![fig6](fig6_{name}.png) ![fig9](fig9_{name}.png)", ""]  # fmt: skip
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    args = parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    study = Study(args)
+    start = time.perf_counter()
+    results = {"settings": {"scene": args.scene, "size": args.size, "runs": args.runs,
+                            "spp": args.spp, "seed": args.seed, "quick": args.quick},
+               "machine_before": machine(), "pixels": {}}  # fmt: skip
+    for name, pixel in study.pixels().items():
+        print(f"{name}: {pixel.as_dict()}", flush=True)
+        table = study_pixel(study, pixel)
+        top = max(spp for spp in table if "mc/stratified" in table[spp])
+        ref = table[top]["mc/stratified"]["mean"]
+        results["pixels"][name] = {"pixel": pixel.as_dict(), "table": table, "reference": ref,
+                                   "reference_spp": top, "variance_ratio":
+                                   variance_ratios(table)}  # fmt: skip
+        plot_fig6(table, name, pixel, ref, args.out)
+        plot_fig9(table, name, pixel, args.out)
+    results["machine"] = machine()
+    results["seconds"] = time.perf_counter() - start
+    write_json(args.out / "results.json", results)
+    (args.out / "report.md").write_text(report(results, args, argv) + "\n")
+    print(f"done in {results['seconds']:.0f} s; wrote {args.out}/results.json, report.md, PNGs")
+
+
+if __name__ == "__main__":
+    main()
