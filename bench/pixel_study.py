@@ -7,12 +7,13 @@ light's outline crosses (light covering closest to half of it), one deep inside 
 of the back wall, one seeing the glass ball's centre. For each pixel and spp, R independent
 estimates of every estimator: R sample sets of that pixel drawn and traced in one launch (run r
 is redraw number r, so runs are independent), then each estimator applied to all R runs as one
-batch. SPPP runs a Voronoi estimator rejects (an unbounded W cell) are replaced by further
-draws, as the paper's redraw does; all SPPP estimators use the same accepted runs.
+batch (estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi
+estimator rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw does; all SPPP estimators use the same accepted runs.
 
 The value of a pixel is the mean of its RGB channels. Per (pixel, estimator, spp): mean, std
-and variance over the R runs; milliseconds per estimate of the estimator alone (the batch's
-estimator time / runs; tessellation + sums, on the host) and of tracing (the launch's draw +
+and variance over the R runs; milliseconds per estimate of the estimator alone (each estimator
+run alone on the first --timing-runs runs, time / runs; tessellation + sums, on the host, one
+thread) and of tracing (the launch's draw +
 trace + download time / runs); variance against their sum. mc over stratified samples only at
 square spp. Outputs (default bench/results/pixel_study/): results.json, report.md,
 fig6_<pixel>.png (mean +- std against spp), fig9_<pixel>.png (time against spp, variance
@@ -43,7 +44,7 @@ from common import (  # noqa: E402
     write_json,
 )
 
-from clrender.estimators import PixelSamples, estimate  # noqa: E402
+from clrender.estimators import PixelSamples, estimate, estimate_all  # noqa: E402
 from clrender.probes import (  # noqa: E402
     PixelRuns,
     diffuse_wall_pixel,
@@ -93,12 +94,12 @@ class Study:
             runs = self.runs(sampler, spp, pixel, R - accepted + spare, drawn)
             trace_s += runs.trace_seconds
             drawn += runs.runs
-            batch = estimate_batch(runs, sampler, names)
+            batch = estimate_batch(runs, sampler, names, self.args.timing_runs)
             keep = ~np.logical_or.reduce([batch[n][1] for n in names if n in REJECTING]
                                          + [np.zeros(runs.runs, bool)])  # fmt: skip
             for name in names:
                 values[name].append(batch[name][0][keep])
-                seconds[name] += batch[name][2]
+                seconds[name] += batch[name][2] * runs.runs
             accepted += int(keep.sum())
         return {f"{name}/{sampler_name}": {
             "values": np.concatenate(values[name])[:R], "estimator_ms": 1e3 * seconds[name]
@@ -106,18 +107,31 @@ class Study:
         } for name in names}  # fmt: skip
 
 
-def estimate_batch(runs: PixelRuns, sampler, names) -> dict:
-    """{name: (estimates (R,), needs_redraw (R,), seconds)}, each estimator timed alone."""
-    sets = runs.sets
-    samples = PixelSamples(sets.traced.astype(np.float64), runs.radiance.mean(axis=1),
-                           sets.offsets, float(sampler.n), sets.aux.astype(np.float64),
-                           sets.aux_offsets, sampler.eps)  # fmt: skip
+def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
+    """{name: (estimates (R,), needs_redraw (R,), seconds per run)}: values from one
+    estimate_all on every run (shared tessellations), times from each estimator alone on the
+    first timing_runs runs."""
+    samples = pixel_samples(runs, sampler)
+    results = estimate_all(names, samples)
+    timing = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
     out = {}
     for name in names:
         start = time.perf_counter()
-        result = estimate(name, samples)
-        out[name] = (result.estimates, result.needs_redraw, time.perf_counter() - start)
+        estimate(name, timing)
+        seconds = (time.perf_counter() - start) / timing.pixel_count
+        out[name] = (results[name].estimates, results[name].needs_redraw, seconds)
     return out
+
+
+def pixel_samples(runs: PixelRuns, sampler, first: int | None = None) -> PixelSamples:
+    """The runs as a batch of pixels (the first `first` runs only if given); value = RGB mean."""
+    sets = runs.sets
+    p = runs.runs if first is None else first
+    traced, aux = sets.offsets[p], sets.aux_offsets[p]
+    return PixelSamples(sets.traced[:traced].astype(np.float64),
+                        runs.radiance[:traced].mean(axis=1), sets.offsets[:p + 1],
+                        float(sampler.n), sets.aux[:aux].astype(np.float64),
+                        sets.aux_offsets[:p + 1], sampler.eps)  # fmt: skip
 
 
 def summarise(entry: dict) -> dict:
@@ -228,6 +242,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--spp", type=int, nargs="+", default=None,
                         help="default 64 128 ... 4096")
     parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--timing-runs", type=int, default=32,
+                        help="runs each estimator is timed on alone (default 32)")
     parser.add_argument("--out", type=Path, default=RESULTS / "pixel_study")
     args = parser.parse_args(argv)
     args.runs = args.runs or (16 if args.quick else 200)
