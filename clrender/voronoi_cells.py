@@ -98,11 +98,10 @@ class CellAreas:
 
 @dataclass(frozen=True)
 class _PointSet:
-    """Originals then ghosts of a batch, each block sorted by pixel, in pixel-local coordinates."""
+    """Originals and ghosts of a batch, each block sorted by pixel, in pixel-local coordinates."""
 
-    points: np.ndarray         # (T + G, 2)
-    pixel: np.ndarray          # (T + G,) pixel index of every point
-    original_count: int        # T
+    originals: np.ndarray      # (T, 2)
+    ghosts: np.ndarray         # (G, 2)
     offsets: np.ndarray        # (P + 1,) originals per pixel
     ghost_offsets: np.ndarray  # (P + 1,) ghosts per pixel
     half_extent: float         # every point lies in [-half_extent, half_extent]^2
@@ -111,6 +110,11 @@ class _PointSet:
     @property
     def pixel_count(self) -> int:
         return len(self.offsets) - 1
+
+    def pixel_points(self, p: int) -> np.ndarray:
+        """Pixel p's originals then its ghosts."""
+        return np.concatenate([self.originals[self.offsets[p]:self.offsets[p + 1]],
+                               self.ghosts[self.ghost_offsets[p]:self.ghost_offsets[p + 1]]])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -149,36 +153,33 @@ def periodic_cells(positions: np.ndarray, offsets: np.ndarray) -> CellAreas:
 def qhull_point_arrays(positions: np.ndarray, offsets: np.ndarray, aux: np.ndarray,
                        aux_offsets: np.ndarray) -> list[np.ndarray]:
     """The point arrays sppp_cells hands to Qhull (for timing bare Delaunay on the same points)."""
-    point_set = _sppp_point_set(positions, offsets, aux, aux_offsets)
-    return [pts for pts, _, _ in _call_layouts(point_set, one_pixel_per_call=False)]
+    layout = _call_layout(_sppp_point_set(positions, offsets, aux, aux_offsets), False)
+    bounds = layout.call_bounds
+    return [layout.call_points(call)[0] for call in range(len(bounds) - 1)
+            if bounds[call + 1] > bounds[call]]
 
 
 # ---------------------------------------------------------------------------------------------
 # Point sets
 
 
-def _pixel_of(offsets: np.ndarray) -> np.ndarray:
-    return np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-
-
 def _sppp_point_set(positions, offsets, aux, aux_offsets) -> _PointSet:
     positions = np.asarray(positions, dtype=np.float64)
     aux = np.asarray(aux, dtype=np.float64)
-    points = np.concatenate([positions, aux])
-    half_extent = float(np.abs(points).max()) if len(points) else 0.5
-    return _PointSet(points, np.concatenate([_pixel_of(offsets), _pixel_of(aux_offsets)]),
-                     len(positions), np.asarray(offsets), np.asarray(aux_offsets),
-                     max(half_extent, 0.5), None)
+    half_extent = 0.5
+    for block in (positions, aux):
+        if len(block):
+            half_extent = max(half_extent, float(block.max()), -float(block.min()))
+    return _PointSet(positions, aux, np.asarray(offsets), np.asarray(aux_offsets), half_extent,
+                     None)
 
 
 def _subset_sppp(point_set: _PointSet, pixels: np.ndarray) -> _PointSet:
     """The same point set restricted to some pixels (renumbered 0..len(pixels)-1)."""
-    t = point_set.original_count
     orig_idx, orig_offsets = _segments(point_set.offsets, pixels)
     ghost_idx, ghost_offsets = _segments(point_set.ghost_offsets, pixels)
-    points = np.concatenate([point_set.points[orig_idx], point_set.points[t + ghost_idx]])
-    return _PointSet(points, np.concatenate([_pixel_of(orig_offsets), _pixel_of(ghost_offsets)]),
-                     len(orig_idx), orig_offsets, ghost_offsets, point_set.half_extent, None)
+    return _PointSet(point_set.originals[orig_idx], point_set.ghosts[ghost_idx], orig_offsets,
+                     ghost_offsets, point_set.half_extent, None)
 
 
 def _segments(offsets: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -247,13 +248,11 @@ def _ghost_point_set(positions, offsets, make_ghosts, margin: float) -> _PointSe
     """Originals plus their ghosts within `margin` (margin >= 1: all ghosts, provably exact)."""
     offsets = np.asarray(offsets)
     ghosts, source = make_ghosts(positions, margin)
-    pixel = _pixel_of(offsets)
-    ghost_pixel = pixel[source]
-    ghost_offsets = np.searchsorted(ghost_pixel, np.arange(len(offsets)))
+    # Ghosts come sorted by original, so pixel p's are those of originals offsets[p]...
+    ghost_offsets = np.searchsorted(source, offsets)
     full = margin >= 1.0
     half_extent = 1.5 if full else 0.5 + margin
-    return _PointSet(np.concatenate([positions, ghosts]), np.concatenate([pixel, ghost_pixel]),
-                     len(positions), offsets, ghost_offsets, half_extent,
+    return _PointSet(positions, ghosts, offsets, ghost_offsets, half_extent,
                      None if full else 0.5 + margin)
 
 
@@ -279,10 +278,10 @@ def _ghost_cells(positions: np.ndarray, offsets: np.ndarray, make_ghosts) -> Cel
 
 def _suspect_pixels(point_set: _PointSet, exact: np.ndarray) -> np.ndarray:
     """Pixels with an original whose cell is not (provably) exact and bounded."""
-    bad = ~exact
-    if not bad.any():
+    bad = np.flatnonzero(~exact)
+    if not bad.size:
         return np.zeros(0, np.int64)
-    return np.unique(point_set.pixel[: point_set.original_count][bad])
+    return np.unique(np.searchsorted(point_set.offsets, bad, side="right") - 1)
 
 
 def _scatter_pixels(cells: CellAreas, redo: CellAreas, offsets: np.ndarray,
@@ -298,33 +297,61 @@ def _scatter_pixels(cells: CellAreas, redo: CellAreas, offsets: np.ndarray,
 # Qhull calls
 
 
-def _call_layouts(point_set: _PointSet, one_pixel_per_call: bool):
-    """Yield (points, point-set indices, pixels) for each Qhull call: whole pixels, packed to
-    about POINTS_PER_QHULL_CALL points, each pixel translated to its own slot along x."""
-    counts = np.diff(point_set.offsets) + np.diff(point_set.ghost_offsets)
-    starts = np.cumsum(counts) - counts
+@dataclass(frozen=True)
+class _Layout:
+    """A point set laid out for Qhull: pixel by pixel, each pixel's originals then its ghosts,
+    so that every Qhull call is one contiguous run of whole pixels. Points are complex128
+    x + iy, so that one gather moves both coordinates."""
+
+    z: np.ndarray              # (N,) pixel-local positions, laid out
+    counts: np.ndarray         # (P,) points per pixel
+    original_at: np.ndarray    # (T,) laid-out index of every original
+    call_bounds: list[int]     # (C + 1,) laid-out index where each call starts
+    call_pixels: list[int]     # (C + 1,) first pixel of each call
+    slot_width: float          # distance between the slots of pixels that share a call
+
+    def call_points(self, call: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """What Qhull gets for one call, (K, 2) float64 with pixel k of the call moved by
+        k * slot_width along x, and each point's slot k (None for a one-pixel call)."""
+        z = self.z[self.call_bounds[call]:self.call_bounds[call + 1]]
+        p0, p1 = self.call_pixels[call], self.call_pixels[call + 1]
+        if p1 - p0 == 1:
+            return z.view(np.float64).reshape(-1, 2), None
+        slot = np.repeat(np.arange(p1 - p0, dtype=np.int32), self.counts[p0:p1])
+        moved = z + slot * self.slot_width
+        return moved.view(np.float64).reshape(-1, 2), slot
+
+
+def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
+    """Pack whole pixels into calls of about POINTS_PER_QHULL_CALL points (a large pixel gets a
+    call of its own)."""
+    orig_counts = np.diff(point_set.offsets)
+    ghost_counts = np.diff(point_set.ghost_offsets)
+    counts = orig_counts + ghost_counts
+    ends = np.cumsum(counts)
+    starts = ends - counts
+    total = int(ends[-1]) if len(ends) else 0
+    original_at = np.arange(len(point_set.originals)) + np.repeat(
+        starts - point_set.offsets[:-1], orig_counts)
+    ghost_at = np.arange(len(point_set.ghosts)) + np.repeat(
+        starts + orig_counts - point_set.ghost_offsets[:-1], ghost_counts)
+    z = np.empty(total, np.complex128)
+    z[original_at] = _as_complex(point_set.originals)
+    z[ghost_at] = _as_complex(point_set.ghosts)
     if one_pixel_per_call:
-        call_of_pixel = np.arange(len(counts))
+        call_pixels = np.arange(len(counts) + 1)
     else:
         call_of_pixel = starts // POINTS_PER_QHULL_CALL
-        # Renumber so that calls are consecutive integers.
-        call_of_pixel = np.concatenate([[0], np.cumsum(np.diff(call_of_pixel) > 0)])
-    first = np.flatnonzero(np.diff(call_of_pixel, prepend=-1) != 0)
-    bounds = np.append(first, len(counts))
+        call_pixels = np.append(np.flatnonzero(np.diff(call_of_pixel, prepend=-1)), len(counts))
+    call_bounds = np.append(starts, total)[call_pixels]
     slot_width = 2.0 * point_set.half_extent * (1.0 + SLOT_GAP_FACTOR)
-    t = point_set.original_count
-    for p0, p1 in zip(bounds[:-1], bounds[1:], strict=True):
-        o0, o1 = point_set.offsets[p0], point_set.offsets[p1]
-        g0, g1 = point_set.ghost_offsets[p0], point_set.ghost_offsets[p1]
-        index = np.concatenate([np.arange(o0, o1), np.arange(t + g0, t + g1)])
-        points = point_set.points[index]
-        if p1 - p0 > 1:
-            points[:, 0] += (point_set.pixel[index] - p0) * slot_width
-        yield points, index, np.arange(p0, p1)
+    return _Layout(z, counts, original_at, call_bounds.tolist(), call_pixels.tolist(),
+                   slot_width)
 
 
-def _concat_or_empty(parts: list[np.ndarray]) -> np.ndarray:
-    return np.concatenate(parts) if parts else np.zeros(0, np.int64)
+def _as_complex(points: np.ndarray) -> np.ndarray:
+    """(K, 2) float64 points as (K,) complex128 x + iy (a view when already contiguous)."""
+    return np.ascontiguousarray(points, dtype=np.float64).view(np.complex128).reshape(-1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -335,81 +362,144 @@ def _cells(point_set: _PointSet, box: float | None,
            one_pixel_per_call: bool = False) -> tuple[CellAreas, TessellationStats]:
     """Areas and exactness flags of the originals' cells; see the module docstring.
 
-    Each Qhull call's triangles are processed right after the call, while they are in cache.
+    Each Qhull call's triangles are processed right after the call, while they are in cache,
+    into the call's contiguous range of the laid-out arrays.
     """
     stats = TessellationStats()
-    total = len(point_set.points)
+    layout = _call_layout(point_set, one_pixel_per_call)
+    total = len(layout.z)
     areas = np.zeros(total)
     suspect = np.zeros(total, bool)    # cell not provably that of the pixel's own diagram
     outside = np.zeros(total, bool) if box is not None else None
-    failed_alone, failed_shared = [], []
-    for points, index, pixels in _call_layouts(point_set, one_pixel_per_call):
-        if len(points) == 0:
-            continue
-        stats.qhull_calls += 1
-        try:
-            tri = Delaunay(points, qhull_options=QHULL_OPTIONS)
-        except (QhullError, ValueError):
-            # Too few or collinear points: judged per pixel below.
-            (failed_alone if len(pixels) == 1 else failed_shared).append(pixels)
-            continue
-        local = _call_cells(tri, point_set, index, len(pixels) > 1, box)
-        areas[index], suspect[index] = local[0], local[1]
-        if outside is not None:
-            outside[index] = local[2]
+    failed_alone = []
+    bounds, first_pixels = layout.call_bounds, layout.call_pixels
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for call in range(len(bounds) - 1):
+            lo, hi = bounds[call], bounds[call + 1]
+            if lo == hi:
+                continue
+            stats.qhull_calls += 1
+            points, slot = layout.call_points(call)
+            try:
+                tri = Delaunay(points, qhull_options=QHULL_OPTIONS)
+            except (QhullError, ValueError):
+                # Too few or collinear points: every cell of the call is suspect; pixels that
+                # shared the call are redone alone, a pixel alone is judged below.
+                suspect[lo:hi] = True
+                if slot is None:
+                    failed_alone.append(first_pixels[call])
+                continue
+            _call_cells(tri, layout.z[lo:hi], slot, point_set.disc_box, box, areas[lo:hi],
+                        suspect[lo:hi], None if outside is None else outside[lo:hi])
 
-    # Pixels Qhull could not triangulate: redone alone if they shared the call; alone, every
-    # cell is unbounded (or it is an error if the set was not degenerate).
-    failed_alone = _concat_or_empty(failed_alone)
-    _mark_pixels(point_set, _concat_or_empty(failed_shared), suspect)
-    _mark_pixels(point_set, failed_alone, suspect)
+    # Pixels Qhull could not triangulate alone: every cell is unbounded (or it is an error if
+    # the set was not degenerate).
     _check_degenerate(point_set, failed_alone)
     stats.degenerate_pixels += len(failed_alone)
 
-    t = point_set.original_count
-    bounded = ~suspect[:t]
-    cell_areas = np.where(bounded, areas[:t], np.nan)
-    inside = None if outside is None else bounded & ~outside[:t]
+    at = layout.original_at
+    bounded = ~suspect[at]
+    cell_areas = np.where(bounded, areas[at], np.nan)
+    inside = None if outside is None else bounded & ~outside[at]
     return CellAreas(cell_areas, bounded, inside), stats
 
 
-def _call_cells(tri: Delaunay, point_set: _PointSet, index: np.ndarray, multi_pixel: bool,
-                box: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Areas, suspect flags and outside-box flags of one Qhull call's points."""
-    count = len(index)
-    s = tri.simplices
-    geometry = _triangle_geometry(point_set.points[index], s)
-    areas = (np.bincount(s[:, 0], geometry.area_a, count)
-             + np.bincount(s[:, 1], geometry.area_b, count)
-             + np.bincount(s[:, 2], geometry.area_c, count))
+def _call_cells(tri: Delaunay, z: np.ndarray, slot: np.ndarray | None, disc_box: float | None,
+                box: float | None, areas: np.ndarray, suspect: np.ndarray,
+                outside: np.ndarray | None) -> None:
+    """Areas, suspect flags and outside-box flags of one Qhull call's points z, written into
+    areas, suspect and outside (views of the call's range). slot: each point's pixel slot
+    (None: one pixel). Runs under np.errstate(divide="ignore", invalid="ignore")."""
+    count = len(z)
+    s = np.ascontiguousarray(tri.simplices.T, dtype=np.intp)    # (3, M): vertices a, b, c
+    t = _TriangleTerms(z, s)
+    local_areas = np.bincount(s.ravel(), t.pieces.ravel(), count)
 
-    suspect = np.zeros(count, bool)
-    rows, cols = np.nonzero(tri.neighbors == -1)     # hull edge: opposite vertex has no neighbour
-    suspect[s[rows, (cols + 1) % 3]] = True
-    suspect[s[rows, (cols + 2) % 3]] = True
-    bad_triangle = ~np.isfinite(geometry.area_a + geometry.area_b + geometry.area_c)
-    if multi_pixel:
-        pixel_of_vertex = point_set.pixel[index][s]
-        bad_triangle |= ((pixel_of_vertex[:, 0] != pixel_of_vertex[:, 1])
-                         | (pixel_of_vertex[:, 0] != pixel_of_vertex[:, 2]))
-    if point_set.disc_box is not None:
-        bad_triangle |= _disc_leaves_box(geometry, point_set.disc_box)
-    suspect[s[bad_triangle].ravel()] = True
+    # Hull edge: the vertex opposite it has no neighbour; both its end points are unbounded.
+    row, col = np.divmod(np.flatnonzero(tri.neighbors < 0), 3)
+    suspect[s[(col + 1) % 3, row]] = True
+    suspect[s[(col + 2) % 3, row]] = True
 
-    outside = None
-    if box is not None:
-        outside = np.zeros(count, bool)
-        outside[s[_centre_outside_box(geometry, box)].ravel()] = True
+    # Triangles that make their vertices' cells suspect: degenerate, across pixels, or with a
+    # circumdisc that may reach absent ghosts.
+    bad = np.abs(t.det) > 0
+    np.logical_not(bad, out=bad)
+    if slot is not None:
+        slot_a = slot.take(s[0])
+        bad |= slot_a != slot.take(s[1])
+        bad |= slot_a != slot.take(s[2])
+    if disc_box is not None or box is not None:
+        cx, cy, radius = t.circumcircle()
+        if disc_box is not None:
+            bad |= ~((np.abs(cx) + radius <= disc_box) & (np.abs(cy) + radius <= disc_box))
+        if box is not None:
+            out = ~((np.abs(cx) <= box) & (np.abs(cy) <= box))
+            outside[s[:, np.flatnonzero(out)]] = True
+    suspect[s[:, np.flatnonzero(bad)]] = True
 
     # Coincident points: the vertex Qhull kept and the points it dropped share the cell.
     if len(tri.coplanar):
         dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
-        areas /= 1.0 + np.bincount(kept, minlength=count)
-        areas[dropped] = areas[kept]
+        local_areas /= 1.0 + np.bincount(kept, minlength=count)
+        local_areas[dropped] = local_areas[kept]
         suspect[dropped] = suspect[kept]
         if outside is not None:
             outside[dropped] = outside[kept]
-    return areas, suspect, outside
+    areas[:] = local_areas
+
+
+class _TriangleTerms:
+    """Per-triangle terms of triangles (a, b, c) of complex points z = x + iy: e1 = b - a,
+    e2 = c - a, l1 = |e1|^2, l2 = |e2|^2, det = e1 x e2, and pieces[j], the signed area vertex
+    j's cell gets from the triangle."""
+
+    def __init__(self, z: np.ndarray, s: np.ndarray) -> None:
+        a, b, c = s
+        self.za = za = z.take(a)
+        self.e1 = e1 = z.take(b)
+        e1 -= za
+        self.e2 = e2 = z.take(c)
+        e2 -= za
+        self.l1 = l1 = _squared_norm(e1)
+        self.l2 = l2 = _squared_norm(e2)
+        w = e1.conjugate()
+        w *= e2                         # conj(e1) e2 = (e1 . e2) + i (e1 x e2)
+        dot, self.det = w.real, w.imag
+        # With U = (e2y l1 - e1y l2, e1x l2 - e2x l1), o - a = U / (2 det); the quadrilateral
+        # areas 0.25 cross(b - c, o - a) etc. reduce to these forms (k = 1 / (8 |det|)).
+        k = np.abs(self.det)
+        half_tri = 0.25 * k
+        np.divide(0.125, k, out=k)
+        t1 = l2 - dot
+        t1 *= l1
+        t2 = l1 - dot
+        t2 *= l2
+        self.pieces = pieces = np.empty((3, len(k)))
+        np.add(t1, t2, out=pieces[0])
+        pieces[0] *= k
+        np.multiply(k, t2, out=pieces[1])
+        np.subtract(half_tri, pieces[1], out=pieces[1])
+        np.multiply(k, t1, out=pieces[2])
+        np.subtract(half_tri, pieces[2], out=pieces[2])
+
+    def circumcentre_offset(self) -> tuple[np.ndarray, np.ndarray]:
+        """u = o - a, the circumcentre relative to vertex a."""
+        inv = 0.5 / self.det
+        e1x, e1y, e2x, e2y = self.e1.real, self.e1.imag, self.e2.real, self.e2.imag
+        ux = (e2y * self.l1 - e1y * self.l2) * inv
+        uy = (e1x * self.l2 - e2x * self.l1) * inv
+        return ux, uy
+
+    def circumcircle(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Circumcentres (cx, cy) and circumradii."""
+        ux, uy = self.circumcentre_offset()
+        return self.za.real + ux, self.za.imag + uy, np.sqrt(ux * ux + uy * uy)
+
+
+def _squared_norm(e: np.ndarray) -> np.ndarray:
+    norm = e.real * e.real
+    norm += e.imag * e.imag
+    return norm
 
 
 @dataclass(frozen=True)
@@ -427,58 +517,19 @@ class _TriangleGeometry:
 
 
 def _triangle_geometry(points: np.ndarray, simplices: np.ndarray) -> _TriangleGeometry:
-    x = np.ascontiguousarray(points[:, 0])
-    y = np.ascontiguousarray(points[:, 1])
-    a, b, c = simplices[:, 0], simplices[:, 1], simplices[:, 2]
-    ax, ay = x.take(a), y.take(a)
-    e1x, e1y = x.take(b) - ax, y.take(b) - ay
-    e2x, e2y = x.take(c) - ax, y.take(c) - ay
-    l1 = e1x * e1x + e1y * e1y
-    l2 = e2x * e2x + e2y * e2y
-    dot = e1x * e2x + e1y * e2y
-    det = e1x * e2y - e1y * e2x
+    """The same terms for (N, 2) points and (M, 3) simplices (used by clrender.image_voronoi)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        # With U = (e2y l1 - e1y l2, e1x l2 - e2x l1), o - a = U / (2 det); the quadrilateral
-        # areas 0.25 cross(b - c, o - a) etc. reduce to these forms (k = 1 / (8 |det|)).
-        k = 0.125 / np.abs(det)
-        half_tri = 0.25 * np.abs(det)
-        t1 = l1 * (l2 - dot)
-        t2 = l2 * (l1 - dot)
-        area_a = k * (t1 + t2)
-        area_b = half_tri - k * t2
-        area_c = half_tri - k * t1
-        inv = 0.5 / det
-        ux = (e2y * l1 - e1y * l2) * inv
-        uy = (e1x * l2 - e2x * l1) * inv
-    return _TriangleGeometry(ax, ay, ux, uy, area_a, area_b, area_c)
+        t = _TriangleTerms(_as_complex(points),
+                           np.ascontiguousarray(np.asarray(simplices).T, dtype=np.intp))
+        ux, uy = t.circumcentre_offset()
+    return _TriangleGeometry(t.za.real, t.za.imag, ux, uy, t.pieces[0], t.pieces[1],
+                             t.pieces[2])
 
 
-def _disc_leaves_box(g: _TriangleGeometry, half: float) -> np.ndarray:
-    radius = np.sqrt(g.ux * g.ux + g.uy * g.uy)
-    with np.errstate(invalid="ignore"):
-        return ~((np.abs(g.ax + g.ux) + radius <= half) & (np.abs(g.ay + g.uy) + radius <= half))
-
-
-def _centre_outside_box(g: _TriangleGeometry, half: float) -> np.ndarray:
-    with np.errstate(invalid="ignore"):
-        return ~((np.abs(g.ax + g.ux) <= half) & (np.abs(g.ay + g.uy) <= half))
-
-
-def _mark_pixels(point_set: _PointSet, pixels: np.ndarray, suspect: np.ndarray) -> None:
-    """Mark every point of the given pixels as not exact (unbounded unless redone)."""
-    orig, _ = _segments(point_set.offsets, pixels)
-    ghost, _ = _segments(point_set.ghost_offsets, pixels)
-    suspect[orig] = True
-    suspect[point_set.original_count + ghost] = True
-
-
-def _check_degenerate(point_set: _PointSet, pixels: np.ndarray) -> None:
+def _check_degenerate(point_set: _PointSet, pixels: list[int]) -> None:
     """Raise if Qhull rejected a one-pixel set that has >= 3 distinct non-collinear points."""
-    t = point_set.original_count
     for p in pixels:  # rare: only pixels whose whole set is degenerate get here
-        pts = np.concatenate([
-            point_set.points[point_set.offsets[p]:point_set.offsets[p + 1]],
-            point_set.points[t + point_set.ghost_offsets[p]:t + point_set.ghost_offsets[p + 1]]])
+        pts = point_set.pixel_points(p)
         if not _is_degenerate(pts):
             raise ClrenderError(f"Qhull failed on a non-degenerate set of {len(pts)} points "
                                 "(not collinear, >= 3 distinct); please report the sample set")
