@@ -8,7 +8,8 @@ of the back wall, one seeing the glass ball's centre. For each pixel and spp, R 
 estimates of every estimator: R sample sets of that pixel drawn and traced in one launch (run r
 is redraw number r, so runs are independent), then each estimator applied to all R runs as one
 batch (estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi
-estimator rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw does; all SPPP estimators use the same accepted runs.
+estimator rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw
+does; all SPPP estimators use the same accepted runs.
 
 The value of a pixel is the mean of its RGB channels. Per (pixel, estimator, spp): mean, std
 and variance over the R runs; milliseconds per estimate of the estimator alone (each estimator
