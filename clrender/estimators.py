@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -110,6 +111,16 @@ class PixelSamples:
     def pixel_count(self) -> int:
         return len(self.offsets) - 1
 
+    @cached_property
+    def counts(self) -> np.ndarray:
+        """(P,) samples per pixel."""
+        return self.offsets[1:] - self.offsets[:-1]
+
+    @cached_property
+    def pixel_index(self) -> np.ndarray:
+        """(T,) pixel of every sample."""
+        return np.repeat(np.arange(self.pixel_count), self.counts)
+
     @property
     def has_aux(self) -> bool:
         return self.aux is not None and self.aux_offsets is not None and self.eps is not None
@@ -180,7 +191,7 @@ def _check_samples(samples: PixelSamples, infos: list[EstimatorInfo]) -> None:
 
 def _check_offsets(name: str, offsets: np.ndarray, total: int) -> None:
     if (offsets.ndim != 1 or len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != total
-            or (np.diff(offsets) < 0).any()):
+            or (offsets[1:] < offsets[:-1]).any()):
         raise ParameterError(f"{name} must rise from 0 to {total} (one more entry than pixels)")
 
 
@@ -204,7 +215,7 @@ def _tessellations(samples: PixelSamples, infos: list[EstimatorInfo]) -> dict[st
 
 def _pixel_sums(samples: PixelSamples, weights: np.ndarray) -> np.ndarray:
     """Per-pixel sums of (T,) or (T, C) weights -> (P,) or (P, C)."""
-    pixel = np.repeat(np.arange(samples.pixel_count), np.diff(samples.offsets))
+    pixel = samples.pixel_index
     if weights.ndim == 1:
         return np.bincount(pixel, weights, samples.pixel_count)
     return np.column_stack([np.bincount(pixel, weights[:, c], samples.pixel_count)
@@ -222,7 +233,7 @@ def _per_pixel(column: np.ndarray, estimates: np.ndarray) -> np.ndarray:
 
 def _base_stats(samples: PixelSamples, tessellation: TessellationStats | None) -> EstimateStats:
     stats = EstimateStats(pixels=samples.pixel_count,
-                          empty_pixels=int((np.diff(samples.offsets) == 0).sum()))
+                          empty_pixels=int((samples.counts == 0).sum()))
     if tessellation is not None:
         stats.tessellation = tessellation
     return stats
@@ -239,7 +250,7 @@ def _mc(samples: PixelSamples, cells) -> EstimateResult:
 
 def _mc_n(samples: PixelSamples, cells) -> EstimateResult:
     sums = _pixel_sums(samples, samples.values)
-    counts = np.diff(samples.offsets).astype(np.float64)
+    counts = samples.counts.astype(np.float64)
     means = sums / _per_pixel(np.maximum(counts, 1.0), sums)
     return EstimateResult(means, _no_redraw(samples), _base_stats(samples, None))
 
@@ -250,8 +261,9 @@ def _weighted(samples: PixelSamples, areas: np.ndarray) -> np.ndarray:
 
 
 def _invalid_pixels(samples: PixelSamples, bounded: np.ndarray) -> np.ndarray:
-    pixel = np.repeat(np.arange(samples.pixel_count), np.diff(samples.offsets))
-    return np.bincount(pixel, ~bounded, samples.pixel_count) > 0
+    invalid = np.zeros(samples.pixel_count, bool)
+    invalid[samples.pixel_index[~bounded]] = True
+    return invalid
 
 
 def _redraw_result(samples, estimates, cell_areas: CellAreas) -> EstimateResult:
@@ -291,7 +303,7 @@ def _fvor(samples: PixelSamples, cells) -> EstimateResult:
                                 samples.offsets, samples.intensity)
     filtered, empty = _self_normalised(kept_samples, kept_areas)
     fallback, _ = _self_normalised(samples, sppp.areas)
-    has_nuclei = np.diff(samples.offsets) > 0
+    has_nuclei = samples.counts > 0
     use_fallback = empty & has_nuclei
     estimates = np.where(_per_pixel(use_fallback, filtered), fallback, filtered)
     result = _redraw_result(samples, estimates, sppp)

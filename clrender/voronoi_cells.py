@@ -325,16 +325,17 @@ class _Layout:
 def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
     """Pack whole pixels into calls of about POINTS_PER_QHULL_CALL points (a large pixel gets a
     call of its own)."""
-    orig_counts = np.diff(point_set.offsets)
-    ghost_counts = np.diff(point_set.ghost_offsets)
+    offsets, ghost_offsets = point_set.offsets, point_set.ghost_offsets
+    orig_counts = offsets[1:] - offsets[:-1]
+    ghost_counts = ghost_offsets[1:] - ghost_offsets[:-1]
     counts = orig_counts + ghost_counts
     ends = np.cumsum(counts)
     starts = ends - counts
     total = int(ends[-1]) if len(ends) else 0
-    original_at = np.arange(len(point_set.originals)) + np.repeat(
-        starts - point_set.offsets[:-1], orig_counts)
+    original_at = np.arange(len(point_set.originals)) + np.repeat(starts - offsets[:-1],
+                                                                   orig_counts)
     ghost_at = np.arange(len(point_set.ghosts)) + np.repeat(
-        starts + orig_counts - point_set.ghost_offsets[:-1], ghost_counts)
+        starts + orig_counts - ghost_offsets[:-1], ghost_counts)
     z = np.empty(total, np.complex128)
     z[original_at] = _as_complex(point_set.originals)
     z[ghost_at] = _as_complex(point_set.ghosts)
@@ -342,8 +343,12 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
         call_pixels = np.arange(len(counts) + 1)
     else:
         call_of_pixel = starts // POINTS_PER_QHULL_CALL
-        call_pixels = np.append(np.flatnonzero(np.diff(call_of_pixel, prepend=-1)), len(counts))
-    call_bounds = np.append(starts, total)[call_pixels]
+        # A call starts at pixel 0 and wherever starts // POINTS_PER_QHULL_CALL steps; the
+        # last entry is the end sentinel (pixel count).
+        new_call = np.ones(len(counts) + 1, bool)
+        new_call[1:-1] = call_of_pixel[1:] != call_of_pixel[:-1]
+        call_pixels = np.flatnonzero(new_call)
+    call_bounds = np.concatenate([starts, [total]])[call_pixels]
     slot_width = 2.0 * point_set.half_extent * (1.0 + SLOT_GAP_FACTOR)
     return _Layout(z, counts, original_at, call_bounds.tolist(), call_pixels.tolist(),
                    slot_width)
