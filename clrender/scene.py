@@ -122,6 +122,9 @@ def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:
             ("u_dual", "<f4", (3, width)),
             ("v_dual", "<f4", (3, width)),
             ("plane_d", "<f4", width),
+            ("quad", "<i4", width),
+            ("lower", "<f4", 4),
+            ("upper", "<f4", 4),
         ]
     )
 
@@ -154,6 +157,9 @@ ALUMINIUM_ETA = (1.657, 0.880, 0.521)
 ALUMINIUM_K = (9.224, 6.270, 4.837)
 # Secondary rays start this fraction of the scene's bounding-box diagonal off their surface.
 RAY_EPSILON_SCALE = 1e-5
+# Quad blocks' bounding boxes are padded outwards by this fraction of the scene's diagonal (far
+# above float rounding in the slab test, so a box never rejects a ray that hits one of its quads).
+BLOCK_BOUNDS_PADDING = 1e-4
 # Relative tolerance of the parallelogram check of quad vertices.
 PARALLELOGRAM_TOLERANCE = 1e-5
 
@@ -216,7 +222,9 @@ class Scene:
         return _bounds(self.quads, self.spheres)
 
     def quad_blocks(self, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
-        return pack_quad_blocks(self.quads, width)
+        low, high = self.bounds()
+        padding = BLOCK_BOUNDS_PADDING * max(float(np.linalg.norm(high - low)), 1e-30)
+        return pack_quad_blocks(self.quads, width, quad_groups(self.quad_names), padding)
 
 
 # --------------------------------------------------------------------------- locating files
@@ -651,20 +659,72 @@ def pack_quads(quads: list[dict]) -> np.ndarray:
     return packed
 
 
-def pack_quad_blocks(quads: np.ndarray, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
-    """The quads in blocks of `width` lanes (structure of arrays); unused lanes never hit
-    (zero normal, plane_d = -1, so t = -inf)."""
-    blocks = np.zeros(-(-len(quads) // width), quad_block_dtype(width))
-    flat = blocks.reshape(-1)
-    for i, quad in enumerate(quads):
-        block, lane = flat[i // width], i % width
-        for key in ("corner", "normal", "u_dual", "v_dual"):
-            block[key][:, lane] = quad[key]
-        block["plane_d"][lane] = quad["plane_d"]
-    for block_index in range(len(blocks)):
-        used = len(quads) - block_index * width
-        if used < width:
-            blocks[block_index]["plane_d"][used:] = -1.0
+def quad_groups(names: list[str]) -> list[int]:
+    """Group number of each quad: consecutive quads named "object/part" (a box's faces) share
+    one; every other quad is a group of its own."""
+    groups: list[int] = []
+    previous = None
+    for name in names:
+        prefix = name.rsplit("/", 1)[0] if "/" in name else None
+        if groups and prefix is not None and prefix == previous:
+            groups.append(groups[-1])
+        else:
+            groups.append(groups[-1] + 1 if groups else 0)
+        previous = prefix
+    return groups
+
+
+def plan_quad_blocks(groups: list[int], width: int = QUAD_BLOCK_WIDTH) -> list[list[int]]:
+    """Quad indices of each block, in scene order: a group that does not fit in the current
+    block's free lanes starts a new block (a group wider than a block fills whole blocks)."""
+    blocks: list[list[int]] = []
+    start = 0
+    while start < len(groups):
+        end = start
+        while end < len(groups) and groups[end] == groups[start]:
+            end += 1
+        members = list(range(start, end))
+        if not blocks or (len(blocks[-1]) + len(members) > width and len(members) <= width):
+            blocks.append([])
+        for index in members:
+            if len(blocks[-1]) == width:
+                blocks.append([])
+            blocks[-1].append(index)
+        start = end
+    return blocks
+
+
+def pack_quad_blocks(
+    quads: np.ndarray,
+    width: int = QUAD_BLOCK_WIDTH,
+    groups: list[int] | None = None,
+    padding: float = 0.0,
+) -> np.ndarray:
+    """The quads in blocks of `width` lanes (structure of arrays), grouped as
+    plan_quad_blocks says (default: in order, each quad its own group); unused lanes never
+    hit (zero normal, plane_d = -1, so t = -inf; quad -1). Each block carries the bounding box
+    of its quads, padded by `padding` and rounded outwards to float32."""
+    if groups is None:
+        groups = list(range(len(quads)))
+    plan = plan_quad_blocks(groups, width)
+    blocks = np.zeros(len(plan), quad_block_dtype(width))
+    for block, members in zip(blocks, plan, strict=True):
+        block["quad"][:] = -1
+        block["plane_d"][len(members) :] = -1.0
+        corners = []
+        for lane, i in enumerate(members):
+            quad = quads[i]
+            for key in ("corner", "normal", "u_dual", "v_dual"):
+                block[key][:, lane] = quad[key]
+            block["plane_d"][lane] = quad["plane_d"]
+            block["quad"][lane] = i
+            c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
+            corners += [c, c + e1, c + e2, c + e1 + e2]
+        stacked = np.array(corners)
+        lower = (stacked.min(axis=0) - padding).astype(np.float32)
+        upper = (stacked.max(axis=0) + padding).astype(np.float32)
+        block["lower"][:3] = np.nextafter(lower, np.float32(-np.inf))
+        block["upper"][:3] = np.nextafter(upper, np.float32(np.inf))
     return blocks
 
 

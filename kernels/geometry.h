@@ -1,5 +1,5 @@
-// Ray-primitive intersection: brute force over every quad (a block of quads per vector test),
-// then every sphere.
+// Ray-primitive intersection: every block of quads (one vector test per block) whose bounding
+// box the ray meets, then every sphere.
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
 #define CLRENDER_GEOMETRY_H
@@ -31,9 +31,23 @@ CL_INLINE int Lanes_MinInt(int8 v)
     return v2.x < v2.y ? v2.x : v2.y;
 }
 
-// The nearest quad of a block hit before tmax: its distance (tmax if none) and lane in *lane.
-CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, float3 d,
-                                    float tmax, int *lane)
+// Whether the ray o + t d (inv_d = 1 / d) meets the block's bounding box for some t in
+// [0, tmax] (slab test; a NaN from a zero direction on a slab's plane never rejects).
+CL_INLINE bool QuadBlock_BoundsHit(__global const QuadBlock *block, float3 o, float3 inv_d,
+                                   float tmax)
+{
+    float3 t0 = (Load3(block->lower) - o) * inv_d;
+    float3 t1 = (Load3(block->upper) - o) * inv_d;
+    float3 t_near = t0 < t1 ? t0 : t1;
+    float3 t_far = t0 < t1 ? t1 : t0;
+    float t_enter = Fmax(Fmax(t_near.x, t_near.y), t_near.z);
+    float t_exit = Fmin(Fmin(t_far.x, t_far.y), t_far.z);
+    return !(t_enter > t_exit || t_exit < 0.0f || t_enter > tmax);
+}
+
+// Hit mask of a block's quads along the ray before tmax (-1 where hit), and distances in *t.
+CL_INLINE int8 QuadBlock_Hits(__global const QuadBlock *block, float3 o, float3 d, float tmax,
+                              float8 *t_out)
 {
     float8 nx = Load8(block->normal[0]);
     float8 ny = Load8(block->normal[1]);
@@ -47,12 +61,32 @@ CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, f
                rz * Load8(block->u_dual[2]);
     float8 b = rx * Load8(block->v_dual[0]) + ry * Load8(block->v_dual[1]) +
                rz * Load8(block->v_dual[2]);
-    int8 hit = (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+    *t_out = t;
+    return (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+}
+
+// The nearest quad of a block hit before tmax: its distance (tmax if none) and lane in *lane.
+CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, float3 d,
+                                    float tmax, int *lane)
+{
+    float8 t;
+    int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
     float8 t_hit = hit ? t : (float8)(INFINITY);
     float t_min = Lanes_Min(t_hit);
     int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
     *lane = Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(QUAD_BLOCK_WIDTH));
     return t_min < tmax ? t_min : tmax;
+}
+
+// Whether any quad of a block lies along the ray before tmax.
+CL_INLINE bool QuadBlock_Occluded(__global const QuadBlock *block, float3 o, float3 d,
+                                  float tmax)
+{
+    float8 t;
+    int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
+    int4 h4 = hit.lo | hit.hi;
+    int2 h2 = h4.lo | h4.hi;
+    return (h2.x | h2.y) != 0;
 }
 
 // Distance along d (unit) to the nearest sphere crossing ahead, or tmax.
@@ -77,15 +111,23 @@ CL_INLINE float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, f
 }
 
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
-CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
+// (Ties go to the lowest quad index, then to the sphere: blocks hold quads in scene order.)
+CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
+                                int *prim)
 {
     float t = tmax;
     int id = -1;
+    float3 inv_d = 1.0f / d;
     for (uint b = 0; b < scene->quad_block_count; ++b) {
+        __global const QuadBlock *block = &scene->quad_blocks[b];
+        if (!QuadBlock_BoundsHit(block, o, inv_d, t))
+            continue;
         int lane;
-        float tb = QuadBlock_Intersect(&scene->quad_blocks[b], o, d, t, &lane);
-        id = tb < t ? (int)(QUAD_BLOCK_WIDTH * b) + lane : id;
-        t = tb;
+        float tb = QuadBlock_Intersect(block, o, d, t, &lane);
+        if (tb < t) {
+            id = block->quad[lane];
+            t = tb;
+        }
     }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         float ti = Sphere_Intersect(&scene->spheres[i], o, d, t);
@@ -96,12 +138,23 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
     return t;
 }
 
-// Whether anything lies along the ray closer than tmax (shadow rays).
+// Whether anything lies along the ray closer than tmax (shadow rays): an any-hit query that
+// returns at the first blocker. Spheres first, then the quad blocks from the last: scene files
+// list the enclosing walls first and the objects inside later, and walls of a convex room
+// never block a ray between two points inside it.
 CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
-    int prim;
-    Scene_Intersect(scene, o, d, tmax, &prim);
-    return prim >= 0;
+    for (uint i = 0; i < scene->sphere_count; ++i) {
+        if (Sphere_Intersect(&scene->spheres[i], o, d, tmax) < tmax)
+            return true;
+    }
+    float3 inv_d = 1.0f / d;
+    for (uint b = scene->quad_block_count; b-- > 0u;) {
+        __global const QuadBlock *block = &scene->quad_blocks[b];
+        if (QuadBlock_BoundsHit(block, o, inv_d, tmax) && QuadBlock_Occluded(block, o, d, tmax))
+            return true;
+    }
+    return false;
 }
 
 // The surface record of a hit at distance t along the ray.

@@ -27,8 +27,9 @@ typedef struct {
 
 // The same quads for intersection, QUAD_BLOCK_WIDTH at a time (structure of arrays, so one
 // ray is tested against a whole block with vector instructions). Unused lanes at the end have
-// a zero normal and plane_d = -1: t = -inf, never a hit. Lane j of block b is quad
-// QUAD_BLOCK_WIDTH * b + j.
+// a zero normal and plane_d = -1: t = -inf, never a hit. Lane j of the block is scene quad
+// quad[j] (-1 for unused lanes); the faces of one object (a box) share a block, so a ray that
+// misses the block's bounding box (lower, upper: padded outwards; w unused) skips them all.
 // (Width 16 crashes the LLVM 14 of pip's PoCL 3.0: "Cannot emit physreg copy instruction".)
 #define QUAD_BLOCK_WIDTH 8
 typedef struct {
@@ -37,6 +38,9 @@ typedef struct {
     float u_dual[3][QUAD_BLOCK_WIDTH];
     float v_dual[3][QUAD_BLOCK_WIDTH];
     float plane_d[QUAD_BLOCK_WIDTH];
+    int quad[QUAD_BLOCK_WIDTH];
+    float lower[4];
+    float upper[4];
 } QuadBlock;
 
 typedef struct {
