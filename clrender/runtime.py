@@ -4,6 +4,10 @@ A device is chosen from an explicit request (index or name substring), else from
 PYOPENCL_CTX environment variable, else the first device of the first platform. Nothing here
 ever prompts. Programs are built from the kernels/ folder with ``-I`` so compiler messages
 keep their file:line, and each (source, options) pair is built once per process.
+
+The CLRENDER_KERNELS_DIR environment variable, when set and not empty, replaces the kernels
+folder (sources and ``-I`` path): for kernel development, and for tests that give the command
+line a broken kernel to check how build failures are reported.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import pyopencl as cl
 
 from clrender.errors import DeviceError, KernelBuildError
 
+KERNELS_DIR_VARIABLE = "CLRENDER_KERNELS_DIR"
 # One fixed local size: PoCL JIT-compiles a work-group function per new local size.
 LOCAL_SIZE = 64
 
@@ -29,7 +34,13 @@ INSTALL_HINT = (
 
 
 def kernels_dir() -> Path:
-    """The folder of OpenCL sources: inside the installed package, else the source checkout."""
+    """The folder of OpenCL sources: $CLRENDER_KERNELS_DIR if set, else inside the installed
+    package, else the source checkout."""
+    override = os.environ.get(KERNELS_DIR_VARIABLE, "")
+    if override:
+        if not Path(override).is_dir():
+            raise KernelBuildError(f"{KERNELS_DIR_VARIABLE}={override} is not a directory")
+        return Path(override)
     packaged = Path(str(resources.files("clrender"))) / "kernels"
     if packaged.is_dir():
         return packaged
