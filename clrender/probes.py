@@ -162,29 +162,37 @@ def sees_points(scene: Scene, points: np.ndarray, targets: np.ndarray) -> np.nda
 # Pixel finders
 
 
-def polygon_pixel_coverage(polygon: np.ndarray, x: int, y: int) -> float:
-    """Area of the convex polygon (V, 2) inside pixel [x, x+1] x [y, y+1] (Sutherland-Hodgman
-    on the four pixel edges)."""
+def clip_to_box(polygon: np.ndarray, low: tuple[float, float], high: tuple[float, float]
+                ) -> np.ndarray:  # fmt: skip
+    """The part of a convex polygon (V, 2) inside the box [low, high] (Sutherland-Hodgman on
+    the box's four edges); (0, 2) if nothing is left."""
     poly = np.asarray(polygon, np.float64)
-    for axis, bound, keep_below in ((0, x, False), (0, x + 1, True), (1, y, False),
-                                    (1, y + 1, True)):  # fmt: skip
+    for axis, bound, keep_below in ((0, low[0], False), (0, high[0], True),
+                                    (1, low[1], False), (1, high[1], True)):  # fmt: skip
         if len(poly) == 0:
-            return 0.0
+            break
         inside = poly[:, axis] <= bound if keep_below else poly[:, axis] >= bound
         nxt = np.roll(poly, -1, axis=0)
-        nxt_in = np.roll(inside, -1)
         out = []
-        for p, q, p_in, q_in in zip(poly, nxt, inside, nxt_in, strict=True):
+        for p, q, p_in, q_in in zip(poly, nxt, inside, np.roll(inside, -1), strict=True):
             if p_in:
                 out.append(p)
             if p_in != q_in:
-                s = (bound - p[axis]) / (q[axis] - p[axis])
-                out.append(p + s * (q - p))
-        poly = np.array(out)
-    if len(poly) < 3:
+                out.append(p + (bound - p[axis]) / (q[axis] - p[axis]) * (q - p))
+        poly = np.array(out).reshape(-1, 2)
+    return poly
+
+
+def polygon_area(polygon: np.ndarray) -> float:
+    if len(polygon) < 3:
         return 0.0
-    xs, ys = poly[:, 0], poly[:, 1]
+    xs, ys = polygon[:, 0], polygon[:, 1]
     return float(0.5 * abs(np.dot(xs, np.roll(ys, -1)) - np.dot(ys, np.roll(xs, -1))))
+
+
+def polygon_pixel_coverage(polygon: np.ndarray, x: int, y: int) -> float:
+    """Area of the convex polygon (V, 2) inside pixel [x, x+1] x [y, y+1]."""
+    return polygon_area(clip_to_box(polygon, (x, y), (x + 1, y + 1)))
 
 
 def light_edge_pixel(scene: Scene, width: int, height: int, emitter: int = 0) -> ProbePixel:
@@ -260,12 +268,14 @@ def glossy_pixels(scene: Scene, width: int, height: int) -> np.ndarray:
 
 
 def glossy_highlight_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
-    """The brightest pixel (channel mean of a short render `image`, (H, W, 3)) among pixels
-    seeing one glossy surface and at least 2 pixels inside that surface's region."""
+    """The brightest pixel of a short render `image` (H, W, 3) among pixels seeing one glossy
+    surface, at least 3 pixels inside that surface's region. Brightness is the channel mean
+    after a 5 x 5 median filter, so that a lone firefly of a noisy render is not chosen."""
     height, width, _ = image.shape
     mask = glossy_pixels(scene, width, height)
     depth = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
-    score = np.where(depth >= 3, image.mean(axis=-1), -np.inf)
+    smooth = ndimage.median_filter(image.mean(axis=-1), size=5)
+    score = np.where(depth >= 3, smooth, -np.inf)
     if not np.isfinite(score).any():
         raise ParameterError("the scene has no glossy surface in view")
     y, x = np.unravel_index(int(np.argmax(score)), score.shape)
