@@ -3,33 +3,38 @@
     python bench/render_estimators.py                   # 64 x 64, 64 spp, reference 4096 spp
     python bench/render_estimators.py --size 32 --seeds 1 2 3 4
 
-Renders the reference once with mc over stratified samples, then every (estimator, sampler)
-pair through the full pipeline at the same spp for each seed, and reports the mean squared
-error over the image (all channels), its per-seed values, and the host (estimator) time.
-This is how the render command's default estimator was chosen. Output: JSON (default
+Takes the cached reference of bench/common.py (4 stratified mc parts, reference-spp in all,
+rendered once and reused), then renders every (estimator, sampler) pair through the full
+pipeline at the same spp for each seed, and reports the mean squared error over the image (all
+channels), its per-seed values, and the host (estimator) time. This is how the render
+command's default estimator was chosen. For MSE against wall time at several spp on both
+Cornell boxes see bench/efficiency_study.py. Output: JSON (default
 bench/results/render_estimators.json).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
+import sys
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from clrender.radiance import PathTracerSource
-from clrender.render import RenderSettings, render
-from clrender.runtime import create_runtime
-from clrender.sampling import make_sampler
-from clrender.scene import load_scene
-from clrender.trace import PathTracer
+from common import (  # noqa: E402
+    RENDER_PAIRS,
+    RESULTS,
+    image_errors,
+    make_source,
+    reference,
+    timed_render,
+    write_json,
+)
 
-PAIRS = [("mc", "uniform"), ("mc", "stratified"), ("mc_n", "sppp"), ("vor", "sppp"),
-         ("vor_sn", "sppp"), ("fvor", "sppp"), ("ivor", "sppp"), ("ivor_sn", "sppp"),
-         ("cvor", "uniform"), ("pvor", "uniform"), ("cvor", "stratified")]  # fmt: skip
-DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "render_estimators.json"
+from clrender.runtime import create_runtime  # noqa: E402
+
+PAIRS = [*RENDER_PAIRS, ("cvor", "stratified")]
+DEFAULT_OUTPUT = RESULTS / "render_estimators.json"
 
 
 def parse_args(argv=None):
@@ -46,27 +51,21 @@ def parse_args(argv=None):
 def main(argv=None) -> None:
     args = parse_args(argv)
     runtime = create_runtime()
-    tracer = PathTracer(runtime, load_scene(args.scene), max_depth=8)
-    source = PathTracerSource(tracer, args.size, args.size)
-
-    def run(estimator, sampler, spp, seed):
-        settings = RenderSettings(args.size, args.size, make_sampler(sampler, spp), estimator,
-                                  seed)  # fmt: skip
-        return render(runtime, source, settings)
-
-    reference = run("mc", "stratified", args.reference_spp, 99).film.image().astype(np.float64)
+    ref, ref_var, ref_info = reference(runtime, args.scene, (args.size, args.size),
+                                       args.reference_spp)  # fmt: skip
+    source = make_source(runtime, args.scene, args.size, args.size)
     rows = []
     for estimator, sampler in PAIRS:
-        results = [run(estimator, sampler, args.spp, seed) for seed in args.seeds]
-        mses = [float(np.mean((r.film.image() - reference) ** 2)) for r in results]
-        host = statistics.mean(r.stats.host_seconds for r in results)
+        renders = [timed_render(runtime, source, estimator, sampler, args.spp, seed)
+                   for seed in args.seeds]  # fmt: skip
+        mses = [image_errors(image, ref, ref_var)["mse"] for image, _ in renders]
+        host = statistics.mean(row["host_s"] for _, row in renders)
         rows.append({"estimator": estimator, "sampler": sampler, "mse": statistics.mean(mses),
                      "mse_per_seed": mses, "host_s": host})  # fmt: skip
         print(f"{estimator:8s} {sampler:10s} MSE {rows[-1]['mse']:.5f} "
               f"({', '.join(f'{m:.5f}' for m in mses)})  host {host:.2f} s", flush=True)
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps({"settings": {k: str(v) for k, v in vars(args).items()},
-                                       "rows": rows}, indent=2))  # fmt: skip
+    write_json(args.output, {"settings": {k: str(v) for k, v in vars(args).items()},
+                             "reference": ref_info, "rows": rows})  # fmt: skip
     print(f"wrote {args.output}")
 
 
