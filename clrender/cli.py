@@ -3,7 +3,9 @@
 With no command it lists the OpenCL platforms and devices and runs a self-check kernel on
 the selected device; `render` renders a scene to a linear EXR and an sRGB PNG preview. Errors
 the user can fix print as one line (no traceback unless --debug) and exit with status 2;
-an interrupted render writes what it has and exits with status 130.
+an interrupted render writes what it has and exits with status 130. Warnings (a scene with
+no emitter, a camera inside a solid shape) print one line each on stderr and do not change
+the exit status.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import argparse
 import contextlib
 import signal
 import sys
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -213,15 +216,19 @@ def make_source(args: argparse.Namespace, runtime):
         return AnalyticSource.for_scene(args.scene, runtime.queue, width, height), None
     from clrender.analytic import ANALYTIC_KINDS
     from clrender.radiance import PathTracerSource
-    from clrender.scene import SceneError, load_scene
+    from clrender.scene import SceneError, SceneWarning, load_scene
     from clrender.trace import PathTracer
 
     try:
-        scene = load_scene(args.scene)
+        with warnings.catch_warnings():  # printed below, once each, as one line
+            warnings.simplefilter("ignore", SceneWarning)
+            scene = load_scene(args.scene)
     except SceneError as err:
         if Path(args.scene).exists():
             raise
         raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
+    for note in scene.warnings:
+        print(f"clrender: warning: {note}", file=sys.stderr)
     tracer = PathTracer(runtime, scene, max_depth=args.max_depth)
     width, height = tracer.image_size(*(size or (None, None)))
     return PathTracerSource(tracer, width, height), args.max_depth

@@ -27,6 +27,7 @@ from clrender.errors import ClrenderError
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+SRGB_BLOCK = 1 << 18  # values per block of the sRGB encoding (2 MB float64 temporaries)
 # Attributes every scanline EXR carries; read_exr leaves them out of the metadata it returns.
 STANDARD_EXR_ATTRIBUTES = {
     "channels", "compression", "dataWindow", "displayWindow", "lineOrder",
@@ -46,11 +47,23 @@ def check_writable(path: str | os.PathLike) -> Path:
         raise OutputPathError(f"cannot write {path}: it is a directory")
     if not directory.is_dir():
         raise OutputPathError(f"cannot write {path}: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK | os.X_OK):
+    if not os.access(directory, os.W_OK | os.X_OK) or not can_create_in(directory):
         raise OutputPathError(f"cannot write {path}: directory {directory} is not writable")
     if path.exists() and not os.access(path, os.W_OK):
         raise OutputPathError(f"cannot write {path}: the existing file is read-only")
     return path
+
+
+def can_create_in(directory: Path) -> bool:
+    """Whether a file can be created in `directory`, tried for real: os.access says yes to
+    root on a read-only directory, and knows nothing of read-only mounts."""
+    try:
+        fd, name = tempfile.mkstemp(dir=directory, prefix=".clrender-probe.", suffix=".tmp")
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(name)
+    return True
 
 
 def current_umask() -> int:
@@ -150,8 +163,17 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
 
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
-    """8-bit sRGB code values, rounded to nearest."""
-    return np.floor(srgb_encode(linear) * 255.0 + 0.5).astype(np.uint8)
+    """8-bit sRGB code values, rounded to nearest. Computed SRGB_BLOCK values at a time: the
+    float64 temporaries of a whole image would be the peak memory of a large render."""
+    linear = np.asarray(linear)
+    flat = linear.reshape(-1)
+    codes = np.empty(flat.shape, np.uint8)
+    for start in range(0, flat.size, SRGB_BLOCK):
+        block = flat[start : start + SRGB_BLOCK]
+        codes[start : start + SRGB_BLOCK] = np.floor(srgb_encode(block) * 255.0 + 0.5).astype(
+            np.uint8
+        )
+    return codes.reshape(linear.shape)
 
 
 def png_chunk(kind: bytes, data: bytes) -> bytes:

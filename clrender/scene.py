@@ -65,8 +65,12 @@ sphere.radius       number > 0   required   radius; the normal points outwards
 
 (a) a quad takes either ``corner`` + ``edge1`` + ``edge2`` or ``vertices``.
 
-Optional top-level ``description`` (string). A scene without an emitter renders black: loading
-it warns (`SceneWarning`).
+Optional top-level ``description`` (string). Loading warns (`SceneWarning`, listed in
+`Scene.warnings`) when a scene will not render what one expects: no emitter (the image is
+black), or the camera inside a solid shape. That check is cheap and deliberately narrow:
+``look_from`` strictly inside a sphere, or strictly inside a box (in the box's own frame,
+before its rotation and translation). Quads are never solids, so a camera inside a room of
+quads (the Cornell box, the furnace) is not flagged.
 """
 
 from __future__ import annotations
@@ -75,6 +79,7 @@ import difflib
 import math
 import tomllib
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -160,6 +165,8 @@ RAY_EPSILON_SCALE = 1e-5
 # Quad blocks' bounding boxes are padded outwards by this fraction of the scene's diagonal (far
 # above float rounding in the slab test, so a box never rejects a ray that hits one of its quads).
 BLOCK_BOUNDS_PADDING = 1e-4
+# A block whose box fills this fraction of the volume of all blocks' boxes is always tested.
+BLOCK_BOUNDS_SKIP_FILL = 0.9
 # Relative tolerance of the parallelogram check of quad vertices.
 PARALLELOGRAM_TOLERANCE = 1e-5
 
@@ -400,9 +407,14 @@ class SceneBuilder:
         self.quad_names: list[str] = []
         self.spheres: list[dict] = []
         self.sphere_names: list[str] = []
+        self.solids: list[tuple[str, Callable[[np.ndarray], bool]]] = []  # (label, inside)
 
     def build(self, document: dict) -> Scene:
         top = _Table(self.path, "top level", document)
+        for key in ("emitters", "emitter", "lights", "light"):
+            if key in document:
+                top.fail(key, "unknown field: an emitter is a [[shapes]] quad with an "
+                              "`emission` field")  # fmt: skip
         top.check_keys(TOP_FIELDS)
         description = top.string("description", "") or ""
         camera = self.read_camera(_Table(self.path, "[camera]", top.get("camera", _REQUIRED)))
@@ -483,6 +495,8 @@ class SceneBuilder:
             hint = _did_you_mean(kind, tuple(SHAPE_FIELDS))
             table.fail("type", f"unknown shape type {kind!r}{hint}; accepted: "
                                f"{', '.join(SHAPE_FIELDS)}")  # fmt: skip
+        if kind != "quad" and table.has("emission"):
+            table.fail("emission", f"a {kind} cannot be an emitter: only quads emit")
         table.check_keys(SHAPE_FIELDS[kind])
         name = table.string("name", None) or f"shapes[{index}]"
         emission = table.rgb("emission", None) if table.has("emission") else None
@@ -493,7 +507,7 @@ class SceneBuilder:
             corner, edge1, edge2 = self.read_quad_frame(table)
             self.add_quad(table, name, corner, edge1, edge2, material, emission)
         elif kind == "box":
-            self.read_box(table, name, material)
+            self.read_box(table, name, label, material)
         else:
             center = table.vector("center", _REQUIRED)
             radius = table.number("radius", _REQUIRED, what=" > 0")
@@ -501,6 +515,9 @@ class SceneBuilder:
                 table.fail("radius", f"expected a number > 0, got {radius:g}")
             self.spheres.append({"center": center, "radius": radius, "material": material})
             self.sphere_names.append(name)
+            centre = np.array(center)
+            self.solids.append((f"{label} (a sphere)",
+                                lambda p: float(np.linalg.norm(p - centre)) < radius))  # fmt: skip
 
     def material_reference(self, table: _Table, required: bool) -> int:
         name = table.string("material", _REQUIRED if required else None)
@@ -557,7 +574,7 @@ class SceneBuilder:
         )
         self.quad_names.append(name)
 
-    def read_box(self, table: _Table, name: str, material: int) -> None:
+    def read_box(self, table: _Table, name: str, label: str, material: int) -> None:
         low = np.array(table.vector("min", _REQUIRED))
         high = np.array(table.vector("max", _REQUIRED))
         if np.any(high <= low):
@@ -578,6 +595,12 @@ class SceneBuilder:
             )
             self.quad_names.append(f"{name}/face{face}")
 
+        def inside(point: np.ndarray) -> bool:
+            local = rotate_y(point - translate, -angle)
+            return bool(np.all(low < local) and np.all(local < high))
+
+        self.solids.append((f"{label} (a box)", inside))
+
     # -- packing
     def finish(self, camera: Camera, description: str) -> Scene:
         quads = pack_quads(self.quads)
@@ -597,6 +620,12 @@ class SceneBuilder:
             notes.append(f"{self.path}: the scene has no emitter (no quad with emission): "
                          "it renders black")  # fmt: skip
             warnings.warn(notes[-1], SceneWarning, stacklevel=3)
+        origin = np.array(camera.look_from)
+        for label, inside in self.solids:
+            if inside(origin):
+                where = f"[camera] look_from {list(camera.look_from)} is inside {label}"
+                notes.append(f"{self.path}: {where}: the image shows that shape from the inside")
+                warnings.warn(notes[-1], SceneWarning, stacklevel=3)
         return Scene(
             path=self.path,
             name=self.path.stem,
@@ -703,7 +732,9 @@ def pack_quad_blocks(
     """The quads in blocks of `width` lanes (structure of arrays), grouped as
     plan_quad_blocks says (default: in order, each quad its own group); unused lanes never
     hit (zero normal, plane_d = -1, so t = -inf; quad -1). Each block carries the bounding box
-    of its quads, padded by `padding` and rounded outwards to float32."""
+    of its quads, padded by `padding` and rounded outwards to float32; lower[3] = 1 flags a
+    block whose box fills most (BLOCK_BOUNDS_SKIP_FILL) of the volume of all blocks' boxes
+    (the enclosing walls): the kernel skips its box test, which nearly every ray passes."""
     if groups is None:
         groups = list(range(len(quads)))
     plan = plan_quad_blocks(groups, width)
@@ -725,6 +756,12 @@ def pack_quad_blocks(
         upper = (stacked.max(axis=0) + padding).astype(np.float32)
         block["lower"][:3] = np.nextafter(lower, np.float32(-np.inf))
         block["upper"][:3] = np.nextafter(upper, np.float32(np.inf))
+    if len(blocks):
+        lower = blocks["lower"][:, :3].astype(np.float64)
+        upper = blocks["upper"][:, :3].astype(np.float64)
+        volumes = np.prod(upper - lower, axis=1)
+        whole = np.prod(upper.max(axis=0) - lower.min(axis=0))
+        blocks["lower"][:, 3] = volumes >= BLOCK_BOUNDS_SKIP_FILL * whole
     return blocks
 
 
