@@ -31,17 +31,22 @@ CL_INLINE int Lanes_MinInt(int8 v)
     return v2.x < v2.y ? v2.x : v2.y;
 }
 
-// Whether the ray o + t d (inv_d = 1 / d) meets the block's bounding box for some t in
-// [0, tmax] (slab test; a NaN from a zero direction on a slab's plane never rejects).
+// Whether the ray o + t d (inv_d = 1 / d) can meet the block's bounding box for some t in
+// [0, tmax] (slab test). Always true for a block flagged as enclosing the scene (lower[3] = 1:
+// every ray meets it). A NaN (zero direction on a slab's plane) never rejects.
 CL_INLINE bool QuadBlock_BoundsHit(__global const QuadBlock *block, float3 o, float3 inv_d,
                                    float tmax)
 {
+    if (block->lower[3] != 0.0f)
+        return true;
     float3 t0 = (Load3(block->lower) - o) * inv_d;
     float3 t1 = (Load3(block->upper) - o) * inv_d;
     float3 t_near = t0 < t1 ? t0 : t1;
     float3 t_far = t0 < t1 ? t1 : t0;
-    float t_enter = Fmax(Fmax(t_near.x, t_near.y), t_near.z);
-    float t_exit = Fmin(Fmin(t_far.x, t_far.y), t_far.z);
+    float t_enter = t_near.x > t_near.y ? t_near.x : t_near.y;
+    t_enter = t_enter > t_near.z ? t_enter : t_near.z;
+    float t_exit = t_far.x < t_far.y ? t_far.x : t_far.y;
+    t_exit = t_exit < t_far.z ? t_exit : t_far.z;
     return !(t_enter > t_exit || t_exit < 0.0f || t_enter > tmax);
 }
 

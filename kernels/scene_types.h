@@ -29,7 +29,8 @@ typedef struct {
 // ray is tested against a whole block with vector instructions). Unused lanes at the end have
 // a zero normal and plane_d = -1: t = -inf, never a hit. Lane j of the block is scene quad
 // quad[j] (-1 for unused lanes); the faces of one object (a box) share a block, so a ray that
-// misses the block's bounding box (lower, upper: padded outwards; w unused) skips them all.
+// misses the block's bounding box (lower, upper: padded outwards) skips them all; lower[3] = 1
+// flags a block whose box holds the whole scene (the room's walls): no box test.
 // (Width 16 crashes the LLVM 14 of pip's PoCL 3.0: "Cannot emit physreg copy instruction".)
 #define QUAD_BLOCK_WIDTH 8
 typedef struct {
