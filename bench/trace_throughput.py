@@ -2,6 +2,7 @@
 
     python bench/trace_throughput.py                       # 256 x 256, 64 spp, depth 8
     python bench/trace_throughput.py --scenes mitsuba-cbox --samplers uniform --repeats 5
+    python bench/trace_throughput.py --profile --samplers uniform --spp 16   # where time goes
 
 For every scene and sampler: draw the sample sets once, trace once to warm up (PoCL compiles
 a work-group function on the first launch), then time `repeats` traces and report medians.
@@ -10,6 +11,11 @@ it records the process CPU time per trace: on a shared machine, cpu/wall well be
 device's compute-unit count means other processes were taking cores and the wall-clock figure
 is pessimistic; `cpu_paths_per_s` = paths per CPU-second x compute units is the estimate for an
 otherwise idle machine. Output: JSON (default bench/results/trace_throughput.json).
+
+--profile adds, per scene (first sampler), the variants the optimisation work used: depth 0
+(camera rays only), depth 1, depth 8 without NEE, and depth 8 with shadow rays counted but not
+traced (a profiling build, PROFILE_SKIP_SHADOW_RAYS); it prints CPU ns per path for each and
+derived costs (per shadow ray traced, per bounce vertex, per camera ray).
 """
 
 from __future__ import annotations
@@ -47,6 +53,9 @@ def parse_args(argv=None):
         help="Russian roulette (ours starts after the second vertex, Mitsuba's at depth 5)",
     )
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--profile", action="store_true", help="also time the profile variants (see above)"
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--device", default=None)
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
@@ -66,14 +75,15 @@ def time_traces(tracer, sets, seed, size, repeats):
     return runs
 
 
-def bench_one(runtime, scene_name, sampler, args):
+def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defines=None):
     scene = load_scene(scene_name)
     tracer = PathTracer(
         runtime,
         scene,
-        max_depth=args.max_depth,
+        max_depth=args.max_depth if max_depth is None else max_depth,
         russian_roulette=args.russian_roulette,
-        next_event_estimation=not args.no_nee,
+        next_event_estimation=(not args.no_nee) if nee is None else nee,
+        profile_defines=defines,
     )
     pixels = tile_pixels(args.size, 0, 0, args.size, args.size)
     sets = generate_sample_sets(runtime, make_sampler(sampler, args.spp), args.seed, pixels)
@@ -81,21 +91,73 @@ def bench_one(runtime, scene_name, sampler, args):
     wall = statistics.median(r[0] for r in runs)
     cpu = statistics.median(r[1] for r in runs)
     paths = sets.traced_total
+    rays = runs[-1][2]
     units = runtime.device.max_compute_units
     return {
         "scene": scene_name,
         "sampler": sampler,
+        "max_depth": tracer.max_depth,
+        "next_event_estimation": tracer.next_event_estimation,
+        "defines": defines or {},
         "paths": paths,
-        "rays": runs[-1][2],
+        "rays": rays,
+        "rays_per_path": rays / paths,
         "nonfinite": runs[-1][3],
         "wall_s": wall,
         "cpu_s": cpu,
         "paths_per_s": paths / wall,
-        "rays_per_s": runs[-1][2] / wall,
+        "rays_per_s": rays / wall,
         "cpu_over_wall": cpu / wall,
         "cpu_paths_per_s": paths / cpu * units,
+        "cpu_rays_per_s": rays / cpu * units,
+        "cpu_ns_per_path": cpu / paths * 1e9,
         "wall_s_all": [r[0] for r in runs],
+        "cpu_s_all": [r[1] for r in runs],
     }
+
+
+def print_row(row, label):
+    print(f"{row['scene']:20s} {label:28s} wall {row['paths_per_s'] / 1e6:6.3f} M paths/s "
+          f"{row['rays_per_s'] / 1e6:6.2f} M rays/s | cpu/wall {row['cpu_over_wall']:.2f} | "
+          f"CPU-time estimate {row['cpu_paths_per_s'] / 1e6:6.3f} M paths/s "
+          f"{row['cpu_rays_per_s'] / 1e6:6.2f} M rays/s ({row['rays_per_path']:.2f} rays/path, "
+          f"{row['cpu_ns_per_path']:.0f} CPU ns/path)", flush=True)  # fmt: skip
+
+
+PROFILE_VARIANTS = {
+    # name: (max_depth, next_event_estimation, kernel defines)
+    "depth0": (0, True, None),
+    "depth1": (1, True, None),
+    "no_nee": (None, False, None),
+    "shadow_rays_untraced": (None, True, {"PROFILE_SKIP_SHADOW_RAYS": True}),
+}
+
+
+def profile_scene(runtime, scene_name, sampler, args, full):
+    """The profile variants of one scene and the costs derived from them (CPU ns)."""
+    rows = {"full": full}
+    for name, (depth, nee, defines) in PROFILE_VARIANTS.items():
+        rows[name] = bench_one(runtime, scene_name, sampler, args, depth, nee, defines)
+        print_row(rows[name], f"{sampler} {name}")
+    ns = {name: row["cpu_ns_per_path"] for name, row in rows.items()}
+    shadow_rays = full["rays_per_path"] - rows["no_nee"]["rays_per_path"]
+    bounce_rays = rows["no_nee"]["rays_per_path"] - 1.0
+    derived = {
+        "cpu_ns_per_path": ns,
+        "shadow_rays_per_path": shadow_rays,
+        "camera_ray_ns": ns["depth0"],
+        # NEE (light sample, BSDF eval, shadow ray) per shadow ray; and its ray query alone
+        "nee_ns_per_shadow_ray": (ns["full"] - ns["no_nee"]) / max(shadow_rays, 1e-9),
+        "shadow_query_ns_per_shadow_ray": (ns["full"] - ns["shadow_rays_untraced"])
+        / max(shadow_rays, 1e-9),
+        # BSDF sampling, two Philox draws and the closest-hit query, per bounce (no NEE)
+        "bounce_ns_per_vertex": (ns["no_nee"] - ns["depth0"]) / max(bounce_rays, 1e-9),
+    }
+    print(f"{scene_name:20s} profile: camera ray {derived['camera_ray_ns']:.0f} ns; per bounce "
+          f"vertex {derived['bounce_ns_per_vertex']:.0f} ns; per shadow ray: NEE "
+          f"{derived['nee_ns_per_shadow_ray']:.0f} ns of which the occlusion query "
+          f"{derived['shadow_query_ns_per_shadow_ray']:.0f} ns (CPU ns)", flush=True)  # fmt: skip
+    return {"variants": list(rows.values())[1:], "derived": derived}
 
 
 def main(argv=None):
@@ -103,14 +165,15 @@ def main(argv=None):
     runtime = create_runtime(args.device)
     load_before = os.getloadavg()
     rows = []
+    profiles = {}
     for scene_name in args.scenes:
         for sampler in args.samplers:
             row = bench_one(runtime, scene_name, sampler, args)
             rows.append(row)
-            print(f"{scene_name:20s} {sampler:10s} {row['paths_per_s'] / 1e6:6.3f} M paths/s "
-                  f"{row['rays_per_s'] / 1e6:6.2f} M rays/s  (cpu/wall {row['cpu_over_wall']:.2f},"
-                  f" idle-machine estimate {row['cpu_paths_per_s'] / 1e6:.3f} M paths/s)",
-                  flush=True)  # fmt: skip
+            print_row(row, sampler)
+        if args.profile:
+            profiles[scene_name] = profile_scene(runtime, scene_name, args.samplers[0], args,
+                                                 rows[-len(args.samplers)])  # fmt: skip
     report = {
         "device": runtime.describe(),
         "compute_units": runtime.device.max_compute_units,
@@ -125,6 +188,7 @@ def main(argv=None):
         "pocl_env": {k: v for k, v in os.environ.items() if k.startswith(("POCL", "PYOPENCL"))},
         "numpy": np.__version__,
         "results": rows,
+        "profile": profiles,
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(report, indent=1))

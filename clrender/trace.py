@@ -83,6 +83,7 @@ class PathTracer:
         max_depth: int = 8,
         russian_roulette: bool = False,
         next_event_estimation: bool = True,
+        profile_defines: dict[str, object] | None = None,
     ):
         if (
             isinstance(max_depth, bool)
@@ -104,7 +105,9 @@ class PathTracer:
         self._quad_blocks = scene.quad_blocks(QUAD_BLOCK_WIDTH)
         self._buffers["quad_blocks"] = _upload(runtime, self._quad_blocks)
         self._cameras: dict[tuple[int, int], cl.Buffer] = {}
-        self._kernel = runtime.kernel("integrator.cl", "trace_paths")
+        # Profiling builds only (bench/trace_throughput.py --profile), e.g.
+        # {"PROFILE_SKIP_SHADOW_RAYS": True}: shadow rays counted but not traced.
+        self._kernel = runtime.kernel("integrator.cl", "trace_paths", profile_defines)
 
     def camera_buffer(self, width: int, height: int) -> cl.Buffer:
         key = (width, height)

@@ -62,8 +62,10 @@ CL_INLINE float3 SampleDirect(const SceneData *scene, Surface *surface, Frame fr
         return (float3)(0.0f);
     float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, scene->ray_eps);
     *rays += 1u;
+#ifndef PROFILE_SKIP_SHADOW_RAYS // profiling build: every shadow ray counts as unblocked
     if (Scene_Occluded(scene, origin, wi, dist - 2.0f * scene->ray_eps))
         return (float3)(0.0f);
+#endif
     float weight = PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
     return f * Le * (weight / light_pdfW);
 }
