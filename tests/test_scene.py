@@ -217,3 +217,26 @@ def test_unknown_scene_name_suggests():
     with pytest.raises(SceneError, match="did you mean 'cornell-box'") as info:
         load_scene("cornel-box")
     assert isinstance(info.value, ClrenderError)
+
+
+def test_camera_inside_a_sphere_or_box_warns_and_only_then(tmp_path):
+    # The check: look_from strictly inside a sphere, or inside a box in its own frame.
+    box = (
+        '\n[[shapes]]\nname = "crate"\ntype = "box"\nmin = [-1.0, -1.0, -1.0]\n'
+        "max = [1.0, 1.0, 1.0]\nrotate_y = 45.0\ntranslate = [0.0, 0.0, 5.0]\n"
+        'material = "white"\n'
+    )
+    with pytest.warns(SceneWarning, match=r"look_from \[0.0, 0.0, 5.0\] is inside shapes\[2\]"):
+        scene = load_scene(write(tmp_path, MINIMAL + box))
+    assert len(scene.warnings) == 1 and "(a box)" in scene.warnings[0]
+    # (1, 0, 6) lies in the rotated box's bounding box but outside the box itself.
+    outside = MINIMAL.replace("look_from = [0.0, 0.0, 5.0]", "look_from = [1.0, 0.0, 6.0]")
+    assert load_scene(write(tmp_path, outside + box, "outside.toml")).warnings == []
+    # On the sphere's surface is not inside; a little further in is.
+    surface = MINIMAL.replace("radius = 1.0", "radius = 7.0")
+    assert load_scene(write(tmp_path, surface, "surface.toml")).warnings == []
+    inside = MINIMAL.replace("radius = 1.0", "radius = 7.001")
+    with pytest.warns(SceneWarning, match=r"inside shapes\[1\] \('ball'\) \(a sphere\)"):
+        load_scene(write(tmp_path, inside, "inside.toml"))
+    # A room of quads is no solid: the furnace's camera sits inside six quads on purpose.
+    assert load_scene("furnace").warnings == []
