@@ -1,0 +1,60 @@
+"""Smoke runs of the study benches at tiny settings, in-process (a few seconds each): every
+output file is written and the JSON holds what the report quotes."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+sys.path.insert(0, str(BENCH))
+
+pytest.importorskip("matplotlib")
+common = pytest.importorskip("common")
+
+
+@pytest.fixture(autouse=True)
+def private_references(tmp_path, monkeypatch):
+    monkeypatch.setattr(common, "REFERENCE_DIR", tmp_path / "references")
+
+
+def test_01_pixel_study(tmp_path):
+    import pixel_study
+
+    pixel_study.main(["--quick", "--runs", "4", "--spp", "16", "--timing-runs", "2", "--size", "64",
+                      "--out", str(tmp_path)])
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert set(results["pixels"]) == {"light_edge", "diffuse_wall", "glass_ball"}
+    for name in results["pixels"]:
+        assert (tmp_path / f"fig6_{name}.png").exists() and (tmp_path / f"fig9_{name}.png").exists()
+
+
+def test_02_image_study(tmp_path):
+    import image_study
+
+    image_study.main(["--quick", "--size", "8", "--spp", "4", "--reference-spp", "16",
+                      "--out", str(tmp_path)])
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert len(results["rows"]) == len(common.RENDER_PAIRS)
+    assert (tmp_path / "error_maps.png").exists() and (tmp_path / "report.md").exists()
+
+
+def test_03_efficiency_study_and_perf_ratio(tmp_path):
+    import efficiency_study
+
+    efficiency_study.main(["--quick", "--size", "8", "--spp", "4", "--reference-spp", "16",
+                           "--scenes", "cornell-box", "--out", str(tmp_path)])
+    assert (tmp_path / "efficiency_cornell-box.png").exists()
+    efficiency_study.main(["--perf-ratio", "--quick", "--size", "8", "--spp", "4",
+                           "--out", str(tmp_path)])
+    ratio = json.loads((tmp_path / "perf_ratio.json").read_text())
+    assert ratio["ratio_wall"] > 0 and ratio["repeats"] == 1
+
+
+def test_04_cells_figure(tmp_path):
+    import cells_figure
+
+    cells_figure.main(["--n", "8", "--size", "64", "--out", str(tmp_path)])
+    assert (tmp_path / "cells.png").exists()
+    assert len(list(tmp_path.glob("cells_*_n8.png"))) == 3
