@@ -16,8 +16,8 @@ and variance over the R runs; milliseconds per estimate of the estimator alone (
 run alone on the first --timing-runs runs, the fastest of >= 3 calls / runs; tessellation +
 sums, on the host) and of tracing (the launch's draw + trace + download time / runs);
 variance against their sum. mc over stratified samples only at square spp. Outputs (default
-bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std against spp), fig9_<pixel>.png (time against spp, variance
-against time).
+bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std
+against spp), fig9_<pixel>.png (time against spp, variance against time).
 """
 
 from __future__ import annotations
