@@ -111,8 +111,8 @@ def save_images(images: dict, ref: np.ndarray, out: Path) -> float:
     return vmax
 
 
-def plot_grids(images: dict, ref: np.ndarray, rows: list[dict], vmax: float, args,
-               out: Path) -> None:  # fmt: skip
+def plot_grids(images: dict, ref: np.ndarray, ref_var: np.ndarray, rows: list[dict],
+               vmax: float, args, out: Path) -> None:  # fmt: skip
     mse = {pair_label(r["estimator"], r["sampler"]): r["mse"] for r in rows}
     cols = 4
     panels = len(images) + 1
@@ -121,9 +121,12 @@ def plot_grids(images: dict, ref: np.ndarray, rows: list[dict], vmax: float, arg
         fig, axes = plt.subplots(nrows, cols, figsize=(3.2 * cols, 3.3 * nrows), squeeze=False)
         for ax in axes.flat:
             ax.set_axis_off()
-        axes.flat[0].imshow(srgb8(ref) if kind == "renders" else np.zeros(ref.shape[:2]),
-                            cmap=ERROR_COLOURMAP, vmin=0, vmax=vmax)  # fmt: skip
-        axes.flat[0].set_title(f"reference ({args.reference_spp} spp)", fontsize=9)
+        # The reference itself, and on the error maps its own noise (std of the mean).
+        noise = np.sqrt(ref_var).mean(axis=-1)
+        axes.flat[0].imshow(srgb8(ref) if kind == "renders" else noise, cmap=ERROR_COLOURMAP,
+                            vmin=0, vmax=vmax)  # fmt: skip
+        axes.flat[0].set_title(f"reference ({args.reference_spp} spp)" if kind == "renders"
+                               else "reference noise (std)", fontsize=9)  # fmt: skip
         for ax, (label, image) in zip(axes.flat[1:], images.items(), strict=False):
             shown = srgb8(image) if kind == "renders" else error_map(image, ref)
             handle = ax.imshow(shown, cmap=ERROR_COLOURMAP, vmin=0, vmax=vmax)
@@ -197,7 +200,7 @@ def main(argv=None) -> None:
     ref, ref_var, ref_info = reference(runtime, args.scene, size, args.reference_spp)
     rows, images = run_pairs(runtime, args, ref, ref_var)
     vmax = save_images(images, ref, args.out)
-    plot_grids(images, ref, rows, vmax, args, args.out)
+    plot_grids(images, ref, ref_var, rows, vmax, args, args.out)
     results = {"settings": {k: str(v) for k, v in vars(args).items()}, "reference": ref_info,
                "rows": rows, "paper_mse": PAPER_MSE, "error_scale_max": vmax,
                "machine": machine(), "seconds": time.perf_counter() - start}  # fmt: skip
