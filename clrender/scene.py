@@ -497,6 +497,9 @@ class SceneBuilder:
                                f"{', '.join(SHAPE_FIELDS)}")  # fmt: skip
         if kind != "quad" and table.has("emission"):
             table.fail("emission", f"a {kind} cannot be an emitter: only quads emit")
+        if table.has("emitter"):  # Mitsuba's nested emitter: here a quad field, no types
+            table.fail("emitter", "unknown field: there are no emitter types; a quad emits "
+                                  "with `emission = [r, g, b]`")  # fmt: skip
         table.check_keys(SHAPE_FIELDS[kind])
         name = table.string("name", None) or f"shapes[{index}]"
         emission = table.rgb("emission", None) if table.has("emission") else None

@@ -104,6 +104,8 @@ SCENE_ERRORS = [
     ('type = "diffuse"', 'type = "glass"', ["unknown material type 'glass'", "dielectric"]),
     ("radius = 1.0", "radius = 1.0\nemission = [1.0, 1.0, 1.0]",
      ["'ball'), field 'emission'", "a sphere cannot be an emitter: only quads emit"]),
+    ("emission = [1.0, 1.0, 1.0]", 'emitter = { type = "area", radiance = [1.0, 1.0, 1.0] }',
+     ["shapes[0] ('lamp'), field 'emitter'", "no emitter types", "`emission = [r, g, b]`"]),
     ("[materials.white]", '[[emitters]]\ntype = "area"\n\n[materials.white]',
      ["top level, field 'emitters'", "an emitter is a [[shapes]] quad with an `emission`"]),
     ("radius = 1.0", "radius = -0.5", ["field 'radius'", "> 0, got -0.5"]),
@@ -118,8 +120,9 @@ SCENE_ERRORS = [
 ]  # fmt: skip
 SCENE_ERROR_IDS = [
     "toml-syntax", "missing-field", "misspelt-field", "wrong-type", "unknown-shape",
-    "unknown-material", "emitter-on-sphere", "emitters-table", "negative-radius", "nan-radius",
-    "inf-radius", "inf-vector", "degenerate-quad", "negative-box-size",
+    "unknown-material", "emitter-on-sphere", "emitter-type", "emitters-table",
+    "negative-radius", "nan-radius", "inf-radius", "inf-vector", "degenerate-quad",
+    "negative-box-size",
 ]  # fmt: skip
 
 
