@@ -788,7 +788,10 @@ def storm_markdown(storm: dict) -> list[str]:
              "1/16). Rounds and Qhull calls are per driver call (pixels are split into calls "
              "of about 200 000 points).", "", *table(header, rows), "",
              "With on_exhausted='raise' and the default driver: "
-             f"`{storm['defaults_on_exhausted_raise']}`", "",
+             + (f"`{storm['defaults_on_exhausted_raise']}`"
+                if storm["defaults_on_exhausted_raise"] else
+                "no error (the driver recovered: its first enlargement reaches the paper's "
+                "eps)"), "",
              "Bias on holder_1 of the pixels accepted at each eps (driver factor 1.5):", ""]
     by_eps = storm["runs"][STORM_ATLAS_DRIVER]["by_accept_eps"]
     lines += table(["eps at acceptance", "n'", "paper's bound there", "pixels", *SPPP_NAMES],

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from clrender.errors import ClrenderError, ParameterError
-from clrender.sppp import SpppBatch, draw_sppp
+from clrender.sppp import SpppBatch, draw_sppp, sppp_eps
 from clrender.voronoi import estimate_with_redraw
 
 N = 256
@@ -21,13 +21,14 @@ def sppp_drawer(seed: int):
 
 def test_tiny_eps_terminates_counts_and_enlarges_eps():
     # eps = 0.01 is far below sppp_eps(256) = 0.144: nearly every pixel is rejected until eps
-    # has been enlarged a few times (each round after the 3rd multiplies it by 1.5).
+    # has been enlarged: the first enlargement (after 3 redraws) jumps to the paper's eps at
+    # least, each later one multiplies it by 1.5.
     outcome = estimate_with_redraw(["vor", "vor_sn", "fvor"], sppp_drawer(31), holder_1,
                                    pixels=40, n=N, eps=0.01)
     stats = outcome.stats
     assert stats.redraws > 40
     assert stats.eps_enlargements >= 1
-    assert stats.final_eps == pytest.approx(0.01 * 1.5 ** stats.eps_enlargements)
+    assert stats.final_eps == pytest.approx(sppp_eps(N) * 1.5 ** (stats.eps_enlargements - 1))
     assert stats.rounds == len(stats.redraws_per_round) + 1
     assert sum(stats.redraws_per_round) == stats.redraws
     for values in outcome.estimates.values():
