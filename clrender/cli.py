@@ -205,20 +205,14 @@ def check_render_args(args: argparse.Namespace) -> None:
         raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
 
 
-def make_source(args: argparse.Namespace, runtime):
-    """(radiance source, max depth or None) for the scene argument at the requested size."""
-    from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource, is_analytic_scene
-
-    size = parse_resolution(args.res)
-    if is_analytic_scene(args.scene):
-        width, height = DEFAULT_RESOLUTION if size is None else size
-        height = width if height is None else height
-        return AnalyticSource.for_scene(args.scene, runtime.queue, width, height), None
-    from clrender.analytic import ANALYTIC_KINDS
-    from clrender.radiance import PathTracerSource
+def load_scene_arg(args: argparse.Namespace):
+    """The scene named by the argument (None for an analytic image), loaded before any OpenCL
+    work so that a bad scene file is reported without a device; warnings printed once each."""
+    from clrender.analytic import ANALYTIC_KINDS, is_analytic_scene
     from clrender.scene import SceneError, SceneWarning, load_scene
-    from clrender.trace import PathTracer
 
+    if is_analytic_scene(args.scene):
+        return None
     try:
         with warnings.catch_warnings():  # printed below, once each, as one line
             warnings.simplefilter("ignore", SceneWarning)
@@ -229,6 +223,21 @@ def make_source(args: argparse.Namespace, runtime):
         raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
     for note in scene.warnings:
         print(f"clrender: warning: {note}", file=sys.stderr)
+    return scene
+
+
+def make_source(args: argparse.Namespace, runtime, scene):
+    """(radiance source, max depth or None) for the scene (None: the analytic image named by
+    the argument) at the requested size."""
+    from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource
+    from clrender.radiance import PathTracerSource
+    from clrender.trace import PathTracer
+
+    size = parse_resolution(args.res)
+    if scene is None:
+        width, height = DEFAULT_RESOLUTION if size is None else size
+        height = width if height is None else height
+        return AnalyticSource.for_scene(args.scene, runtime.queue, width, height), None
     tracer = PathTracer(runtime, scene, max_depth=args.max_depth)
     width, height = tracer.image_size(*(size or (None, None)))
     return PathTracerSource(tracer, width, height), args.max_depth
@@ -262,8 +271,9 @@ def command_render(args: argparse.Namespace) -> int:
     check_render_args(args)
     label = scene_label(args.scene)
     paths = output_paths(args.output, label)
+    scene = load_scene_arg(args)
     runtime = create_runtime(args.device)
-    source, max_depth = make_source(args, runtime)
+    source, max_depth = make_source(args, runtime, scene)
     settings = settings_from_args(args, source.width, source.height)
     labels = RenderLabels(label, runtime.describe(), max_depth)
     progress = ProgressBar(f"{label} {settings.width}x{settings.height}")
