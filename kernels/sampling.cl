@@ -8,7 +8,11 @@
 // Output layout, one contiguous float2 buffer: all traced samples, pixel by pixel
 // (traced_offsets), then all auxiliary nuclei, pixel by pixel (n_aux each). Auxiliary nuclei are
 // never traced; they only shape Voronoi cells.
+// Random numbers and Poisson draws are inlined: pip PoCL cannot inline calls across its
+// builtin library's CPU target (see vecmath.h), and a call spills every vector register.
+#pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
 #include "poisson.h"
+#pragma clang attribute pop
 
 #define SAMPLER_UNIFORM 0
 #define SAMPLER_STRATIFIED 1
