@@ -149,16 +149,22 @@ def image_errors(image: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray) -
     mse (linear radiance), mse_minus_ref_noise (mse less the reference's own variance, an
     unbiased estimate of the error against the true image), mse_clamped (both images clamped
     to [0, 1]), mse_srgb (both sRGB-encoded after clamping, display values in [0, 1]) and
-    top_share (the share of the squared error in the worst 0.1 % of pixel channels)."""
+    top_share (the share of the squared error in the worst 0.1 % of pixel channels), and
+    bright_share (its share in the pixels brighter than display white, reference RGB mean > 1:
+    the light and pixels its outline crosses) with bright_fraction (how many pixels those are)."""
     sq = (image - ref) ** 2
     flat = np.sort(sq.ravel())[::-1]
     top = max(1, len(flat) // 1000)
+    total = max(float(flat.sum()), 1e-300)
+    bright = ref.mean(axis=-1) > 1.0
     mse = float(sq.mean())
     noise = float(ref_variance.mean())
     return {"mse": mse, "ref_noise": noise, "mse_minus_ref_noise": mse - noise,
             "mse_clamped": float(((np.clip(image, 0, 1) - np.clip(ref, 0, 1)) ** 2).mean()),
             "mse_srgb": float(((srgb_encode(image) - srgb_encode(ref)) ** 2).mean()),
-            "top_share": float(flat[:top].sum() / max(flat.sum(), 1e-300))}  # fmt: skip
+            "top_share": float(flat[:top].sum() / total),
+            "bright_share": float(sq[bright].sum() / total),
+            "bright_fraction": float(bright.mean())}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ alongside.
 Resolution: 256 x 256 when RenderSettings has the device Voronoi backend (voronoi_backend),
 else 128 x 128 (host Qhull cells take minutes per 256 x 256 render on two cores).
 Outputs (default bench/results/image_study/): results.json, report.md, renders.png,
-error_maps.png, error_<estimator>_<sampler>.png, render_<estimator>_<sampler>.png.
+error_maps.png, error_<estimator>_<sampler>.png, render_<estimator>_<sampler>.png and .exr.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from common import (  # noqa: E402
     write_json,
 )
 
-from clrender.imageio import srgb8, write_png  # noqa: E402
+from clrender.imageio import srgb8, write_exr, write_png  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 
 ERROR_COLOURMAP = "inferno"
@@ -106,6 +106,7 @@ def save_images(images: dict, ref: np.ndarray, out: Path) -> float:
     for label, image in images.items():
         name = label.replace("/", "_")
         write_png(out / f"render_{name}.png", image)
+        write_exr(out / f"render_{name}.exr", image)
         plt.imsave(out / f"error_{name}.png", error_map(image, ref), cmap=ERROR_COLOURMAP,
                    vmin=0.0, vmax=vmax)  # fmt: skip
     return vmax
@@ -155,10 +156,18 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
         f"stratified parts) has a measured variance of {noise:.2e} per pixel channel, "
         f"{100 * noise / sn['mse']:.1f} % of vor_sn's MSE and {100 * noise / mc['mse']:.1f} % of "
         "mc's; 'MSE - ref noise' removes it (the render and reference are independent).",
-        f"- Fireflies: the worst 0.1 % of pixel channels hold {100 * mc['top_share']:.0f} % "
-        f"(mc/uniform) and {100 * sn['top_share']:.0f} % (vor_sn) of the squared error; "
-        "the clamped and sRGB columns bound each pixel's error to [0, 1] and show the display-"
-        "level comparison (the paper does not say which it used).",
+        f"- Where the error sits: the pixels brighter than display white (reference RGB mean "
+        f"> 1: the light and the pixels its outline crosses, {100 * mc['bright_fraction']:.1f} "
+        f"% of the image) hold {100 * mc['bright_share']:.0f} % of mc/uniform's squared error "
+        f"and {100 * sn['bright_share']:.0f} % of vor_sn's; the worst 0.1 % of pixel channels "
+        f"hold {100 * mc['top_share']:.0f} % and {100 * sn['top_share']:.0f} %. So the linear "
+        "MSE mostly measures the light's outline, where Voronoi weighting helps most (see "
+        "bench/pixel_study.py). Clamped to [0, 1] (the display range, which removes that "
+        f"outline), mc/uniform : vor_sn = {mc['mse_clamped'] / sn['mse_clamped']:.2f}: on noise-"
+        "dominated pixels the random cell areas add variance (a Poisson-Voronoi cell's area "
+        "has a variance of about 0.28 / n^2, so sum f v has about 1.28x the variance of the "
+        "plain mean when the values are uncorrelated noise). The paper does not say which "
+        "values its MSE was computed on.",
         f"- Absolute levels: our linear MSE of mc is {mc['mse'] / PAPER_MSE['mc']:.2f}x the "
         f"paper's at {args.size} x {args.size} (the paper's resolution is not stated). The "
         "authors' renderer differs from ours (NOTES.md section 4: exactly n points, a corner-"
@@ -170,10 +179,10 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
 def report(results: dict, args, argv) -> str:
     rows = results["rows"]
     header = ["pair", "MSE", "MSE - ref noise", "MSE clamped", "MSE sRGB", "top 0.1 % share",
-              "paper MSE", "wall s", "device s", "host s"]  # fmt: skip
+              "bright share", "paper MSE", "wall s", "device s", "host s"]  # fmt: skip
     paper = {"mc/uniform": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
     table = [[pair_label(r["estimator"], r["sampler"]), r["mse"], r["mse_minus_ref_noise"],
-              r["mse_clamped"], r["mse_srgb"], r["top_share"],
+              r["mse_clamped"], r["mse_srgb"], r["top_share"], r["bright_share"],
               paper.get(pair_label(r["estimator"], r["sampler"]), ""), r["wall_s"],
               r["device_s"], r["host_s"]] for r in rows]  # fmt: skip
     ref = results["reference"]
