@@ -109,6 +109,9 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
              "about 600 MB at the default 4000000")
     add("--no-overlap", action="store_true",
         help="run the host estimator after each tile instead of during the next one")
+    add("--voronoi-backend", default="device", metavar="NAME",
+        help="where vor, vor_sn and fvor get their Voronoi cells: device (an OpenCL kernel, "
+             "exact, default) or qhull (SciPy's Qhull on the host)")
     add("--strict", action="store_true",
         help="exit with status 3 if any sample's radiance was NaN or infinite")
     # SUPPRESS: without a default here, `--debug render` keeps the top-level flag's value.
@@ -191,7 +194,8 @@ def settings_from_args(args: argparse.Namespace, width: int, height: int):
     if tile_samples <= 0:
         raise ParameterError(f"--tile-samples must be a positive integer, got {tile_samples}")
     return RenderSettings(width, height, make_sampler(args.sampler, args.spp), estimator,
-                          args.seed, tile_samples, not args.no_overlap)  # fmt: skip
+                          args.seed, tile_samples, not args.no_overlap,
+                          args.voronoi_backend)  # fmt: skip
 
 
 def check_render_args(args: argparse.Namespace) -> None:

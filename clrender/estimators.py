@@ -144,17 +144,26 @@ class EstimateResult:
     stats: EstimateStats
 
 
-def estimate(name: str, samples: PixelSamples) -> EstimateResult:
+def estimate(name: str, samples: PixelSamples,
+             cells: dict[str, CellAreas] | None = None) -> EstimateResult:
     """One estimate per pixel with estimator `name` (see the module docstring)."""
-    return estimate_all([name], samples)[name]
+    return estimate_all([name], samples, cells)[name]
 
 
-def estimate_all(names: Sequence[str], samples: PixelSamples) -> dict[str, EstimateResult]:
-    """Several estimators on the same samples, computing each tessellation once."""
+def estimate_all(names: Sequence[str], samples: PixelSamples,
+                 cells: dict[str, CellAreas] | None = None) -> dict[str, EstimateResult]:
+    """Several estimators on the same samples, computing each tessellation once.
+
+    cells: tessellations already computed elsewhere, by kind ("sppp", "clipped", "periodic"),
+    e.g. the device backend's SPPP cells (clrender.device_voronoi); the others are computed
+    here with Qhull. A given "sppp" tessellation must carry inside-W' flags for fvor.
+    """
     infos = [estimator_info(name) for name in names]
     _check_samples(samples, infos)
-    cells = _tessellations(samples, infos)
-    return {info.name: _ESTIMATE[info.name](samples, cells) for info in infos}
+    given = dict(cells or {})
+    computed = _tessellations(samples, infos, skip=set(given))
+    tessellations = {**computed, **given}
+    return {info.name: _ESTIMATE[info.name](samples, tessellations) for info in infos}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -195,8 +204,9 @@ def _check_offsets(name: str, offsets: np.ndarray, total: int) -> None:
         raise ParameterError(f"{name} must rise from 0 to {total} (one more entry than pixels)")
 
 
-def _tessellations(samples: PixelSamples, infos: list[EstimatorInfo]) -> dict[str, CellAreas]:
-    kinds = {info.cells for info in infos}
+def _tessellations(samples: PixelSamples, infos: list[EstimatorInfo],
+                   skip: set[str] = frozenset()) -> dict[str, CellAreas]:  # fmt: skip
+    kinds = {info.cells for info in infos} - set(skip)
     cells = {}
     if "sppp" in kinds:
         box = 0.5 + samples.eps if any(info.name == "fvor" for info in infos) else None

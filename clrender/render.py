@@ -18,10 +18,15 @@ and estimated again; after a few redraws the driver widens eps, and after its la
 falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
 Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
-Timing: `device_seconds` is the time the main thread spends drawing sample sets, tracing and
-downloading; `host_seconds` the estimator stage's own time (the image-level estimators ivor
-and ivor_sn also draw their guard nuclei there, on a second OpenCL context so that no kernel
-object is shared between threads).
+Voronoi cells: with `voronoi_backend = "device"` (the default) the SPPP cells of vor, vor_sn
+and fvor are computed by a device kernel queued right after the tracing (exact; pixels it
+cannot certify are recomputed with Qhull), and the host stage only forms the sums; with
+"qhull" the host computes them with Qhull.
+
+Timing: `device_seconds` is the time the main thread spends drawing sample sets, tracing
+(and computing device Voronoi cells) and downloading; `host_seconds` the estimator stage's
+own time (the image-level estimators ivor and ivor_sn also draw their guard nuclei there, on
+a second OpenCL context so that no kernel object is shared between threads).
 
 Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only;
 a per-pixel estimator sees only its pixel's samples; the image-level ones (ivor, ivor_sn) see
@@ -46,6 +51,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrender import image_voronoi
+from clrender.device_voronoi import device_sppp_cells
 from clrender.errors import ParameterError
 from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimator_info
 from clrender.film import Film
@@ -54,8 +60,13 @@ from clrender.runtime import Runtime
 from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets, make_sampler
 from clrender.sppp import SpppBatch
 from clrender.voronoi import estimate_with_redraw
+from clrender.voronoi_cells import CellAreas
 
 DEFAULT_TILE_SAMPLES = 4_000_000
+# Where the SPPP Voronoi cells of vor, vor_sn and fvor are computed: the device kernel
+# (clrender.device_voronoi; exact, pixels it cannot certify recomputed with Qhull) or Qhull
+# on the host (clrender.voronoi_cells). Redraws always use Qhull.
+VORONOI_BACKENDS = ("device", "qhull")
 # Split even small images into this many tiles (when tiles of MIN_TILE_PIXELS allow it), so
 # that the device and the host stage have something to overlap and progress moves.
 TARGET_TILE_COUNT = 16
@@ -82,6 +93,18 @@ class RenderSettings:
     seed: int = 0
     tile_samples: int = DEFAULT_TILE_SAMPLES
     overlap: bool = True
+    voronoi_backend: str = "device"
+
+    def __post_init__(self) -> None:
+        if self.voronoi_backend not in VORONOI_BACKENDS:
+            raise ParameterError(f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "
+                                 f"{', '.join(VORONOI_BACKENDS)}")  # fmt: skip
+
+    @property
+    def device_cells(self) -> bool:
+        """Whether the tiles' SPPP cells come from the device kernel (vor, vor_sn, fvor)."""
+        return (self.voronoi_backend == "device" and self.estimator in ESTIMATORS
+                and estimator_info(self.estimator).cells == "sppp")  # fmt: skip
 
     @property
     def pixel_count(self) -> int:
@@ -120,6 +143,7 @@ class TileSamples:
     radiance: np.ndarray  # (T, 3) float32, traced-sample order
     rays: int
     source_nonfinite: int
+    cells: CellAreas | None = None  # SPPP cells computed on the device, if asked for
 
 
 @dataclass
@@ -191,14 +215,18 @@ def trace_tile(
     seed: int,
     pixels: np.ndarray,
     redraws: np.ndarray,
+    device_cells: bool = False,
 ) -> TileSamples:
-    """Device stage: draw the pixels' sample sets, get their radiance, bring both to the host."""
+    """Device stage: draw the pixels' sample sets, get their radiance (and, if asked, their
+    SPPP Voronoi cells, queued after the tracing), bring them to the host."""
     device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
     pending = source.trace(device_sets, seed)
+    cells = device_sppp_cells(runtime, device_sets, 0.5 + sampler.eps) if device_cells else None
     sets = device_sets.to_host(runtime.queue)
     radiance = pending.to_host()
     return TileSamples(
-        pixels, redraws, sets, radiance.values, radiance.ray_count, radiance.device_nonfinite
+        pixels, redraws, sets, radiance.values, radiance.ray_count, radiance.device_nonfinite,
+        cells,
     )
 
 
@@ -216,7 +244,7 @@ def estimate_tile(
     if settings.estimator in IMAGE_ESTIMATORS:
         estimates, needs_redraw = image_estimates(settings, tile, values, host_runtime)
     else:
-        estimates, needs_redraw = pixel_estimates(settings, tile.sets, values)
+        estimates, needs_redraw = pixel_estimates(settings, tile.sets, values, tile.cells)
     return TileEstimate(
         tile.pixels,
         tile.redraws,
@@ -228,9 +256,11 @@ def estimate_tile(
 
 
 def pixel_estimates(
-    settings: RenderSettings, sets: HostSampleSets, values: np.ndarray
+    settings: RenderSettings, sets: HostSampleSets, values: np.ndarray,
+    cells: CellAreas | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators)."""
+    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators); cells: the
+    SPPP cells if the device computed them."""
     samples = PixelSamples(
         sets.traced.astype(np.float64),
         values,
@@ -240,7 +270,7 @@ def pixel_estimates(
         sets.aux_offsets,
         settings.sampler.eps,
     )
-    result = estimate(settings.estimator, samples)
+    result = estimate(settings.estimator, samples, None if cells is None else {"sppp": cells})
     return result.estimates, result.needs_redraw
 
 
@@ -282,8 +312,11 @@ class TilePipeline:
         self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
     ) -> TileSamples:
         start = time.perf_counter()
+        # Tiles use the device cells if configured; redraws go through Qhull in the driver.
+        device_cells = sampler is None and self.settings.device_cells
         sampler = sampler or self.settings.sampler
-        tile = trace_tile(self.runtime, self.source, sampler, self.settings.seed, pixels, redraws)
+        tile = trace_tile(self.runtime, self.source, sampler, self.settings.seed, pixels, redraws,
+                          device_cells)  # fmt: skip
         self.stats.device_seconds += time.perf_counter() - start
         self.stats.traced_samples += len(tile.radiance)
         self.stats.rays += tile.rays

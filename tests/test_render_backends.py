@@ -1,0 +1,55 @@
+"""The render pipeline's Voronoi backends: the device kernel and host Qhull give the same
+image (to float rounding), each deterministic whatever the tiling."""
+
+import numpy as np
+import pytest
+
+from clrender.analytic import AnalyticSource
+from clrender.errors import ParameterError
+from clrender.render import RenderSettings, render
+from clrender.sampling import make_sampler
+
+WIDTH, HEIGHT = 24, 16
+
+
+def render_image(runtime, estimator, backend, eps=None, **options):
+    source = AnalyticSource.for_scene("analytic:mix", runtime.queue, WIDTH, HEIGHT)
+    settings = RenderSettings(WIDTH, HEIGHT, make_sampler("sppp", 32, eps=eps), estimator,
+                              seed=3, voronoi_backend=backend, **options)  # fmt: skip
+    return render(runtime, source, settings)
+
+
+@pytest.mark.parametrize("estimator", ["vor", "vor_sn", "fvor"])
+def test_device_and_qhull_cells_give_the_same_image(runtime, estimator):
+    device = render_image(runtime, estimator, "device").film.image()
+    qhull = render_image(runtime, estimator, "qhull").film.image()
+    # Both tessellations are exact; they differ only by float64 rounding (about 1e-14).
+    np.testing.assert_allclose(device, qhull, rtol=1e-9, atol=1e-12)
+
+
+def test_forced_rejections_agree_between_backends(runtime):
+    # eps far below the paper's: many pixels are rejected and redrawn (redraws use Qhull).
+    device = render_image(runtime, "vor_sn", "device", eps=0.02)
+    qhull = render_image(runtime, "vor_sn", "qhull", eps=0.02)
+    assert device.stats.redrawn_pixels > 0
+    assert device.stats.redrawn_pixels == qhull.stats.redrawn_pixels
+    np.testing.assert_allclose(device.film.image(), qhull.film.image(), rtol=1e-9, atol=1e-12)
+
+
+def test_qhull_backend_is_bit_identical_whatever_the_tiling(runtime):
+    reference = render_image(runtime, "vor_sn", "qhull").film.image()
+    tiled = render_image(runtime, "vor_sn", "qhull", tile_samples=7 * 50, overlap=False)
+    assert np.array_equal(tiled.film.image(), reference)
+
+
+def test_only_sppp_cell_estimators_use_the_device_cells():
+    sampler = make_sampler("sppp", 16)
+    for estimator, expected in [("vor", True), ("vor_sn", True), ("fvor", True), ("mc", False),
+                                ("pvor", False), ("cvor", False), ("ivor", False)]:  # fmt: skip
+        assert RenderSettings(4, 4, sampler, estimator).device_cells is expected, estimator
+    assert not RenderSettings(4, 4, sampler, "vor", voronoi_backend="qhull").device_cells
+
+
+def test_unknown_backend_lists_the_accepted_ones():
+    with pytest.raises(ParameterError, match="accepted: device, qhull"):
+        RenderSettings(4, 4, make_sampler("sppp", 16), "vor", voronoi_backend="gpu")
