@@ -14,8 +14,9 @@ Wall times come from one render each on a shared machine: the load average is re
 --perf-ratio: the issue's performance figure. The authors' Cornell box at 256 x 256 and 256
 spp: mc over uniform samples against the best Voronoi estimator (by default the one of vor,
 vor_sn, fvor -- the SPPP-cell estimators the device backend computes -- with the lowest MSE at
-the highest spp of a previous default-mode run on cornell-box, else vor_sn), alternated after a warm-up, --repeats times each; medians of wall, device and host
-seconds and the ratio of median wall times (target <= 1.5). Output: perf_ratio.json.
+the highest spp of a previous default-mode run on cornell-box, else vor_sn), alternated after
+a warm-up, --repeats times each; medians of wall, device and host seconds and the ratio of
+median wall times (target <= 1.5). Output: perf_ratio.json.
 """
 
 from __future__ import annotations
