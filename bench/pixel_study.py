@@ -174,6 +174,16 @@ def variance_ratios(table: dict) -> dict:
                   for label, s in row.items()} for spp, row in table.items()}  # fmt: skip
 
 
+def efficiency_ratios(table: dict) -> dict:
+    """{spp: {label: (var x ms)(mc/uniform) / (var x ms)(label)}}, ms = tracing + estimator:
+    above 1, the estimator reaches a given variance sooner than mc over uniform samples."""
+    def cost(s):
+        return s["var"] * s["total_ms"]
+
+    return {spp: {label: cost(row[BASELINE]) / max(cost(s), 1e-300) for label, s in row.items()}
+            for spp, row in table.items()}  # fmt: skip
+
+
 # ---------------------------------------------------------------------------------------------
 # Charts
 
@@ -279,6 +289,10 @@ def report(results: dict, args, argv) -> str:
                   "", f"variance ratio var({BASELINE}) / var(estimator):", "",
                   markdown_table(["spp", *labels], [[spp, *[r.get(lab, "") for lab in labels]]
                                  for spp, r in entry["variance_ratio"].items()]),
+                  "", f"efficiency (var x ms)({BASELINE}) / (var x ms)(estimator), ms = "
+                  "tracing + estimator per estimate (above 1: better at equal time):", "",
+                  markdown_table(["spp", *labels], [[spp, *[r.get(lab, "") for lab in labels]]
+                                 for spp, r in entry["efficiency_ratio"].items()]),
                   "", "ms per estimate, estimator only (tracing in the last column):", "",
                   markdown_table(["spp", *labels, "trace (mc/uniform)"],
                                  [[spp, *[row[lab]["estimator_ms"] if lab in row else ""
@@ -303,7 +317,8 @@ def main(argv=None) -> None:
         ref = table[top]["mc/stratified"]["mean"]
         results["pixels"][name] = {"pixel": pixel.as_dict(), "table": table, "reference": ref,
                                    "reference_spp": top, "variance_ratio":
-                                   variance_ratios(table)}  # fmt: skip
+                                   variance_ratios(table), "efficiency_ratio":
+                                   efficiency_ratios(table)}  # fmt: skip
         plot_fig6(table, name, pixel, ref, args.out)
         plot_fig9(table, name, pixel, args.out)
     results["machine"] = machine()
