@@ -67,7 +67,8 @@ def has_backend_setting() -> bool:
 
 
 def default_backend() -> str | None:
-    return "device" if has_backend_setting() else None
+    """The render's own default backend where it has one (None: the setting does not exist)."""
+    return RenderSettings.voronoi_backend if has_backend_setting() else None
 
 
 def render_settings(size: tuple[int, int], estimator: str, sampler: str, spp: int, seed: int,
@@ -90,8 +91,15 @@ def timed_render(runtime: Runtime, source: PathTracerSource, estimator: str, sam
            "load_1min": os.getloadavg()[0], "redrawn_pixels": stats.redrawn_pixels,
            "unresolved_pixels": stats.unresolved_pixels,
            "flagged_pixels": result.film.flagged_count,
-           "voronoi_backend": getattr(settings, "voronoi_backend", "host")}  # fmt: skip
+           "cells": cell_backend(settings)}  # fmt: skip
     return result.film.image().astype(np.float64), row
+
+
+def cell_backend(settings: RenderSettings) -> str:
+    """Where the render's Voronoi cells came from: "device", "qhull" (host) or "none" (mc)."""
+    if settings.estimator in ("mc", "mc_n"):
+        return "none"
+    return "device" if getattr(settings, "device_cells", False) else "qhull"
 
 
 # ---------------------------------------------------------------------------------------------

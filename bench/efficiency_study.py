@@ -72,7 +72,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--reference-spp", type=int, default=None, help="default 4096")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--backend", default=default_backend(),
-                        help="RenderSettings.voronoi_backend, when it exists")
+                        help="RenderSettings.voronoi_backend: device (default) or qhull")
     parser.add_argument("--perf-ratio", action="store_true",
                         help="only mc vs the best Voronoi estimator at 256 spp, 256 x 256")
     parser.add_argument("--perf-estimator", default=None)
@@ -155,10 +155,10 @@ def report(results: dict, args, argv) -> str:
              f"render per point; reference {args.reference_spp} spp (4 stratified parts). MSE: "
              "mean over pixels and RGB channels of the squared linear difference. Machine: "
              f"{results['machine']['uptime']}", ""]  # fmt: skip
-    header = ["spp", "pair", "MSE", "MSE - ref noise", "MSE sRGB", "wall s", "device s",
+    header = ["spp", "pair", "cells", "MSE", "MSE - ref noise", "MSE sRGB", "wall s", "device s",
               "host s", "load"]  # fmt: skip
     for scene, entry in results["scenes"].items():
-        table = [[r["spp"], pair_label(r["estimator"], r["sampler"]), r["mse"],
+        table = [[r["spp"], pair_label(r["estimator"], r["sampler"]), r["cells"], r["mse"],
                   r["mse_minus_ref_noise"], r["mse_srgb"], r["wall_s"], r["device_s"],
                   r["host_s"], r["load_1min"]] for r in entry["rows"]]  # fmt: skip
         lines += [f"## {scene}", "", markdown_table(header, table), "",
@@ -217,15 +217,15 @@ def run_perf_ratio(runtime, args) -> None:
     ratio = med[vor_label]["wall_s"] / med[mc_label]["wall_s"]
     result = {"size": args.size, "spp": spp, "repeats": args.repeats, "estimator": estimator,
               "chosen_by": why, "medians": med, "runs": runs, "ratio_wall": ratio,
-              "target": 1.5, "voronoi_backend": runs[vor_label][0]["voronoi_backend"],
+              "target": 1.5, "cells": runs[vor_label][0]["cells"],
               "machine": machine()}  # fmt: skip
     write_json(args.out / "perf_ratio.json", result)
     for label, m in med.items():
         print(f"{label:14s} wall {m['wall_s']:7.2f} s  device {m['device_s']:7.2f} s  host "
               f"{m['host_s']:7.2f} s  cpu {m['cpu_s']:7.2f} s  load {m['load_1min']:.1f}")
     print(f"cornell-box {args.size}x{args.size} {spp} spp, medians of {args.repeats}: "
-          f"{vor_label} / {mc_label} wall time = {ratio:.2f} (target <= 1.5; Voronoi backend "
-          f"{result['voronoi_backend']}; {estimator} chosen by {why})")  # fmt: skip
+          f"{vor_label} / {mc_label} wall time = {ratio:.2f} (target <= 1.5; Voronoi cells: "
+          f"{result['cells']}; {estimator} chosen by {why})")  # fmt: skip
     print(f"wrote {args.out / 'perf_ratio.json'}")
 
 

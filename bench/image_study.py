@@ -12,8 +12,8 @@ reference|, mean of RGB, one colour scale for all maps) and the render itself. T
 MSE (0.030 for MC, 0.015 for its "vor", which is self-normalised: our vor_sn) is printed
 alongside.
 
-Resolution: 256 x 256 when RenderSettings has the device Voronoi backend (voronoi_backend),
-else 128 x 128 (host Qhull cells take minutes per 256 x 256 render on two cores).
+Resolution: 256 x 256 when RenderSettings has the device Voronoi backend (voronoi_backend,
+the default there), else 128 x 128 (host Qhull cells take minutes per 256 x 256 render on two cores).
 Outputs (default bench/results/image_study/): results.json, report.md, renders.png,
 error_maps.png, error_<estimator>_<sampler>.png, render_<estimator>_<sampler>.png and .exr.
 """
@@ -68,7 +68,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--reference-spp", type=int, default=None, help="default 4096")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--backend", default=default_backend(),
-                        help="RenderSettings.voronoi_backend, when it exists")
+                        help="RenderSettings.voronoi_backend: device (default) or qhull")
     parser.add_argument("--out", type=Path, default=RESULTS / "image_study")
     args = parser.parse_args(argv)
     args.size = args.size or (32 if args.quick else 256 if has_backend_setting() else 128)
@@ -178,10 +178,11 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
 
 def report(results: dict, args, argv) -> str:
     rows = results["rows"]
-    header = ["pair", "MSE", "MSE - ref noise", "MSE clamped", "MSE sRGB", "top 0.1 % share",
-              "bright share", "paper MSE", "wall s", "device s", "host s"]  # fmt: skip
+    header = ["pair", "cells", "MSE", "MSE - ref noise", "MSE clamped", "MSE sRGB",
+              "top 0.1 % share", "bright share", "paper MSE", "wall s", "device s", "host s"]  # fmt: skip
     paper = {"mc/uniform": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
-    table = [[pair_label(r["estimator"], r["sampler"]), r["mse"], r["mse_minus_ref_noise"],
+    table = [[pair_label(r["estimator"], r["sampler"]), r["cells"], r["mse"],
+              r["mse_minus_ref_noise"],
               r["mse_clamped"], r["mse_srgb"], r["top_share"], r["bright_share"],
               paper.get(pair_label(r["estimator"], r["sampler"]), ""), r["wall_s"],
               r["device_s"], r["host_s"]] for r in rows]  # fmt: skip
@@ -191,8 +192,8 @@ def report(results: dict, args, argv) -> str:
         "# Image study (paper Figure 7)", "",
         f"Command: `{command_line('image_study.py', argv)}`", "",
         f"{args.scene}, {args.size} x {args.size}, {args.spp} spp, seed {args.seed}, max depth "
-        f"8, Voronoi backend {rows[0]['voronoi_backend']}. Reference: mean of {ref['parts']} "
-        f"stratified mc renders, {ref['spp']} spp in all ({origin}: {Path(ref['path']).name}). "
+        f"8, Voronoi cells per pair in the table (device kernel or host Qhull). Reference: "
+        f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: {Path(ref['path']).name}). "
         "MSE = mean over pixels and RGB channels of (render - reference)^2 in linear "
         "radiance. Machine: "
         f"{results['machine']['uptime']}", "",
