@@ -13,7 +13,8 @@ MSE (0.030 for MC, 0.015 for its "vor", which is self-normalised: our vor_sn) is
 alongside.
 
 Resolution: 256 x 256 when RenderSettings has the device Voronoi backend (voronoi_backend,
-the default there), else 128 x 128 (host Qhull cells take minutes per 256 x 256 render on two cores).
+the default there), else 128 x 128 (host Qhull cells take minutes per 256 x 256 render on two
+cores).
 Outputs (default bench/results/image_study/): results.json, report.md, renders.png,
 error_maps.png, error_<estimator>_<sampler>.png, render_<estimator>_<sampler>.png and .exr.
 """
@@ -179,7 +180,8 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
 def report(results: dict, args, argv) -> str:
     rows = results["rows"]
     header = ["pair", "cells", "MSE", "MSE - ref noise", "MSE clamped", "MSE sRGB",
-              "top 0.1 % share", "bright share", "paper MSE", "wall s", "device s", "host s"]  # fmt: skip
+              "top 0.1 % share", "bright share", "paper MSE", "wall s", "device s",
+              "host s"]  # fmt: skip
     paper = {"mc/uniform": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
     table = [[pair_label(r["estimator"], r["sampler"]), r["cells"], r["mse"],
               r["mse_minus_ref_noise"],
@@ -193,7 +195,8 @@ def report(results: dict, args, argv) -> str:
         f"Command: `{command_line('image_study.py', argv)}`", "",
         f"{args.scene}, {args.size} x {args.size}, {args.spp} spp, seed {args.seed}, max depth "
         f"8, Voronoi cells per pair in the table (device kernel or host Qhull). Reference: "
-        f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: {Path(ref['path']).name}). "
+        f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: "
+        f"{Path(ref['path']).name}). "
         "MSE = mean over pixels and RGB channels of (render - reference)^2 in linear "
         "radiance. Machine: "
         f"{results['machine']['uptime']}", "",
