@@ -44,6 +44,7 @@ from common import (  # noqa: E402
     write_json,
 )
 
+from clrender.device_voronoi import device_sppp_cells_from_arrays  # noqa: E402
 from clrender.estimators import PixelSamples, estimate, estimate_all  # noqa: E402
 from clrender.probes import (  # noqa: E402
     PixelRuns,
@@ -92,21 +93,25 @@ class Study:
         spare = 0 if sampler_name != "sppp" else max(4, R // 20)
         values = {name: [] for name in names}
         seconds = dict.fromkeys(names, 0.0)
+        device_s = dict.fromkeys(names, 0.0)
         trace_s, drawn, accepted = 0.0, 0, 0
         while accepted < R:
             runs = self.runs(sampler, spp, pixel, R - accepted + spare, drawn)
             trace_s += runs.trace_seconds
             drawn += runs.runs
             batch = estimate_batch(runs, sampler, names, self.args.timing_runs)
+            device = device_times(self.runtime, runs, sampler, names, self.args.timing_runs)
             keep = ~np.logical_or.reduce([batch[n][1] for n in names if n in REJECTING]
                                          + [np.zeros(runs.runs, bool)])  # fmt: skip
             for name in names:
                 values[name].append(batch[name][0][keep])
                 seconds[name] += batch[name][2] * runs.runs
+                device_s[name] += device.get(name, 0.0) * runs.runs
             accepted += int(keep.sum())
         return {f"{name}/{sampler_name}": {
             "values": np.concatenate(values[name])[:R], "estimator_ms": 1e3 * seconds[name]
             / drawn, "trace_ms": 1e3 * trace_s / drawn, "rejected_runs": drawn - accepted,
+            "device_cells_ms": 1e3 * device_s[name] / drawn if name in REJECTING else None,
         } for name in names}  # fmt: skip
 
 
@@ -120,6 +125,21 @@ def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
     return {name: (results[name].estimates, results[name].needs_redraw,
                    min_seconds(lambda name=name: estimate(name, timing)) / timing.pixel_count)
             for name in names}  # fmt: skip
+
+
+def device_times(runtime, runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
+    """{name: seconds per run} of the SPPP-cell estimators (vor, vor_sn, fvor) with their cells
+    from the device kernel (clrender.device_voronoi, upload included) instead of Qhull."""
+    timing = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
+
+    def run(name):
+        box = 0.5 + sampler.eps if name == "fvor" else None
+        cells = device_sppp_cells_from_arrays(runtime, timing.positions, timing.offsets,
+                                              timing.aux, timing.aux_offsets, box)
+        estimate(name, timing, {"sppp": cells})
+
+    return {name: min_seconds(lambda name=name: run(name)) / timing.pixel_count
+            for name in names if name in REJECTING}  # fmt: skip
 
 
 def min_seconds(call, min_calls: int = 3, budget: float = 0.1) -> float:
@@ -149,7 +169,15 @@ def summarise(entry: dict) -> dict:
     total = entry["estimator_ms"] + entry["trace_ms"]
     return {"mean": float(v.mean()), "std": float(v.std(ddof=1)), "var": float(v.var(ddof=1)),
             "estimator_ms": entry["estimator_ms"], "trace_ms": entry["trace_ms"],
-            "total_ms": total, "rejected_runs": entry["rejected_runs"]}  # fmt: skip
+            "total_ms": total, "rejected_runs": entry["rejected_runs"],
+            **device_summary(entry)}  # fmt: skip
+
+
+def device_summary(entry: dict) -> dict:
+    if entry["device_cells_ms"] is None:
+        return {}
+    return {"device_cells_ms": entry["device_cells_ms"],
+            "device_total_ms": entry["device_cells_ms"] + entry["trace_ms"]}
 
 
 def study_pixel(study: Study, pixel) -> dict:
@@ -172,6 +200,16 @@ def variance_ratios(table: dict) -> dict:
     """{spp: {label: var(mc/uniform) / var(label)}}."""
     return {spp: {label: row[BASELINE]["var"] / max(s["var"], 1e-300)
                   for label, s in row.items()} for spp, row in table.items()}  # fmt: skip
+
+
+def device_labels(labels: list[str]) -> list[str]:
+    return [label for label in labels if label.split("/")[0] in REJECTING]
+
+
+def device_efficiency(row: dict, label: str) -> float:
+    """efficiency_ratios' figure with the estimator's device-cell time."""
+    base = row[BASELINE]
+    return base["var"] * base["total_ms"] / (row[label]["var"] * row[label]["device_total_ms"])
 
 
 def efficiency_ratios(table: dict) -> dict:
@@ -235,10 +273,17 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
         _, total = series(table, label, "total_ms")
         _, var = series(table, label, "var")
         ax_v.loglog(total, var, marker="o", ms=3, color=f"C{i}", label=label)
+        if label.split("/")[0] in REJECTING:
+            _, device = series(table, label, "device_cells_ms")
+            ax_t.loglog(spp, device, ":", marker="x", ms=3, color=f"C{i}",
+                        label=f"{label}, device cells")
+            _, device_total = series(table, label, "device_total_ms")
+            ax_v.loglog(device_total, var, ":", marker="x", ms=3, color=f"C{i}",
+                        label=f"{label}, device cells")
     spp, trace = series(table, BASELINE, "trace_ms")
     ax_t.loglog(spp, trace, "k--", label="tracing (mc/uniform runs)")
     ax_t.set(xlabel="spp (samples per pixel)", ylabel="ms per estimate",
-             title="(a) estimator time per pixel estimate (host, excl. tracing)")
+             title="(a) estimator time per estimate (Qhull; dotted: device cells)")
     ax_v.set(xlabel="ms per estimate (tracing + estimator)", ylabel="variance",
              title="(b) variance against time")
     ax_t.legend(fontsize=7)
@@ -293,6 +338,14 @@ def report(results: dict, args, argv) -> str:
                   "tracing + estimator per estimate (above 1: better at equal time):", "",
                   markdown_table(["spp", *labels], [[spp, *[r.get(lab, "") for lab in labels]]
                                  for spp, r in entry["efficiency_ratio"].items()]),
+                  "", "ms per estimate of the SPPP-cell estimators with device cells "
+                  "(clrender.device_voronoi, upload included) / efficiency with them:", "",
+                  markdown_table(["spp", *[f"{lab} ms" for lab in device_labels(labels)],
+                                  *[f"{lab} eff." for lab in device_labels(labels)]],
+                                 [[spp, *[row[lab]["device_cells_ms"] for lab in
+                                          device_labels(labels)],
+                                   *[device_efficiency(row, lab) for lab in
+                                     device_labels(labels)]] for spp, row in table.items()]),
                   "", "ms per estimate, estimator only (tracing in the last column):", "",
                   markdown_table(["spp", *labels, "trace (mc/uniform)"],
                                  [[spp, *[row[lab]["estimator_ms"] if lab in row else ""
