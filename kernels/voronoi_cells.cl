@@ -57,8 +57,13 @@ typedef float2 area_real2;
 #define VORONOI_FIRST_BOX_SPACINGS 2.5f
 #endif
 
-// Inline min (PoCL calls the fmin builtin out of line)
+// pip's PoCL cannot inline its builtins into these kernels (its builtin library targets another
+// CPU, see kernels/vecmath.h): the builtins (floor, clamp, min, max, fabs, fmax, sqrt) are
+// replaced by these inline equivalents, and the helpers are forced inline.
+#define VORONOI_INLINE inline __attribute__((always_inline))
 #define VORONOI_MIN(a, b) ((a) < (b) ? (a) : (b))
+#define VORONOI_MAX(a, b) ((a) > (b) ? (a) : (b))
+#define VORONOI_ABS(a) ((a) < 0 ? -(a) : (a))
 
 #define VORONOI_BOUNDED 1
 #define VORONOI_INSIDE 2
@@ -85,7 +90,7 @@ typedef struct {
 
 // The pixel whose [offsets[p], offsets[p+1]) range holds slot i: a binary search with the same
 // number of steps for every work-item (search_span = the largest power of two <= pixel_count).
-inline uint Voronoi_OwnerPixel(__global const uint *offsets, uint pixel_count, uint search_span,
+VORONOI_INLINE uint Voronoi_OwnerPixel(__global const uint *offsets, uint pixel_count, uint search_span,
                                uint i)
 {
     uint lo = 0u;
@@ -99,13 +104,13 @@ inline uint Voronoi_OwnerPixel(__global const uint *offsets, uint pixel_count, u
 
 // Grid column (or row) of coordinate x; points outside the grid go to the border cells, which
 // keeps the ring search's distance bound valid (they lie beyond those cells).
-inline int VoronoiGrid_Index(float x, float half_extent, float inv_cell, int grid_side)
+VORONOI_INLINE int VoronoiGrid_Index(float x, float half_extent, float inv_cell, int grid_side)
 {
-    int c = (int)floor((x + half_extent) * inv_cell);
-    return clamp(c, 0, grid_side - 1);
+    int c = (int)__builtin_floorf((x + half_extent) * inv_cell);
+    return VORONOI_MIN(VORONOI_MAX(c, 0), grid_side - 1);
 }
 
-inline int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, int grid_side)
+VORONOI_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, int grid_side)
 {
     return VoronoiGrid_Index(x.y, half_extent, inv_cell, grid_side) * grid_side
            + VoronoiGrid_Index(x.x, half_extent, inv_cell, grid_side);
@@ -162,14 +167,15 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
 // Polygon clipping
 
 // The box [lo, hi] (relative to the nucleus), counter-clockwise, edges marked as box edges.
-inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2 lo, real2 hi)
+VORONOI_INLINE void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2 lo, real2 hi)
 {
     poly->vx[0] = lo.x; poly->vy[0] = lo.y;
     poly->vx[1] = hi.x; poly->vy[1] = lo.y;
     poly->vx[2] = hi.x; poly->vy[2] = hi.y;
     poly->vx[3] = lo.x; poly->vy[3] = hi.y;
-    real2 far = fmax(fabs(lo), fabs(hi));
-    poly->radius2 = far.x * far.x + far.y * far.y;
+    real fx = VORONOI_MAX(VORONOI_ABS(lo.x), VORONOI_ABS(hi.x));
+    real fy = VORONOI_MAX(VORONOI_ABS(lo.y), VORONOI_ABS(hi.y));
+    poly->radius2 = fx * fx + fy * fy;
     for (int k = 0; k < 4; ++k) {
         poly->ex[k] = x.x;
         poly->ey[k] = x.y;
@@ -179,7 +185,9 @@ inline void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2 lo, rea
 
 // Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
 // Returns false on vertex overflow (the polygon is then unusable).
-inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v, float2 neighbour)
+// Not inlined: its scratch arrays then live in its own frame (inlined copies at each call site
+// measured slower on PoCL)
+__attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v, float2 neighbour)
 {
     int m = poly->count;
     real level = 0.5f * (v.x * v.x + v.y * v.y);
@@ -225,14 +233,14 @@ inline bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v, float2 neighbour)
         poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
         poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
         real r2 = nx[k] * nx[k] + ny[k] * ny[k];
-        radius2 = r2 > radius2 ? r2 : radius2;  // not fmax: PoCL calls it out of line
+        radius2 = r2 > radius2 ? r2 : radius2;
     }
     poly->count = out;
     poly->radius2 = radius2;
     return true;
 }
 
-inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
+VORONOI_INLINE bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
 {
     bool touches = false;
     for (int k = 0; k < poly->count; ++k)
@@ -244,7 +252,7 @@ inline bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
 // from the input coordinates. False when the two bisectors are parallel: the edges are then
 // collinear (the same neighbour twice, or a coincident one), and the vertex, lying on a
 // straight side, is not a corner of the cell.
-inline bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int k,
+VORONOI_INLINE bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int k,
                                   area_real2 *vertex)
 {
     int prev = k == 0 ? poly->count - 1 : k - 1;
@@ -260,7 +268,7 @@ inline bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int 
 
 // Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
 // [-inside_box, inside_box]^2.
-inline area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
+VORONOI_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
                                      area_real inside_box, bool *inside)
 {
     area_real2 x = AREA_REAL2(nucleus);
@@ -276,7 +284,7 @@ inline area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
             first = cur;
         have_first = true;
         area_real2 absolute = x + cur;
-        in_box &= fabs(absolute.x) <= inside_box && fabs(absolute.y) <= inside_box;
+        in_box &= VORONOI_ABS(absolute.x) <= inside_box && VORONOI_ABS(absolute.y) <= inside_box;
         prev = cur;
     }
     twice_area += prev.x * first.y - prev.y * first.x;
@@ -289,7 +297,7 @@ inline area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
 
 // Clip by the nuclei in sorted slots [s0, s1) that are close enough to cut, counting those that
 // coincide with the nucleus (itself included). Returns false on vertex overflow.
-inline bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s1,
+VORONOI_INLINE bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s1,
                                   __global const float2 *sorted_points, int *coincident)
 {
     for (uint s = s0; s < s1; ++s) {
@@ -311,12 +319,12 @@ inline bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s
 
 // Clip by the grid cells of ring k (Chebyshev distance k from cell (cx, cy)): full rows at the
 // ring's top and bottom (contiguous slots), two cells on each row in between.
-inline bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, int cy, int k,
+VORONOI_INLINE bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, int cy, int k,
                                  int grid_side, __global const uint *start, uint base,
                                  __global const float2 *sorted_points, int *coincident)
 {
-    int y0 = max(cy - k, 0), y1 = min(cy + k, grid_side - 1);
-    int x0 = max(cx - k, 0), x1 = min(cx + k, grid_side - 1);
+    int y0 = VORONOI_MAX(cy - k, 0), y1 = VORONOI_MIN(cy + k, grid_side - 1);
+    int x0 = VORONOI_MAX(cx - k, 0), x1 = VORONOI_MIN(cx + k, grid_side - 1);
     bool ok = true;
     for (int y = y0; y <= y1 && ok; ++y) {
         int row = y * grid_side;
@@ -339,7 +347,7 @@ inline bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, int cy, 
 
 // Distance from x to the nearest grid cell outside the block of rings 0..k around (cx, cy)
 // (infinite on sides where the grid ends: no nucleus lies beyond the border cells' block).
-inline real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side,
+VORONOI_INLINE real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side,
                                    real half_extent, real cell)
 {
     real radius = INFINITY;
@@ -355,7 +363,7 @@ inline real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side
 }
 
 // Clip ring by ring until no unvisited nucleus can cut; returns false on vertex overflow.
-inline bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, real half_extent,
+VORONOI_INLINE bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, real half_extent,
                                __global const uint *start, uint base,
                                __global const float2 *sorted_points, int *coincident)
 {
@@ -386,7 +394,7 @@ inline bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, rea
 // directions form an arc [lo, hi] (counter-clockwise, at most a half-turn), cut by one
 // half-circle per neighbour. Returns 1 unbounded, 0 bounded, -1 degenerate (collinear: left
 // to the host).
-inline int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
+VORONOI_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
                                  __global const float2 *sorted_points)
 {
     bool full = true;
@@ -441,7 +449,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     // First try a box of a few mean spacings around the nucleus: it keeps the early clips and
     // the radius test tight; a cell that reaches its border is redone from the full start box
     VoronoiPolygon poly;
-    real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / sqrt((real)count);
+    real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / __builtin_sqrtf((float)count);
     bool small_box = reach < start_box;
     if (small_box)
         VoronoiPolygon_InitBox(&poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
@@ -472,6 +480,6 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     // Exact cell: its area, shared equally with coincident nuclei
     bool inside;
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
-    areas[i] = area / max(coincident, 1);
+    areas[i] = area / VORONOI_MAX(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0);
 }
