@@ -185,9 +185,9 @@ VORONOI_INLINE void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2
 
 // Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
 // Returns false on vertex overflow (the polygon is then unusable).
-// Not inlined: its scratch arrays then live in its own frame (inlined copies at each call site
-// measured slower on PoCL)
-__attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v, float2 neighbour)
+// The general case of VoronoiPolygon_Clip (Sutherland-Hodgman), for rounding-degenerate
+// polygons whose outside vertices do not form one run.
+__attribute__((noinline)) bool VoronoiPolygon_ClipGeneral(VoronoiPolygon *poly, real2 v, float2 neighbour)
 {
     int m = poly->count;
     real level = 0.5f * (v.x * v.x + v.y * v.y);
@@ -236,6 +236,71 @@ __attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v
         radius2 = r2 > radius2 ? r2 : radius2;
     }
     poly->count = out;
+    poly->radius2 = radius2;
+    return true;
+}
+
+// Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
+// Returns false on vertex overflow (the polygon is then unusable). The outside vertices of a
+// convex polygon form one cyclic run s..e: found branch-free from a bit mask, replaced by the
+// two crossings (the same arithmetic as Sutherland-Hodgman, which handles any other case).
+// Not inlined: its scratch arrays then live in its own frame (inlined copies at each call site
+// measured slower on PoCL).
+__attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v,
+                                                   float2 neighbour)
+{
+    int m = poly->count;
+    real level = 0.5f * (v.x * v.x + v.y * v.y);
+    uint out_mask = 0u;
+    for (int k = 0; k < m; ++k) {
+        real d = v.x * poly->vx[k] + v.y * poly->vy[k] - level;
+        out_mask |= (uint)(d > 0) << k;
+    }
+    if (out_mask == 0u)
+        return true;
+    uint full = m >= 32 ? 0xffffffffu : (1u << m) - 1u;
+    uint prev_out = ((out_mask << 1) | (out_mask >> (m - 1))) & full;  // bit k: vertex k - 1
+    uint next_out = ((out_mask >> 1) | (out_mask << (m - 1))) & full;  // bit k: vertex k + 1
+    uint starts = out_mask & ~prev_out, ends = out_mask & ~next_out;
+    if (out_mask == full || (starts & (starts - 1u)) != 0u)
+        return VoronoiPolygon_ClipGeneral(poly, v, neighbour);
+    int s = __builtin_ctz(starts), e = __builtin_ctz(ends);
+    int a = s == 0 ? m - 1 : s - 1, b = e + 1 == m ? 0 : e + 1;
+    int outside = e >= s ? e - s + 1 : e + m - s + 1;
+    int inside = m - outside;
+    if (inside + 2 > VORONOI_MAX_VERTICES)
+        return false;
+    real da = v.x * poly->vx[a] + v.y * poly->vy[a] - level;
+    real ds = v.x * poly->vx[s] + v.y * poly->vy[s] - level;
+    real de = v.x * poly->vx[e] + v.y * poly->vy[e] - level;
+    real db = v.x * poly->vx[b] + v.y * poly->vy[b] - level;
+    real ta = da / (da - ds), tb = de / (de - db);
+    real pax = poly->vx[a] + ta * (poly->vx[s] - poly->vx[a]);
+    real pay = poly->vy[a] + ta * (poly->vy[s] - poly->vy[a]);
+    real pbx = poly->vx[e] + tb * (poly->vx[b] - poly->vx[e]);
+    real pby = poly->vy[e] + tb * (poly->vy[b] - poly->vy[e]);
+    float pbex = poly->ex[e], pbey = poly->ey[e];
+
+    // New polygon: the inside run b..a, then the leaving crossing (its edge on the new
+    // bisector) and the entering one (on edge e)
+    real nx[VORONOI_MAX_VERTICES], ny[VORONOI_MAX_VERTICES];
+    float nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
+    real radius2 = 0;
+    for (int j = 0, k = b; j < inside; ++j) {
+        nx[j] = poly->vx[k]; ny[j] = poly->vy[k];
+        nex[j] = poly->ex[k]; ney[j] = poly->ey[k];
+        k = k + 1 == m ? 0 : k + 1;
+    }
+    nx[inside] = pax; ny[inside] = pay; nex[inside] = neighbour.x; ney[inside] = neighbour.y;
+    nx[inside + 1] = pbx; ny[inside + 1] = pby; nex[inside + 1] = pbex; ney[inside + 1] = pbey;
+    int count = inside + 2;
+    for (int k = 0; k < count; ++k) {
+        poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
+        poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
+        real r2 = nx[k] * nx[k] + ny[k] * ny[k];
+        radius2 = r2 > radius2 ? r2 : radius2;
+    }
+    poly->count = count;
     poly->radius2 = radius2;
     return true;
 }
