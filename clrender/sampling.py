@@ -168,11 +168,10 @@ def _launch_fill(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf:
                  redraws_buf: cl.Buffer, offsets_buf: cl.Buffer, positions: cl.Buffer,
                  pixel_count: int, traced_total: int) -> None:  # fmt: skip
     queue, local = runtime.queue, (runtime.local_size,)
-    search_span = 1 << (pixel_count.bit_length() - 1) if pixel_count else 0
     if traced_total:
         fill = runtime.kernel("sampling.cl", "fill_traced")
         fill(queue, (padded_global_size(traced_total),), local, np.uint32(pixel_count),
-             np.uint32(search_span), np.uint32(seed), np.int32(SAMPLERS[config.name]),
+             np.uint32(seed), np.int32(SAMPLERS[config.name]),
              np.uint32(config.n), np.uint32(config.strata), np.uint32(traced_total),
              pixels_buf, redraws_buf, offsets_buf, positions)  # fmt: skip
     if config.n_aux and pixel_count:

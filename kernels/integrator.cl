@@ -14,6 +14,7 @@
 #pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
 #include "rng.h"
 #pragma clang attribute pop
+#include "launch.h"
 #include "scene_types.h"
 #include "geometry.h"
 #include "bsdf.h"
@@ -29,20 +30,6 @@ CL_INLINE float PowerHeuristic(float pdf_a, float pdf_b)
 {
     float a2 = pdf_a * pdf_a;
     return a2 / (a2 + pdf_b * pdf_b);
-}
-
-// The launch slot p of the pixel whose [offsets[p], offsets[p+1]) range holds sample i.
-CL_INLINE uint Sample_Pixel(__global const uint *offsets, uint pixel_count, uint i)
-{
-    uint lo = 0u, hi = pixel_count;
-    while (hi - lo > 1u) {
-        uint mid = (lo + hi) / 2u;
-        if (offsets[mid] <= i)
-            lo = mid;
-        else
-            hi = mid;
-    }
-    return lo;
 }
 
 // Next event estimation at a non-specular vertex: one emitter point, a shadow ray, and the
@@ -170,7 +157,7 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
                        quad_count, quad_block_count, sphere_count, emitter_count, ray_eps};
 
     // Find the sample's pixel, its index in the pixel and its image position
-    uint slot = Sample_Pixel(traced_offsets, pixel_count, i);
+    uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);
     uint pixel = pixels[slot];
     uint sample = i - traced_offsets[slot];
     float2 u_pixel = positions[i];

@@ -13,6 +13,7 @@
 #pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
 #include "poisson.h"
 #pragma clang attribute pop
+#include "launch.h"
 
 #define SAMPLER_UNIFORM 0
 #define SAMPLER_STRATIFIED 1
@@ -26,20 +27,6 @@ __kernel void count_samples(uint pixel_count, uint seed, int sampler, uint n, fl
     if (p >= pixel_count)
         return;
     counts[p] = sampler == SAMPLER_SPPP ? poisson_sample(mean, seed, pixels[p], redraws[p]) : n;
-}
-
-// The pixel whose [offsets[p], offsets[p+1]) range holds slot i: a binary search with the same
-// number of steps for every work-item (search_span = the largest power of two <= pixel_count),
-// so PoCL can still vectorise across work-items.
-inline uint owner_pixel(__global const uint *offsets, uint pixel_count, uint search_span, uint i)
-{
-    uint lo = 0u;
-    for (uint step = search_span; step > 0u; step >>= 1) {
-        uint mid = lo + step;
-        if (mid < pixel_count && offsets[mid] <= i)
-            lo = mid;
-    }
-    return lo;
 }
 
 // Jittered strata: sample s falls in stratum (s mod m, s div m) of an m x m grid.
@@ -67,7 +54,7 @@ inline float2 strip_position(float eps, float4 u)
 }
 
 // Traced sample s of pixel p: dimension 0 of its stream is its position.
-__kernel void fill_traced(uint pixel_count, uint search_span, uint seed, int sampler,
+__kernel void fill_traced(uint pixel_count, uint seed, int sampler,
                           uint fixed_count, uint strata, uint traced_total, __global const uint *pixels,
                           __global const uint *redraws, __global const uint *traced_offsets,
                           __global float2 *positions)
@@ -76,7 +63,7 @@ __kernel void fill_traced(uint pixel_count, uint search_span, uint seed, int sam
     if (i >= traced_total)
         return;
     // Fixed-count samplers find the pixel by a division, SPPP by searching the offsets.
-    uint p = sampler == SAMPLER_SPPP ? owner_pixel(traced_offsets, pixel_count, search_span, i)
+    uint p = sampler == SAMPLER_SPPP ? Launch_OwnerPixel(traced_offsets, pixel_count, i)
                                      : i / fixed_count;
     uint s = i - traced_offsets[p];
     if (sampler == SAMPLER_STRATIFIED) {
