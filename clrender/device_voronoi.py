@@ -211,7 +211,7 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
           cell_start, sorted_points)
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
     compute(queue, (padded_global_size(traced, local[0]),), local, np.uint32(pixels),
-            np.uint32(1 << (pixels.bit_length() - 1)), np.uint32(traced), np.int32(side), half,
+            np.uint32(traced), np.int32(side), half,
             np.float32(layout.half_extent * START_BOX_SCALE),
             np.float32(box if box is not None else np.inf), layout.positions, traced_off,
             aux_off, cell_start, sorted_points, areas_buf, status_buf)

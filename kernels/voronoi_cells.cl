@@ -28,6 +28,7 @@
 #if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
+#include "launch.h"
 
 // real: the clipping arithmetic; area_real: final vertices, areas and the inside test
 #ifdef VORONOI_DOUBLE
@@ -87,20 +88,6 @@ typedef struct {
 
 // ---------------------------------------------------------------------------------------------
 // Pixels and grid
-
-// The pixel whose [offsets[p], offsets[p+1]) range holds slot i: a binary search with the same
-// number of steps for every work-item (search_span = the largest power of two <= pixel_count).
-VORONOI_INLINE uint Voronoi_OwnerPixel(__global const uint *offsets, uint pixel_count, uint search_span,
-                               uint i)
-{
-    uint lo = 0u;
-    for (uint step = search_span; step > 0u; step >>= 1) {
-        uint mid = lo + step;
-        if (mid < pixel_count && offsets[mid] <= i)
-            lo = mid;
-    }
-    return lo;
-}
 
 // Grid column (or row) of coordinate x; points outside the grid go to the border cells, which
 // keeps the ring search's distance bound valid (they lie beyond those cells).
@@ -492,7 +479,7 @@ VORONOI_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
 // ---------------------------------------------------------------------------------------------
 // The cell of one traced nucleus
 
-__kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced_total,
+__kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
                                  int grid_side, float half_extent, float start_box,
                                  float inside_box, __global const float2 *positions,
                                  __global const uint *traced_offsets,
@@ -504,7 +491,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint search_span, uint traced
     uint i = get_global_id(0);
     if (i >= traced_total)
         return;
-    uint p = Voronoi_OwnerPixel(traced_offsets, pixel_count, search_span, i);
+    uint p = Launch_OwnerPixel(traced_offsets, pixel_count, i);
     uint base = traced_offsets[p] + aux_offsets[p];
     uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
     __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
