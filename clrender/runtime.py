@@ -15,13 +15,13 @@ from __future__ import annotations
 import functools
 import os
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 
 from clrender.errors import DeviceError, KernelBuildError
+from clrender.package_data import shipped_dir
 
 KERNELS_DIR_VARIABLE = "CLRENDER_KERNELS_DIR"
 # One fixed local size: PoCL JIT-compiles a work-group function per new local size.
@@ -41,13 +41,7 @@ def kernels_dir() -> Path:
         if not Path(override).is_dir():
             raise KernelBuildError(f"{KERNELS_DIR_VARIABLE}={override} is not a directory")
         return Path(override)
-    packaged = Path(str(resources.files("clrender"))) / "kernels"
-    if packaged.is_dir():
-        return packaged
-    checkout = Path(__file__).resolve().parent.parent / "kernels"
-    if checkout.is_dir():
-        return checkout
-    raise FileNotFoundError(f"OpenCL kernel sources not found (looked in {packaged}, {checkout})")
+    return shipped_dir("kernels", "OpenCL kernel sources")
 
 
 def list_devices() -> list[cl.Device]:

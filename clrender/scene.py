@@ -81,12 +81,12 @@ import tomllib
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
 from clrender.errors import ClrenderError
+from clrender.package_data import shipped_dir
 
 
 class SceneError(ClrenderError, ValueError):
@@ -239,13 +239,7 @@ class Scene:
 
 def scenes_dir() -> Path:
     """The shipped scenes: inside the installed package, else the source checkout."""
-    packaged = Path(str(resources.files("clrender"))) / "scenes"
-    if packaged.is_dir():
-        return packaged
-    checkout = Path(__file__).resolve().parent.parent / "scenes"
-    if checkout.is_dir():
-        return checkout
-    raise FileNotFoundError(f"shipped scenes not found (looked in {packaged}, {checkout})")
+    return shipped_dir("scenes", "shipped scenes")
 
 
 def list_scenes() -> list[str]:
