@@ -36,7 +36,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrender.errors import DeviceError, ParameterError
-from clrender.runtime import Runtime, padded_global_size
+from clrender.runtime import Runtime, padded_global_size, upload
 from clrender.sampling import DeviceSampleSets
 from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
 
@@ -196,8 +196,8 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     side = layout.grid_side
     if total >= 2**32 or pixels * (side * side + 1) >= 2**32:
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
-    traced_off = _upload(context, layout.traced_offsets.astype(np.uint32))
-    aux_off = _upload(context, layout.aux_offsets.astype(np.uint32))
+    traced_off = upload(context, layout.traced_offsets.astype(np.uint32))
+    aux_off = upload(context, layout.aux_offsets.astype(np.uint32))
     rw = cl.mem_flags.READ_WRITE
     cell_start = cl.Buffer(context, rw, size=4 * pixels * (side * side + 1))
     sorted_points = cl.Buffer(context, rw, size=8 * total)
@@ -280,11 +280,6 @@ def _read_pixels(queue: cl.CommandQueue, layout: _Layout, pixels: np.ndarray):
 
 def _counts_to_offsets(counts: np.ndarray) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-
-
-def _upload(context: cl.Context, array: np.ndarray) -> cl.Buffer:
-    flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
-    return cl.Buffer(context, flags, hostbuf=array)
 
 
 def _check_arrays(positions, offsets, aux, aux_offsets) -> tuple[np.ndarray, np.ndarray]:

@@ -117,8 +117,22 @@ class Runtime:
         items = tuple(sorted((defines or {}).items()))
         return _kernel_cached(self.context, source_file, items, name)
 
+    def upload(self, array: np.ndarray, read_only: bool = True) -> cl.Buffer:
+        """A device copy of a host array in this runtime's context."""
+        return upload(self.context, array, read_only)
+
     def describe(self) -> str:
         return describe_device(self.device)
+
+
+def upload(context: cl.Context, array: np.ndarray, read_only: bool = True) -> cl.Buffer:
+    """A device copy of a host array (a 16-byte placeholder when it is empty: OpenCL has no
+    zero-size buffers)."""
+    flags = cl.mem_flags.READ_ONLY if read_only else cl.mem_flags.READ_WRITE
+    data = np.ascontiguousarray(array).reshape(-1)
+    if data.nbytes == 0:
+        return cl.Buffer(context, flags, size=16)
+    return cl.Buffer(context, flags | cl.mem_flags.COPY_HOST_PTR, hostbuf=data)
 
 
 def create_runtime(request: str | None = None) -> Runtime:

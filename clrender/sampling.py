@@ -150,12 +150,12 @@ def generate_sample_sets(
 ) -> DeviceSampleSets:
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill)."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
-    pixels_buf, redraws_buf = _upload(runtime, pixels), _upload(runtime, redraws)
+    pixels_buf, redraws_buf = runtime.upload(pixels), runtime.upload(redraws)
     counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     if offsets[-1] >= 2**32:
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
-    offsets_buf = _upload(runtime, offsets.astype(np.uint32))
+    offsets_buf = runtime.upload(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
     positions = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, size=max(8, 8 * total))
     _launch_fill(runtime, config, seed, pixels_buf, redraws_buf, offsets_buf, positions,
@@ -191,8 +191,8 @@ def count_samples(
 ) -> np.ndarray:
     """Only the first pass: each pixel's number of traced samples (N ~ Poisson(n) for SPPP)."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
-    return _launch_count(runtime, config, seed, _upload(runtime, pixels),
-                         _upload(runtime, redraws), len(pixels))  # fmt: skip
+    return _launch_count(runtime, config, seed, runtime.upload(pixels),
+                         runtime.upload(redraws), len(pixels))  # fmt: skip
 
 
 def _launch_count(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,
@@ -206,13 +206,6 @@ def _launch_count(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf
     counts = np.empty(pixel_count, np.uint32)
     cl.enqueue_copy(runtime.queue, counts, counts_buf)
     return counts
-
-
-def _upload(runtime: Runtime, array: np.ndarray) -> cl.Buffer:
-    flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
-    if array.nbytes == 0:
-        return cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY, size=4)
-    return cl.Buffer(runtime.context, flags, hostbuf=array)
 
 
 def _check_launch(seed: int, pixels: np.ndarray, redraws: np.ndarray | None

@@ -23,11 +23,8 @@ def device_philox(runtime: Runtime, counters: np.ndarray, keys: np.ndarray) -> n
     counters = np.ascontiguousarray(counters, np.uint32).reshape(-1, 4)
     keys = np.ascontiguousarray(keys, np.uint32).reshape(-1, 2)
     out = np.empty_like(counters)
-    mf = cl.mem_flags
-    ctx = runtime.context
-    ctr_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=counters)
-    key_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=keys)
-    out_buf = cl.Buffer(ctx, mf.WRITE_ONLY, size=out.nbytes)
+    ctr_buf, key_buf = runtime.upload(counters), runtime.upload(keys)
+    out_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=out.nbytes)
     kernel = runtime.kernel("rng_test.cl", "philox_blocks")
     kernel(runtime.queue, (padded_global_size(len(out)),), (runtime.local_size,),
            np.uint32(len(out)), ctr_buf, key_buf, out_buf)  # fmt: skip

@@ -99,11 +99,11 @@ class PathTracer:
         self.russian_roulette = bool(russian_roulette)
         self.next_event_estimation = bool(next_event_estimation)
         self._buffers = {
-            name: _upload(runtime, getattr(scene, name))
+            name: runtime.upload(getattr(scene, name))
             for name in ("quads", "spheres", "materials", "emitters")
         }
         self._quad_blocks = scene.quad_blocks(QUAD_BLOCK_WIDTH)
-        self._buffers["quad_blocks"] = _upload(runtime, self._quad_blocks)
+        self._buffers["quad_blocks"] = runtime.upload(self._quad_blocks)
         self._cameras: dict[tuple[int, int], cl.Buffer] = {}
         # Profiling builds only (bench/trace_throughput.py --profile), e.g.
         # {"PROFILE_SKIP_SHADOW_RAYS": True}: shadow rays counted but not traced.
@@ -112,7 +112,7 @@ class PathTracer:
     def camera_buffer(self, width: int, height: int) -> cl.Buffer:
         key = (width, height)
         if key not in self._cameras:
-            self._cameras[key] = _upload(self.runtime, self.scene.camera.basis(width, height))
+            self._cameras[key] = self.runtime.upload(self.scene.camera.basis(width, height))
         return self._cameras[key]
 
     def image_size(self, width: int | None, height: int | None) -> tuple[int, int]:
@@ -152,7 +152,7 @@ class PathTracer:
         global_size = padded_global_size(count, runtime.local_size)
         groups = global_size // runtime.local_size
         radiance = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, size=max(12, 12 * count))
-        counters = _upload(runtime, np.zeros(1 + groups, np.uint32), read_only=False)
+        counters = runtime.upload(np.zeros(1 + groups, np.uint32), read_only=False)
         if count == 0:
             return TraceResult(radiance, 0, queue, counters, None)
         scene = self.scene
@@ -187,12 +187,3 @@ class PathTracer:
             counters,
         )
         return TraceResult(radiance, count, queue, counters, event)
-
-
-def _upload(runtime: Runtime, array: np.ndarray, read_only: bool = True) -> cl.Buffer:
-    """A device copy of an array (a 16-byte placeholder when it is empty)."""
-    flags = cl.mem_flags.READ_ONLY if read_only else cl.mem_flags.READ_WRITE
-    data = np.ascontiguousarray(array).reshape(-1)
-    if data.nbytes == 0:
-        return cl.Buffer(runtime.context, flags, size=16)
-    return cl.Buffer(runtime.context, flags | cl.mem_flags.COPY_HOST_PTR, hostbuf=data)
