@@ -170,6 +170,21 @@ VORONOI_INLINE void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2
     poly->count = 4;
 }
 
+// Replace the polygon by the clipped vertices and edges, and update the farthest vertex distance.
+VORONOI_INLINE void VoronoiPolygon_Store(VoronoiPolygon *poly, const real *nx, const real *ny,
+                                         const float *nex, const float *ney, int count)
+{
+    real radius2 = 0;
+    for (int k = 0; k < count; ++k) {
+        poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
+        poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
+        real r2 = nx[k] * nx[k] + ny[k] * ny[k];
+        radius2 = r2 > radius2 ? r2 : radius2;
+    }
+    poly->count = count;
+    poly->radius2 = radius2;
+}
+
 // Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
 // Returns false on vertex overflow (the polygon is then unusable).
 // The general case of VoronoiPolygon_Clip (Sutherland-Hodgman), for rounding-degenerate
@@ -214,16 +229,7 @@ __attribute__((noinline)) bool VoronoiPolygon_ClipGeneral(VoronoiPolygon *poly, 
         }
     }
 
-    // Copy back and update the farthest vertex distance
-    real radius2 = 0;
-    for (int k = 0; k < out; ++k) {
-        poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
-        poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
-        real r2 = nx[k] * nx[k] + ny[k] * ny[k];
-        radius2 = r2 > radius2 ? r2 : radius2;
-    }
-    poly->count = out;
-    poly->radius2 = radius2;
+    VoronoiPolygon_Store(poly, nx, ny, nex, ney, out);
     return true;
 }
 
@@ -272,7 +278,6 @@ __attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v
     // bisector) and the entering one (on edge e)
     real nx[VORONOI_MAX_VERTICES], ny[VORONOI_MAX_VERTICES];
     float nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
-    real radius2 = 0;
     for (int j = 0, k = b; j < inside; ++j) {
         nx[j] = poly->vx[k]; ny[j] = poly->vy[k];
         nex[j] = poly->ex[k]; ney[j] = poly->ey[k];
@@ -280,15 +285,7 @@ __attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v
     }
     nx[inside] = pax; ny[inside] = pay; nex[inside] = neighbour.x; ney[inside] = neighbour.y;
     nx[inside + 1] = pbx; ny[inside + 1] = pby; nex[inside + 1] = pbex; ney[inside + 1] = pbey;
-    int count = inside + 2;
-    for (int k = 0; k < count; ++k) {
-        poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
-        poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
-        real r2 = nx[k] * nx[k] + ny[k] * ny[k];
-        radius2 = r2 > radius2 ? r2 : radius2;
-    }
-    poly->count = count;
-    poly->radius2 = radius2;
+    VoronoiPolygon_Store(poly, nx, ny, nex, ney, inside + 2);
     return true;
 }
 
