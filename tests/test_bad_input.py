@@ -15,36 +15,12 @@ import sys
 from pathlib import Path
 
 import pytest
+from scene_texts import MINIMAL_SCENE
 
 from clrender import cli
 from clrender.imageio import read_exr
 
-SCENE = """
-[camera]
-look_from = [0.0, 0.0, 5.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [4, 4]
-
-[materials.white]
-type = "diffuse"
-albedo = [0.5, 0.5, 0.5]
-
-[[shapes]]
-name = "lamp"
-type = "quad"
-corner = [-1.0, -1.0, 0.0]
-edge1 = [2.0, 0.0, 0.0]
-edge2 = [0.0, 2.0, 0.0]
-emission = [1.0, 1.0, 1.0]
-
-[[shapes]]
-name = "ball"
-type = "sphere"
-center = [0.0, 0.0, -2.0]
-radius = 1.0
-material = "white"
-"""
+SCENE = MINIMAL_SCENE
 
 BOX = """
 [[shapes]]

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 import pytest
+from scene_texts import MINIMAL_SCENE
 
 from clrender.errors import ClrenderError
 from clrender.scene import (
@@ -24,32 +25,7 @@ from clrender.scene import (
 
 DATA = Path(__file__).parent / "data"
 
-MINIMAL = """
-[camera]
-look_from = [0.0, 0.0, 5.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [8, 8]
-
-[materials.white]
-type = "diffuse"
-albedo = [0.5, 0.5, 0.5]
-
-[[shapes]]
-name = "lamp"
-type = "quad"
-corner = [-1.0, -1.0, 0.0]
-edge1 = [2.0, 0.0, 0.0]
-edge2 = [0.0, 2.0, 0.0]
-emission = [1.0, 1.0, 1.0]
-
-[[shapes]]
-name = "ball"
-type = "sphere"
-center = [0.0, 0.0, -2.0]
-radius = 1.0
-material = "white"
-"""
+MINIMAL = MINIMAL_SCENE
 
 
 def write(tmp_path, text, name="scene.toml"):
