@@ -54,6 +54,10 @@ typedef float2 area_real2;
 #define VORONOI_MAX_VERTICES 32
 #endif
 
+#ifndef VORONOI_BLOCK_CAPACITY
+#define VORONOI_BLOCK_CAPACITY 64
+#endif
+
 #ifndef VORONOI_FIRST_BOX_SPACINGS
 #define VORONOI_FIRST_BOX_SPACINGS 2.5f
 #endif
@@ -233,24 +237,30 @@ __attribute__((noinline)) bool VoronoiPolygon_ClipGeneral(VoronoiPolygon *poly, 
     return true;
 }
 
-// Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
-// Returns false on vertex overflow (the polygon is then unusable). The outside vertices of a
-// convex polygon form one cyclic run s..e: found branch-free from a bit mask, replaced by the
-// two crossings (the same arithmetic as Sutherland-Hodgman, which handles any other case).
-// Not inlined: its scratch arrays then live in its own frame (inlined copies at each call site
-// measured slower on PoCL).
-__attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v,
-                                                   float2 neighbour)
+// Bit k set: vertex k lies beyond the bisector of the origin and v = neighbour - x, i.e. is
+// closer to the neighbour (v.p > |v|^2 / 2); 0 when the bisector does not cut the polygon.
+VORONOI_INLINE uint VoronoiPolygon_OutsideMask(const VoronoiPolygon *poly, real2 v)
 {
-    int m = poly->count;
     real level = 0.5f * (v.x * v.x + v.y * v.y);
     uint out_mask = 0u;
-    for (int k = 0; k < m; ++k) {
+    for (int k = 0; k < poly->count; ++k) {
         real d = v.x * poly->vx[k] + v.y * poly->vy[k] - level;
         out_mask |= (uint)(d > 0) << k;
     }
-    if (out_mask == 0u)
-        return true;
+    return out_mask;
+}
+
+// Keep the half-plane closer to the origin than to v = neighbour - x, given the polygon's
+// (non-zero) outside mask. Returns false on vertex overflow (the polygon is then unusable). The
+// outside vertices of a convex polygon form one cyclic run s..e: found branch-free from the
+// mask, replaced by the two crossings (the same arithmetic as Sutherland-Hodgman, which
+// handles any other case). Not inlined: its scratch arrays then live in its own frame (inlined
+// copies at each call site measured slower on PoCL).
+__attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v,
+                                                   float2 neighbour, uint out_mask)
+{
+    int m = poly->count;
+    real level = 0.5f * (v.x * v.x + v.y * v.y);
     uint full = m >= 32 ? 0xffffffffu : (1u << m) - 1u;
     uint prev_out = ((out_mask << 1) | (out_mask >> (m - 1))) & full;  // bit k: vertex k - 1
     uint next_out = ((out_mask >> 1) | (out_mask << (m - 1))) & full;  // bit k: vertex k + 1
@@ -360,7 +370,8 @@ VORONOI_INLINE bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0
         // A bisector at distance >= R cannot cut a polygon within radius R
         if (dist2 >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
             continue;
-        if (!VoronoiPolygon_Clip(poly, v, neighbour))
+        uint out_mask = VoronoiPolygon_OutsideMask(poly, v);
+        if (out_mask != 0u && !VoronoiPolygon_Clip(poly, v, neighbour, out_mask))
             return false;
     }
     return true;
@@ -394,45 +405,207 @@ VORONOI_INLINE bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, 
     return ok;
 }
 
-// Distance from x to the nearest grid cell outside the block of rings 0..k around (cx, cy)
-// (infinite on sides where the grid ends: no nucleus lies beyond the border cells' block).
-VORONOI_INLINE real VoronoiCell_SafeRadius(real2 x, int cx, int cy, int k, int grid_side,
-                                   real half_extent, real cell)
+// Clip by the grid cells of rows y0..y1 and columns x0..x1 (indices clamped to the grid) that
+// lie outside the block of columns bx0..bx1 on rows by0..by1 (already visited).
+VORONOI_INLINE bool VoronoiCell_ClipBoxOutside(VoronoiPolygon *poly, real2 x, int x0, int x1,
+                                               int y0, int y1, int bx0, int bx1, int by0,
+                                               int by1, int grid_side,
+                                               __global const uint *start, uint base,
+                                               __global const float2 *sorted_points,
+                                               int *coincident)
 {
-    real radius = INFINITY;
-    if (cx - k > 0)
-        radius = VORONOI_MIN(radius, x.x - (-half_extent + (cx - k) * cell));
-    if (cx + k < grid_side - 1)
-        radius = VORONOI_MIN(radius, -half_extent + (cx + k + 1) * cell - x.x);
-    if (cy - k > 0)
-        radius = VORONOI_MIN(radius, x.y - (-half_extent + (cy - k) * cell));
-    if (cy + k < grid_side - 1)
-        radius = VORONOI_MIN(radius, -half_extent + (cy + k + 1) * cell - x.y);
-    return radius;
+    bool ok = true;
+    for (int y = y0; y <= y1 && ok; ++y) {
+        int row = y * grid_side;
+        if (y < by0 || y > by1) {
+            ok = VoronoiCell_ClipRange(poly, x, base + start[row + x0],
+                                       base + start[row + x1 + 1], sorted_points, coincident);
+            continue;
+        }
+        if (x0 < bx0)
+            ok = VoronoiCell_ClipRange(poly, x, base + start[row + x0],
+                                       base + start[row + VORONOI_MIN(x1, bx0 - 1) + 1],
+                                       sorted_points, coincident);
+        if (ok && x1 > bx1)
+            ok = VoronoiCell_ClipRange(poly, x, base + start[row + VORONOI_MAX(x0, bx1 + 1)],
+                                       base + start[row + x1 + 1], sorted_points, coincident);
+    }
+    return ok;
 }
 
-// Clip ring by ring until no unvisited nucleus can cut; returns false on vertex overflow.
+// Grid column and row of the nucleus.
+VORONOI_INLINE int2 VoronoiCell_GridCell(real2 x, int grid_side, real half_extent)
+{
+    float inv_cell = (float)grid_side / (2.0f * (float)half_extent);
+    return (int2)(VoronoiGrid_Index((float)x.x, (float)half_extent, inv_cell, grid_side),
+                  VoronoiGrid_Index((float)x.y, (float)half_extent, inv_cell, grid_side));
+}
+
+// The bounding box (relative to the nucleus) of the region where a nucleus can still cut the
+// polygon: the union of the discs centred on its vertices p through the nucleus (a nucleus cuts
+// iff it is closer than the nucleus to some vertex). The region only shrinks as clips go on.
+VORONOI_INLINE float4 VoronoiPolygon_CutBox(const VoronoiPolygon *poly)
+{
+    float4 box = (float4)(INFINITY, INFINITY, -INFINITY, -INFINITY);  // (lo.x, lo.y, hi.x, hi.y)
+    for (int k = 0; k < poly->count; ++k) {
+        float px = (float)poly->vx[k], py = (float)poly->vy[k];
+        float r = __builtin_sqrtf(px * px + py * py);
+        box.x = VORONOI_MIN(box.x, px - r);
+        box.y = VORONOI_MIN(box.y, py - r);
+        box.z = VORONOI_MAX(box.z, px + r);
+        box.w = VORONOI_MAX(box.w, py + r);
+    }
+    return box;
+}
+
+// Clip by the nuclei of the grid cells that meet the polygon's cut box, outside the 3 x 3 block
+// around the nucleus's grid cell g (which the polygon already accounts for): no other nucleus
+// can cut, so the polygon is then the exact cell.
+VORONOI_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, int2 g,
+                                                int grid_side, real half_extent,
+                                                __global const uint *start, uint base,
+                                                __global const float2 *sorted_points,
+                                                int *coincident)
+{
+    float extent = (float)half_extent;
+    float inv_cell = (float)grid_side / (2.0f * extent);
+    // Widened for rounding: of the box (relative error ~1e-6 of the radius, with the slack)
+    // and of the grid, which may misplace a nucleus by ~1e-6 cell
+    float4 box = VoronoiPolygon_CutBox(poly);
+    float slack = 1e-4f * (box.z - box.x + box.w - box.y) + 1e-5f / inv_cell;
+    int x0 = VoronoiGrid_Index((float)x.x + box.x - slack, extent, inv_cell, grid_side);
+    int x1 = VoronoiGrid_Index((float)x.x + box.z + slack, extent, inv_cell, grid_side);
+    int y0 = VoronoiGrid_Index((float)x.y + box.y - slack, extent, inv_cell, grid_side);
+    int y1 = VoronoiGrid_Index((float)x.y + box.w + slack, extent, inv_cell, grid_side);
+    return VoronoiCell_ClipBoxOutside(poly, x, x0, x1, y0, y1, g.x - 1, g.x + 1, g.y - 1,
+                                      g.y + 1, grid_side, start, base, sorted_points,
+                                      coincident);
+}
+
+// The clipping search: the 3 x 3 block of grid cells around the nucleus (its own cell first),
+// then the cells beyond it within 2 R. Returns false on vertex overflow.
 VORONOI_INLINE bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, real half_extent,
                                __global const uint *start, uint base,
                                __global const float2 *sorted_points, int *coincident)
 {
-    real cell = 2 * half_extent / grid_side;
-    float inv_cell = (float)grid_side / (2.0f * (float)half_extent);
-    int cx = VoronoiGrid_Index((float)x.x, (float)half_extent, inv_cell, grid_side);
-    int cy = VoronoiGrid_Index((float)x.y, (float)half_extent, inv_cell, grid_side);
+    int2 g = VoronoiCell_GridCell(x, grid_side, half_extent);
     *coincident = 0;
-    for (int k = 0; k < grid_side; ++k) {
-        if (!VoronoiCell_ClipRing(poly, x, cx, cy, k, grid_side, start, base, sorted_points,
-                                  coincident))
-            return false;
-        // Stop once every unvisited nucleus is at least 2 R away (the grid may misplace a
-        // nucleus by rounding, ~1e-6 cell: the safe radius is shrunk by more than that)
-        real safe = VoronoiCell_SafeRadius(x, cx, cy, k, grid_side, half_extent, cell);
-        safe -= 1e-5f * cell;
-        if (safe > 0 && safe * safe >= 4.0f * VORONOI_RADIUS_SLACK * poly->radius2)
-            break;
+    return VoronoiCell_ClipRing(poly, x, g.x, g.y, 0, grid_side, start, base, sorted_points,
+                                coincident)
+           && VoronoiCell_ClipRing(poly, x, g.x, g.y, 1, grid_side, start, base, sorted_points,
+                                   coincident)
+           && VoronoiCell_ClipBeyondBlock(poly, x, g, grid_side, half_extent, start, base,
+                                          sorted_points, coincident);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The walk around a cell
+
+// The nuclei of the 3 x 3 block of grid cells around g, relative to x, with their squared
+// distances and slots; those coincident with x (itself included) are only counted.
+typedef struct {
+    real vx[VORONOI_BLOCK_CAPACITY];
+    real vy[VORONOI_BLOCK_CAPACITY];
+    real dist2[VORONOI_BLOCK_CAPACITY];
+    uint slot[VORONOI_BLOCK_CAPACITY];
+    int count;
+    int nearest;
+} VoronoiBlock;
+
+// False when the block holds more nuclei than the buffer.
+VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, int grid_side,
+                                        __global const uint *start, uint base,
+                                        __global const float2 *sorted_points, int *coincident)
+{
+    int y0 = VORONOI_MAX(g.y - 1, 0), y1 = VORONOI_MIN(g.y + 1, grid_side - 1);
+    int x0 = VORONOI_MAX(g.x - 1, 0), x1 = VORONOI_MIN(g.x + 1, grid_side - 1);
+    int count = 0, nearest = -1;
+    real nearest_dist2 = INFINITY;
+    for (int y = y0; y <= y1; ++y) {
+        int row = y * grid_side;
+        uint s1 = base + start[row + x1 + 1];
+        for (uint s = base + start[row + x0]; s < s1; ++s) {
+            real2 v = REAL2(sorted_points[s]) - x;
+            real dist2 = v.x * v.x + v.y * v.y;
+            if (dist2 == 0) {
+                *coincident += 1;
+                continue;
+            }
+            if (count == VORONOI_BLOCK_CAPACITY)
+                return false;
+            block->vx[count] = v.x;
+            block->vy[count] = v.y;
+            block->dist2[count] = dist2;
+            block->slot[count] = s;
+            bool nearer = dist2 < nearest_dist2;
+            nearest = nearer ? count : nearest;
+            nearest_dist2 = nearer ? dist2 : nearest_dist2;
+            ++count;
+        }
     }
+    block->count = count;
+    block->nearest = nearest;
     return true;
+}
+
+// The cell of x among the block's nuclei, walked counter-clockwise: the nearest nucleus is
+// always a Voronoi neighbour, and the edge on the bisector of neighbour a (points
+// a / 2 + t perp(a), perp(a) = (-a.y, a.x)) ends at the smallest t where the bisector of a
+// nucleus b on its left (perp(a).b > 0) crosses it, t_b = (|b|^2 - a.b) / (2 perp(a).b); that b
+// is the next neighbour. The walk ends back at the nearest nucleus. Returns false when it
+// cannot decide (a cell unbounded within the block, more than VORONOI_MAX_VERTICES edges from
+// a rounding-degenerate configuration): the clipping search then does the cell.
+VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, VoronoiPolygon *poly,
+                                      __global const float2 *sorted_points)
+{
+    // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
+#pragma OPENCL FP_CONTRACT OFF
+    int first = block->nearest, a = first;
+    real radius2 = 0;
+    if (first < 0)
+        return false;
+    for (int m = 0; m < VORONOI_MAX_VERTICES; ++m) {
+        real ax = block->vx[a], ay = block->vy[a];
+        // The crossing of every left nucleus (separate loops, so the compiler vectorises the
+        // first and the branch-free minimum; a branch per nucleus mispredicts)
+        real t[VORONOI_BLOCK_CAPACITY];
+        for (int b = 0; b < block->count; ++b) {
+            real cross = ax * block->vy[b] - ay * block->vx[b];
+            real num = block->dist2[b] - (ax * block->vx[b] + ay * block->vy[b]);
+            t[b] = cross > 0 ? num / cross : INFINITY;
+        }
+        real best = INFINITY;
+        for (int b = 0; b < block->count; ++b)
+            best = t[b] < best ? t[b] : best;
+        int next = -1;
+        if (best < INFINITY)
+            for (next = 0; t[next] != best; ++next)
+                ;
+        if (next < 0)
+            return false;
+        // Edge m lies on a's bisector; its end (t = best / 2) is vertex m + 1, or vertex 0
+        // when the walk closes
+        bool closes = next == first;
+        int end = closes ? 0 : m + 1;
+        if (end == VORONOI_MAX_VERTICES)
+            return false;
+        real half_t = 0.5f * best;
+        real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
+        poly->vx[end] = px;
+        poly->vy[end] = py;
+        float2 neighbour = sorted_points[block->slot[a]];
+        poly->ex[m] = neighbour.x;
+        poly->ey[m] = neighbour.y;
+        real r2 = px * px + py * py;
+        radius2 = r2 > radius2 ? r2 : radius2;
+        if (closes) {
+            poly->count = m + 1;
+            poly->radius2 = radius2;
+            return m >= 2;
+        }
+        a = next;
+    }
+    return false;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -495,22 +668,33 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
     float2 nucleus = positions[i];
     real2 x = REAL2(nucleus);
 
-    // First try a box of a few mean spacings around the nucleus: it keeps the early clips and
-    // the radius test tight; a cell that reaches its border is redone from the full start box
+    // The walk around the cell among the block's nuclei, then the nuclei beyond the block
     VoronoiPolygon poly;
-    real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / __builtin_sqrtf((float)count);
-    bool small_box = reach < start_box;
-    if (small_box)
-        VoronoiPolygon_InitBox(&poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
-    else
-        VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
-    int coincident;
-    bool ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
-                                 &coincident);
-    if (ok && small_box && VoronoiPolygon_TouchesBox(&poly, nucleus)) {
-        VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
+    VoronoiBlock block;
+    int2 g = VoronoiCell_GridCell(x, grid_side, half_extent);
+    int coincident = 0;
+    bool ok = VoronoiBlock_Gather(&block, x, g, grid_side, start, base, sorted_points,
+                                  &coincident)
+              && VoronoiBlock_Walk(&block, &poly, sorted_points);
+    if (ok) {
+        ok = VoronoiCell_ClipBeyondBlock(&poly, x, g, grid_side, half_extent, start, base,
+                                         sorted_points, &coincident);
+    } else {
+        // The clipping search, from a box of a few mean spacings around the nucleus (it keeps
+        // the radius test tight); a cell that reaches its border is redone from the full box
+        real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / __builtin_sqrtf((float)count);
+        bool small_box = reach < start_box;
+        if (small_box)
+            VoronoiPolygon_InitBox(&poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
+        else
+            VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
         ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
                                 &coincident);
+        if (ok && small_box && VoronoiPolygon_TouchesBox(&poly, nucleus)) {
+            VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
+            ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
+                                    &coincident);
+        }
     }
     if (!ok) {
         areas[i] = NAN;
