@@ -57,6 +57,9 @@ typedef float2 area_real2;
 #ifndef VORONOI_BLOCK_CAPACITY
 #define VORONOI_BLOCK_CAPACITY 64
 #endif
+#if VORONOI_BLOCK_CAPACITY % 8 != 0
+#error "VORONOI_BLOCK_CAPACITY must be a multiple of 8 (the walk runs over groups of 8)"
+#endif
 
 #ifndef VORONOI_FIRST_BOX_SPACINGS
 #define VORONOI_FIRST_BOX_SPACINGS 2.5f
@@ -512,6 +515,34 @@ typedef struct {
     int nearest;
 } VoronoiBlock;
 
+// Reals as integers of the same order (sign-magnitude to two's complement), so that a minimum
+// over them is an integer minimum.
+#ifdef VORONOI_DOUBLE
+typedef long real_bits;
+#define VORONOI_KEY_INFINITY 0x7ff0000000000000L
+VORONOI_INLINE real_bits VoronoiKey_FromReal(real t)
+{
+    long bits = as_long(t);
+    return bits ^ ((bits >> 63) & 0x7fffffffffffffffL);
+}
+VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
+{
+    return as_double(key ^ ((key >> 63) & 0x7fffffffffffffffL));
+}
+#else
+typedef int real_bits;
+#define VORONOI_KEY_INFINITY 0x7f800000
+VORONOI_INLINE real_bits VoronoiKey_FromReal(real t)
+{
+    int bits = as_int(t);
+    return bits ^ ((bits >> 31) & 0x7fffffff);
+}
+VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
+{
+    return as_float(key ^ ((key >> 31) & 0x7fffffff));
+}
+#endif
+
 // False when the block holds more nuclei than the buffer.
 VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, int grid_side,
                                         __global const uint *start, uint base,
@@ -543,6 +574,12 @@ VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, in
             ++count;
         }
     }
+    // Pad to whole groups of 8 with nuclei at the origin, which never bound an edge
+    for (int k = count; k < ((count + 7) & ~7); ++k) {
+        block->vx[k] = 0;
+        block->vy[k] = 0;
+        block->dist2[k] = 0;
+    }
     block->count = count;
     block->nearest = nearest;
     return true;
@@ -561,26 +598,31 @@ VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, VoronoiPolygon 
     // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
 #pragma OPENCL FP_CONTRACT OFF
     int first = block->nearest, a = first;
+    int padded = (block->count + 7) & ~7;
     real radius2 = 0;
     if (first < 0)
         return false;
     for (int m = 0; m < VORONOI_MAX_VERTICES; ++m) {
         real ax = block->vx[a], ay = block->vy[a];
-        // The crossing of every left nucleus (separate loops, so the compiler vectorises the
-        // first and the branch-free minimum; a branch per nucleus mispredicts)
-        real t[VORONOI_BLOCK_CAPACITY];
-        for (int b = 0; b < block->count; ++b) {
+        // The crossing of every left nucleus, as an ordered integer key (integer minima
+        // vectorise, float ones do not without fast math; a branch per nucleus mispredicts)
+        real_bits keys[VORONOI_BLOCK_CAPACITY];
+        real_bits best_key = VORONOI_KEY_INFINITY;
+        for (int b = 0; b < padded; ++b) {
             real cross = ax * block->vy[b] - ay * block->vx[b];
             real num = block->dist2[b] - (ax * block->vx[b] + ay * block->vy[b]);
-            t[b] = cross > 0 ? num / cross : INFINITY;
+            real_bits key = VoronoiKey_FromReal(cross > 0 ? num / cross : (real)INFINITY);
+            keys[b] = key;
+            best_key = key < best_key ? key : best_key;
         }
-        real best = INFINITY;
-        for (int b = 0; b < block->count; ++b)
-            best = t[b] < best ? t[b] : best;
-        int next = -1;
-        if (best < INFINITY)
-            for (next = 0; t[next] != best; ++next)
-                ;
+        int next = padded;
+        for (int b = 0; b < padded; ++b) {
+            int candidate = keys[b] == best_key ? b : padded;
+            next = candidate < next ? candidate : next;
+        }
+        if (best_key >= VORONOI_KEY_INFINITY)
+            next = -1;
+        real best = VoronoiKey_ToReal(best_key);
         if (next < 0)
             return false;
         // Edge m lies on a's bisector; its end (t = best / 2) is vertex m + 1, or vertex 0
