@@ -41,7 +41,7 @@ from clrender.sampling import DeviceSampleSets
 from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
 
 KERNEL_FILE = "voronoi_cells.cl"
-STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK = 1, 2, 4
+STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
 GRID_NUCLEI_PER_CELL = 2.0
 MAX_GRID_SIDE = 256
@@ -175,7 +175,7 @@ def _cells(runtime: Runtime, layout: _Layout, box: float | None, precision: str,
     bounded = (status & STATUS_BOUNDED) != 0
     cells = CellAreas(np.where(bounded, areas.astype(np.float64), np.nan), bounded,
                       (status & STATUS_INSIDE) != 0 if box is not None else None,
-                      TessellationStats())
+                      TessellationStats(walked_cells=int(((status & STATUS_WALKED) != 0).sum())))
     fallback = _fallback_pixels(layout.traced_offsets, (status & STATUS_FALLBACK) != 0)
     if fallback.size:
         _recompute_on_host(cells, layout.traced_offsets, fallback, fetch, box)

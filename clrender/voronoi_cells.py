@@ -82,11 +82,13 @@ class TessellationStats:
     qhull_calls: int = 0
     recomputed_pixels: int = 0      # pixels redone alone (joint cell not provably exact)
     degenerate_pixels: int = 0      # pixels Qhull could not triangulate (all cells unbounded)
+    walked_cells: int = 0           # device cells found by the walk (the others by clipping)
 
     def add(self, other: TessellationStats) -> None:
         self.qhull_calls += other.qhull_calls
         self.recomputed_pixels += other.recomputed_pixels
         self.degenerate_pixels += other.degenerate_pixels
+        self.walked_cells += other.walked_cells
 
 
 @dataclass

@@ -5,10 +5,16 @@
 //   voronoi_build_grid: one work-item per pixel sorts the pixel's nuclei into a uniform
 //     grid_side x grid_side grid over [-half_extent, half_extent]^2 (counting sort: counts,
 //     prefix sums, fill), so a cell's nuclei are contiguous and a row of cells is one range.
-//   voronoi_cell_areas: one work-item per traced nucleus clips a start box with the bisectors
-//     of the pixel's other nuclei, visiting grid rings outward ("meshless Voronoi"). Once every
-//     unvisited nucleus is at least 2 R away (R = farthest polygon vertex from the nucleus), no
-//     bisector can cut the polygon any more, so it is the exact cell.
+//   voronoi_cell_areas: one work-item per traced nucleus. It walks around the nucleus among
+//     the nuclei of the 3 x 3 block of grid cells around it: from the nearest nucleus (always
+//     a Voronoi neighbour), each edge ends where the first other bisector crosses it, whose
+//     nucleus is the next neighbour, until the walk is back at the first. That is the exact
+//     cell among the block's nuclei; a nucleus outside the block can only change it if it is
+//     closer than the nucleus to one of its vertices (inside a disc through the nucleus centred
+//     on a vertex), so the grid cells meeting those discs' bounding box are searched and their
+//     nuclei clip the polygon. Where the walk cannot decide (a cell unbounded within the
+//     block, a full buffer, a rounding-degenerate loop), the cell is clipped from a box by the
+//     block's nuclei and then searched the same way ("meshless Voronoi").
 // All geometry is relative to the nucleus. Each polygon edge remembers the neighbour whose
 // bisector carries it, and the final vertices are recomputed as intersections of two bisectors
 // from the input coordinates, so the area does not inherit the rounding of the clipping
@@ -16,13 +22,14 @@
 // worst cells), or in double with -DVORONOI_AREA_DOUBLE (~1e-14); -DVORONOI_DOUBLE runs all
 // of it in double.
 //
-// A polygon that still has an edge of the start box after the search is either unbounded (the
+// A clipped polygon that still has an edge of the start box after the search is either unbounded (the
 // nucleus lies on the convex hull of its pixel's nuclei) or larger than the box; an O(N) test
 // of the cell's recession cone tells them apart. Status bits per traced nucleus:
 //   VORONOI_BOUNDED   the cell is bounded (area valid)
 //   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test)
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
 //                     collinear configuration): the host recomputes the pixel with Qhull.
+//   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
 // Coincident nuclei share their cell equally, as in the host reference.
 
 #if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
@@ -76,6 +83,7 @@ typedef float2 area_real2;
 #define VORONOI_BOUNDED 1
 #define VORONOI_INSIDE 2
 #define VORONOI_FALLBACK 4
+#define VORONOI_WALKED 8
 
 // Stop and skip tests keep a relative safety margin for rounding (they only cost extra clips).
 #define VORONOI_RADIUS_SLACK 1.0001f
@@ -715,10 +723,11 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
     VoronoiBlock block;
     int2 g = VoronoiCell_GridCell(x, grid_side, half_extent);
     int coincident = 0;
-    bool ok = VoronoiBlock_Gather(&block, x, g, grid_side, start, base, sorted_points,
-                                  &coincident)
-              && VoronoiBlock_Walk(&block, &poly, sorted_points);
-    if (ok) {
+    bool walked = VoronoiBlock_Gather(&block, x, g, grid_side, start, base, sorted_points,
+                                      &coincident)
+                  && VoronoiBlock_Walk(&block, &poly, sorted_points);
+    bool ok;
+    if (walked) {
         ok = VoronoiCell_ClipBeyondBlock(&poly, x, g, grid_side, half_extent, start, base,
                                          sorted_points, &coincident);
     } else {
@@ -756,5 +765,5 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
     bool inside;
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
     areas[i] = area / VORONOI_MAX(coincident, 1);
-    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0);
+    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0);
 }
