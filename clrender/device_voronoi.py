@@ -43,7 +43,7 @@ from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
 KERNEL_FILE = "voronoi_cells.cl"
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
-GRID_NUCLEI_PER_CELL = 2.0
+GRID_NUCLEI_PER_CELL = 3.5
 MAX_GRID_SIDE = 256
 # The start box is the grid's square scaled by this factor: a bounded cell that reaches beyond it
 # is recomputed on the host (rare: such cells belong to sets of a handful of nuclei).
