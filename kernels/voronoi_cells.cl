@@ -551,45 +551,60 @@ VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
 }
 #endif
 
-// False when the block holds more nuclei than the buffer.
+// False when the block holds more nuclei than the buffer. Copy first, then arithmetic over
+// whole groups of 8 (the compiler vectorises both; a branch per nucleus would mispredict).
 VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, int grid_side,
                                         __global const uint *start, uint base,
                                         __global const float2 *sorted_points, int *coincident)
 {
     int y0 = VORONOI_MAX(g.y - 1, 0), y1 = VORONOI_MIN(g.y + 1, grid_side - 1);
     int x0 = VORONOI_MAX(g.x - 1, 0), x1 = VORONOI_MIN(g.x + 1, grid_side - 1);
-    int count = 0, nearest = -1;
-    real nearest_dist2 = INFINITY;
+    // The block's rows, one contiguous slot range each
+    int count = 0;
     for (int y = y0; y <= y1; ++y) {
         int row = y * grid_side;
-        uint s1 = base + start[row + x1 + 1];
-        for (uint s = base + start[row + x0]; s < s1; ++s) {
-            real2 v = REAL2(sorted_points[s]) - x;
-            real dist2 = v.x * v.x + v.y * v.y;
-            if (dist2 == 0) {
-                *coincident += 1;
-                continue;
-            }
-            if (count == VORONOI_BLOCK_CAPACITY)
-                return false;
-            block->vx[count] = v.x;
-            block->vy[count] = v.y;
-            block->dist2[count] = dist2;
-            block->slot[count] = s;
-            bool nearer = dist2 < nearest_dist2;
-            nearest = nearer ? count : nearest;
-            nearest_dist2 = nearer ? dist2 : nearest_dist2;
-            ++count;
+        uint s0 = base + start[row + x0];
+        int n = (int)(base + start[row + x1 + 1] - s0);
+        if (count + n > VORONOI_BLOCK_CAPACITY)
+            return false;
+        for (int k = 0; k < n; ++k) {
+            float2 point = sorted_points[s0 + k];
+            block->vx[count + k] = point.x;
+            block->vy[count + k] = point.y;
+            block->slot[count + k] = s0 + k;
         }
+        count += n;
     }
-    // Pad to whole groups of 8 with nuclei at the origin, which never bound an edge
-    for (int k = count; k < ((count + 7) & ~7); ++k) {
-        block->vx[k] = 0;
-        block->vy[k] = 0;
-        block->dist2[k] = 0;
+    // Padded to whole groups of 8 with copies of x, which count as coincident and never bound
+    // an edge (a zero vector)
+    int padded = (count + 7) & ~7;
+    for (int k = count; k < padded; ++k) {
+        block->vx[k] = x.x;
+        block->vy[k] = x.y;
     }
+    // Relative positions, squared distances, coincident nuclei (x itself included)
+    int same = 0;
+    real_bits nearest_key = VORONOI_KEY_INFINITY;
+    for (int k = 0; k < padded; ++k) {
+        real vx = block->vx[k] - x.x, vy = block->vy[k] - x.y;
+        real dist2 = vx * vx + vy * vy;
+        block->vx[k] = vx;
+        block->vy[k] = vy;
+        block->dist2[k] = dist2;
+        same += dist2 == 0;
+        real_bits key = dist2 > 0 ? VoronoiKey_FromReal(dist2) : VORONOI_KEY_INFINITY;
+        nearest_key = key < nearest_key ? key : nearest_key;
+    }
+    int nearest = padded;
+    for (int k = 0; k < padded; ++k) {
+        real dist2 = block->dist2[k];
+        bool is_nearest = dist2 > 0 && VoronoiKey_FromReal(dist2) == nearest_key;
+        int candidate = is_nearest ? k : padded;
+        nearest = candidate < nearest ? candidate : nearest;
+    }
+    *coincident += same - (padded - count);
     block->count = count;
-    block->nearest = nearest;
+    block->nearest = nearest < padded ? nearest : -1;
     return true;
 }
 
