@@ -15,6 +15,12 @@ machine count less; each configuration is warmed up once, then the stage and bot
 run in turn, K times, in alternating order (ABC, CBA, ...), and the medians of one run give
 the ratios. Rows: one 4096-sample pixel, n = 64 ... 4096 over ~0.2 M samples each, and a batch
 of 4096 pixels at n = 256. One thread (Qhull is single-threaded).
+
+Then the same one-pixel estimate with the cells from the OpenCL cell kernel
+(clrender.device_voronoi, the render's default backend) on one core: a child process runs it
+with POCL_MAX_PTHREAD_COUNT=1 (PoCL's CPU device then has one worker thread), timing the whole
+call (float32 upload, grid and cell kernels, read-back, host fallbacks, the estimate) in wall
+and CPU seconds; its areas are checked against Qhull's. Skipped with --no-device.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -43,6 +50,7 @@ from clrender.voronoi_cells import (  # noqa: E402
 )
 
 TARGET_RATIO = 1.3
+TARGET_ONE_PIXEL_MS = 2.0
 
 
 def cpu_time(fn) -> float:
@@ -101,14 +109,66 @@ def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict
             "cpu_seconds": times}
 
 
+def device_one_pixel(repeats: int, seed: int) -> dict:
+    """One 4096-sample pixel's vor estimate with device cells, timed in this process."""
+    from clrender.device_voronoi import device_sppp_cells_from_arrays
+    from clrender.runtime import create_runtime
+    from clrender.voronoi_cells import sppp_cells
+
+    runtime = create_runtime(None)
+    batch = draw_sppp(np.random.default_rng(seed), 4096, 1)
+    samples = PixelSamples.from_sppp(batch, np.abs(batch.traced[:, 0] * batch.traced[:, 1]), 4096)
+
+    def run():
+        cells = device_sppp_cells_from_arrays(runtime, batch.traced, batch.offsets, batch.aux,
+                                              batch.aux_offsets)
+        return estimate("vor", samples, {"sppp": cells}), cells
+
+    result, cells = run()    # warm-up: kernel build, first launch
+    walls, cpus = [], []
+    for _ in range(repeats):
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        run()
+        walls.append(time.perf_counter() - wall0)
+        cpus.append(time.process_time() - cpu0)
+    rounded = [np.asarray(a, np.float32).astype(np.float64)
+               for a in (batch.traced, batch.aux)]
+    host = sppp_cells(rounded[0], batch.offsets, rounded[1], batch.aux_offsets)
+    return {"samples": len(batch.traced), "points": len(batch.traced) + len(batch.aux),
+            "device": runtime.describe(), "repeats": repeats,
+            "wall_ms": 1e3 * float(np.median(walls)), "cpu_ms": 1e3 * float(np.median(cpus)),
+            "walked_cells": cells.stats.walked_cells,
+            "max_relative_area_difference": float(np.nanmax(np.abs(cells.areas / host.areas
+                                                                    - 1.0))),
+            "estimate": float(result.estimates[0])}
+
+
+def device_one_pixel_on_one_core(repeats: int) -> dict | None:
+    """device_one_pixel in a child process whose PoCL device has one worker thread."""
+    env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
+    child = subprocess.run([sys.executable, __file__, "--device-one-pixel-child",
+                            "--repeats", str(repeats)], env=env, capture_output=True, text=True)
+    if child.returncode != 0:
+        print(f"device one-pixel measurement failed:\n{child.stderr.strip()}")
+        return None
+    return json.loads(child.stdout.strip().splitlines()[-1])
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--repeats", type=int, default=None)
+    parser.add_argument("--no-device", action="store_true",
+                        help="skip the one-pixel measurement with device cells")
+    parser.add_argument("--device-one-pixel-child", action="store_true",
+                        help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path,
                         default=Path(__file__).parent / "results" / "voronoi_speed.json")
     args = parser.parse_args(argv)
     repeats = args.repeats or (3 if args.quick else 7)
+    if args.device_one_pixel_child:
+        print(json.dumps(device_one_pixel(repeats * 3, seed=11)))
+        return
     rng = np.random.default_rng(7)
     rows = []
     # One 4096-sample pixel, then n = 64 ... 4096 over enough pixels for ~0.2 M samples.
@@ -134,6 +194,15 @@ def main(argv=None) -> None:
     print(f"one 4096-sample pixel: {single['stage_ms_per_pixel']:.2f} ms (target <= 2 ms; bare "
           f"Qhull alone on its {single['points']} points: "
           f"{single['bare_same_calls_ms_per_pixel']:.2f} ms)")
+    device = None if args.no_device else device_one_pixel_on_one_core(repeats)
+    if device is not None:
+        met_one = device["wall_ms"] <= TARGET_ONE_PIXEL_MS
+        print(f"one 4096-sample pixel with device cells on one core ({device['device']}, "
+              f"POCL_MAX_PTHREAD_COUNT=1): {device['wall_ms']:.2f} ms wall, "
+              f"{device['cpu_ms']:.2f} ms CPU, medians of {device['repeats']} (target <= "
+              f"{TARGET_ONE_PIXEL_MS} ms: {'met' if met_one else 'NOT met'}); "
+              f"areas vs Qhull max relative difference "
+              f"{device['max_relative_area_difference']:.1e}")
     worst = max(rows, key=lambda r: r["ratio_same_calls"])
     met = all(r["ratio_same_calls"] <= TARGET_RATIO for r in rows)
     print(f"vor stage / bare Delaunay (same calls): worst {worst['ratio_same_calls']:.3f} at "
@@ -142,7 +211,7 @@ def main(argv=None) -> None:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"repeats": repeats, "clock": "process_time",
                                     "points_per_qhull_call": POINTS_PER_QHULL_CALL,
-                                    "rows": rows}, indent=1))
+                                    "rows": rows, "device_one_pixel": device}, indent=1))
     print(f"wrote {args.out}")
 
 
