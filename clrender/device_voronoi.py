@@ -36,7 +36,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrender.errors import DeviceError, ParameterError
-from clrender.runtime import Runtime, padded_global_size, upload
+from clrender.runtime import Runtime, padded_global_size
 from clrender.sampling import DeviceSampleSets
 from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
 
@@ -109,8 +109,7 @@ def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offse
     aux_offsets = np.asarray(aux_offsets, np.int64)
     flat = np.concatenate([traced32, aux32])
     extent = float(np.abs(flat).max()) if len(flat) else 0.5
-    buffer = cl.Buffer(runtime.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                       hostbuf=flat if len(flat) else np.zeros((1, 2), np.float32))
+    buffer = runtime.upload(flat)
     side = grid_side(len(flat), len(offsets) - 1)
     layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side)
 
@@ -190,19 +189,18 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     status = np.empty(traced, np.uint8)
     if traced == 0:
         return areas, status
-    context, queue, local = runtime.context, runtime.queue, (runtime.local_size,)
+    queue, local = runtime.queue, (runtime.local_size,)
     pixels = layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
     side = layout.grid_side
     if total >= 2**32 or pixels * (side * side + 1) >= 2**32:
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
-    traced_off = upload(context, layout.traced_offsets.astype(np.uint32))
-    aux_off = upload(context, layout.aux_offsets.astype(np.uint32))
-    rw = cl.mem_flags.READ_WRITE
-    cell_start = cl.Buffer(context, rw, size=4 * pixels * (side * side + 1))
-    sorted_points = cl.Buffer(context, rw, size=8 * total)
-    areas_buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, size=areas.nbytes)
-    status_buf = cl.Buffer(context, cl.mem_flags.WRITE_ONLY, size=status.nbytes)
+    traced_off = runtime.upload(layout.traced_offsets.astype(np.uint32))
+    aux_off = runtime.upload(layout.aux_offsets.astype(np.uint32))
+    cell_start = runtime.allocate(4 * pixels * (side * side + 1))
+    sorted_points = runtime.allocate(8 * total)
+    areas_buf = runtime.allocate(areas.nbytes)
+    status_buf = runtime.allocate(status.nbytes)
     half = np.float32(layout.half_extent)
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)

@@ -157,7 +157,7 @@ def generate_sample_sets(
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
     offsets_buf = runtime.upload(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
-    positions = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, size=max(8, 8 * total))
+    positions = runtime.allocate(8 * total)
     _launch_fill(runtime, config, seed, pixels_buf, redraws_buf, offsets_buf, positions,
                  len(pixels), int(offsets[-1]))  # fmt: skip
     return DeviceSampleSets(config, pixels, redraws, offsets, positions, offsets_buf,
@@ -197,7 +197,7 @@ def count_samples(
 
 def _launch_count(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,
                   redraws_buf: cl.Buffer, pixel_count: int) -> np.ndarray:  # fmt: skip
-    counts_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=max(4, 4 * pixel_count))
+    counts_buf = runtime.allocate(4 * pixel_count)
     count = runtime.kernel("sampling.cl", "count_samples")
     count(runtime.queue, (padded_global_size(pixel_count),), (runtime.local_size,),
           np.uint32(pixel_count), np.uint32(seed), np.int32(SAMPLERS[config.name]),

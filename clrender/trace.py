@@ -43,7 +43,8 @@ class TraceResult:
     radiance: cl.Buffer
     sample_count: int
     queue: cl.CommandQueue
-    counters: cl.Buffer
+    counters: cl.Buffer         # uint32: non-finite count, then rays per work-group
+    counter_count: int
     event: cl.Event | None
     _counts: np.ndarray | None = field(default=None, repr=False)
 
@@ -55,7 +56,7 @@ class TraceResult:
 
     def _read_counters(self) -> np.ndarray:
         if self._counts is None:
-            counts = np.empty(self.counters.size // 4, np.uint32)
+            counts = np.empty(self.counter_count, np.uint32)
             cl.enqueue_copy(self.queue, counts, self.counters)
             self._counts = counts.astype(np.int64)
         return self._counts
@@ -147,14 +148,14 @@ class PathTracer:
                 f"pixel index {int(pixels.max())} outside the {width} x {height} image"
             )
         runtime = self.runtime
-        ctx, queue = runtime.context, runtime.queue
+        queue = runtime.queue
         count = sample_sets.traced_total
         global_size = padded_global_size(count, runtime.local_size)
         groups = global_size // runtime.local_size
-        radiance = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, size=max(12, 12 * count))
+        radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(1 + groups, np.uint32), read_only=False)
         if count == 0:
-            return TraceResult(radiance, 0, queue, counters, None)
+            return TraceResult(radiance, 0, queue, counters, 1 + groups, None)
         scene = self.scene
         event = self._kernel(
             queue,
@@ -186,4 +187,4 @@ class PathTracer:
             radiance,
             counters,
         )
-        return TraceResult(radiance, count, queue, counters, event)
+        return TraceResult(radiance, count, queue, counters, 1 + groups, event)

@@ -51,13 +51,7 @@ def reference_intersect(scene, origins, directions):
 
 def device_intersect(runtime, scene, origins, directions):
     ctx, queue = runtime.context, runtime.queue
-    flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
-
-    def upload(array):
-        data = np.ascontiguousarray(array)
-        if data.nbytes == 0:
-            return cl.Buffer(ctx, cl.mem_flags.READ_ONLY, size=16)
-        return cl.Buffer(ctx, flags, hostbuf=data)
+    upload = runtime.upload
 
     count = len(origins)
     blocks = scene.quad_blocks()
