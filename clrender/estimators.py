@@ -224,12 +224,14 @@ def _tessellations(samples: PixelSamples, infos: list[EstimatorInfo],
 
 
 def _pixel_sums(samples: PixelSamples, weights: np.ndarray) -> np.ndarray:
-    """Per-pixel sums of (T,) or (T, C) weights -> (P,) or (P, C)."""
-    pixel = samples.pixel_index
-    if weights.ndim == 1:
-        return np.bincount(pixel, weights, samples.pixel_count)
-    return np.column_stack([np.bincount(pixel, weights[:, c], samples.pixel_count)
-                            for c in range(weights.shape[1])])
+    """Per-pixel sums of (T,) or (T, C) weights -> (P,) or (P, C) (0 for empty pixels).
+    Samples are grouped by pixel, so each pixel's sum is one segment of a reduceat (all
+    channels in one pass over contiguous rows)."""
+    sums = np.zeros((samples.pixel_count,) + weights.shape[1:], np.float64)
+    occupied = samples.counts > 0
+    if occupied.any():
+        sums[occupied] = np.add.reduceat(weights, samples.offsets[:-1][occupied], axis=0)
+    return sums
 
 
 def _per_sample(column: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -311,14 +313,32 @@ def _fvor(samples: PixelSamples, cells) -> EstimateResult:
                                 np.where(_per_sample(sppp.inside_box, samples.values),
                                          samples.values, 0.0),
                                 samples.offsets, samples.intensity)
-    filtered, empty = _self_normalised(kept_samples, kept_areas)
-    fallback, _ = _self_normalised(samples, sppp.areas)
-    has_nuclei = samples.counts > 0
-    use_fallback = empty & has_nuclei
-    estimates = np.where(_per_pixel(use_fallback, filtered), fallback, filtered)
+    estimates, empty = _self_normalised(kept_samples, kept_areas)
+    # Pixels with nuclei but none kept fall back to vor_sn (over their own samples only)
+    use_fallback = empty & (samples.counts > 0)
+    if use_fallback.any():
+        subset = _pixel_subset(samples, np.flatnonzero(use_fallback))
+        fallback, _ = _self_normalised(subset, sppp.areas[_subset_index(samples, use_fallback)])
+        estimates[use_fallback] = fallback
     result = _redraw_result(samples, estimates, sppp)
     result.stats.empty_filtered = int((use_fallback & ~result.needs_redraw).sum())
     return result
+
+
+def _subset_index(samples: PixelSamples, chosen: np.ndarray) -> np.ndarray:
+    """Sample indices of the chosen pixels (a boolean mask over pixels), in order."""
+    return np.flatnonzero(chosen[samples.pixel_index])
+
+
+def _pixel_subset(samples: PixelSamples, pixels: np.ndarray) -> PixelSamples:
+    """The samples of some pixels (positions and values only), with offsets of their own."""
+    chosen = np.zeros(samples.pixel_count, bool)
+    chosen[pixels] = True
+    index = _subset_index(samples, chosen)
+    counts = samples.counts[pixels]
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    return PixelSamples(samples.positions[index], samples.values[index], offsets,
+                        samples.intensity)
 
 
 def _cvor(samples: PixelSamples, cells) -> EstimateResult:

@@ -260,13 +260,16 @@ def pixel_estimates(
     cells: CellAreas | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators); cells: the
-    SPPP cells if the device computed them."""
+    SPPP cells if the device computed them (the positions are then only checked, and stay
+    float32)."""
+    positions = (sets.traced, sets.aux) if cells is not None else (
+        sets.traced.astype(np.float64), sets.aux.astype(np.float64))
     samples = PixelSamples(
-        sets.traced.astype(np.float64),
+        positions[0],
         values,
         sets.offsets,
         float(settings.sampler.n),
-        sets.aux.astype(np.float64),
+        positions[1],
         sets.aux_offsets,
         settings.sampler.eps,
     )

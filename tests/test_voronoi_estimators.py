@@ -11,6 +11,7 @@ import pytest
 from clrender.errors import ParameterError
 from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimate_all
 from clrender.sppp import draw_sppp, sppp_eps
+from clrender.voronoi_cells import sppp_cells
 
 EXACT = np.array([1 / 16, 2 / 9])   # holder_1, holder_0.5
 
@@ -205,3 +206,32 @@ def test_rgb_values_match_per_channel_scalar_estimates():
         for name in ESTIMATORS:
             np.testing.assert_allclose(together[name].estimates[:, c], alone[name].estimates,
                                        rtol=1e-12, err_msg=name)
+
+
+def test_fvor_against_a_per_pixel_reference_including_its_vor_sn_fallback():
+    # n = 2 with eps = 0.4: ~80 of 600 pixels have no cell inside W' (they fall back to vor_sn
+    # over their own nuclei), the others average over the kept cells only. Reference: a loop
+    # over pixels on the same cells.
+    n, pixels = 2, 600
+    batch = draw_sppp(np.random.default_rng(31), n, pixels, eps=0.4)
+    values = holder_columns(batch.traced)
+    samples = PixelSamples.from_sppp(batch, values, n)
+    results = estimate_all(["fvor", "vor_sn"], samples)
+    cells = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets,
+                       0.5 + batch.eps)
+    fallbacks = 0
+    for p in range(pixels):
+        if results["fvor"].needs_redraw[p]:
+            continue
+        rows = slice(batch.offsets[p], batch.offsets[p + 1])
+        areas, kept = cells.areas[rows], cells.inside_box[rows]
+        if kept.any():
+            expected = (values[rows][kept] * areas[kept, None]).sum(0) / areas[kept].sum()
+        elif len(areas):
+            expected = results["vor_sn"].estimates[p]
+            fallbacks += 1
+        else:
+            expected = np.zeros(2)
+        np.testing.assert_allclose(results["fvor"].estimates[p], expected, rtol=1e-12)
+    assert fallbacks >= 20
+    assert results["fvor"].stats.empty_filtered == fallbacks
