@@ -23,10 +23,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import time
 from pathlib import Path
+
+# As python -m clrender does: one BLAS thread, so idle OpenBLAS workers do not spin on the
+# cores the OpenCL device renders on (before NumPy loads).
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
