@@ -26,7 +26,8 @@ import pyopencl as cl
 from scipy.integrate import quad
 
 from clrender.errors import ParameterError
-from clrender.radiance import SampleRadiance
+from clrender.radiance import DeviceRadiance, SampleRadiance
+from clrender.runtime import Runtime
 from clrender.sampling import DeviceSampleSets
 
 ANALYTIC_PREFIX = "analytic"
@@ -239,6 +240,11 @@ class PendingAnalytic:
         host = sets.to_host(self.queue)
         x, y = sample_image_positions(sets.pixels, host.offsets, host.traced, self.width)
         return SampleRadiance(self.image.radiance(x, y), ray_count=0)
+
+    def to_device(self, runtime: Runtime) -> DeviceRadiance:
+        """Evaluated on the host, then uploaded as float32."""
+        values = self.to_host().values
+        return DeviceRadiance(runtime.upload(np.asarray(values, np.float32)), ray_count=0)
 
 
 @dataclass

@@ -3,8 +3,12 @@
 The device counterpart of clrender.voronoi_cells.sppp_cells (SciPy Qhull on the host): the same
 cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas result, so the
 estimators vor, vor_sn and fvor can use either. kernels/voronoi_cells.cl sorts each pixel's
-nuclei into a grid, then clips one polygon per traced nucleus with its neighbours' bisectors
-until a security radius proves the cell exact (see the kernel's header).
+nuclei into a grid; then, per traced nucleus, walks around its cell among the nuclei of the
+3 x 3 grid block around it (next neighbour = first crossing bisector) and clips that polygon
+with any nucleus beyond the block that lies in a disc through the nucleus centred on a vertex,
+which proves the cell exact; cells the walk cannot decide are clipped from a box (see the
+kernel's header). stats.walked_cells counts the walked cells (about 99.98 % of random SPPP
+cells).
 
 Entry points:
   device_sppp_cells(runtime, sample_sets, box)     the positions already on the device
@@ -36,11 +40,16 @@ import numpy as np
 import pyopencl as cl
 
 from clrender.errors import DeviceError, ParameterError
+from clrender.estimators import SpppSums
 from clrender.runtime import Runtime, padded_global_size
 from clrender.sampling import DeviceSampleSets
 from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
 
 KERNEL_FILE = "voronoi_cells.cl"
+SUMS_KERNEL_FILE = "voronoi_sums.cl"
+# kernels/voronoi_sums.cl: per-pixel values and flag bits
+SUMS_PER_PIXEL = 8
+SUMS_REDRAW, SUMS_FALLBACK = 1, 2
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
 GRID_NUCLEI_PER_CELL = 3.5
@@ -131,6 +140,53 @@ def sppp_cells_backend(runtime: Runtime, precision: str = "auto"
     return cells
 
 
+@dataclass(frozen=True)
+class DeviceSums:
+    """Per-pixel results of device_sppp_sums: the sums, the pixels that must be redrawn (an
+    unbounded cell) or recomputed on the host (a cell the kernel could not decide: their sums
+    are not valid), each pixel's count of non-finite radiance samples (counted as 0 in the
+    sums) and of traced samples."""
+
+    sums: SpppSums
+    redraw: np.ndarray       # (P,) bool
+    fallback: np.ndarray     # (P,) bool
+    nonfinite: np.ndarray    # (P,) int64
+    counts: np.ndarray       # (P,) int64
+
+
+def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
+                     box: float, precision: str = "auto") -> DeviceSums:
+    """The SpppSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
+    and radiance ((T, 3) float32 device buffer, traced-sample order) kept on the device: only
+    SUMS_PER_PIXEL values and a flag byte per pixel come back. box = 1/2 + eps (W')."""
+    config = sample_sets.config
+    pixels = sample_sets.pixel_count
+    layout = _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
+                     np.arange(pixels + 1, dtype=np.int64) * config.n_aux, 0.5 + config.eps,
+                     grid_side(config.n + config.n_aux, 1))
+    defines = kernel_defines(runtime, precision)
+    real = np.float32 if resolve_precision(runtime, precision) == "single" else np.float64
+    sums = np.zeros((pixels, SUMS_PER_PIXEL), real)
+    flags = np.zeros(pixels, np.uint8)
+    nonfinite = np.zeros(pixels, np.uint32)
+    if layout.traced_total and pixels:
+        areas, status, traced_off = _enqueue_cells(runtime, layout, box, defines,
+                                                   np.dtype(real).itemsize)
+        sums_buf, flags_buf = runtime.allocate(sums.nbytes), runtime.allocate(flags.nbytes)
+        nonfinite_buf = runtime.allocate(nonfinite.nbytes)
+        reduce = runtime.kernel(SUMS_KERNEL_FILE, "voronoi_pixel_sums", defines)
+        local = runtime.local_size
+        reduce(runtime.queue, (padded_global_size(pixels, local),), (local,), np.uint32(pixels),
+               traced_off, radiance, areas, status, sums_buf, flags_buf, nonfinite_buf)
+        cl.enqueue_copy(runtime.queue, sums, sums_buf)
+        cl.enqueue_copy(runtime.queue, flags, flags_buf)
+        cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
+    sums = sums.astype(np.float64)
+    return DeviceSums(SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
+                      (flags & SUMS_REDRAW) != 0, (flags & SUMS_FALLBACK) != 0,
+                      nonfinite.astype(np.int64), np.diff(layout.traced_offsets))
+
+
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
     """Build options for the precision; DeviceError if the device has no double support."""
     defines: dict[str, object] = {"VORONOI_MAX_VERTICES": MAX_VERTICES}
@@ -189,8 +245,18 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     status = np.empty(traced, np.uint8)
     if traced == 0:
         return areas, status
+    areas_buf, status_buf, _ = _enqueue_cells(runtime, layout, box, defines, areas.itemsize)
+    cl.enqueue_copy(runtime.queue, areas, areas_buf)
+    cl.enqueue_copy(runtime.queue, status, status_buf)
+    return areas, status
+
+
+def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
+                   defines: dict[str, object], area_bytes: int):
+    """Queue the grid and cell kernels of a non-empty layout; (areas, status, traced offsets)
+    device buffers."""
     queue, local = runtime.queue, (runtime.local_size,)
-    pixels = layout.pixel_count
+    traced, pixels = layout.traced_total, layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
     side = layout.grid_side
     if total >= 2**32 or pixels * (side * side + 1) >= 2**32:
@@ -199,8 +265,8 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     aux_off = runtime.upload(layout.aux_offsets.astype(np.uint32))
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
-    areas_buf = runtime.allocate(areas.nbytes)
-    status_buf = runtime.allocate(status.nbytes)
+    areas_buf = runtime.allocate(area_bytes * traced)
+    status_buf = runtime.allocate(traced)
     half = np.float32(layout.half_extent)
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
@@ -213,9 +279,7 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
             np.float32(layout.half_extent * START_BOX_SCALE),
             np.float32(box if box is not None else np.inf), layout.positions, traced_off,
             aux_off, cell_start, sorted_points, areas_buf, status_buf)
-    cl.enqueue_copy(queue, areas, areas_buf)
-    cl.enqueue_copy(queue, status, status_buf)
-    return areas, status
+    return areas_buf, status_buf, traced_off
 
 
 def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndarray:

@@ -286,59 +286,81 @@ def _redraw_result(samples, estimates, cell_areas: CellAreas) -> EstimateResult:
     return EstimateResult(estimates, redraw, stats)
 
 
-def _vor(samples: PixelSamples, cells) -> EstimateResult:
+@dataclass
+class SpppSums:
+    """Per-pixel sums behind vor, vor_sn and fvor: over the pixel's W nuclei, sum v and
+    sum f v; over those whose cell lies inside W' (fvor's kept nuclei), the same. Computed on
+    the host (sppp_sums) or on the device (clrender.device_voronoi.device_sppp_sums)."""
+
+    area: np.ndarray            # (P,)
+    weighted: np.ndarray        # (P,) or (P, C)
+    kept_area: np.ndarray       # (P,)
+    kept_weighted: np.ndarray   # (P,) or (P, C)
+
+
+def sppp_sums(samples: PixelSamples, cells: CellAreas) -> SpppSums:
+    """The sums of the given SPPP cells (inside-W' flags needed for the kept ones)."""
+    products = samples.values * _per_sample(cells.areas, samples.values)
+    if cells.inside_box is None:
+        kept_area = np.full(samples.pixel_count, np.nan)
+        kept_weighted = np.full((samples.pixel_count,) + products.shape[1:], np.nan)
+    else:
+        # where, not a product with 0: a dropped nucleus's value is ignored even if infinite
+        kept_area = _pixel_sums(samples, np.where(cells.inside_box, cells.areas, 0.0))
+        kept_weighted = _pixel_sums(
+            samples, np.where(_per_sample(cells.inside_box, products), products, 0.0))
+    return SpppSums(_pixel_sums(samples, cells.areas), _pixel_sums(samples, products),
+                    kept_area, kept_weighted)
+
+
+def sppp_estimates(name: str, sums: SpppSums, counts: np.ndarray) -> np.ndarray:
+    """vor, vor_sn or fvor of every pixel from its sums (redraws not marked here):
+    vor = sum f v; vor_sn = sum f v / sum v (0 when sum v = 0); fvor = the same ratio over the
+    kept nuclei, or vor_sn where a pixel has nuclei but none kept."""
+    if name == "vor":
+        return sums.weighted
+    ratio = _ratio(sums.weighted, sums.area)
+    if name == "vor_sn":
+        return ratio
+    if name != "fvor":
+        raise ParameterError(f"{name!r} is not an estimator of SPPP cell sums")
+    use_fallback = _fvor_fallback(sums, counts)
+    return np.where(_per_pixel(use_fallback, ratio), ratio,
+                    _ratio(sums.kept_weighted, sums.kept_area))
+
+
+def _ratio(weighted: np.ndarray, area: np.ndarray) -> np.ndarray:
+    """weighted / area per pixel, 0 where area == 0."""
+    empty = area == 0
+    return np.where(_per_pixel(empty, weighted), 0.0,
+                    weighted / _per_pixel(np.where(empty, 1.0, area), weighted))
+
+
+def _fvor_fallback(sums: SpppSums, counts: np.ndarray) -> np.ndarray:
+    """Pixels with nuclei but no kept nucleus (fvor gives their vor_sn)."""
+    return (sums.kept_area == 0) & (counts > 0)
+
+
+def _sppp_estimator(name: str, samples: PixelSamples, cells) -> EstimateResult:
     sppp = cells["sppp"]
-    return _redraw_result(samples, _weighted(samples, sppp.areas), sppp)
-
-
-def _self_normalised(samples: PixelSamples, areas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(sum f v / sum v, pixels with sum v == 0); those pixels estimate 0."""
-    total_area = _pixel_sums(samples, areas)
-    empty = total_area == 0
-    weighted = _weighted(samples, areas)
-    return weighted / _per_pixel(np.where(empty, 1.0, total_area), weighted), empty
-
-
-def _vor_sn(samples: PixelSamples, cells) -> EstimateResult:
-    sppp = cells["sppp"]
-    ratio, _ = _self_normalised(samples, sppp.areas)
-    return _redraw_result(samples, ratio, sppp)
-
-
-def _fvor(samples: PixelSamples, cells) -> EstimateResult:
-    sppp = cells["sppp"]
-    kept_areas = np.where(sppp.inside_box, sppp.areas, 0.0)
-    # Zero the weights of dropped nuclei before multiplying, so that their values are ignored.
-    kept_samples = PixelSamples(samples.positions,
-                                np.where(_per_sample(sppp.inside_box, samples.values),
-                                         samples.values, 0.0),
-                                samples.offsets, samples.intensity)
-    estimates, empty = _self_normalised(kept_samples, kept_areas)
-    # Pixels with nuclei but none kept fall back to vor_sn (over their own samples only)
-    use_fallback = empty & (samples.counts > 0)
-    if use_fallback.any():
-        subset = _pixel_subset(samples, np.flatnonzero(use_fallback))
-        fallback, _ = _self_normalised(subset, sppp.areas[_subset_index(samples, use_fallback)])
-        estimates[use_fallback] = fallback
-    result = _redraw_result(samples, estimates, sppp)
-    result.stats.empty_filtered = int((use_fallback & ~result.needs_redraw).sum())
+    sums = sppp_sums(samples, sppp)
+    result = _redraw_result(samples, sppp_estimates(name, sums, samples.counts), sppp)
+    if name == "fvor":
+        fallback = _fvor_fallback(sums, samples.counts)
+        result.stats.empty_filtered = int((fallback & ~result.needs_redraw).sum())
     return result
 
 
-def _subset_index(samples: PixelSamples, chosen: np.ndarray) -> np.ndarray:
-    """Sample indices of the chosen pixels (a boolean mask over pixels), in order."""
-    return np.flatnonzero(chosen[samples.pixel_index])
+def _vor(samples: PixelSamples, cells) -> EstimateResult:
+    return _sppp_estimator("vor", samples, cells)
 
 
-def _pixel_subset(samples: PixelSamples, pixels: np.ndarray) -> PixelSamples:
-    """The samples of some pixels (positions and values only), with offsets of their own."""
-    chosen = np.zeros(samples.pixel_count, bool)
-    chosen[pixels] = True
-    index = _subset_index(samples, chosen)
-    counts = samples.counts[pixels]
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return PixelSamples(samples.positions[index], samples.values[index], offsets,
-                        samples.intensity)
+def _vor_sn(samples: PixelSamples, cells) -> EstimateResult:
+    return _sppp_estimator("vor_sn", samples, cells)
+
+
+def _fvor(samples: PixelSamples, cells) -> EstimateResult:
+    return _sppp_estimator("fvor", samples, cells)
 
 
 def _cvor(samples: PixelSamples, cells) -> EstimateResult:

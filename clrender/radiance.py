@@ -14,6 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
+from clrender.runtime import Runtime
 from clrender.sampling import DeviceSampleSets
 from clrender.trace import PathTracer, TraceResult
 
@@ -27,9 +28,22 @@ class SampleRadiance:
     device_nonfinite: int = 0  # non-finite samples the source counted (and may have zeroed)
 
 
+@dataclass
+class DeviceRadiance:
+    """Radiance of a launch's traced samples left on the device: a (T, 3) float32 buffer."""
+
+    buffer: object  # a pyopencl buffer
+    ray_count: int
+    device_nonfinite: int = 0
+
+
 class PendingRadiance(Protocol):
     def to_host(self) -> SampleRadiance:
         """Wait for the source's work and return the radiance on the host."""
+        ...
+
+    def to_device(self, runtime: Runtime) -> DeviceRadiance:
+        """The radiance as a device buffer of `runtime` (no copy if it is already there)."""
         ...
 
 
@@ -53,6 +67,9 @@ class PendingTrace:
     def to_host(self) -> SampleRadiance:
         values = self.result.to_host()
         return SampleRadiance(values, self.result.rays, self.result.nonfinite)
+
+    def to_device(self, runtime: Runtime) -> DeviceRadiance:
+        return DeviceRadiance(self.result.radiance, self.result.rays, self.result.nonfinite)
 
 
 @dataclass

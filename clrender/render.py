@@ -19,9 +19,11 @@ falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
 Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
 Voronoi cells: with `voronoi_backend = "device"` (the default) the SPPP cells of vor, vor_sn
-and fvor are computed by a device kernel queued right after the tracing (exact; pixels it
-cannot certify are recomputed with Qhull), and the host stage only forms the sums; with
-"qhull" the host computes them with Qhull.
+and fvor are computed by a device kernel queued right after the tracing, and a second kernel
+forms each pixel's weighted sums (clrender.device_voronoi.device_sppp_sums): no per-sample
+array comes back, and the host stage only divides. A tile with a cell the kernel cannot
+certify is redone the per-sample way (device cells, Qhull for the undecided pixels, sums on
+the host). With "qhull" the host computes the cells with Qhull.
 
 Timing: `device_seconds` is the time the main thread spends drawing sample sets, tracing
 (and computing device Voronoi cells) and downloading; `host_seconds` the estimator stage's
@@ -51,9 +53,15 @@ import numpy as np
 import pyopencl as cl
 
 from clrender import image_voronoi
-from clrender.device_voronoi import device_sppp_cells
+from clrender.device_voronoi import DeviceSums, device_sppp_cells, device_sppp_sums
 from clrender.errors import ParameterError
-from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimator_info
+from clrender.estimators import (
+    ESTIMATORS,
+    PixelSamples,
+    estimate,
+    estimator_info,
+    sppp_estimates,
+)
 from clrender.film import Film
 from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime
@@ -135,15 +143,21 @@ class RenderResult:
 
 @dataclass
 class TileSamples:
-    """The device stage's output for a list of pixels: host sample sets and radiance."""
+    """The device stage's output for a list of pixels: host sample sets and radiance, or
+    (device cells) only the per-pixel sums of the Voronoi estimators."""
 
     pixels: np.ndarray  # (P,) uint32 global pixel indices
     redraws: np.ndarray  # (P,) uint32 redraw numbers
-    sets: HostSampleSets
-    radiance: np.ndarray  # (T, 3) float32, traced-sample order
+    sets: HostSampleSets | None  # None with sums
+    radiance: np.ndarray | None  # (T, 3) float32, traced-sample order; None with sums
     rays: int
     source_nonfinite: int
-    cells: CellAreas | None = None  # SPPP cells computed on the device, if asked for
+    cells: CellAreas | None = None  # SPPP cells computed on the device (per-sample path)
+    sums: DeviceSums | None = None  # per-pixel sums computed on the device
+
+    @property
+    def traced_count(self) -> int:
+        return int(self.sums.counts.sum()) if self.sums is not None else len(self.radiance)
 
 
 @dataclass
@@ -217,11 +231,20 @@ def trace_tile(
     redraws: np.ndarray,
     device_cells: bool = False,
 ) -> TileSamples:
-    """Device stage: draw the pixels' sample sets, get their radiance (and, if asked, their
-    SPPP Voronoi cells, queued after the tracing), bring them to the host."""
+    """Device stage: draw the pixels' sample sets and get their radiance. With device_cells,
+    the SPPP Voronoi cells and each pixel's weighted sums are queued after the tracing and only
+    the sums come back (unless a cell needs the host: then cells and samples come back);
+    otherwise the sample sets and radiance are brought to the host."""
     device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
     pending = source.trace(device_sets, seed)
-    cells = device_sppp_cells(runtime, device_sets, 0.5 + sampler.eps) if device_cells else None
+    box = 0.5 + sampler.eps
+    if device_cells:
+        radiance = pending.to_device(runtime)
+        sums = device_sppp_sums(runtime, device_sets, radiance.buffer, box)
+        if not sums.fallback.any():
+            return TileSamples(pixels, redraws, None, None, radiance.ray_count,
+                               radiance.device_nonfinite, sums=sums)  # fmt: skip
+    cells = device_sppp_cells(runtime, device_sets, box) if device_cells else None
     sets = device_sets.to_host(runtime.queue)
     radiance = pending.to_host()
     return TileSamples(
@@ -236,6 +259,8 @@ def estimate_tile(
     """Host stage: one estimate per pixel. Samples with non-finite radiance are counted, enter
     the estimator as 0 and flag their pixel. host_runtime serves the image-level estimators,
     which draw their guard nuclei on the device."""
+    if tile.sums is not None:
+        return sums_estimate(settings, tile)
     values = tile.radiance.astype(np.float64)
     bad_samples = ~np.isfinite(values).all(axis=1)
     values[bad_samples] = 0.0
@@ -253,6 +278,16 @@ def estimate_tile(
         needs_redraw,
         int(np.count_nonzero(bad_samples)) + tile.source_nonfinite,
     )
+
+
+def sums_estimate(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
+    """Host stage of a tile whose Voronoi sums the device formed: the estimator's division.
+    Non-finite radiance counted 0 in the sums and flags its pixel."""
+    device = tile.sums
+    estimates = sppp_estimates(settings.estimator, device.sums, device.counts)
+    estimates = np.where(device.redraw[:, None], np.nan, estimates)
+    return TileEstimate(tile.pixels, tile.redraws, estimates, device.nonfinite > 0,
+                        device.redraw, int(device.nonfinite.sum()) + tile.source_nonfinite)
 
 
 def pixel_estimates(
@@ -321,7 +356,7 @@ class TilePipeline:
         tile = trace_tile(self.runtime, self.source, sampler, self.settings.seed, pixels, redraws,
                           device_cells)  # fmt: skip
         self.stats.device_seconds += time.perf_counter() - start
-        self.stats.traced_samples += len(tile.radiance)
+        self.stats.traced_samples += tile.traced_count
         self.stats.rays += tile.rays
         return tile
 

@@ -244,3 +244,49 @@ def test_bad_arguments_are_rejected(runtime):
     with pytest.raises(ParameterError, match="finite"):
         device_sppp_cells_from_arrays(runtime, np.full((1, 2), np.nan), [0, 1],
                                       np.zeros((0, 2)), [0, 0])
+
+
+# 11. Per-pixel sums on the device (device_sppp_sums) equal the host's sums of the same cells;
+# non-finite radiance is counted and enters as 0; unbounded cells flag their pixel for redraw
+@pytest.mark.parametrize("eps", [None, 0.08])
+def test_device_sums_match_host_sums(runtime, eps):
+    config = make_sampler("sppp", 64, eps=eps)
+    sets = generate_sample_sets(runtime, config, 9, np.arange(500, dtype=np.uint32))
+    host = sets.to_host(runtime.queue)
+    box = 0.5 + config.eps
+    rng = np.random.default_rng(4)
+    radiance = rng.uniform(0, 2, (sets.traced_total, 3)).astype(np.float32)
+    poisoned = rng.choice(sets.traced_total, 40, replace=False)
+    radiance[poisoned[:20], 0] = np.nan
+    radiance[poisoned[20:], 2] = np.inf
+    device = device_voronoi.device_sppp_sums(runtime, sets, runtime.upload(radiance), box)
+
+    cells = device_sppp_cells(runtime, sets, box)
+    bad = ~np.isfinite(radiance).all(axis=1)
+    clean = np.where(bad[:, None], 0.0, radiance.astype(np.float64))  # as the render does
+    samples = PixelSamples(host.traced, clean, host.offsets, 64.0, host.aux, host.aux_offsets,
+                           config.eps)
+    expected = estimators.sppp_sums(samples, cells)
+    # Pixels with an undecided cell (none at the paper's eps, 24 at eps = 0.08: bounded
+    # cells beyond the start box) are left to the host
+    decided = ~device.fallback
+    assert decided.sum() >= 450
+    redraw = np.bincount(samples.pixel_index, ~cells.bounded, 500) > 0
+    np.testing.assert_array_equal(device.redraw[decided], redraw[decided])
+    assert (redraw.sum() > 50) == (eps is not None)
+    np.testing.assert_array_equal(device.counts, samples.counts)
+    np.testing.assert_array_equal(device.nonfinite, np.bincount(samples.pixel_index, bad, 500))
+    ok = decided & ~redraw
+    for name in ("area", "weighted", "kept_area", "kept_weighted"):
+        np.testing.assert_allclose(getattr(device.sums, name)[ok], getattr(expected, name)[ok],
+                                   rtol=1e-12, atol=1e-15, err_msg=name)
+
+
+def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
+    monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
+    config = make_sampler("sppp", 64)
+    sets = generate_sample_sets(runtime, config, 2, np.arange(60, dtype=np.uint32))
+    radiance = np.ones((sets.traced_total, 3), np.float32)
+    device = device_voronoi.device_sppp_sums(runtime, sets, runtime.upload(radiance),
+                                             0.5 + config.eps)
+    assert device.fallback.sum() > 30

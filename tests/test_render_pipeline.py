@@ -8,7 +8,7 @@ import pytest
 
 from clrender.analytic import AnalyticSource, sample_image_positions
 from clrender.errors import ParameterError
-from clrender.radiance import SampleRadiance
+from clrender.radiance import DeviceRadiance, SampleRadiance
 from clrender.render import RenderSettings, check_compatible, plan_tiles, render, tile_pixels
 from clrender.sampling import make_sampler
 
@@ -106,6 +106,10 @@ class PoisonedPending:
         values[(x > 3.0) & (x < 3.5), 1] = np.nan  # the left half of column 3
         values[(x > 7.0) & (x < 7.25), 0] = np.inf
         return SampleRadiance(values, 0, self.reported)
+
+    def to_device(self, runtime) -> DeviceRadiance:
+        return DeviceRadiance(runtime.upload(self.to_host().values.astype(np.float32)), 0,
+                              self.reported)
 
 
 @dataclass

@@ -1,0 +1,74 @@
+// Per-pixel sums of Voronoi-weighted radiance, one work-item per pixel: what the estimators
+// vor, vor_sn and fvor need (clrender.estimators.SpppSums), computed where the radiance and
+// the cell areas already are, so that no per-sample array leaves the device.
+//
+// Inputs: each traced sample's RGB radiance (float), its cell area and status byte from
+// voronoi_cell_areas (kernels/voronoi_cells.cl: same -D precision options, so area_real
+// matches). Output per pixel: SUMS_PER_PIXEL values, in order sum v, sum f v (R, G, B), then
+// the same over the nuclei whose cell lies inside W' (status VORONOI_INSIDE); flag bits:
+//   SUMS_REDRAW     a traced nucleus has an unbounded cell: the pixel must be redrawn
+//   SUMS_FALLBACK   a cell the device could not decide: the host recomputes the pixel
+// and the number of samples whose radiance was NaN or infinite (they count as 0 here).
+// Samples are summed in sample order.
+
+#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double area_real;
+#else
+typedef float area_real;
+#endif
+
+#define VORONOI_BOUNDED 1
+#define VORONOI_INSIDE 2
+#define VORONOI_FALLBACK 4
+
+#define SUMS_PER_PIXEL 8
+#define SUMS_REDRAW 1
+#define SUMS_FALLBACK 2
+
+// x - x is 0 for every finite x and NaN otherwise (no builtin call: see kernels/vecmath.h)
+#define SUMS_FINITE(x) ((x) - (x) == 0)
+
+__kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_offsets,
+                                 __global const float *radiance,
+                                 __global const area_real *areas,
+                                 __global const uchar *status, __global area_real *sums,
+                                 __global uchar *flags, __global uint *nonfinite)
+{
+    uint p = get_global_id(0);
+    if (p >= pixel_count)
+        return;
+    area_real total[SUMS_PER_PIXEL] = {0, 0, 0, 0, 0, 0, 0, 0};
+    uchar flag = 0;
+    uint bad = 0;
+    for (uint s = traced_offsets[p]; s < traced_offsets[p + 1]; ++s) {
+        float r = radiance[3 * (size_t)s], g = radiance[3 * (size_t)s + 1];
+        float b = radiance[3 * (size_t)s + 2];
+        if (!(SUMS_FINITE(r) && SUMS_FINITE(g) && SUMS_FINITE(b))) {
+            bad += 1;
+            r = g = b = 0.0f;
+        }
+        // Cells that are not exact bounded ones only flag the pixel
+        uchar cell = status[s];
+        if (!(cell & VORONOI_BOUNDED)) {
+            flag |= (cell & VORONOI_FALLBACK) ? SUMS_FALLBACK : SUMS_REDRAW;
+            continue;
+        }
+        // Weighted sums, all nuclei, then the kept ones
+        area_real v = areas[s];
+        total[0] += v;
+        total[1] += r * v;
+        total[2] += g * v;
+        total[3] += b * v;
+        if (cell & VORONOI_INSIDE) {
+            total[4] += v;
+            total[5] += r * v;
+            total[6] += g * v;
+            total[7] += b * v;
+        }
+    }
+    for (int k = 0; k < SUMS_PER_PIXEL; ++k)
+        sums[(size_t)p * SUMS_PER_PIXEL + k] = total[k];
+    flags[p] = flag;
+    nonfinite[p] = bad;
+}
