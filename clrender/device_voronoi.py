@@ -16,18 +16,23 @@ Entry points:
   device_sppp_cells_from_arrays(runtime, positions, offsets, aux, aux_offsets, box)
                                                    NumPy arrays, uploaded (tests, benchmarks)
   sppp_cells_backend(runtime)                      a drop-in for voronoi_cells.sppp_cells
+  device_sppp_sums(runtime, sample_sets, radiance, box)
+                                                   the cells and then each pixel's sums of
+                                                   vor, vor_sn and fvor (estimators.SpppSums)
+                                                   on the device: only the sums come back
 
 Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
 bounded cell reaching beyond the start box, exactly collinear neighbours) flag their pixel;
 those pixels are recomputed on the host with sppp_cells, so the result is always the exact
-diagram. stats.recomputed_pixels counts them (and stats.qhull_calls the host calls they took).
+diagram (device_sppp_sums only flags them: its caller redoes them). stats.recomputed_pixels counts them (and stats.qhull_calls the host calls they took).
 
 Precision: the device sees float32 positions (the sampler's format); arrays are rounded to
 float32 on upload, and host fallbacks use the rounded values, so every pixel's cells are those
 of one point set. precision: "single" (all float32: areas within ~1e-5 relative of Qhull's on
 the worst cells), "mixed" (float32 clipping, final vertices and areas in float64 from the input
 coordinates: ~1e-14), "double" (all float64), "auto" (mixed where the device has cl_khr_fp64,
-else single). On PoCL mixed costs the same as single.
+else single). On PoCL mixed costs the same as single. Sums are accumulated in the area
+precision, sample by sample in sample order (so they do not depend on the launch).
 """
 
 from __future__ import annotations
