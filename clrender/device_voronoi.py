@@ -24,7 +24,8 @@ Entry points:
 Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
 bounded cell reaching beyond the start box, exactly collinear neighbours) flag their pixel;
 those pixels are recomputed on the host with sppp_cells, so the result is always the exact
-diagram (device_sppp_sums only flags them: its caller redoes them). stats.recomputed_pixels counts them (and stats.qhull_calls the host calls they took).
+diagram (device_sppp_sums only flags them: its caller redoes them). stats.recomputed_pixels
+counts them (and stats.qhull_calls the host calls they took).
 
 Precision: the device sees float32 positions (the sampler's format); arrays are rounded to
 float32 on upload, and host fallbacks use the rounded values, so every pixel's cells are those
