@@ -265,12 +265,13 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
     traced, pixels = layout.traced_total, layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
     side = layout.grid_side
-    if total >= 2**32 or pixels * (side * side + 1) >= 2**32:
+    if total >= 2**32 or pixels * (side * side + 1) >= 2**32:  # also bounds the work-items
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
     traced_off = runtime.upload(layout.traced_offsets.astype(np.uint32))
     aux_off = runtime.upload(layout.aux_offsets.astype(np.uint32))
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
+    sorted_index = runtime.allocate(4 * total)
     areas_buf = runtime.allocate(area_bytes * traced)
     status_buf = runtime.allocate(traced)
     half = np.float32(layout.half_extent)
@@ -278,13 +279,13 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
     build(queue, (padded_global_size(pixels, local[0]),), local, np.uint32(pixels),
           np.uint32(traced), np.int32(side), half, layout.positions, traced_off, aux_off,
-          cell_start, sorted_points)
+          cell_start, sorted_points, sorted_index)
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
-    compute(queue, (padded_global_size(traced, local[0]),), local, np.uint32(pixels),
-            np.uint32(traced), np.int32(side), half,
+    compute(queue, (padded_global_size(pixels * side * side, local[0]),), local,
+            np.uint32(pixels), np.uint32(traced), np.int32(side), half,
             np.float32(layout.half_extent * START_BOX_SCALE),
-            np.float32(box if box is not None else np.inf), layout.positions, traced_off,
-            aux_off, cell_start, sorted_points, areas_buf, status_buf)
+            np.float32(box if box is not None else np.inf), traced_off, aux_off, cell_start,
+            sorted_points, sorted_index, areas_buf, status_buf)
     return areas_buf, status_buf, traced_off
 
 

@@ -1,12 +1,14 @@
-// Voronoi cell areas of per-pixel SPPP sample sets, one work-item per traced nucleus.
+// Voronoi cell areas of per-pixel SPPP sample sets.
 //
 // Each pixel's nuclei (its traced samples in W plus its auxiliary nuclei in the strip W' \ W)
 // form their own diagram; only the cells of the traced nuclei are computed. Two kernels:
 //   voronoi_build_grid: one work-item per pixel sorts the pixel's nuclei into a uniform
 //     grid_side x grid_side grid over [-half_extent, half_extent]^2 (counting sort: counts,
-//     prefix sums, fill), so a cell's nuclei are contiguous and a row of cells is one range.
-//   voronoi_cell_areas: one work-item per traced nucleus. It walks around the nucleus among
-//     the nuclei of the 3 x 3 block of grid cells around it: from the nearest nucleus (always
+//     prefix sums, fill), so a cell's nuclei are contiguous and a row of cells is one range;
+//     each sorted nucleus keeps its index (sorted_index: traced nuclei below traced_total).
+//   voronoi_cell_areas: one work-item per (pixel, grid cell) copies the nuclei of the 3 x 3
+//     block of grid cells around it once, then does each traced nucleus of its grid cell. It
+//     walks around the nucleus among the block's nuclei: from the nearest nucleus (always
 //     a Voronoi neighbour), each edge ends where the first other bisector crosses it, whose
 //     nucleus is the next neighbour, until the walk is back at the first. That is the exact
 //     cell among the block's nuclei; a nucleus outside the block can only change it if it is
@@ -22,9 +24,9 @@
 // worst cells), or in double with -DVORONOI_AREA_DOUBLE (~1e-14); -DVORONOI_DOUBLE runs all
 // of it in double.
 //
-// A clipped polygon that still has an edge of the start box after the search is either unbounded (the
-// nucleus lies on the convex hull of its pixel's nuclei) or larger than the box; an O(N) test
-// of the cell's recession cone tells them apart. Status bits per traced nucleus:
+// A clipped polygon that still has an edge of the start box after the search is either
+// unbounded (the nucleus lies on the convex hull of its pixel's nuclei) or larger than the box;
+// an O(N) test of the cell's recession cone tells them apart. Status bits per traced nucleus:
 //   VORONOI_BOUNDED   the cell is bounded (area valid)
 //   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test)
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
@@ -35,7 +37,7 @@
 #if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 #endif
-#include "launch.h"
+
 
 // real: the clipping arithmetic; area_real: final vertices, areas and the inside test
 #ifdef VORONOI_DOUBLE
@@ -119,12 +121,13 @@ VORONOI_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cel
 }
 
 // One pixel per work-item: counting sort of its nuclei into grid cells, written from slot
-// base = traced_offsets[p] + aux_offsets[p] of sorted_points.
+// base = traced_offsets[p] + aux_offsets[p] of sorted_points, with each nucleus's index in
+// positions in sorted_index (traced nuclei: below traced_total).
 __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
                                  float half_extent, __global const float2 *positions,
                                  __global const uint *traced_offsets,
                                  __global const uint *aux_offsets, __global uint *cell_start,
-                                 __global float2 *sorted_points)
+                                 __global float2 *sorted_points, __global uint *sorted_index)
 {
     uint p = get_global_id(0);
     if (p >= pixel_count)
@@ -157,11 +160,13 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
         float2 x = positions[j - 1u];
         uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
         sorted_points[base + s] = x;
+        sorted_index[base + s] = j - 1u;
     }
     for (uint j = t1; j > t0; --j) {
         float2 x = positions[j - 1u];
         uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
         sorted_points[base + s] = x;
+        sorted_index[base + s] = j - 1u;
     }
 }
 
@@ -512,13 +517,22 @@ VORONOI_INLINE bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_s
 // ---------------------------------------------------------------------------------------------
 // The walk around a cell
 
-// The nuclei of the 3 x 3 block of grid cells around g, relative to x, with their squared
-// distances and slots; those coincident with x (itself included) are only counted.
+// The nuclei of the 3 x 3 block of grid cells around a grid cell, as copied once for all the
+// traced nuclei of that cell: positions and slots.
+typedef struct {
+    real x[VORONOI_BLOCK_CAPACITY];
+    real y[VORONOI_BLOCK_CAPACITY];
+    uint slot[VORONOI_BLOCK_CAPACITY];
+    int count;
+} VoronoiNeighbourhood;
+
+// The same nuclei relative to one nucleus x of the cell, with their squared distances, padded
+// to whole groups of 8 with zero vectors; those coincident with x (itself included) are only
+// counted.
 typedef struct {
     real vx[VORONOI_BLOCK_CAPACITY];
     real vy[VORONOI_BLOCK_CAPACITY];
     real dist2[VORONOI_BLOCK_CAPACITY];
-    uint slot[VORONOI_BLOCK_CAPACITY];
     int count;
     int nearest;
 } VoronoiBlock;
@@ -551,15 +565,14 @@ VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
 }
 #endif
 
-// False when the block holds more nuclei than the buffer. Copy first, then arithmetic over
-// whole groups of 8 (the compiler vectorises both; a branch per nucleus would mispredict).
-VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, int grid_side,
-                                        __global const uint *start, uint base,
-                                        __global const float2 *sorted_points, int *coincident)
+// Copy the nuclei of the 3 x 3 block of grid cells around g (one contiguous slot range per
+// grid row); false when they are more than the buffer holds.
+VORONOI_INLINE bool VoronoiNeighbourhood_Gather(VoronoiNeighbourhood *hood, int2 g,
+                                                int grid_side, __global const uint *start,
+                                                uint base, __global const float2 *sorted_points)
 {
     int y0 = VORONOI_MAX(g.y - 1, 0), y1 = VORONOI_MIN(g.y + 1, grid_side - 1);
     int x0 = VORONOI_MAX(g.x - 1, 0), x1 = VORONOI_MIN(g.x + 1, grid_side - 1);
-    // The block's rows, one contiguous slot range each
     int count = 0;
     for (int y = y0; y <= y1; ++y) {
         int row = y * grid_side;
@@ -569,24 +582,31 @@ VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, in
             return false;
         for (int k = 0; k < n; ++k) {
             float2 point = sorted_points[s0 + k];
-            block->vx[count + k] = point.x;
-            block->vy[count + k] = point.y;
-            block->slot[count + k] = s0 + k;
+            hood->x[count + k] = point.x;
+            hood->y[count + k] = point.y;
+            hood->slot[count + k] = s0 + k;
         }
         count += n;
     }
-    // Padded to whole groups of 8 with copies of x, which count as coincident and never bound
-    // an edge (a zero vector)
-    int padded = (count + 7) & ~7;
-    for (int k = count; k < padded; ++k) {
-        block->vx[k] = x.x;
-        block->vy[k] = x.y;
-    }
-    // Relative positions, squared distances, coincident nuclei (x itself included)
+    for (int k = count; k < ((count + 7) & ~7); ++k)
+        hood->x[k] = hood->y[k] = 0;
+    hood->count = count;
+    return true;
+}
+
+// The neighbourhood relative to x: distances, coincident count and nearest nucleus, over
+// whole groups of 8 (the compiler vectorises it; a branch per nucleus would mispredict).
+// Padding entries are copies of x: they count as coincident and never bound an edge.
+VORONOI_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbourhood *hood,
+                                          real2 x, int *coincident)
+{
+    int count = hood->count, padded = (count + 7) & ~7;
     int same = 0;
     real_bits nearest_key = VORONOI_KEY_INFINITY;
     for (int k = 0; k < padded; ++k) {
-        real vx = block->vx[k] - x.x, vy = block->vy[k] - x.y;
+        bool real_nucleus = k < count;
+        real vx = real_nucleus ? hood->x[k] - x.x : 0;
+        real vy = real_nucleus ? hood->y[k] - x.y : 0;
         real dist2 = vx * vx + vy * vy;
         block->vx[k] = vx;
         block->vy[k] = vy;
@@ -605,7 +625,6 @@ VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, in
     *coincident += same - (padded - count);
     block->count = count;
     block->nearest = nearest < padded ? nearest : -1;
-    return true;
 }
 
 // The cell of x among the block's nuclei, walked counter-clockwise: the nearest nucleus is
@@ -615,7 +634,8 @@ VORONOI_INLINE bool VoronoiBlock_Gather(VoronoiBlock *block, real2 x, int2 g, in
 // is the next neighbour. The walk ends back at the nearest nucleus. Returns false when it
 // cannot decide (a cell unbounded within the block, more than VORONOI_MAX_VERTICES edges from
 // a rounding-degenerate configuration): the clipping search then does the cell.
-VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, VoronoiPolygon *poly,
+VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block,
+                                      const VoronoiNeighbourhood *hood, VoronoiPolygon *poly,
                                       __global const float2 *sorted_points)
 {
     // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
@@ -658,7 +678,7 @@ VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, VoronoiPolygon 
         real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
         poly->vx[end] = px;
         poly->vy[end] = py;
-        float2 neighbour = sorted_points[block->slot[a]];
+        float2 neighbour = sorted_points[hood->slot[a]];
         poly->ex[m] = neighbour.x;
         poly->ey[m] = neighbour.y;
         real r2 = px * px + py * py;
@@ -714,33 +734,26 @@ VORONOI_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
 // ---------------------------------------------------------------------------------------------
 // The cell of one traced nucleus
 
-__kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
-                                 int grid_side, float half_extent, float start_box,
-                                 float inside_box, __global const float2 *positions,
-                                 __global const uint *traced_offsets,
-                                 __global const uint *aux_offsets,
-                                 __global const uint *cell_start,
-                                 __global const float2 *sorted_points, __global area_real *areas,
-                                 __global uchar *status)
+// The cell of traced nucleus i (position x in the pixel's grid cell g): the walk when the
+// neighbourhood was gathered, else the clipping search; writes areas[i] and status[i].
+VORONOI_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
+                                        const VoronoiNeighbourhood *hood, bool have_hood,
+                                        uint count, int grid_side, float half_extent,
+                                        float start_box, float inside_box,
+                                        __global const uint *start, uint base,
+                                        __global const float2 *sorted_points,
+                                        __global area_real *areas, __global uchar *status)
 {
-    uint i = get_global_id(0);
-    if (i >= traced_total)
-        return;
-    uint p = Launch_OwnerPixel(traced_offsets, pixel_count, i);
-    uint base = traced_offsets[p] + aux_offsets[p];
-    uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
-    __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
-    float2 nucleus = positions[i];
     real2 x = REAL2(nucleus);
-
     // The walk around the cell among the block's nuclei, then the nuclei beyond the block
     VoronoiPolygon poly;
     VoronoiBlock block;
-    int2 g = VoronoiCell_GridCell(x, grid_side, half_extent);
     int coincident = 0;
-    bool walked = VoronoiBlock_Gather(&block, x, g, grid_side, start, base, sorted_points,
-                                      &coincident)
-                  && VoronoiBlock_Walk(&block, &poly, sorted_points);
+    bool walked = false;
+    if (have_hood) {
+        VoronoiBlock_Relative(&block, hood, x, &coincident);
+        walked = VoronoiBlock_Walk(&block, hood, &poly, sorted_points);
+    }
     bool ok;
     if (walked) {
         ok = VoronoiCell_ClipBeyondBlock(&poly, x, g, grid_side, half_extent, start, base,
@@ -781,4 +794,42 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
     areas[i] = area / VORONOI_MAX(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0);
+}
+
+// One work-item per (pixel, grid cell): the cells of the grid cell's traced nuclei, which
+// share one copy of their 3 x 3 block of grid cells.
+__kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
+                                 int grid_side, float half_extent, float start_box,
+                                 float inside_box, __global const uint *traced_offsets,
+                                 __global const uint *aux_offsets,
+                                 __global const uint *cell_start,
+                                 __global const float2 *sorted_points,
+                                 __global const uint *sorted_index, __global area_real *areas,
+                                 __global uchar *status)
+{
+    uint cells = (uint)(grid_side * grid_side);
+    uint id = get_global_id(0);
+    if (id >= pixel_count * cells)
+        return;
+    uint p = id / cells, c = id - p * cells;
+    uint base = traced_offsets[p] + aux_offsets[p];
+    uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
+    __global const uint *start = cell_start + (size_t)p * (cells + 1);
+    int2 g = (int2)((int)(c % (uint)grid_side), (int)(c / (uint)grid_side));
+
+    VoronoiNeighbourhood hood;
+    bool gathered = false, have_hood = false;
+    for (uint s = base + start[c]; s < base + start[c + 1]; ++s) {
+        uint i = sorted_index[s];
+        if (i >= traced_total)
+            continue;  // an auxiliary nucleus: its cell is not needed
+        if (!gathered) {
+            have_hood = VoronoiNeighbourhood_Gather(&hood, g, grid_side, start, base,
+                                                   sorted_points);
+            gathered = true;
+        }
+        VoronoiCell_Compute(i, sorted_points[s], g, &hood, have_hood, count, grid_side,
+                            half_extent, start_box, inside_box, start, base, sorted_points,
+                            areas, status);
+    }
 }
