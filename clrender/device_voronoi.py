@@ -176,16 +176,17 @@ def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
     flags = np.zeros(pixels, np.uint8)
     nonfinite = np.zeros(pixels, np.uint32)
     if layout.traced_total and pixels:
-        areas, status, traced_off = _enqueue_cells(runtime, layout, box, defines,
-                                                   np.dtype(real).itemsize)
+        areas, status, offsets = _enqueue_cells(runtime, layout, box, defines,
+                                                np.dtype(real).itemsize)
         sums_buf, flags_buf = runtime.allocate(sums.nbytes), runtime.allocate(flags.nbytes)
         nonfinite_buf = runtime.allocate(nonfinite.nbytes)
         reduce = runtime.kernel(SUMS_KERNEL_FILE, "voronoi_pixel_sums", defines)
         local = runtime.local_size
         reduce(runtime.queue, (padded_global_size(pixels, local),), (local,), np.uint32(pixels),
-               traced_off, radiance, areas, status, sums_buf, flags_buf, nonfinite_buf)
-        cl.enqueue_copy(runtime.queue, sums, sums_buf)
-        cl.enqueue_copy(runtime.queue, flags, flags_buf)
+               offsets, radiance, areas, status, sums_buf, flags_buf, nonfinite_buf)
+        # One wait: the in-order queue finishes the copies in order
+        cl.enqueue_copy(runtime.queue, sums, sums_buf, is_blocking=False)
+        cl.enqueue_copy(runtime.queue, flags, flags_buf, is_blocking=False)
         cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
     sums = sums.astype(np.float64)
     return DeviceSums(SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
@@ -252,23 +253,25 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     if traced == 0:
         return areas, status
     areas_buf, status_buf, _ = _enqueue_cells(runtime, layout, box, defines, areas.itemsize)
-    cl.enqueue_copy(runtime.queue, areas, areas_buf)
+    # One wait: the in-order queue finishes the first copy before the second
+    cl.enqueue_copy(runtime.queue, areas, areas_buf, is_blocking=False)
     cl.enqueue_copy(runtime.queue, status, status_buf)
     return areas, status
 
 
 def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
                    defines: dict[str, object], area_bytes: int):
-    """Queue the grid and cell kernels of a non-empty layout; (areas, status, traced offsets)
-    device buffers."""
+    """Queue the grid and cell kernels of a non-empty layout; (areas, status, offsets) device
+    buffers (offsets: the traced offsets, then the auxiliary ones)."""
     queue, local = runtime.queue, (runtime.local_size,)
     traced, pixels = layout.traced_total, layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
     side = layout.grid_side
     if total >= 2**32 or pixels * (side * side + 1) >= 2**32:  # also bounds the work-items
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
-    traced_off = runtime.upload(layout.traced_offsets.astype(np.uint32))
-    aux_off = runtime.upload(layout.aux_offsets.astype(np.uint32))
+    # Traced then auxiliary offsets in one buffer (each blocking upload costs a round trip)
+    offsets = runtime.upload(np.concatenate([layout.traced_offsets, layout.aux_offsets])
+                             .astype(np.uint32))
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
     sorted_index = runtime.allocate(4 * total)
@@ -278,15 +281,15 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
     build(queue, (padded_global_size(pixels, local[0]),), local, np.uint32(pixels),
-          np.uint32(traced), np.int32(side), half, layout.positions, traced_off, aux_off,
-          cell_start, sorted_points, sorted_index)
+          np.uint32(traced), np.int32(side), half, layout.positions, offsets, cell_start,
+          sorted_points, sorted_index)
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
     compute(queue, (padded_global_size(pixels * side * side, local[0]),), local,
             np.uint32(pixels), np.uint32(traced), np.int32(side), half,
             np.float32(layout.half_extent * START_BOX_SCALE),
-            np.float32(box if box is not None else np.inf), traced_off, aux_off, cell_start,
+            np.float32(box if box is not None else np.inf), offsets, cell_start,
             sorted_points, sorted_index, areas_buf, status_buf)
-    return areas_buf, status_buf, traced_off
+    return areas_buf, status_buf, offsets
 
 
 def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndarray:

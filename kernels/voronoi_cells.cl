@@ -120,18 +120,22 @@ VORONOI_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cel
            + VoronoiGrid_Index(x.x, half_extent, inv_cell, grid_side);
 }
 
+// offsets: the pixels' traced offsets (pixel_count + 1 values), then their auxiliary offsets
+// (as many), in one buffer (one upload).
+
 // One pixel per work-item: counting sort of its nuclei into grid cells, written from slot
 // base = traced_offsets[p] + aux_offsets[p] of sorted_points, with each nucleus's index in
 // positions in sorted_index (traced nuclei: below traced_total).
 __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
                                  float half_extent, __global const float2 *positions,
-                                 __global const uint *traced_offsets,
-                                 __global const uint *aux_offsets, __global uint *cell_start,
+                                 __global const uint *offsets, __global uint *cell_start,
                                  __global float2 *sorted_points, __global uint *sorted_index)
 {
     uint p = get_global_id(0);
     if (p >= pixel_count)
         return;
+    __global const uint *traced_offsets = offsets;
+    __global const uint *aux_offsets = offsets + pixel_count + 1;
     int cells = grid_side * grid_side;
     float inv_cell = (float)grid_side / (2.0f * half_extent);
     __global uint *start = cell_start + (size_t)p * (uint)(cells + 1);
@@ -800,8 +804,7 @@ VORONOI_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
 // share one copy of their 3 x 3 block of grid cells.
 __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
                                  int grid_side, float half_extent, float start_box,
-                                 float inside_box, __global const uint *traced_offsets,
-                                 __global const uint *aux_offsets,
+                                 float inside_box, __global const uint *offsets,
                                  __global const uint *cell_start,
                                  __global const float2 *sorted_points,
                                  __global const uint *sorted_index, __global area_real *areas,
@@ -812,6 +815,8 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
     if (id >= pixel_count * cells)
         return;
     uint p = id / cells, c = id - p * cells;
+    __global const uint *traced_offsets = offsets;
+    __global const uint *aux_offsets = offsets + pixel_count + 1;
     uint base = traced_offsets[p] + aux_offsets[p];
     uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
     __global const uint *start = cell_start + (size_t)p * (cells + 1);
