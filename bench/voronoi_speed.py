@@ -17,12 +17,12 @@ the ratios. Rows: one 4096-sample pixel, n = 64 ... 4096 over ~0.2 M samples eac
 of 4096 pixels at n = 256. One thread (Qhull is single-threaded).
 
 Then the same one-pixel estimate with the cells from the OpenCL cell kernel
-(clrender.device_voronoi, the render's default backend) on one core: child processes run it
-with POCL_MAX_PTHREAD_COUNT=1 (PoCL's CPU device then has one worker thread), timing the whole
+(clrender.device_voronoi, the render's default backend) on one core: child processes pinned to
+one CPU core (sched_setaffinity) run it with POCL_MAX_PTHREAD_COUNT=1 (PoCL's CPU device then
+has one worker thread), timing the whole
 call (float32 upload, grid and cell kernels, read-back, host fallbacks, the estimate) in wall
-and CPU seconds; the figure is the median over 5 processes of each one's median (it varies by
-about 15 % between processes here); areas are checked against Qhull's. Skipped with
---no-device.
+and CPU seconds; the figure is the median over 5 processes of each one's median; areas are
+checked against Qhull's. Skipped with --no-device.
 """
 
 from __future__ import annotations
@@ -145,10 +145,17 @@ def device_one_pixel(repeats: int, seed: int) -> dict:
             "estimate": float(result.estimates[0])}
 
 
+def pin_to_one_core() -> None:
+    """Confine this process (and the threads it starts later, PoCL's worker among them) to
+    one CPU core, where the OS allows it (Linux)."""
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+
 def device_one_pixel_on_one_core(repeats: int, processes: int = 5) -> dict | None:
-    """device_one_pixel in child processes whose PoCL device has one worker thread: the
-    median over `processes` children of each child's median (it varies by ~15 % from one
-    process to the next here), with every child's figures."""
+    """device_one_pixel in child processes pinned to one core, whose PoCL device has one
+    worker thread: the median over `processes` children of each child's median, with every
+    child's figures."""
     env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
     children = []
     for _ in range(processes):
@@ -182,6 +189,7 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     repeats = args.repeats or (3 if args.quick else 7)
     if args.device_one_pixel_child:
+        pin_to_one_core()
         print(json.dumps(device_one_pixel(repeats * 3, seed=11)))
         return
     rng = np.random.default_rng(7)
@@ -215,7 +223,8 @@ def main(argv=None) -> None:
         met_one = device["wall_ms"] <= TARGET_ONE_PIXEL_MS
         walls = device["wall_ms_per_process"]
         print(f"one 4096-sample pixel with device cells on one core ({device['device']}, "
-              f"POCL_MAX_PTHREAD_COUNT=1): {device['wall_ms']:.2f} ms wall, "
+              f"process pinned to one core, POCL_MAX_PTHREAD_COUNT=1): "
+              f"{device['wall_ms']:.2f} ms wall, "
               f"{device['cpu_ms']:.2f} ms CPU: median over {device['processes']} processes "
               f"(each the median of {device['repeats']}; range {min(walls):.2f}-"
               f"{max(walls):.2f} ms wall) (target <= "

@@ -124,14 +124,16 @@ def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offse
     aux_offsets = np.asarray(aux_offsets, np.int64)
     flat = np.concatenate([traced32, aux32])
     extent = float(np.abs(flat).max()) if len(flat) else 0.5
-    buffer = runtime.upload(flat)
+    buffer, upload = runtime.upload_async(flat)  # held until _cells has read its results
     side = grid_side(len(flat), len(offsets) - 1)
     layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side)
 
     def fetch(wanted: np.ndarray):
         return _slice_pixels(traced32, offsets, aux32, aux_offsets, wanted)
 
-    return _cells(runtime, layout, box, precision, fetch)
+    cells = _cells(runtime, layout, box, precision, fetch)
+    del upload
+    return cells
 
 
 def sppp_cells_backend(runtime: Runtime, precision: str = "auto"
@@ -176,8 +178,8 @@ def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
     flags = np.zeros(pixels, np.uint8)
     nonfinite = np.zeros(pixels, np.uint32)
     if layout.traced_total and pixels:
-        areas, status, offsets = _enqueue_cells(runtime, layout, box, defines,
-                                                np.dtype(real).itemsize)
+        areas, status, offsets, upload = _enqueue_cells(runtime, layout, box, defines,
+                                                        np.dtype(real).itemsize)
         sums_buf, flags_buf = runtime.allocate(sums.nbytes), runtime.allocate(flags.nbytes)
         nonfinite_buf = runtime.allocate(nonfinite.nbytes)
         reduce = runtime.kernel(SUMS_KERNEL_FILE, "voronoi_pixel_sums", defines)
@@ -188,6 +190,7 @@ def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
         cl.enqueue_copy(runtime.queue, sums, sums_buf, is_blocking=False)
         cl.enqueue_copy(runtime.queue, flags, flags_buf, is_blocking=False)
         cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
+        del upload  # the blocking read above has run the upload
     sums = sums.astype(np.float64)
     return DeviceSums(SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
                       (flags & SUMS_REDRAW) != 0, (flags & SUMS_FALLBACK) != 0,
@@ -252,17 +255,20 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     status = np.empty(traced, np.uint8)
     if traced == 0:
         return areas, status
-    areas_buf, status_buf, _ = _enqueue_cells(runtime, layout, box, defines, areas.itemsize)
-    # One wait: the in-order queue finishes the first copy before the second
+    areas_buf, status_buf, _, upload = _enqueue_cells(runtime, layout, box, defines,
+                                                      areas.itemsize)
+    # One wait: the in-order queue finishes the upload and the first copy before the second
     cl.enqueue_copy(runtime.queue, areas, areas_buf, is_blocking=False)
     cl.enqueue_copy(runtime.queue, status, status_buf)
+    del upload
     return areas, status
 
 
 def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
                    defines: dict[str, object], area_bytes: int):
     """Queue the grid and cell kernels of a non-empty layout; (areas, status, offsets) device
-    buffers (offsets: the traced offsets, then the auxiliary ones)."""
+    buffers (offsets: the traced offsets, then the auxiliary ones) and the offsets' upload
+    event, to hold until a blocking read (Runtime.upload_async)."""
     queue, local = runtime.queue, (runtime.local_size,)
     traced, pixels = layout.traced_total, layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
@@ -270,8 +276,8 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
     if total >= 2**32 or pixels * (side * side + 1) >= 2**32:  # also bounds the work-items
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
     # Traced then auxiliary offsets in one buffer (each blocking upload costs a round trip)
-    offsets = runtime.upload(np.concatenate([layout.traced_offsets, layout.aux_offsets])
-                             .astype(np.uint32))
+    offsets, upload = runtime.upload_async(
+        np.concatenate([layout.traced_offsets, layout.aux_offsets]).astype(np.uint32))
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
     sorted_index = runtime.allocate(4 * total)
@@ -289,7 +295,7 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
             np.float32(layout.half_extent * START_BOX_SCALE),
             np.float32(box if box is not None else np.inf), offsets, cell_start,
             sorted_points, sorted_index, areas_buf, status_buf)
-    return areas_buf, status_buf, offsets
+    return areas_buf, status_buf, offsets, upload
 
 
 def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndarray:

@@ -140,6 +140,17 @@ class Runtime:
             cl.enqueue_copy(self.queue, buffer, data, is_blocking=True)
         return buffer
 
+    def upload_async(self, array: np.ndarray) -> tuple[cl.MemoryObjectHolder, cl.Event | None]:
+        """Like upload, without waiting: the copy runs in queue order. Keep the returned event
+        until a later blocking call on the queue has returned (it holds the host array, and
+        dropping it waits for the copy). Each blocking upload costs a round trip to the
+        device's worker threads (tens of microseconds on PoCL)."""
+        data = np.ascontiguousarray(array).reshape(-1)
+        buffer = self.allocate(data.nbytes)
+        if not data.nbytes:
+            return buffer, None
+        return buffer, cl.enqueue_copy(self.queue, buffer, data, is_blocking=False)
+
     def describe(self) -> str:
         return describe_device(self.device)
 
