@@ -497,6 +497,9 @@ VORONOI_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, i
     int x1 = VoronoiGrid_Index((float)x.x + box.z + slack, extent, inv_cell, grid_side);
     int y0 = VoronoiGrid_Index((float)x.y + box.y - slack, extent, inv_cell, grid_side);
     int y1 = VoronoiGrid_Index((float)x.y + box.w + slack, extent, inv_cell, grid_side);
+    // Most cut boxes lie within the block: nothing to search
+    if (x0 >= g.x - 1 && x1 <= g.x + 1 && y0 >= g.y - 1 && y1 <= g.y + 1)
+        return true;
     return VoronoiCell_ClipBoxOutside(poly, x, x0, x1, y0, y1, g.x - 1, g.x + 1, g.y - 1,
                                       g.y + 1, grid_side, start, base, sorted_points,
                                       coincident);
