@@ -100,13 +100,7 @@ def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: floa
 
     box: also report which cells lie inside [-box, box]^2 (box = 1/2 + eps is W' for fvor).
     """
-    config = sample_sets.config
-    pixels = sample_sets.pixel_count
-    aux_offsets = np.arange(pixels + 1, dtype=np.int64) * config.n_aux
-    # The grid follows the sampler, not the launch: a pixel's cells are then bit-identical
-    # whatever tile it is computed in.
-    layout = _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
-                     aux_offsets, 0.5 + config.eps, grid_side(config.n + config.n_aux, 1))
+    layout = _sample_set_layout(sample_sets)
 
     def fetch(wanted: np.ndarray):
         return _read_pixels(runtime.queue, layout, wanted)
@@ -167,13 +161,9 @@ def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
     """The SpppSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
     and radiance ((T, 3) float32 device buffer, traced-sample order) kept on the device: only
     SUMS_PER_PIXEL values and a flag byte per pixel come back. box = 1/2 + eps (W')."""
-    config = sample_sets.config
-    pixels = sample_sets.pixel_count
-    layout = _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
-                     np.arange(pixels + 1, dtype=np.int64) * config.n_aux, 0.5 + config.eps,
-                     grid_side(config.n + config.n_aux, 1))
-    defines = kernel_defines(runtime, precision)
-    real = np.float32 if resolve_precision(runtime, precision) == "single" else np.float64
+    layout = _sample_set_layout(sample_sets)
+    pixels = layout.pixel_count
+    defines, real = _precision_setup(runtime, precision)
     sums = np.zeros((pixels, SUMS_PER_PIXEL), real)
     flags = np.zeros(pixels, np.uint8)
     nonfinite = np.zeros(pixels, np.uint32)
@@ -232,10 +222,25 @@ def grid_side(layout_points: int, pixels: int) -> int:
 # Launch and host fallback
 
 
+def _sample_set_layout(sample_sets: DeviceSampleSets) -> _Layout:
+    """The layout of a launch's SPPP sample sets (n_aux auxiliary nuclei per pixel). The grid
+    follows the sampler, not the launch: a pixel's cells are then bit-identical whatever tile
+    it is computed in."""
+    config = sample_sets.config
+    aux_offsets = np.arange(sample_sets.pixel_count + 1, dtype=np.int64) * config.n_aux
+    return _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
+                   aux_offsets, 0.5 + config.eps, grid_side(config.n + config.n_aux, 1))
+
+
+def _precision_setup(runtime: Runtime, precision: str) -> tuple[dict[str, object], type]:
+    """(build options, NumPy type of the areas) for the precision."""
+    single = resolve_precision(runtime, precision) == "single"
+    return kernel_defines(runtime, precision), np.float32 if single else np.float64
+
+
 def _cells(runtime: Runtime, layout: _Layout, box: float | None, precision: str,
            fetch: FetchPixels) -> CellAreas:
-    defines = kernel_defines(runtime, precision)
-    real = np.float32 if resolve_precision(runtime, precision) == "single" else np.float64
+    defines, real = _precision_setup(runtime, precision)
     areas, status = _launch(runtime, layout, box, defines, real)
     bounded = (status & STATUS_BOUNDED) != 0
     cells = CellAreas(np.where(bounded, areas.astype(np.float64), np.nan), bounded,

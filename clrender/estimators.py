@@ -298,10 +298,11 @@ class SpppSums:
     kept_weighted: np.ndarray   # (P,) or (P, C)
 
 
-def sppp_sums(samples: PixelSamples, cells: CellAreas) -> SpppSums:
-    """The sums of the given SPPP cells (inside-W' flags needed for the kept ones)."""
+def sppp_sums(samples: PixelSamples, cells: CellAreas, kept: bool = True) -> SpppSums:
+    """The sums of the given SPPP cells; the kept ones (fvor's) only if asked for and the cells
+    carry inside-W' flags, else NaN."""
     products = samples.values * _per_sample(cells.areas, samples.values)
-    if cells.inside_box is None:
+    if not kept or cells.inside_box is None:
         kept_area = np.full(samples.pixel_count, np.nan)
         kept_weighted = np.full((samples.pixel_count,) + products.shape[1:], np.nan)
     else:
@@ -343,7 +344,7 @@ def _fvor_fallback(sums: SpppSums, counts: np.ndarray) -> np.ndarray:
 
 def _sppp_estimator(name: str, samples: PixelSamples, cells) -> EstimateResult:
     sppp = cells["sppp"]
-    sums = sppp_sums(samples, sppp)
+    sums = sppp_sums(samples, sppp, kept=name == "fvor")
     result = _redraw_result(samples, sppp_estimates(name, sums, samples.counts), sppp)
     if name == "fvor":
         fallback = _fvor_fallback(sums, samples.counts)

@@ -153,7 +153,7 @@ class PathTracer:
         global_size = padded_global_size(count, runtime.local_size)
         groups = global_size // runtime.local_size
         radiance = runtime.allocate(12 * count)
-        counters = runtime.upload(np.zeros(1 + groups, np.uint32), read_only=False)
+        counters = runtime.upload(np.zeros(1 + groups, np.uint32))
         if count == 0:
             return TraceResult(radiance, 0, queue, counters, 1 + groups, None)
         scene = self.scene

@@ -34,12 +34,10 @@
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
 // Coincident nuclei share their cell equally, as in the host reference.
 
-#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-#endif
+#include "voronoi_common.h"
 
-
-// real: the clipping arithmetic; area_real: final vertices, areas and the inside test
+// real: the clipping arithmetic; area_real (voronoi_common.h): final vertices, areas and the
+// inside test
 #ifdef VORONOI_DOUBLE
 typedef double real;
 typedef double2 real2;
@@ -48,15 +46,6 @@ typedef double2 real2;
 typedef float real;
 typedef float2 real2;
 #define REAL2(v) (v)
-#endif
-#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
-typedef double area_real;
-typedef double2 area_real2;
-#define AREA_REAL2(v) convert_double2(v)
-#else
-typedef float area_real;
-typedef float2 area_real2;
-#define AREA_REAL2(v) (v)
 #endif
 
 #ifndef VORONOI_MAX_VERTICES
@@ -81,11 +70,6 @@ typedef float2 area_real2;
 #define VORONOI_MIN(a, b) ((a) < (b) ? (a) : (b))
 #define VORONOI_MAX(a, b) ((a) > (b) ? (a) : (b))
 #define VORONOI_ABS(a) ((a) < 0 ? -(a) : (a))
-
-#define VORONOI_BOUNDED 1
-#define VORONOI_INSIDE 2
-#define VORONOI_FALLBACK 4
-#define VORONOI_WALKED 8
 
 // Stop and skip tests keep a relative safety margin for rounding (they only cost extra clips).
 #define VORONOI_RADIUS_SLACK 1.0001f

@@ -3,24 +3,16 @@
 // the cell areas already are, so that no per-sample array leaves the device.
 //
 // Inputs: each traced sample's RGB radiance (float), its cell area and status byte from
-// voronoi_cell_areas (kernels/voronoi_cells.cl: same -D precision options, so area_real
-// matches). Output per pixel: SUMS_PER_PIXEL values, in order sum v, sum f v (R, G, B), then
-// the same over the nuclei whose cell lies inside W' (status VORONOI_INSIDE); flag bits:
+// voronoi_cell_areas (kernels/voronoi_cells.cl; same -D precision options, and area_real and
+// the status bits from voronoi_common.h). Output per pixel: SUMS_PER_PIXEL values, in order
+// sum v, sum f v (R, G, B), then the same over the nuclei whose cell lies inside W' (status
+// VORONOI_INSIDE); flag bits:
 //   SUMS_REDRAW     a traced nucleus has an unbounded cell: the pixel must be redrawn
 //   SUMS_FALLBACK   a cell the device could not decide: the host recomputes the pixel
 // and the number of samples whose radiance was NaN or infinite (they count as 0 here).
 // Samples are summed in sample order.
 
-#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-typedef double area_real;
-#else
-typedef float area_real;
-#endif
-
-#define VORONOI_BOUNDED 1
-#define VORONOI_INSIDE 2
-#define VORONOI_FALLBACK 4
+#include "voronoi_common.h"
 
 #define SUMS_PER_PIXEL 8
 #define SUMS_REDRAW 1
