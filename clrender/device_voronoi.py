@@ -40,13 +40,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pyopencl as cl
 
 from clrender.errors import DeviceError, ParameterError
-from clrender.estimators import SpppSums
+from clrender.estimators import PixelSamples, SpppSums, sppp_sums
 from clrender.runtime import Runtime, padded_global_size
 from clrender.sampling import DeviceSampleSets
 from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
@@ -185,6 +185,29 @@ def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
     return DeviceSums(SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
                       (flags & SUMS_REDRAW) != 0, (flags & SUMS_FALLBACK) != 0,
                       nonfinite.astype(np.int64), np.diff(layout.traced_offsets))
+
+
+def settle_undecided(device: DeviceSums, host_sets, values: np.ndarray, box: float) -> DeviceSums:
+    """device with the pixels it flagged as undecided (device.fallback) settled on the host:
+    their cells by Qhull from the host copy of the sample sets (host_sets: traced, offsets, aux,
+    aux_offsets, float32 as on the device), their sums from `values` ((T, C), the traced
+    samples' radiance with non-finite rows zeroed), their redraw flags from the cells."""
+    pixels = np.flatnonzero(device.fallback)
+    offsets = np.asarray(host_sets.offsets, np.int64)
+    traced, t_offsets, aux, a_offsets = _slice_pixels(
+        host_sets.traced, offsets, host_sets.aux, np.asarray(host_sets.aux_offsets, np.int64),
+        pixels)
+    cells = sppp_cells(traced, t_offsets, aux, a_offsets, box)
+    samples = PixelSamples(traced, values[_pixel_slots(offsets, pixels)], t_offsets, 1.0)
+    settled = sppp_sums(samples, cells)
+    merged = {}
+    for name in ("area", "weighted", "kept_area", "kept_weighted"):
+        merged[name] = np.array(getattr(device.sums, name))
+        merged[name][pixels] = getattr(settled, name)
+    redraw = device.redraw.copy()
+    redraw[pixels] = np.bincount(samples.pixel_index, ~cells.bounded, len(pixels)) > 0
+    return replace(device, sums=SpppSums(**merged), redraw=redraw,
+                   fallback=np.zeros_like(device.fallback))
 
 
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
@@ -326,9 +349,10 @@ def _recompute_on_host(cells: CellAreas, traced_offsets: np.ndarray, pixels: np.
 
 def _pixel_slots(offsets: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     """Concatenated ranges offsets[p]:offsets[p+1] for p in pixels."""
-    if len(pixels) == 0:
-        return np.zeros(0, np.int64)
-    return np.concatenate([np.arange(offsets[p], offsets[p + 1]) for p in pixels])
+    starts = np.asarray(offsets, np.int64)[pixels]
+    counts = np.asarray(offsets, np.int64)[np.asarray(pixels) + 1] - starts
+    first = np.cumsum(counts) - counts  # where each pixel's range starts in the result
+    return np.repeat(starts - first, counts) + np.arange(int(counts.sum()), dtype=np.int64)
 
 
 def _slice_pixels(traced: np.ndarray, offsets: np.ndarray, aux: np.ndarray,

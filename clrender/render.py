@@ -22,8 +22,8 @@ Voronoi cells: with `voronoi_backend = "device"` (the default) the SPPP cells of
 and fvor are computed by a device kernel queued right after the tracing, and a second kernel
 forms each pixel's weighted sums (clrender.device_voronoi.device_sppp_sums): no per-sample
 array comes back, and the host stage only divides. A tile with a cell the kernel cannot
-certify is redone the per-sample way (device cells, Qhull for the undecided pixels, sums on
-the host). With "qhull" the host computes the cells with Qhull.
+certify has those pixels settled on the host (their samples read back, cells by Qhull). With
+"qhull" the host computes the cells with Qhull.
 
 Timing: `device_seconds` is the time the main thread spends drawing sample sets, tracing
 (and computing device Voronoi cells) and downloading; `host_seconds` the estimator stage's
@@ -53,7 +53,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrender import image_voronoi
-from clrender.device_voronoi import DeviceSums, device_sppp_cells, device_sppp_sums
+from clrender.device_voronoi import DeviceSums, device_sppp_sums, settle_undecided
 from clrender.errors import ParameterError
 from clrender.estimators import (
     ESTIMATORS,
@@ -68,7 +68,6 @@ from clrender.runtime import Runtime
 from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets, make_sampler
 from clrender.sppp import SpppBatch
 from clrender.voronoi import estimate_with_redraw
-from clrender.voronoi_cells import CellAreas
 
 DEFAULT_TILE_SAMPLES = 4_000_000
 # Where the SPPP Voronoi cells of vor, vor_sn and fvor are computed: the device kernel
@@ -152,7 +151,6 @@ class TileSamples:
     radiance: np.ndarray | None  # (T, 3) float32, traced-sample order; None with sums
     rays: int
     source_nonfinite: int
-    cells: CellAreas | None = None  # SPPP cells computed on the device (per-sample path)
     sums: DeviceSums | None = None  # per-pixel sums computed on the device
 
     @property
@@ -233,24 +231,25 @@ def trace_tile(
 ) -> TileSamples:
     """Device stage: draw the pixels' sample sets and get their radiance. With device_cells,
     the SPPP Voronoi cells and each pixel's weighted sums are queued after the tracing and only
-    the sums come back (unless a cell needs the host: then cells and samples come back);
-    otherwise the sample sets and radiance are brought to the host."""
+    the sums come back (if the kernel left pixels undecided, the samples come back too and
+    the host settles those pixels with Qhull); otherwise the sample sets and radiance are
+    brought to the host."""
     device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
     pending = source.trace(device_sets, seed)
-    box = 0.5 + sampler.eps
     if device_cells:
         radiance = pending.to_device(runtime)
+        box = 0.5 + sampler.eps
         sums = device_sppp_sums(runtime, device_sets, radiance.buffer, box)
-        if not sums.fallback.any():
-            return TileSamples(pixels, redraws, None, None, radiance.ray_count,
-                               radiance.device_nonfinite, sums=sums)  # fmt: skip
-    cells = device_sppp_cells(runtime, device_sets, box) if device_cells else None
+        if sums.fallback.any():
+            values = pending.to_host().values.astype(np.float64)
+            values[~np.isfinite(values).all(axis=1)] = 0.0  # as in the sums kernel
+            sums = settle_undecided(sums, device_sets.to_host(runtime.queue), values, box)
+        return TileSamples(pixels, redraws, None, None, radiance.ray_count,
+                           radiance.device_nonfinite, sums=sums)  # fmt: skip
     sets = device_sets.to_host(runtime.queue)
     radiance = pending.to_host()
-    return TileSamples(
-        pixels, redraws, sets, radiance.values, radiance.ray_count, radiance.device_nonfinite,
-        cells,
-    )
+    return TileSamples(pixels, redraws, sets, radiance.values, radiance.ray_count,
+                       radiance.device_nonfinite)  # fmt: skip
 
 
 def estimate_tile(
@@ -269,7 +268,7 @@ def estimate_tile(
     if settings.estimator in IMAGE_ESTIMATORS:
         estimates, needs_redraw = image_estimates(settings, tile, values, host_runtime)
     else:
-        estimates, needs_redraw = pixel_estimates(settings, tile.sets, values, tile.cells)
+        estimates, needs_redraw = pixel_estimates(settings, tile.sets, values)
     return TileEstimate(
         tile.pixels,
         tile.redraws,
@@ -291,24 +290,19 @@ def sums_estimate(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
 
 
 def pixel_estimates(
-    settings: RenderSettings, sets: HostSampleSets, values: np.ndarray,
-    cells: CellAreas | None = None,
+    settings: RenderSettings, sets: HostSampleSets, values: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators); cells: the
-    SPPP cells if the device computed them (the positions are then only checked, and stay
-    float32)."""
-    positions = (sets.traced, sets.aux) if cells is not None else (
-        sets.traced.astype(np.float64), sets.aux.astype(np.float64))
+    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators)."""
     samples = PixelSamples(
-        positions[0],
+        sets.traced.astype(np.float64),
         values,
         sets.offsets,
         float(settings.sampler.n),
-        positions[1],
+        sets.aux.astype(np.float64),
         sets.aux_offsets,
         settings.sampler.eps,
     )
-    result = estimate(settings.estimator, samples, None if cells is None else {"sppp": cells})
+    result = estimate(settings.estimator, samples)
     return result.estimates, result.needs_redraw
 
 

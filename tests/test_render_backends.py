@@ -61,9 +61,9 @@ def test_device_backend_is_bit_identical_whatever_the_tiling(runtime):
     assert np.array_equal(tiled.film.image(), reference)
 
 
-def test_tiles_with_undecided_cells_take_the_per_sample_path(runtime, monkeypatch):
-    # Cells over 5 vertices overflow the kernel: every tile's sums are refused and the tile
-    # goes through device cells + Qhull for those pixels + host sums: the same image.
+def test_pixels_with_undecided_cells_are_settled_on_the_host(runtime, monkeypatch):
+    # Cells over 5 vertices overflow the kernel: most pixels' device sums are refused and the
+    # host settles them (Qhull cells, host sums): the same image.
     from clrender import device_voronoi
     monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
     device = render_image(runtime, "vor_sn", "device").film.image()
