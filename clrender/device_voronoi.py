@@ -103,7 +103,8 @@ def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: floa
     layout = _sample_set_layout(sample_sets)
 
     def fetch(wanted: np.ndarray):
-        return _read_pixels(runtime.queue, layout, wanted)
+        host = sample_sets.to_host(runtime.queue)  # one read-back (fallbacks are rare)
+        return _slice_pixels(host.traced, host.offsets, host.aux, host.aux_offsets, wanted)
 
     return _cells(runtime, layout, box, precision, fetch)
 
@@ -364,25 +365,6 @@ def _slice_pixels(traced: np.ndarray, offsets: np.ndarray, aux: np.ndarray,
     a_counts = aux_offsets[pixels + 1] - aux_offsets[pixels]
     return (traced[t_index].astype(np.float64), _counts_to_offsets(t_counts),
             aux[a_index].astype(np.float64), _counts_to_offsets(a_counts))
-
-
-def _read_pixels(queue: cl.CommandQueue, layout: _Layout, pixels: np.ndarray):
-    """Some pixels' positions read back from the device buffer, one copy per range."""
-    parts = []
-    for first, offsets in ((0, layout.traced_offsets),
-                           (layout.traced_total, layout.aux_offsets)):
-        for p in pixels:
-            chunk = np.empty((int(offsets[p + 1] - offsets[p]), 2), np.float32)
-            if len(chunk):
-                cl.enqueue_copy(queue, chunk, layout.positions,
-                                src_offset=8 * (first + int(offsets[p])))
-            parts.append(chunk)
-    half = len(pixels)
-    traced, aux = parts[:half], parts[half:]
-    return (np.concatenate(traced).astype(np.float64),
-            _counts_to_offsets(np.array([len(c) for c in traced])),
-            np.concatenate(aux).astype(np.float64),
-            _counts_to_offsets(np.array([len(c) for c in aux])))
 
 
 def _counts_to_offsets(counts: np.ndarray) -> np.ndarray:
