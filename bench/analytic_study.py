@@ -48,7 +48,7 @@ def _holder(a):
 def _not_holder(x, y):
     with np.errstate(divide="ignore", invalid="ignore"):
         value = x * y * np.sin(1.0 / x) * np.sin(1.0 / y)
-    return np.where((x == 0) | (y == 0), 0.0, value)   # the continuous extension
+    return np.where((x == 0) | (y == 0), 0.0, value)  # the continuous extension
 
 
 def _discontinuity(x, y):
@@ -60,8 +60,8 @@ def _discontinuity(x, y):
 FUNCTIONS = {
     "holder_1": (_holder(1.0), 1.0 / 16.0),
     "holder_0.5": (_holder(0.5), 2.0 / 9.0),
-    "holder_0.1": (_holder(0.1), (0.5 ** 0.1 / 1.1) ** 2),
-    "holder_0.01": (_holder(0.01), (0.5 ** 0.01 / 1.01) ** 2),
+    "holder_0.1": (_holder(0.1), (0.5**0.1 / 1.1) ** 2),
+    "holder_0.01": (_holder(0.01), (0.5**0.01 / 1.01) ** 2),
     "not_holder": (_not_holder, 0.0029017171),
     "discontinuity": (_discontinuity, 4.0 * math.log(1.0 + math.sqrt(2.0))),
 }
@@ -102,9 +102,11 @@ def evaluate_all(positions: np.ndarray) -> np.ndarray:
     return np.column_stack([f(x, y) for f, _ in FUNCTIONS.values()])
 
 
-def run_estimates(n: int, runs: int, rng: np.random.Generator,
-                  max_points_per_batch: int = 400_000) -> tuple[dict[str, np.ndarray], dict]:
+def run_estimates(
+    n: int, runs: int, rng: np.random.Generator, max_points_per_batch: int = 400_000
+) -> tuple[dict[str, np.ndarray], dict]:
     """(runs, 6) estimates per estimator at intensity n, runs independent pixels."""
+
     def draw(pixel_ids, eps):
         return draw_sppp(rng, n, len(pixel_ids), eps=eps)
 
@@ -145,8 +147,14 @@ def summarise(estimates: np.ndarray, exact: np.ndarray) -> dict:
     mean = estimates.mean(axis=0)
     std = estimates.std(axis=0, ddof=1)
     q75, q25 = np.percentile(estimates, [75, 25], axis=0)
-    return {"mean": mean, "std": std, "bias": mean - exact, "se": std / math.sqrt(runs),
-            "rmse": np.sqrt(((estimates - exact) ** 2).mean(axis=0)), "iqr": q75 - q25}
+    return {
+        "mean": mean,
+        "std": std,
+        "bias": mean - exact,
+        "se": std / math.sqrt(runs),
+        "rmse": np.sqrt(((estimates - exact) ** 2).mean(axis=0)),
+        "iqr": q75 - q25,
+    }
 
 
 def fit_slope(ns: list[int], stds: list[float], n_min: int) -> float:
@@ -175,33 +183,47 @@ def to_lists(summary: dict) -> dict:
 
 
 def table2_markdown(table: dict, runs: int, n: int) -> str:
-    lines = [f"## Table 2: std over {runs} runs at n = {n} (bias +- standard error; "
-             "ms per estimate, this machine, one core)", "",
-             "| function | estimator | std | bias +- se | IQR | ms | paper std | paper ms |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"## Table 2: std over {runs} runs at n = {n} (bias +- standard error; "
+        "ms per estimate, this machine, one core)",
+        "",
+        "| function | estimator | std | bias +- se | IQR | ms | paper std | paper ms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     paper_columns = {"mc_n": 0, "vor_sn": 1, "fvor": 2}
     for function, rows in table.items():
         for estimator, row in rows.items():
             paper = PAPER_TABLE2[function]
             column = paper_columns.get(estimator)
-            paper_std = "" if column is None else (
-                "< 1e-6" if paper[column] <= 1e-6 else f"{paper[column]:.3g}")
+            paper_std = (
+                ""
+                if column is None
+                else ("< 1e-6" if paper[column] <= 1e-6 else f"{paper[column]:.3g}")
+            )
             paper_ms = f"{paper[column + 3]:.1f}" if column is not None else ""
-            lines.append(f"| {function} | {estimator} | {row['std']:.3g} | "
-                         f"{row['bias']:+.2e} +- {row['se']:.1e} | {row['iqr']:.3g} | "
-                         f"{row['ms']:.2f} | {paper_std} | {paper_ms} |")
-    lines += ["", "Paper columns: the authors' mc draws exactly n points and averages them, so "
-              "it sits beside mc_n (our mc divides by the intensity n under Poisson N, whose "
-              "count noise dominates for nearly constant f such as holder_0.01); their 'vor' "
-              "normalises E_V, so it sits beside vor_sn. Their holder_0.01 stds were below "
-              "1e-6 only through half-float storage."]
+            lines.append(
+                f"| {function} | {estimator} | {row['std']:.3g} | "
+                f"{row['bias']:+.2e} +- {row['se']:.1e} | {row['iqr']:.3g} | "
+                f"{row['ms']:.2f} | {paper_std} | {paper_ms} |"
+            )
+    lines += [
+        "",
+        "Paper columns: the authors' mc draws exactly n points and averages them, so "
+        "it sits beside mc_n (our mc divides by the intensity n under Poisson N, whose "
+        "count noise dominates for nearly constant f such as holder_0.01); their 'vor' "
+        "normalises E_V, so it sits beside vor_sn. Their holder_0.01 stds were below "
+        "1e-6 only through half-float storage.",
+    ]
     return "\n".join(lines)
 
 
 def slopes_markdown(slopes: dict, n_min: int) -> str:
-    lines = [f"## Figure 2 slopes: log-log slope of std against n (n >= {n_min})", "",
-             "| function | " + " | ".join(ESTIMATOR_NAMES) + " |",
-             "|---|" + "---|" * len(ESTIMATOR_NAMES)]
+    lines = [
+        f"## Figure 2 slopes: log-log slope of std against n (n >= {n_min})",
+        "",
+        "| function | " + " | ".join(ESTIMATOR_NAMES) + " |",
+        "|---|" + "---|" * len(ESTIMATOR_NAMES),
+    ]
     for function, row in slopes.items():
         cells = []
         for estimator in ESTIMATOR_NAMES:
@@ -209,8 +231,12 @@ def slopes_markdown(slopes: dict, n_min: int) -> str:
             predicted = row[estimator]["predicted"]
             cells.append(f"{measured:.2f}" + (f" ({predicted:.2f})" if predicted else ""))
         lines.append(f"| {function} | " + " | ".join(cells) + " |")
-    lines += ["", "In brackets: Proposition 1's slope -(1/2 + a/2) (mc: -1/2).", "",
-              SLOPE_EXPLANATION]
+    lines += [
+        "",
+        "In brackets: Proposition 1's slope -(1/2 + a/2) (mc: -1/2).",
+        "",
+        SLOPE_EXPLANATION,
+    ]
     return "\n".join(lines)
 
 
@@ -222,13 +248,14 @@ def plot_sweep(sweep: dict, out: Path) -> None:
         for name in ESTIMATOR_NAMES:
             mean = np.array([s[name]["mean"][f_index] for s in sweep["summaries"]])
             std = np.array([s[name]["std"][f_index] for s in sweep["summaries"]])
-            line, = ax_mean.plot(ns, mean, label=name)
+            (line,) = ax_mean.plot(ns, mean, label=name)
             ax_mean.fill_between(ns, mean - std, mean + std, color=line.get_color(), alpha=0.15)
             ax_std.loglog(ns, std, marker="o", ms=3, label=name)
         ax_mean.axhline(exact, color="k", lw=0.8, ls="--", label="exact")
         ax_mean.set_xscale("log", base=2)
-        ax_mean.set(xlabel="n (samples per pixel)", ylabel="estimate", title=f"{function}: "
-                    "mean +- std")
+        ax_mean.set(
+            xlabel="n (samples per pixel)", ylabel="estimate", title=f"{function}: mean +- std"
+        )
         ax_std.set(xlabel="n", ylabel="std", title=f"{function}: std against n")
         ax_mean.legend(fontsize=7)
         ax_std.legend(fontsize=7)
@@ -244,8 +271,11 @@ def plot_efficiency(sweep: dict, out: Path) -> None:
             rmse = [s[name]["rmse"][f_index] for s in sweep["summaries"]]
             ms = [t[name] for t in sweep["ms"]]
             ax.loglog(ms, rmse, marker="o", ms=3, label=name)
-        ax.set(xlabel="ms per estimate (estimator only, one core)", ylabel="RMSE",
-               title=f"{function}: error against time")
+        ax.set(
+            xlabel="ms per estimate (estimator only, one core)",
+            ylabel="RMSE",
+            title=f"{function}: error against time",
+        )
         ax.legend(fontsize=7)
         fig.tight_layout()
         fig.savefig(out / f"fig3_{function}.png", dpi=110)
@@ -257,8 +287,12 @@ def plot_table2(table: dict, out: Path) -> None:
     width = 0.8 / len(ESTIMATOR_NAMES)
     functions = list(table)
     for i, name in enumerate(ESTIMATOR_NAMES):
-        ax.bar(np.arange(len(functions)) + i * width, [table[f][name]["std"] for f in functions],
-               width, label=name)
+        ax.bar(
+            np.arange(len(functions)) + i * width,
+            [table[f][name]["std"] for f in functions],
+            width,
+            label=name,
+        )
     ax.set_yscale("log")
     ax.set_xticks(np.arange(len(functions)) + 0.4, functions, fontsize=8)
     ax.set(ylabel="std", title="Table 2: std per estimator")
@@ -277,8 +311,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--quick", action="store_true", help="smoke run of a few seconds")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "analytic")
     parser.add_argument("--runs", type=int, default=None, help="Table 2 runs (default 10000)")
-    parser.add_argument("--sweep-runs", type=int, default=None,
-                        help="runs per n for Figure 2 (default 1000)")
+    parser.add_argument(
+        "--sweep-runs", type=int, default=None, help="runs per n for Figure 2 (default 1000)"
+    )
     parser.add_argument("--n", type=int, default=None, help="Table 2 intensity (default 4096)")
     parser.add_argument("--seed", type=int, default=2025)
     return parser.parse_args(argv)
@@ -290,7 +325,7 @@ def main(argv=None) -> None:
     table_n = args.n or (256 if quick else 4096)
     runs = args.runs or (100 if quick else 10_000)
     sweep_runs = args.sweep_runs or (40 if quick else 1000)
-    sweep_ns = [2 ** k for k in range(5, 9 if quick else 15)]
+    sweep_ns = [2**k for k in range(5, 9 if quick else 15)]
     timing_pixels = 5 if quick else 20
     slope_n_min = 64 if quick else 256
     rng = np.random.default_rng(args.seed)
@@ -315,8 +350,9 @@ def main(argv=None) -> None:
     sweep = {"n": sweep_ns, "summaries": [], "ms": [], "redraw_stats": []}
     for n in sweep_ns:
         estimates_n, stats_n = run_estimates(n, sweep_runs, rng)
-        sweep["summaries"].append({name: to_lists(summarise(estimates_n[name], exact))
-                                   for name in ESTIMATOR_NAMES})
+        sweep["summaries"].append(
+            {name: to_lists(summarise(estimates_n[name], exact)) for name in ESTIMATOR_NAMES}
+        )
         sweep["ms"].append(time_estimators(n, timing_pixels, rng))
         sweep["redraw_stats"].append(stats_n)
         print(f"sweep n = {n}: done ({stats_n})", flush=True)
@@ -325,24 +361,45 @@ def main(argv=None) -> None:
         slopes[function] = {}
         for name in ESTIMATOR_NAMES:
             stds = [s[name]["std"][f_index] for s in sweep["summaries"]]
-            slopes[function][name] = {"measured": fit_slope(sweep_ns, stds, slope_n_min),
-                                      "predicted": predicted_slope(function, name)}
+            slopes[function][name] = {
+                "measured": fit_slope(sweep_ns, stds, slope_n_min),
+                "predicted": predicted_slope(function, name),
+            }
     print(slopes_markdown(slopes, slope_n_min))
 
     plot_table2(table, args.out)
     plot_sweep(sweep, args.out)
     plot_efficiency(sweep, args.out)
-    config = {"table_n": table_n, "runs": runs, "sweep_runs": sweep_runs, "sweep_n": sweep_ns,
-              "seed": args.seed, "quick": quick, "slope_n_min": slope_n_min,
-              "timing_pixels": timing_pixels, "exact": dict(zip(FUNCTIONS, exact.tolist(),
-                                                                strict=True))}
-    results = {"config": config, "table2": table, "table2_redraw_stats": redraw_stats,
-               "paper_table2": PAPER_TABLE2, "sweep": sweep, "slopes": slopes,
-               "slope_explanation": SLOPE_EXPLANATION}
+    config = {
+        "table_n": table_n,
+        "runs": runs,
+        "sweep_runs": sweep_runs,
+        "sweep_n": sweep_ns,
+        "seed": args.seed,
+        "quick": quick,
+        "slope_n_min": slope_n_min,
+        "timing_pixels": timing_pixels,
+        "exact": dict(zip(FUNCTIONS, exact.tolist(), strict=True)),
+    }
+    results = {
+        "config": config,
+        "table2": table,
+        "table2_redraw_stats": redraw_stats,
+        "paper_table2": PAPER_TABLE2,
+        "sweep": sweep,
+        "slopes": slopes,
+        "slope_explanation": SLOPE_EXPLANATION,
+    }
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
-    report = ["# Analytic study of the pixel estimators", "",
-              f"Command: python bench/analytic_study.py {' '.join(argv or sys.argv[1:])}", "",
-              table2_markdown(table, runs, table_n), "", slopes_markdown(slopes, slope_n_min)]
+    report = [
+        "# Analytic study of the pixel estimators",
+        "",
+        f"Command: python bench/analytic_study.py {' '.join(argv or sys.argv[1:])}",
+        "",
+        table2_markdown(table, runs, table_n),
+        "",
+        slopes_markdown(slopes, slope_n_min),
+    ]
     (args.out / "report.md").write_text("\n".join(report) + "\n")
     print(f"wrote {args.out}/results.json, report.md and PNG charts")
 

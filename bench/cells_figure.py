@@ -52,10 +52,15 @@ def find_pixels(runtime, size: int) -> list[tuple[str, str, object]]:
     glossy_source = make_source(runtime, "cornell-box-glossy", size, size)
     short, _ = timed_render(runtime, glossy_source, "mc", "stratified", 64, 3)
     scene = tracer.scene
-    return [("light_edge", "cornell-box", light_edge_pixel(scene, size, size)),
-            ("diffuse_wall", "cornell-box", diffuse_wall_pixel(scene, size, size)),
-            ("glossy_highlight", "cornell-box-glossy",
-             glossy_highlight_pixel(glossy_source.tracer.scene, short))]  # fmt: skip
+    return [
+        ("light_edge", "cornell-box", light_edge_pixel(scene, size, size)),
+        ("diffuse_wall", "cornell-box", diffuse_wall_pixel(scene, size, size)),
+        (
+            "glossy_highlight",
+            "cornell-box-glossy",
+            glossy_highlight_pixel(glossy_source.tracer.scene, short),
+        ),
+    ]
 
 
 def draw_accepted(runtime, tracer, n: int, pixel: int, size: int, seed: int):
@@ -64,9 +69,15 @@ def draw_accepted(runtime, tracer, n: int, pixel: int, size: int, seed: int):
     for redraw in range(MAX_REDRAWS):
         runs = trace_pixel_runs(runtime, tracer, sampler, seed, pixel, 1, size, size, redraw)
         sets = runs.sets
-        samples = PixelSamples(sets.traced.astype(np.float64), runs.radiance.mean(axis=1),
-                               sets.offsets, float(n), sets.aux.astype(np.float64),
-                               sets.aux_offsets, sampler.eps)  # fmt: skip
+        samples = PixelSamples(
+            sets.traced.astype(np.float64),
+            runs.radiance.mean(axis=1),
+            sets.offsets,
+            float(n),
+            sets.aux.astype(np.float64),
+            sets.aux_offsets,
+            sampler.eps,
+        )
         result = estimate_all(["mc", "vor_sn"], samples)
         if not result["vor_sn"].needs_redraw[0]:
             return runs, sampler, {k: float(r.estimates[0]) for k, r in result.items()}
@@ -93,22 +104,28 @@ def draw_cells(ax, runs, sampler, estimates: dict, title: str) -> None:
     polygons = cell_polygons(np.vstack([traced, aux]), box)
     colours = srgb_encode(runs.radiance)
     traced_cells = polygons[: len(traced)]  # all bounded: the draw was accepted
-    ax.add_collection(PolyCollection(traced_cells, facecolors=colours, edgecolors="0.25",
-                                     linewidths=0.4))  # fmt: skip
-    aux_cells = [p for p in polygons[len(traced):] if p is not None and len(p) >= 3]
-    ax.add_collection(PolyCollection(aux_cells, facecolors="none", edgecolors="0.7",
-                                     linewidths=0.4))  # fmt: skip
+    ax.add_collection(
+        PolyCollection(traced_cells, facecolors=colours, edgecolors="0.25", linewidths=0.4)
+    )
+    aux_cells = [p for p in polygons[len(traced) :] if p is not None and len(p) >= 3]
+    ax.add_collection(
+        PolyCollection(aux_cells, facecolors="none", edgecolors="0.7", linewidths=0.4)
+    )
     ax.plot(traced[:, 0], traced[:, 1], ".", color="k", ms=1.5, label="W nuclei (traced)")
     ax.plot(aux[:, 0], aux[:, 1], ".", color="tab:blue", ms=3, label="auxiliary nuclei")
     ax.add_patch(Rectangle((-0.5, -0.5), 1, 1, fill=False, ec="red", lw=1.5, label="pixel W"))
-    ax.add_patch(Rectangle((-box, -box), 2 * box, 2 * box, fill=False, ec="0.4", ls="--",
-                           lw=0.8, label="W'"))  # fmt: skip
+    ax.add_patch(
+        Rectangle((-box, -box), 2 * box, 2 * box, fill=False, ec="0.4", ls="--", lw=0.8, label="W'")
+    )
     ax.set_xlim(-box - 0.02, box + 0.02)
     ax.set_ylim(box + 0.02, -box - 0.02)  # image y grows downwards
     ax.set_aspect("equal")
     ax.set(xlabel="pixel-local x", ylabel="pixel-local y (down)")
-    ax.set_title(f"{title}\nN = {len(traced)}, mc {estimates['mc']:.3f}, vor_sn "
-                 f"{estimates['vor_sn']:.3f} (RGB mean)", fontsize=9)  # fmt: skip
+    ax.set_title(
+        f"{title}\nN = {len(traced)}, mc {estimates['mc']:.3f}, vor_sn "
+        f"{estimates['vor_sn']:.3f} (RGB mean)",
+        fontsize=9,
+    )
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -129,8 +146,9 @@ def main(argv=None) -> None:
     runtime = create_runtime()
     pixels = find_pixels(runtime, args.size)
     tracers = {scene: make_tracer(runtime, scene) for scene in {p[1] for p in pixels}}
-    fig, axes = plt.subplots(len(args.n), len(pixels), figsize=(5 * len(pixels),
-                             5.2 * len(args.n)), squeeze=False)  # fmt: skip
+    fig, axes = plt.subplots(
+        len(args.n), len(pixels), figsize=(5 * len(pixels), 5.2 * len(args.n)), squeeze=False
+    )
     for col, (name, scene, pixel) in enumerate(pixels):
         print(f"{name} ({scene}): {pixel.as_dict()}", flush=True)
         for row, n in enumerate(args.n):

@@ -37,9 +37,18 @@ REFERENCE_PARTS = 4
 REFERENCE_SEED = 1000
 # (estimator, sampler) pairs of the image benches: the paper's rnd/mc, the stratified baseline,
 # then the SPPP family, the any-sampler Voronoi variants, and the image-level ones.
-RENDER_PAIRS = [("mc", "uniform"), ("mc", "stratified"), ("mc_n", "sppp"), ("vor", "sppp"),
-                ("vor_sn", "sppp"), ("fvor", "sppp"), ("cvor", "uniform"), ("pvor", "uniform"),
-                ("ivor", "sppp"), ("ivor_sn", "sppp")]  # fmt: skip
+RENDER_PAIRS = [
+    ("mc", "uniform"),
+    ("mc", "stratified"),
+    ("mc_n", "sppp"),
+    ("vor", "sppp"),
+    ("vor_sn", "sppp"),
+    ("fvor", "sppp"),
+    ("cvor", "uniform"),
+    ("pvor", "uniform"),
+    ("ivor", "sppp"),
+    ("ivor_sn", "sppp"),
+]
 VORONOI_ESTIMATORS = ("vor", "vor_sn", "fvor", "cvor", "pvor", "ivor", "ivor_sn")
 # The paper's Figure 7 (256 spp, against a 4096 spp stratified reference).
 PAPER_MSE = {"mc": 0.030, "vor": 0.015}
@@ -71,27 +80,49 @@ def default_backend() -> str | None:
     return RenderSettings.voronoi_backend if has_backend_setting() else None
 
 
-def render_settings(size: tuple[int, int], estimator: str, sampler: str, spp: int, seed: int,
-                    backend: str | None = None) -> RenderSettings:  # fmt: skip
+def render_settings(
+    size: tuple[int, int],
+    estimator: str,
+    sampler: str,
+    spp: int,
+    seed: int,
+    backend: str | None = None,
+) -> RenderSettings:
     extra = {"voronoi_backend": backend} if backend and has_backend_setting() else {}
     return RenderSettings(size[0], size[1], make_sampler(sampler, spp), estimator, seed, **extra)
 
 
-def timed_render(runtime: Runtime, source: PathTracerSource, estimator: str, sampler: str,
-                 spp: int, seed: int, backend: str | None = None) -> tuple[np.ndarray, dict]:
+def timed_render(
+    runtime: Runtime,
+    source: PathTracerSource,
+    estimator: str,
+    sampler: str,
+    spp: int,
+    seed: int,
+    backend: str | None = None,
+) -> tuple[np.ndarray, dict]:
     """(image (H, W, 3) float64, timings and counters of the render)."""
-    settings = render_settings((source.width, source.height), estimator, sampler, spp, seed,
-                               backend)  # fmt: skip
+    settings = render_settings(
+        (source.width, source.height), estimator, sampler, spp, seed, backend
+    )
     cpu = time.process_time()
     result: RenderResult = render(runtime, source, settings)
     stats = result.stats
-    row = {"estimator": estimator, "sampler": sampler, "spp": spp, "seed": seed,
-           "wall_s": stats.wall_seconds, "device_s": stats.device_seconds,
-           "host_s": stats.host_seconds, "cpu_s": time.process_time() - cpu,
-           "load_1min": os.getloadavg()[0], "redrawn_pixels": stats.redrawn_pixels,
-           "unresolved_pixels": stats.unresolved_pixels,
-           "flagged_pixels": result.film.flagged_count,
-           "cells": cell_backend(settings)}  # fmt: skip
+    row = {
+        "estimator": estimator,
+        "sampler": sampler,
+        "spp": spp,
+        "seed": seed,
+        "wall_s": stats.wall_seconds,
+        "device_s": stats.device_seconds,
+        "host_s": stats.host_seconds,
+        "cpu_s": time.process_time() - cpu,
+        "load_1min": os.getloadavg()[0],
+        "redrawn_pixels": stats.redrawn_pixels,
+        "unresolved_pixels": stats.unresolved_pixels,
+        "flagged_pixels": result.film.flagged_count,
+        "cells": cell_backend(settings),
+    }
     return result.film.image().astype(np.float64), row
 
 
@@ -111,8 +142,9 @@ def reference_path(scene: str, size: tuple[int, int], spp: int) -> Path:
     return REFERENCE_DIR / f"{name}.exr"
 
 
-def reference(runtime: Runtime, scene: str, size: tuple[int, int], spp: int,
-              log=print) -> tuple[np.ndarray, np.ndarray, dict]:  # fmt: skip
+def reference(
+    runtime: Runtime, scene: str, size: tuple[int, int], spp: int, log=print
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """(mean image, per-pixel variance of that mean, info): cached, else rendered."""
     path = reference_path(scene, size, spp)
     var_path = path.with_name(path.stem + "_var.exr")
@@ -121,28 +153,34 @@ def reference(runtime: Runtime, scene: str, size: tuple[int, int], spp: int,
         image, meta = read_exr(path)
         if all(str(meta.get(k)) == str(v) for k, v in want.items()):
             log(f"reference: cached {path.name}")
-            return image.astype(np.float64), read_exr(var_path)[0].astype(np.float64), {
-                **want, "path": str(path), "cached": True, "wall_s": float(meta["wall_s"])}
+            return (
+                image.astype(np.float64),
+                read_exr(var_path)[0].astype(np.float64),
+                {**want, "path": str(path), "cached": True, "wall_s": float(meta["wall_s"])},
+            )
     image, variance, wall = render_reference(runtime, scene, size, spp, log)
     REFERENCE_DIR.mkdir(parents=True, exist_ok=True)
-    write_exr(path, image, {**want, "wall_s": wall, "sampler": "stratified",
-                            "estimator": "mc"})  # fmt: skip
+    write_exr(path, image, {**want, "wall_s": wall, "sampler": "stratified", "estimator": "mc"})
     write_exr(var_path, variance, want)
     return image, variance, {**want, "path": str(path), "cached": False, "wall_s": wall}
 
 
-def render_reference(runtime: Runtime, scene: str, size: tuple[int, int], spp: int,
-                     log=print) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
+def render_reference(
+    runtime: Runtime, scene: str, size: tuple[int, int], spp: int, log=print
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Mean of REFERENCE_PARTS stratified mc renders and the variance of that mean."""
     part_spp = spp // REFERENCE_PARTS
     source = make_source(runtime, scene, *size)
     start = time.perf_counter()
     parts = []
     for k in range(REFERENCE_PARTS):
-        parts.append(timed_render(runtime, source, "mc", "stratified", part_spp,
-                                  REFERENCE_SEED + k)[0])  # fmt: skip
-        log(f"reference {scene} {size[0]}x{size[1]}: part {k + 1}/{REFERENCE_PARTS} "
-            f"({part_spp} spp) done, {time.perf_counter() - start:.0f} s")  # fmt: skip
+        parts.append(
+            timed_render(runtime, source, "mc", "stratified", part_spp, REFERENCE_SEED + k)[0]
+        )
+        log(
+            f"reference {scene} {size[0]}x{size[1]}: part {k + 1}/{REFERENCE_PARTS} "
+            f"({part_spp} spp) done, {time.perf_counter() - start:.0f} s"
+        )
     stack = np.stack(parts)
     variance = stack.var(axis=0, ddof=1) / REFERENCE_PARTS
     return stack.mean(axis=0), variance, time.perf_counter() - start
@@ -167,12 +205,16 @@ def image_errors(image: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray) -
     bright = ref.mean(axis=-1) > 1.0
     mse = float(sq.mean())
     noise = float(ref_variance.mean())
-    return {"mse": mse, "ref_noise": noise, "mse_minus_ref_noise": mse - noise,
-            "mse_clamped": float(((np.clip(image, 0, 1) - np.clip(ref, 0, 1)) ** 2).mean()),
-            "mse_srgb": float(((srgb_encode(image) - srgb_encode(ref)) ** 2).mean()),
-            "top_share": float(flat[:top].sum() / total),
-            "bright_share": float(sq[bright].sum() / total),
-            "bright_fraction": float(bright.mean())}  # fmt: skip
+    return {
+        "mse": mse,
+        "ref_noise": noise,
+        "mse_minus_ref_noise": mse - noise,
+        "mse_clamped": float(((np.clip(image, 0, 1) - np.clip(ref, 0, 1)) ** 2).mean()),
+        "mse_srgb": float(((srgb_encode(image) - srgb_encode(ref)) ** 2).mean()),
+        "top_share": float(flat[:top].sum() / total),
+        "bright_share": float(sq[bright].sum() / total),
+        "bright_fraction": float(bright.mean()),
+    }
 
 
 # ---------------------------------------------------------------------------------------------

@@ -56,17 +56,20 @@ def measure(runtime, n: int, pixels: int, repeats: int, precision: str) -> dict:
     aux = host_sets.aux.astype(np.float64)
     nuclei = len(traced)
 
-    dev_wall, dev_cpu, device = timed(lambda: device_sppp_cells(runtime, sets, box, precision),
-                                      repeats)
+    dev_wall, dev_cpu, device = timed(
+        lambda: device_sppp_cells(runtime, sets, box, precision), repeats
+    )
     host_repeats = max(1, repeats // 2)
     host_wall, host_cpu, host = timed(
-        lambda: sppp_cells(traced, host_sets.offsets, aux, host_sets.aux_offsets, box),
-        host_repeats)
+        lambda: sppp_cells(traced, host_sets.offsets, aux, host_sets.aux_offsets, box), host_repeats
+    )
     both = device.bounded & host.bounded
     rel = np.abs(device.areas[both] / host.areas[both] - 1.0)
     us = 1e6 / nuclei
     return {
-        "n": n, "pixels": pixels, "traced_nuclei": nuclei,
+        "n": n,
+        "pixels": pixels,
+        "traced_nuclei": nuclei,
         "aux_nuclei": int(len(aux)),
         "device_wall_us_per_nucleus": dev_wall * us,
         "device_cpu_us_per_nucleus": dev_cpu * us,
@@ -75,8 +78,9 @@ def measure(runtime, n: int, pixels: int, repeats: int, precision: str) -> dict:
         "wall_speedup": host_wall / dev_wall,
         "cpu_speedup": host_cpu / dev_cpu,
         "max_relative_area_difference": float(rel.max()) if rel.size else 0.0,
-        "flags_identical": bool((device.bounded == host.bounded).all()
-                                and (device.inside_box == host.inside_box).all()),
+        "flags_identical": bool(
+            (device.bounded == host.bounded).all() and (device.inside_box == host.inside_box).all()
+        ),
         "host_fallback_pixels": device.stats.recomputed_pixels,
     }
 
@@ -92,18 +96,25 @@ def main(argv: list[str] | None = None) -> None:
     repeats = 3 if args.quick else args.repeats
     rows = []
     for n, pixels in CASES:
-        row = measure(runtime, n, max(8, pixels // 8) if args.quick else pixels, repeats,
-                      args.precision)
+        row = measure(
+            runtime, n, max(8, pixels // 8) if args.quick else pixels, repeats, args.precision
+        )
         rows.append(row)
-        print(f"n={n:5d} pixels={row['pixels']:5d}  device {row['device_wall_us_per_nucleus']:.3f}"
-              f" us wall {row['device_cpu_us_per_nucleus']:.3f} us cpu  |  host "
-              f"{row['host_wall_us_per_nucleus']:.3f} us wall {row['host_cpu_us_per_nucleus']:.3f}"
-              f" us cpu  |  cpu x{row['cpu_speedup']:.1f} wall x{row['wall_speedup']:.1f}  "
-              f"max rel diff {row['max_relative_area_difference']:.1e}  "
-              f"fallback {row['host_fallback_pixels']}", flush=True)
-    report = {"device": runtime.describe(),
-              "precision": resolve_precision(runtime, args.precision),
-              "repeats": repeats, "cases": rows}
+        print(
+            f"n={n:5d} pixels={row['pixels']:5d}  device {row['device_wall_us_per_nucleus']:.3f}"
+            f" us wall {row['device_cpu_us_per_nucleus']:.3f} us cpu  |  host "
+            f"{row['host_wall_us_per_nucleus']:.3f} us wall {row['host_cpu_us_per_nucleus']:.3f}"
+            f" us cpu  |  cpu x{row['cpu_speedup']:.1f} wall x{row['wall_speedup']:.1f}  "
+            f"max rel diff {row['max_relative_area_difference']:.1e}  "
+            f"fallback {row['host_fallback_pixels']}",
+            flush=True,
+        )
+    report = {
+        "device": runtime.describe(),
+        "precision": resolve_precision(runtime, args.precision),
+        "repeats": repeats,
+        "cases": rows,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2) + "\n")
     print(f"wrote {args.out}")

@@ -60,16 +60,24 @@ ERROR_SCALE_PERCENTILE = 99.0
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true",
-                        help="smoke run: 32 x 32, 16 spp, reference 64 spp")
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke run: 32 x 32, 16 spp, reference 64 spp"
+    )
     parser.add_argument("--scene", default="cornell-box")
-    parser.add_argument("--size", type=int, default=None,
-                        help="width = height (default 256 with the device backend, else 128)")
+    parser.add_argument(
+        "--size",
+        type=int,
+        default=None,
+        help="width = height (default 256 with the device backend, else 128)",
+    )
     parser.add_argument("--spp", type=int, default=None, help="default 256")
     parser.add_argument("--reference-spp", type=int, default=None, help="default 4096")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--backend", default=default_backend(),
-                        help="RenderSettings.voronoi_backend: device (default) or qhull")
+    parser.add_argument(
+        "--backend",
+        default=default_backend(),
+        help="RenderSettings.voronoi_backend: device (default) or qhull",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS / "image_study")
     args = parser.parse_args(argv)
     args.size = args.size or (32 if args.quick else 256 if has_backend_setting() else 128)
@@ -83,16 +91,19 @@ def run_pairs(runtime, args, ref, ref_var) -> tuple[list[dict], dict]:
     timed_render(runtime, source, "mc", "uniform", 1, 0)  # warm-up: kernel builds
     rows, images = [], {}
     for estimator, sampler in RENDER_PAIRS:
-        image, row = timed_render(runtime, source, estimator, sampler, args.spp, args.seed,
-                                  args.backend)  # fmt: skip
+        image, row = timed_render(
+            runtime, source, estimator, sampler, args.spp, args.seed, args.backend
+        )
         row.update(image_errors(image, ref, ref_var))
         rows.append(row)
         images[pair_label(estimator, sampler)] = image
-        print(f"{pair_label(estimator, sampler):18s} MSE {row['mse']:.5f} (less ref noise "
-              f"{row['mse_minus_ref_noise']:.5f}, clamped {row['mse_clamped']:.5f}, sRGB "
-              f"{row['mse_srgb']:.5f}, top 0.1 % share {row['top_share']:.2f})  wall "
-              f"{row['wall_s']:.1f} s (device {row['device_s']:.1f}, host {row['host_s']:.1f})",
-              flush=True)  # fmt: skip
+        print(
+            f"{pair_label(estimator, sampler):18s} MSE {row['mse']:.5f} (less ref noise "
+            f"{row['mse_minus_ref_noise']:.5f}, clamped {row['mse_clamped']:.5f}, sRGB "
+            f"{row['mse_srgb']:.5f}, top 0.1 % share {row['top_share']:.2f})  wall "
+            f"{row['wall_s']:.1f} s (device {row['device_s']:.1f}, host {row['host_s']:.1f})",
+            flush=True,
+        )
     return rows, images
 
 
@@ -108,13 +119,25 @@ def save_images(images: dict, ref: np.ndarray, out: Path) -> float:
         name = label.replace("/", "_")
         write_png(out / f"render_{name}.png", image)
         write_exr(out / f"render_{name}.exr", image)
-        plt.imsave(out / f"error_{name}.png", error_map(image, ref), cmap=ERROR_COLOURMAP,
-                   vmin=0.0, vmax=vmax)  # fmt: skip
+        plt.imsave(
+            out / f"error_{name}.png",
+            error_map(image, ref),
+            cmap=ERROR_COLOURMAP,
+            vmin=0.0,
+            vmax=vmax,
+        )
     return vmax
 
 
-def plot_grids(images: dict, ref: np.ndarray, ref_var: np.ndarray, rows: list[dict],
-               vmax: float, args, out: Path) -> None:  # fmt: skip
+def plot_grids(
+    images: dict,
+    ref: np.ndarray,
+    ref_var: np.ndarray,
+    rows: list[dict],
+    vmax: float,
+    args,
+    out: Path,
+) -> None:
     mse = {pair_label(r["estimator"], r["sampler"]): r["mse"] for r in rows}
     cols = 4
     panels = len(images) + 1
@@ -125,19 +148,29 @@ def plot_grids(images: dict, ref: np.ndarray, ref_var: np.ndarray, rows: list[di
             ax.set_axis_off()
         # The reference itself, and on the error maps its own noise (std of the mean).
         noise = np.sqrt(ref_var).mean(axis=-1)
-        axes.flat[0].imshow(srgb8(ref) if kind == "renders" else noise, cmap=ERROR_COLOURMAP,
-                            vmin=0, vmax=vmax)  # fmt: skip
-        axes.flat[0].set_title(f"reference ({args.reference_spp} spp)" if kind == "renders"
-                               else "reference noise (std)", fontsize=9)  # fmt: skip
+        axes.flat[0].imshow(
+            srgb8(ref) if kind == "renders" else noise, cmap=ERROR_COLOURMAP, vmin=0, vmax=vmax
+        )
+        axes.flat[0].set_title(
+            f"reference ({args.reference_spp} spp)"
+            if kind == "renders"
+            else "reference noise (std)",
+            fontsize=9,
+        )
         for ax, (label, image) in zip(axes.flat[1:], images.items(), strict=False):
             shown = srgb8(image) if kind == "renders" else error_map(image, ref)
             handle = ax.imshow(shown, cmap=ERROR_COLOURMAP, vmin=0, vmax=vmax)
             ax.set_title(f"{label}\nMSE {mse[label]:.4f}", fontsize=9)
         if kind == "error_maps":
-            fig.colorbar(handle, ax=list(axes.flat), shrink=0.6,
-                         label="|render - reference| (linear radiance, mean of RGB)")
-        fig.suptitle(f"{args.scene} {args.size}x{args.size}, {args.spp} spp: "
-                     f"{kind.replace('_', ' ')}")  # fmt: skip
+            fig.colorbar(
+                handle,
+                ax=list(axes.flat),
+                shrink=0.6,
+                label="|render - reference| (linear radiance, mean of RGB)",
+            )
+        fig.suptitle(
+            f"{args.scene} {args.size}x{args.size}, {args.spp} spp: {kind.replace('_', ' ')}"
+        )
         fig.savefig(out / f"{kind}.png", dpi=90)
         plt.close(fig)
 
@@ -147,7 +180,8 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
     mc, sn, vor = by["mc/uniform"], by["vor_sn/sppp"], by["vor/sppp"]
     noise = mc["ref_noise"]
     return [
-        "## Beside the paper (MSE 0.030 MC, 0.015 vor, ratio 2.0)", "",
+        "## Beside the paper (MSE 0.030 MC, 0.015 vor, ratio 2.0)",
+        "",
         f"- Ratio mc/uniform : vor_sn = {mc['mse'] / sn['mse']:.2f} (linear MSE), "
         f"{mc['mse_minus_ref_noise'] / sn['mse_minus_ref_noise']:.2f} after removing the "
         f"reference noise, {mc['mse_srgb'] / sn['mse_srgb']:.2f} on sRGB values; mc/uniform : "
@@ -174,34 +208,70 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
         "authors' renderer differs from ours (NOTES.md section 4: exactly n points, a corner-"
         "heavy strip, MIS weighting the whole recursive radiance, the glass ball listed as a "
         "light), so its images and errors are not expected to match ours in level; the ratio "
-        "between estimators is the comparable figure.", ""]  # fmt: skip
+        "between estimators is the comparable figure.",
+        "",
+    ]
 
 
 def report(results: dict, args, argv) -> str:
     rows = results["rows"]
-    header = ["pair", "cells", "MSE", "MSE - ref noise", "MSE clamped", "MSE sRGB",
-              "top 0.1 % share", "bright share", "paper MSE", "wall s", "device s",
-              "host s"]  # fmt: skip
+    header = [
+        "pair",
+        "cells",
+        "MSE",
+        "MSE - ref noise",
+        "MSE clamped",
+        "MSE sRGB",
+        "top 0.1 % share",
+        "bright share",
+        "paper MSE",
+        "wall s",
+        "device s",
+        "host s",
+    ]
     paper = {"mc/uniform": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
-    table = [[pair_label(r["estimator"], r["sampler"]), r["cells"], r["mse"],
-              r["mse_minus_ref_noise"],
-              r["mse_clamped"], r["mse_srgb"], r["top_share"], r["bright_share"],
-              paper.get(pair_label(r["estimator"], r["sampler"]), ""), r["wall_s"],
-              r["device_s"], r["host_s"]] for r in rows]  # fmt: skip
+    table = [
+        [
+            pair_label(r["estimator"], r["sampler"]),
+            r["cells"],
+            r["mse"],
+            r["mse_minus_ref_noise"],
+            r["mse_clamped"],
+            r["mse_srgb"],
+            r["top_share"],
+            r["bright_share"],
+            paper.get(pair_label(r["estimator"], r["sampler"]), ""),
+            r["wall_s"],
+            r["device_s"],
+            r["host_s"],
+        ]
+        for r in rows
+    ]
     ref = results["reference"]
     origin = "cached" if ref["cached"] else "rendered"
-    return "\n".join([
-        "# Image study (paper Figure 7)", "",
-        f"Command: `{command_line('image_study.py', argv)}`", "",
-        f"{args.scene}, {args.size} x {args.size}, {args.spp} spp, seed {args.seed}, max depth "
-        f"8, Voronoi cells per pair in the table (device kernel or host Qhull). Reference: "
-        f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: "
-        f"{Path(ref['path']).name}). "
-        "MSE = mean over pixels and RGB channels of (render - reference)^2 in linear "
-        "radiance. Machine: "
-        f"{results['machine']['uptime']}", "",
-        markdown_table(header, table), "", *explanation(rows, ref, args),
-        "![renders](renders.png)", "", "![error maps](error_maps.png)", ""])  # fmt: skip
+    return "\n".join(
+        [
+            "# Image study (paper Figure 7)",
+            "",
+            f"Command: `{command_line('image_study.py', argv)}`",
+            "",
+            f"{args.scene}, {args.size} x {args.size}, {args.spp} spp, seed {args.seed}, max depth "
+            f"8, Voronoi cells per pair in the table (device kernel or host Qhull). Reference: "
+            f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: "
+            f"{Path(ref['path']).name}). "
+            "MSE = mean over pixels and RGB channels of (render - reference)^2 in linear "
+            "radiance. Machine: "
+            f"{results['machine']['uptime']}",
+            "",
+            markdown_table(header, table),
+            "",
+            *explanation(rows, ref, args),
+            "![renders](renders.png)",
+            "",
+            "![error maps](error_maps.png)",
+            "",
+        ]
+    )
 
 
 def main(argv=None) -> None:
@@ -214,13 +284,21 @@ def main(argv=None) -> None:
     rows, images = run_pairs(runtime, args, ref, ref_var)
     vmax = save_images(images, ref, args.out)
     plot_grids(images, ref, ref_var, rows, vmax, args, args.out)
-    results = {"settings": {k: str(v) for k, v in vars(args).items()}, "reference": ref_info,
-               "rows": rows, "paper_mse": PAPER_MSE, "error_scale_max": vmax,
-               "machine": machine(), "seconds": time.perf_counter() - start}  # fmt: skip
+    results = {
+        "settings": {k: str(v) for k, v in vars(args).items()},
+        "reference": ref_info,
+        "rows": rows,
+        "paper_mse": PAPER_MSE,
+        "error_scale_max": vmax,
+        "machine": machine(),
+        "seconds": time.perf_counter() - start,
+    }
     write_json(args.out / "results.json", results)
     (args.out / "report.md").write_text(report(results, args, argv) + "\n")
-    print(f"paper: MSE mc 0.030, vor 0.015 (ratio 2.0); done in {results['seconds']:.0f} s; "
-          f"wrote {args.out}/")  # fmt: skip
+    print(
+        f"paper: MSE mc 0.030, vor 0.015 (ratio 2.0); done in {results['seconds']:.0f} s; "
+        f"wrote {args.out}/"
+    )
 
 
 if __name__ == "__main__":

@@ -60,7 +60,7 @@ class AnalyticColumns:
         self.functions = analytic_functions(size, size)
         ys, xs = np.mgrid[0:size, 0:size] + 0.5
         exact = [self.functions[k].pixel_integrals(size, size) for k in FUNCTIONS[:3]]
-        self.exact = np.stack(exact + [self.ramp(xs, ys)], axis=-1)   # (S, S, 4)
+        self.exact = np.stack(exact + [self.ramp(xs, ys)], axis=-1)  # (S, S, 4)
 
     def ramp(self, x, y):
         return 0.2 + 0.3 * x / self.size + 0.2 * y / self.size
@@ -117,8 +117,12 @@ def summarise(errors: np.ndarray) -> dict:
     se = image_means.std(axis=0, ddof=1) / math.sqrt(runs) if runs > 1 else image_means[0] * 0
     std = np.sqrt(errors.var(axis=0, ddof=1).mean(axis=(0, 1)))
     rmse = np.sqrt((errors**2).mean(axis=(0, 1, 2)))
-    return {"bias": image_means.mean(axis=0).tolist(), "se": se.tolist(), "std": std.tolist(),
-            "rmse": rmse.tolist()}
+    return {
+        "bias": image_means.mean(axis=0).tolist(),
+        "se": se.tolist(),
+        "std": std.tolist(),
+        "rmse": rmse.tolist(),
+    }
 
 
 def study_n(image: AnalyticColumns, n: int, runs: int, rng) -> dict:
@@ -138,9 +142,13 @@ def study_n(image: AnalyticColumns, n: int, runs: int, rng) -> dict:
             times[name].append(seconds[name])
         counters["redraws"] += redraws
     pixels = image.size**2
-    rows = {name: {**summarise(np.array(errors[name])),
-                   "us_per_pixel": 1e6 * float(np.median(times[name])) / pixels}
-            for name in errors}
+    rows = {
+        name: {
+            **summarise(np.array(errors[name])),
+            "us_per_pixel": 1e6 * float(np.median(times[name])) / pixels,
+        }
+        for name in errors
+    }
     return {"estimators": rows, "counters": counters}
 
 
@@ -149,17 +157,27 @@ def study_n(image: AnalyticColumns, n: int, runs: int, rng) -> dict:
 
 
 def report_markdown(results: dict) -> str:
-    lines = [f"# Image-level tessellation study ({results['size']}^2 pixels, "
-             f"{results['runs']} runs per n)", "",
-             "bias +- standard error, std (per pixel, RMS over pixels), us per pixel estimate.",
-             ""]
+    lines = [
+        f"# Image-level tessellation study ({results['size']}^2 pixels, "
+        f"{results['runs']} runs per n)",
+        "",
+        "bias +- standard error, std (per pixel, RMS over pixels), us per pixel estimate.",
+        "",
+    ]
     for n, block in results["by_n"].items():
-        lines += [f"## n = {n}", "", "| estimator | us/px | " + " | ".join(
-            f"{f} bias +- se | {f} std" for f in FUNCTIONS) + " |",
-            "|---|---|" + "---|---|" * len(FUNCTIONS)]
+        lines += [
+            f"## n = {n}",
+            "",
+            "| estimator | us/px | "
+            + " | ".join(f"{f} bias +- se | {f} std" for f in FUNCTIONS)
+            + " |",
+            "|---|---|" + "---|---|" * len(FUNCTIONS),
+        ]
         for name, row in block["estimators"].items():
-            cells = [f"{row['bias'][i]:+.1e} +- {row['se'][i]:.1e} | {row['std'][i]:.3g}"
-                     for i in range(len(FUNCTIONS))]
+            cells = [
+                f"{row['bias'][i]:+.1e} +- {row['se'][i]:.1e} | {row['std'][i]:.3g}"
+                for i in range(len(FUNCTIONS))
+            ]
             lines.append(f"| {name} | {row['us_per_pixel']:.0f} | " + " | ".join(cells) + " |")
         lines += ["", f"counters: {block['counters']}", ""]
     return "\n".join(lines)

@@ -57,8 +57,11 @@ from clrender.runtime import create_runtime  # noqa: E402
 from clrender.sampling import make_sampler  # noqa: E402
 
 # sampler -> estimators computed on its runs; labels are "estimator/sampler".
-GROUPS = {"uniform": ["mc", "cvor", "pvor"], "stratified": ["mc"],
-          "sppp": ["mc_n", "vor", "vor_sn", "fvor"]}  # fmt: skip
+GROUPS = {
+    "uniform": ["mc", "cvor", "pvor"],
+    "stratified": ["mc"],
+    "sppp": ["mc_n", "vor", "vor_sn", "fvor"],
+}
 BASELINE = "mc/uniform"
 REJECTING = ("vor", "vor_sn", "fvor")
 SAMPLER_SEEDS = {"uniform": 11, "stratified": 12, "sppp": 13}
@@ -72,18 +75,30 @@ class Study:
         self.scene = self.tracer.scene
         self.size = args.size
         for name in GROUPS:  # warm-up: kernel builds are not timed
-            trace_pixel_runs(self.runtime, self.tracer, make_sampler(name, 16), 0, 0, 2,
-                             self.size, self.size)  # fmt: skip
+            trace_pixel_runs(
+                self.runtime, self.tracer, make_sampler(name, 16), 0, 0, 2, self.size, self.size
+            )
 
     def pixels(self) -> dict:
         s = self.scene, self.size, self.size
-        return {"light_edge": light_edge_pixel(*s), "diffuse_wall": diffuse_wall_pixel(*s),
-                "glass_ball": sphere_pixel(*s)}  # fmt: skip
+        return {
+            "light_edge": light_edge_pixel(*s),
+            "diffuse_wall": diffuse_wall_pixel(*s),
+            "glass_ball": sphere_pixel(*s),
+        }
 
     def runs(self, sampler, spp: int, pixel: int, count: int, first: int) -> PixelRuns:
-        return trace_pixel_runs(self.runtime, self.tracer, sampler, self.args.seed
-                                + SAMPLER_SEEDS[sampler.name], pixel, count, self.size,
-                                self.size, first)  # fmt: skip
+        return trace_pixel_runs(
+            self.runtime,
+            self.tracer,
+            sampler,
+            self.args.seed + SAMPLER_SEEDS[sampler.name],
+            pixel,
+            count,
+            self.size,
+            self.size,
+            first,
+        )
 
     def group(self, sampler_name: str, spp: int, pixel: int) -> dict:
         """{label: {"values": (R,), "estimator_ms", "trace_ms"}} for one sampler's group."""
@@ -101,18 +116,24 @@ class Study:
             drawn += runs.runs
             batch = estimate_batch(runs, sampler, names, self.args.timing_runs)
             device = device_times(self.runtime, runs, sampler, names, self.args.timing_runs)
-            keep = ~np.logical_or.reduce([batch[n][1] for n in names if n in REJECTING]
-                                         + [np.zeros(runs.runs, bool)])  # fmt: skip
+            keep = ~np.logical_or.reduce(
+                [batch[n][1] for n in names if n in REJECTING] + [np.zeros(runs.runs, bool)]
+            )
             for name in names:
                 values[name].append(batch[name][0][keep])
                 seconds[name] += batch[name][2] * runs.runs
                 device_s[name] += device.get(name, 0.0) * runs.runs
             accepted += int(keep.sum())
-        return {f"{name}/{sampler_name}": {
-            "values": np.concatenate(values[name])[:R], "estimator_ms": 1e3 * seconds[name]
-            / drawn, "trace_ms": 1e3 * trace_s / drawn, "rejected_runs": drawn - accepted,
-            "device_cells_ms": 1e3 * device_s[name] / drawn if name in REJECTING else None,
-        } for name in names}  # fmt: skip
+        return {
+            f"{name}/{sampler_name}": {
+                "values": np.concatenate(values[name])[:R],
+                "estimator_ms": 1e3 * seconds[name] / drawn,
+                "trace_ms": 1e3 * trace_s / drawn,
+                "rejected_runs": drawn - accepted,
+                "device_cells_ms": 1e3 * device_s[name] / drawn if name in REJECTING else None,
+            }
+            for name in names
+        }
 
 
 def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
@@ -122,9 +143,14 @@ def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
     samples = pixel_samples(runs, sampler)
     results = estimate_all(names, samples)
     timing = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
-    return {name: (results[name].estimates, results[name].needs_redraw,
-                   min_seconds(lambda name=name: estimate(name, timing)) / timing.pixel_count)
-            for name in names}  # fmt: skip
+    return {
+        name: (
+            results[name].estimates,
+            results[name].needs_redraw,
+            min_seconds(lambda name=name: estimate(name, timing)) / timing.pixel_count,
+        )
+        for name in names
+    }
 
 
 def device_times(runtime, runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
@@ -134,12 +160,16 @@ def device_times(runtime, runs: PixelRuns, sampler, names, timing_runs: int) -> 
 
     def run(name):
         box = 0.5 + sampler.eps if name == "fvor" else None
-        cells = device_sppp_cells_from_arrays(runtime, timing.positions, timing.offsets,
-                                              timing.aux, timing.aux_offsets, box)
+        cells = device_sppp_cells_from_arrays(
+            runtime, timing.positions, timing.offsets, timing.aux, timing.aux_offsets, box
+        )
         estimate(name, timing, {"sppp": cells})
 
-    return {name: min_seconds(lambda name=name: run(name)) / timing.pixel_count
-            for name in names if name in REJECTING}  # fmt: skip
+    return {
+        name: min_seconds(lambda name=name: run(name)) / timing.pixel_count
+        for name in names
+        if name in REJECTING
+    }
 
 
 def min_seconds(call, min_calls: int = 3, budget: float = 0.1) -> float:
@@ -158,26 +188,39 @@ def pixel_samples(runs: PixelRuns, sampler, first: int | None = None) -> PixelSa
     sets = runs.sets
     p = runs.runs if first is None else first
     traced, aux = sets.offsets[p], sets.aux_offsets[p]
-    return PixelSamples(sets.traced[:traced].astype(np.float64),
-                        runs.radiance[:traced].mean(axis=1), sets.offsets[:p + 1],
-                        float(sampler.n), sets.aux[:aux].astype(np.float64),
-                        sets.aux_offsets[:p + 1], sampler.eps)  # fmt: skip
+    return PixelSamples(
+        sets.traced[:traced].astype(np.float64),
+        runs.radiance[:traced].mean(axis=1),
+        sets.offsets[: p + 1],
+        float(sampler.n),
+        sets.aux[:aux].astype(np.float64),
+        sets.aux_offsets[: p + 1],
+        sampler.eps,
+    )
 
 
 def summarise(entry: dict) -> dict:
     v = entry["values"]
     total = entry["estimator_ms"] + entry["trace_ms"]
-    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)), "var": float(v.var(ddof=1)),
-            "estimator_ms": entry["estimator_ms"], "trace_ms": entry["trace_ms"],
-            "total_ms": total, "rejected_runs": entry["rejected_runs"],
-            **device_summary(entry)}  # fmt: skip
+    return {
+        "mean": float(v.mean()),
+        "std": float(v.std(ddof=1)),
+        "var": float(v.var(ddof=1)),
+        "estimator_ms": entry["estimator_ms"],
+        "trace_ms": entry["trace_ms"],
+        "total_ms": total,
+        "rejected_runs": entry["rejected_runs"],
+        **device_summary(entry),
+    }
 
 
 def device_summary(entry: dict) -> dict:
     if entry["device_cells_ms"] is None:
         return {}
-    return {"device_cells_ms": entry["device_cells_ms"],
-            "device_total_ms": entry["device_cells_ms"] + entry["trace_ms"]}
+    return {
+        "device_cells_ms": entry["device_cells_ms"],
+        "device_total_ms": entry["device_cells_ms"] + entry["trace_ms"],
+    }
 
 
 def study_pixel(study: Study, pixel) -> dict:
@@ -191,15 +234,20 @@ def study_pixel(study: Study, pixel) -> dict:
             for label, entry in study.group(sampler_name, spp, pixel.pixel).items():
                 row[label] = summarise(entry)
         table[spp] = row
-        print(f"  {pixel.what} spp {spp}: " + ", ".join(
-            f"{k} {v['std']:.3g}" for k, v in row.items()), flush=True)  # fmt: skip
+        print(
+            f"  {pixel.what} spp {spp}: "
+            + ", ".join(f"{k} {v['std']:.3g}" for k, v in row.items()),
+            flush=True,
+        )
     return table
 
 
 def variance_ratios(table: dict) -> dict:
     """{spp: {label: var(mc/uniform) / var(label)}}."""
-    return {spp: {label: row[BASELINE]["var"] / max(s["var"], 1e-300)
-                  for label, s in row.items()} for spp, row in table.items()}  # fmt: skip
+    return {
+        spp: {label: row[BASELINE]["var"] / max(s["var"], 1e-300) for label, s in row.items()}
+        for spp, row in table.items()
+    }
 
 
 def device_labels(labels: list[str]) -> list[str]:
@@ -215,11 +263,14 @@ def device_efficiency(row: dict, label: str) -> float:
 def efficiency_ratios(table: dict) -> dict:
     """{spp: {label: (var x ms)(mc/uniform) / (var x ms)(label)}}, ms = tracing + estimator:
     above 1, the estimator reaches a given variance sooner than mc over uniform samples."""
+
     def cost(s):
         return s["var"] * s["total_ms"]
 
-    return {spp: {label: cost(row[BASELINE]) / max(cost(s), 1e-300) for label, s in row.items()}
-            for spp, row in table.items()}  # fmt: skip
+    return {
+        spp: {label: cost(row[BASELINE]) / max(cost(s), 1e-300) for label, s in row.items()}
+        for spp, row in table.items()
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -256,10 +307,9 @@ def plot_fig6(table: dict, name: str, pixel, reference: float, out: Path) -> Non
         ax.loglog(spp, std, marker="o", ms=3, label=label)
     ax.set(xlabel="spp", ylabel="std of the estimate", title="std against spp")
     ax.legend(fontsize=6)
-    for ax in list(axes.flat)[len(others) + 1:]:
+    for ax in list(axes.flat)[len(others) + 1 :]:
         ax.set_visible(False)
-    fig.suptitle(f"Figure 6: pixel {name} ({pixel.x}, {pixel.y}), mean +- 1 std over "
-                 f"R runs")  # fmt: skip
+    fig.suptitle(f"Figure 6: pixel {name} ({pixel.x}, {pixel.y}), mean +- 1 std over R runs")
     fig.tight_layout()
     fig.savefig(out / f"fig6_{name}.png", dpi=100)
     plt.close(fig)
@@ -275,17 +325,31 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
         ax_v.loglog(total, var, marker="o", ms=3, color=f"C{i}", label=label)
         if label.split("/")[0] in REJECTING:
             _, device = series(table, label, "device_cells_ms")
-            ax_t.loglog(spp, device, ":", marker="x", ms=3, color=f"C{i}",
-                        label=f"{label}, device cells")
+            ax_t.loglog(
+                spp, device, ":", marker="x", ms=3, color=f"C{i}", label=f"{label}, device cells"
+            )
             _, device_total = series(table, label, "device_total_ms")
-            ax_v.loglog(device_total, var, ":", marker="x", ms=3, color=f"C{i}",
-                        label=f"{label}, device cells")
+            ax_v.loglog(
+                device_total,
+                var,
+                ":",
+                marker="x",
+                ms=3,
+                color=f"C{i}",
+                label=f"{label}, device cells",
+            )
     spp, trace = series(table, BASELINE, "trace_ms")
     ax_t.loglog(spp, trace, "k--", label="tracing (mc/uniform runs)")
-    ax_t.set(xlabel="spp (samples per pixel)", ylabel="ms per estimate",
-             title="(a) estimator time per estimate (Qhull; dotted: device cells)")
-    ax_v.set(xlabel="ms per estimate (tracing + estimator)", ylabel="variance",
-             title="(b) variance against time")
+    ax_t.set(
+        xlabel="spp (samples per pixel)",
+        ylabel="ms per estimate",
+        title="(a) estimator time per estimate (Qhull; dotted: device cells)",
+    )
+    ax_v.set(
+        xlabel="ms per estimate (tracing + estimator)",
+        ylabel="variance",
+        title="(b) variance against time",
+    )
     ax_t.legend(fontsize=7)
     ax_v.legend(fontsize=7)
     fig.suptitle(f"Figure 9: pixel {name} ({pixel.x}, {pixel.y})")
@@ -304,11 +368,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--scene", default="cornell-box")
     parser.add_argument("--size", type=int, default=256, help="image width = height")
     parser.add_argument("--runs", type=int, default=None, help="R runs per point (default 200)")
-    parser.add_argument("--spp", type=int, nargs="+", default=None,
-                        help="default 64 128 ... 4096")
+    parser.add_argument("--spp", type=int, nargs="+", default=None, help="default 64 128 ... 4096")
     parser.add_argument("--seed", type=int, default=7)
-    parser.add_argument("--timing-runs", type=int, default=32,
-                        help="runs each estimator is timed on alone (default 32)")
+    parser.add_argument(
+        "--timing-runs",
+        type=int,
+        default=32,
+        help="runs each estimator is timed on alone (default 32)",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS / "pixel_study")
     args = parser.parse_args(argv)
     args.runs = args.runs or (16 if args.quick else 200)
@@ -317,41 +384,94 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 def report(results: dict, args, argv) -> str:
-    lines = ["# Pixel study (paper Figures 6 and 9)", "",
-             f"Command: `{command_line('pixel_study.py', argv)}`", "",
-             f"{args.scene} at {args.size}x{args.size}, R = {args.runs} runs per point, spp "
-             f"{args.spp}, max depth 8, pixel value = mean of RGB. Machine: "
-             f"{results['machine']['uptime']}", ""]  # fmt: skip
+    lines = [
+        "# Pixel study (paper Figures 6 and 9)",
+        "",
+        f"Command: `{command_line('pixel_study.py', argv)}`",
+        "",
+        f"{args.scene} at {args.size}x{args.size}, R = {args.runs} runs per point, spp "
+        f"{args.spp}, max depth 8, pixel value = mean of RGB. Machine: "
+        f"{results['machine']['uptime']}",
+        "",
+    ]
     for name, entry in results["pixels"].items():
         table = entry["table"]
         labels = labels_of(table)
-        lines += [f"## {name}: pixel ({entry['pixel']['x']}, {entry['pixel']['y']})", "",
-                  f"Found as: {entry['pixel']}", "",
-                  f"Reference (pooled mean of mc/stratified at {entry['reference_spp']} spp): "
-                  f"{entry['reference']:.4f}", "", "std over the runs:", "",
-                  markdown_table(["spp", *labels], [[spp, *[row[lab]["std"] if lab in row
-                                 else "" for lab in labels]] for spp, row in table.items()]),
-                  "", f"variance ratio var({BASELINE}) / var(estimator):", "",
-                  markdown_table(["spp", *labels], [[spp, *[r.get(lab, "") for lab in labels]]
-                                 for spp, r in entry["variance_ratio"].items()]),
-                  "", f"efficiency (var x ms)({BASELINE}) / (var x ms)(estimator), ms = "
-                  "tracing + estimator per estimate (above 1: better at equal time):", "",
-                  markdown_table(["spp", *labels], [[spp, *[r.get(lab, "") for lab in labels]]
-                                 for spp, r in entry["efficiency_ratio"].items()]),
-                  "", "ms per estimate of the SPPP-cell estimators with device cells "
-                  "(clrender.device_voronoi, upload included) / efficiency with them:", "",
-                  markdown_table(["spp", *[f"{lab} ms" for lab in device_labels(labels)],
-                                  *[f"{lab} eff." for lab in device_labels(labels)]],
-                                 [[spp, *[row[lab]["device_cells_ms"] for lab in
-                                          device_labels(labels)],
-                                   *[device_efficiency(row, lab) for lab in
-                                     device_labels(labels)]] for spp, row in table.items()]),
-                  "", "ms per estimate, estimator only (tracing in the last column):", "",
-                  markdown_table(["spp", *labels, "trace (mc/uniform)"],
-                                 [[spp, *[row[lab]["estimator_ms"] if lab in row else ""
-                                          for lab in labels], row[BASELINE]["trace_ms"]]
-                                  for spp, row in table.items()]),
-                  "", f"![fig6](fig6_{name}.png) ![fig9](fig9_{name}.png)", ""]  # fmt: skip
+        lines += [
+            f"## {name}: pixel ({entry['pixel']['x']}, {entry['pixel']['y']})",
+            "",
+            f"Found as: {entry['pixel']}",
+            "",
+            f"Reference (pooled mean of mc/stratified at {entry['reference_spp']} spp): "
+            f"{entry['reference']:.4f}",
+            "",
+            "std over the runs:",
+            "",
+            markdown_table(
+                ["spp", *labels],
+                [
+                    [spp, *[row[lab]["std"] if lab in row else "" for lab in labels]]
+                    for spp, row in table.items()
+                ],
+            ),
+            "",
+            f"variance ratio var({BASELINE}) / var(estimator):",
+            "",
+            markdown_table(
+                ["spp", *labels],
+                [
+                    [spp, *[r.get(lab, "") for lab in labels]]
+                    for spp, r in entry["variance_ratio"].items()
+                ],
+            ),
+            "",
+            f"efficiency (var x ms)({BASELINE}) / (var x ms)(estimator), ms = "
+            "tracing + estimator per estimate (above 1: better at equal time):",
+            "",
+            markdown_table(
+                ["spp", *labels],
+                [
+                    [spp, *[r.get(lab, "") for lab in labels]]
+                    for spp, r in entry["efficiency_ratio"].items()
+                ],
+            ),
+            "",
+            "ms per estimate of the SPPP-cell estimators with device cells "
+            "(clrender.device_voronoi, upload included) / efficiency with them:",
+            "",
+            markdown_table(
+                [
+                    "spp",
+                    *[f"{lab} ms" for lab in device_labels(labels)],
+                    *[f"{lab} eff." for lab in device_labels(labels)],
+                ],
+                [
+                    [
+                        spp,
+                        *[row[lab]["device_cells_ms"] for lab in device_labels(labels)],
+                        *[device_efficiency(row, lab) for lab in device_labels(labels)],
+                    ]
+                    for spp, row in table.items()
+                ],
+            ),
+            "",
+            "ms per estimate, estimator only (tracing in the last column):",
+            "",
+            markdown_table(
+                ["spp", *labels, "trace (mc/uniform)"],
+                [
+                    [
+                        spp,
+                        *[row[lab]["estimator_ms"] if lab in row else "" for lab in labels],
+                        row[BASELINE]["trace_ms"],
+                    ]
+                    for spp, row in table.items()
+                ],
+            ),
+            "",
+            f"![fig6](fig6_{name}.png) ![fig9](fig9_{name}.png)",
+            "",
+        ]
     return "\n".join(lines)
 
 
@@ -360,18 +480,31 @@ def main(argv=None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     study = Study(args)
     start = time.perf_counter()
-    results = {"settings": {"scene": args.scene, "size": args.size, "runs": args.runs,
-                            "spp": args.spp, "seed": args.seed, "quick": args.quick},
-               "machine_before": machine(), "pixels": {}}  # fmt: skip
+    results = {
+        "settings": {
+            "scene": args.scene,
+            "size": args.size,
+            "runs": args.runs,
+            "spp": args.spp,
+            "seed": args.seed,
+            "quick": args.quick,
+        },
+        "machine_before": machine(),
+        "pixels": {},
+    }
     for name, pixel in study.pixels().items():
         print(f"{name}: {pixel.as_dict()}", flush=True)
         table = study_pixel(study, pixel)
         top = max(spp for spp in table if "mc/stratified" in table[spp])
         ref = table[top]["mc/stratified"]["mean"]
-        results["pixels"][name] = {"pixel": pixel.as_dict(), "table": table, "reference": ref,
-                                   "reference_spp": top, "variance_ratio":
-                                   variance_ratios(table), "efficiency_ratio":
-                                   efficiency_ratios(table)}  # fmt: skip
+        results["pixels"][name] = {
+            "pixel": pixel.as_dict(),
+            "table": table,
+            "reference": ref,
+            "reference_spp": top,
+            "variance_ratio": variance_ratios(table),
+            "efficiency_ratio": efficiency_ratios(table),
+        }
         plot_fig6(table, name, pixel, ref, args.out)
         plot_fig9(table, name, pixel, args.out)
     results["machine"] = machine()

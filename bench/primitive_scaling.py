@@ -71,12 +71,19 @@ def main(argv=None):
                 cpu_times.append(time.process_time() - cpu0)
                 rays = result.rays
             cpu = statistics.median(cpu_times)
-            row = {"quads": len(scene.quads), "rays": rays, "cpu_s": cpu,
-                   "rays_per_s": rays / cpu * units,
-                   "paths_per_s": sets.traced_total / cpu * units}  # fmt: skip
+            row = {
+                "quads": len(scene.quads),
+                "rays": rays,
+                "cpu_s": cpu,
+                "rays_per_s": rays / cpu * units,
+                "paths_per_s": sets.traced_total / cpu * units,
+            }
             rows.append(row)
-            print(f"{row['quads']:5d} quads: {row['rays_per_s'] / 1e6:7.2f} M rays/s "
-                  f"{row['paths_per_s'] / 1e6:6.3f} M paths/s", flush=True)  # fmt: skip
+            print(
+                f"{row['quads']:5d} quads: {row['rays_per_s'] / 1e6:7.2f} M rays/s "
+                f"{row['paths_per_s'] / 1e6:6.3f} M paths/s",
+                flush=True,
+            )
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps({"device": runtime.describe(), "results": rows}, indent=1))
 

@@ -51,21 +51,39 @@ def parse_args(argv=None):
 def main(argv=None) -> None:
     args = parse_args(argv)
     runtime = create_runtime()
-    ref, ref_var, ref_info = reference(runtime, args.scene, (args.size, args.size),
-                                       args.reference_spp)  # fmt: skip
+    ref, ref_var, ref_info = reference(
+        runtime, args.scene, (args.size, args.size), args.reference_spp
+    )
     source = make_source(runtime, args.scene, args.size, args.size)
     rows = []
     for estimator, sampler in PAIRS:
-        renders = [timed_render(runtime, source, estimator, sampler, args.spp, seed)
-                   for seed in args.seeds]  # fmt: skip
+        renders = [
+            timed_render(runtime, source, estimator, sampler, args.spp, seed) for seed in args.seeds
+        ]
         mses = [image_errors(image, ref, ref_var)["mse"] for image, _ in renders]
         host = statistics.mean(row["host_s"] for _, row in renders)
-        rows.append({"estimator": estimator, "sampler": sampler, "mse": statistics.mean(mses),
-                     "mse_per_seed": mses, "host_s": host})  # fmt: skip
-        print(f"{estimator:8s} {sampler:10s} MSE {rows[-1]['mse']:.5f} "
-              f"({', '.join(f'{m:.5f}' for m in mses)})  host {host:.2f} s", flush=True)
-    write_json(args.output, {"settings": {k: str(v) for k, v in vars(args).items()},
-                             "reference": ref_info, "rows": rows})  # fmt: skip
+        rows.append(
+            {
+                "estimator": estimator,
+                "sampler": sampler,
+                "mse": statistics.mean(mses),
+                "mse_per_seed": mses,
+                "host_s": host,
+            }
+        )
+        print(
+            f"{estimator:8s} {sampler:10s} MSE {rows[-1]['mse']:.5f} "
+            f"({', '.join(f'{m:.5f}' for m in mses)})  host {host:.2f} s",
+            flush=True,
+        )
+    write_json(
+        args.output,
+        {
+            "settings": {k: str(v) for k, v in vars(args).items()},
+            "reference": ref_info,
+            "rows": rows,
+        },
+    )
     print(f"wrote {args.output}")
 
 

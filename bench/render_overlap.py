@@ -44,8 +44,14 @@ def parse_args(argv=None):
 
 
 def timed_render(runtime, source, args, overlap: bool) -> dict:
-    settings = RenderSettings(args.size, args.size, make_sampler(args.sampler, args.spp),
-                              args.estimator, seed=1, overlap=overlap)  # fmt: skip
+    settings = RenderSettings(
+        args.size,
+        args.size,
+        make_sampler(args.sampler, args.spp),
+        args.estimator,
+        seed=1,
+        overlap=overlap,
+    )
     cpu = time.process_time()
     stats = render(runtime, source, settings).stats
     return {
@@ -69,20 +75,33 @@ def main(argv=None) -> None:
     tracer = PathTracer(runtime, load_scene(args.scene), max_depth=8)
     source = PathTracerSource(tracer, args.size, args.size)
     timed_render(runtime, source, args, overlap=False)  # warm-up: kernel builds, work-groups
-    runs = [timed_render(runtime, source, args, overlap) for _ in range(args.repeats)
-            for overlap in (True, False)]  # fmt: skip
-    summary = {mode: medians([r for r in runs if r["overlap"] == (mode == "overlap")])
-               for mode in ("overlap", "sequential")}  # fmt: skip
-    result = {"settings": {k: str(v) for k, v in vars(args).items()}, "device":
-              runtime.describe(), "runs": runs, "median": summary}  # fmt: skip
+    runs = [
+        timed_render(runtime, source, args, overlap)
+        for _ in range(args.repeats)
+        for overlap in (True, False)
+    ]
+    summary = {
+        mode: medians([r for r in runs if r["overlap"] == (mode == "overlap")])
+        for mode in ("overlap", "sequential")
+    }
+    result = {
+        "settings": {k: str(v) for k, v in vars(args).items()},
+        "device": runtime.describe(),
+        "runs": runs,
+        "median": summary,
+    }
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=2))
-    print(f"{args.scene} {args.size}^2, {args.spp} spp, {args.sampler} + {args.estimator}, "
-          f"{args.repeats} repeats (medians):")  # fmt: skip
+    print(
+        f"{args.scene} {args.size}^2, {args.spp} spp, {args.sampler} + {args.estimator}, "
+        f"{args.repeats} repeats (medians):"
+    )
     for mode, row in summary.items():
-        print(f"  {mode:10s} wall {row['wall_s']:6.2f} s  device {row['device_s']:6.2f} s  "
-              f"host {row['host_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s  "
-              f"load {row['load_1min']:.1f}")  # fmt: skip
+        print(
+            f"  {mode:10s} wall {row['wall_s']:6.2f} s  device {row['device_s']:6.2f} s  "
+            f"host {row['host_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s  "
+            f"load {row['load_1min']:.1f}"
+        )
     print(f"wrote {args.output}")
 
 

@@ -61,11 +61,17 @@ def measure(runtime, sampler: str, n: int, args) -> dict:
         times.append(time.perf_counter() - start)
     median = statistics.median(times)
     return {
-        "sampler": sampler, "n": n, "resolution": args.res, "tile_rows": rows,
-        "traced_samples": traced, "auxiliary_nuclei": aux, "median_seconds": median,
-        "seconds": times, "traced_samples_per_second": traced / median,
+        "sampler": sampler,
+        "n": n,
+        "resolution": args.res,
+        "tile_rows": rows,
+        "traced_samples": traced,
+        "auxiliary_nuclei": aux,
+        "median_seconds": median,
+        "seconds": times,
+        "traced_samples_per_second": traced / median,
         "all_samples_per_second": (traced + aux) / median,
-    }  # fmt: skip
+    }
 
 
 def format_row(row: dict) -> str:

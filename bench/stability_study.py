@@ -68,7 +68,7 @@ STORM_DRIVERS = {
     "factor 1.5, max_rounds 40": {"max_rounds": 40},
     "factor 2, max_rounds 24": {"enlarge_factor": 2.0, "max_rounds": 24},
 }
-STORM_ATLAS_DRIVER = "factor 1.5, max_rounds 40"   # the defaults with enough rounds to recover
+STORM_ATLAS_DRIVER = "factor 1.5, max_rounds 40"  # the defaults with enough rounds to recover
 
 # A smooth pixel and an edge pixel: the analytic images' functions over image pixel (0, 0).
 _SMOOTH = SmoothSines(kx=2.0 * math.pi / 3.7, ky=2.0 * math.pi / 5.3)
@@ -95,8 +95,11 @@ BASE_FUNCTIONS = {
 FIREFLY_COLUMNS = [f"firefly_x{g}" for g in FIREFLY_GAINS]
 # "firefly_weight" is 1 at the firefly sample, 0 elsewhere: its estimate is that sample's weight.
 COLUMNS = [*BASE_FUNCTIONS, "firefly_weight", *FIREFLY_COLUMNS]
-EXACT = np.array([e for _, e in BASE_FUNCTIONS.values()] + [math.nan]
-                 + [BASE_FUNCTIONS["smooth"][1]] * len(FIREFLY_GAINS))
+EXACT = np.array(
+    [e for _, e in BASE_FUNCTIONS.values()]
+    + [math.nan]
+    + [BASE_FUNCTIONS["smooth"][1]] * len(FIREFLY_GAINS)
+)
 
 
 def col(name: str) -> int:
@@ -123,14 +126,20 @@ class Runs:
     """Per-pixel estimates (R, len(COLUMNS)) of every estimator at intensity n."""
 
     n: int
-    estimates: dict[str, np.ndarray]          # ROW_NAMES plus "baseline"
-    counts: np.ndarray                        # (R,) N of each accepted SPPP draw
+    estimates: dict[str, np.ndarray]  # ROW_NAMES plus "baseline"
+    counts: np.ndarray  # (R,) N of each accepted SPPP draw
     redraw: dict = field(default_factory=dict)
     seconds: float = 0.0
 
 
-REDRAW_SUMS = ("redraws", "exhausted_pixels", "empty_filtered", "empty_pixels",
-               "recomputed_pixels", "qhull_calls")
+REDRAW_SUMS = (
+    "redraws",
+    "exhausted_pixels",
+    "empty_filtered",
+    "empty_pixels",
+    "recomputed_pixels",
+    "qhull_calls",
+)
 REDRAW_MAXIMA = ("rounds", "eps_enlargements")
 
 
@@ -145,6 +154,7 @@ def add_redraw_stats(total: dict, stats) -> None:
 def sppp_callbacks(rng, n: float, start: int, counts: np.ndarray, accept_eps: np.ndarray):
     """draw_fn and values_fn for the driver; they record N and eps of each pixel's last draw,
     which is its accepted one (rejected pixels are drawn again, accepted ones never)."""
+
     def draw(pixel_ids, eps):
         accept_eps[start + pixel_ids] = eps
         return draw_sppp(rng, n, len(pixel_ids), eps=eps)
@@ -156,8 +166,9 @@ def sppp_callbacks(rng, n: float, start: int, counts: np.ndarray, accept_eps: np
     return draw, values
 
 
-def run_sppp(n: float, runs: int, rng, names=SPPP_NAMES, **driver) -> tuple[dict, np.ndarray,
-                                                                           np.ndarray, dict]:
+def run_sppp(
+    n: float, runs: int, rng, names=SPPP_NAMES, **driver
+) -> tuple[dict, np.ndarray, np.ndarray, dict]:
     """SPPP estimates of `runs` pixels through the redraw driver (driver options passed on)."""
     eps = driver.pop("eps", None)
     per_call = max(1, POINTS_PER_CALL // (int(n) + auxiliary_count(n, eps or sppp_eps(n))))
@@ -202,7 +213,7 @@ def run_all(n: int, runs: int, rng) -> Runs:
 
 
 def rmse(errors: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.mean(errors ** 2, axis=-1))
+    return np.sqrt(np.mean(errors**2, axis=-1))
 
 
 def median_abs(errors: np.ndarray) -> np.ndarray:
@@ -219,13 +230,16 @@ def ratio_ci(errors: np.ndarray, base: np.ndarray, metric: str, rng) -> dict:
     value, base_value = float(stat(errors)), float(stat(base))
     out = {"metric": metric, "value": value, "baseline": base_value}
     if base_value <= EXACT_TOL:
-        return {**out, "ratio": math.inf if value > EXACT_TOL else 1.0, "lo": math.nan,
-                "hi": math.nan}
+        return {
+            **out,
+            "ratio": math.inf if value > EXACT_TOL else 1.0,
+            "lo": math.nan,
+            "hi": math.nan,
+        }
     boots = []
-    for _ in range(0, BOOT_REPS, 100):   # 100 resamples at a time bound the memory
+    for _ in range(0, BOOT_REPS, 100):  # 100 resamples at a time bound the memory
         idx = rng.integers(0, len(errors), (100, len(errors)))
-        base_idx = idx if len(base) == len(errors) else rng.integers(0, len(base),
-                                                                     (100, len(base)))
+        base_idx = idx if len(base) == len(errors) else rng.integers(0, len(base), (100, len(base)))
         boots.append(stat(errors[idx]) / stat(base[base_idx]))
     lo, hi = np.percentile(np.concatenate(boots), [2.5, 97.5])
     return {**out, "ratio": value / base_value, "lo": float(lo), "hi": float(hi)}
@@ -245,13 +259,20 @@ def describe(estimates: np.ndarray, exact: float) -> dict:
     q25, q50, q75 = np.percentile(estimates, [25, 50, 75])
     runs = len(estimates)
     std = float(estimates.std(ddof=1))
-    return {"mean": float(estimates.mean()), "bias": float(errors.mean()),
-            "se": std / math.sqrt(runs), "std": std, "rmse": float(rmse(errors)),
-            "median": float(q50), "iqr": float(q75 - q25),
-            "mad": float(np.median(np.abs(estimates - q50))),
-            "median_abs_error": float(median_abs(errors)),
-            "max_abs_error": float(np.abs(errors).max()),
-            "largest": np.sort(estimates)[-5:][::-1].tolist(), "runs": runs}
+    return {
+        "mean": float(estimates.mean()),
+        "bias": float(errors.mean()),
+        "se": std / math.sqrt(runs),
+        "std": std,
+        "rmse": float(rmse(errors)),
+        "median": float(q50),
+        "iqr": float(q75 - q25),
+        "mad": float(np.median(np.abs(estimates - q50))),
+        "median_abs_error": float(median_abs(errors)),
+        "max_abs_error": float(np.abs(errors).max()),
+        "largest": np.sort(estimates)[-5:][::-1].tolist(),
+        "runs": runs,
+    }
 
 
 def upper_95(k: int, trials: int) -> float:
@@ -269,8 +290,13 @@ def small_n_section(all_runs: dict[int, Runs]) -> dict:
     c, exact = col("smooth"), EXACT[col("smooth")]
     for n, runs in all_runs.items():
         base = runs.estimates["baseline"][:, c] - exact
-        row = {"n": n, "pixels": len(runs.counts), "p_empty": float((runs.counts == 0).mean()),
-               "p_empty_poisson": math.exp(-n), "estimators": {}}
+        row = {
+            "n": n,
+            "pixels": len(runs.counts),
+            "p_empty": float((runs.counts == 0).mean()),
+            "p_empty_poisson": math.exp(-n),
+            "estimators": {},
+        }
         for k in (1, 2, 3):
             row[f"p_N{k}"] = float((runs.counts == k).mean())
         for name in ROW_NAMES:
@@ -285,18 +311,28 @@ def small_n_section(all_runs: dict[int, Runs]) -> dict:
 def near_empty_section(runs: Runs) -> dict:
     """SPPP estimators conditioned on N (0, 1, 2, 3, >= 4) at one small n, smooth pixel."""
     c, exact = col("smooth"), EXACT[col("smooth")]
-    classes = {"0": runs.counts == 0, "1": runs.counts == 1, "2": runs.counts == 2,
-               "3": runs.counts == 3, ">=4": runs.counts >= 4}
+    classes = {
+        "0": runs.counts == 0,
+        "1": runs.counts == 1,
+        "2": runs.counts == 2,
+        "3": runs.counts == 3,
+        ">=4": runs.counts >= 4,
+    }
     table = {}
     for label, mask in classes.items():
         table[label] = {"pixels": int(mask.sum())}
         for name in SPPP_NAMES:
             values = runs.estimates[name][mask, c]
-            table[label][name] = ({"finite": bool(np.isfinite(values).all()),
-                                   "mean_error": float(values.mean() - exact),
-                                   "rms_error": float(rmse(values - exact)),
-                                   "max_abs": float(np.abs(values).max())}
-                                  if mask.any() else None)
+            table[label][name] = (
+                {
+                    "finite": bool(np.isfinite(values).all()),
+                    "mean_error": float(values.mean() - exact),
+                    "rms_error": float(rmse(values - exact)),
+                    "max_abs": float(np.abs(values).max()),
+                }
+                if mask.any()
+                else None
+            )
     return {"n": runs.n, "function": "smooth", "classes": table}
 
 
@@ -308,23 +344,32 @@ def fvor_empty_section(ns, pixels: int, rng) -> list[dict]:
         batch = draw_sppp(rng, n, pixels)
         values = evaluate_columns(batch.traced, batch.offsets)[:, c]
         results = estimate_all(["vor_sn", "fvor"], PixelSamples.from_sppp(batch, values, n))
-        cells = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets,
-                           0.5 + batch.eps)
+        cells = sppp_cells(
+            batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5 + batch.eps
+        )
         counts = np.diff(batch.offsets)
         pixel = np.repeat(np.arange(pixels), counts)
         kept = np.bincount(pixel, cells.inside_box & cells.bounded, pixels)
         valid = ~results["fvor"].needs_redraw & (counts > 0)
         empty = valid & (kept == 0)
         fvor, vor_sn = results["fvor"].estimates, results["vor_sn"].estimates
-        rows.append({
-            "n": n, "pixels": pixels, "eps": batch.eps, "valid_nonempty": int(valid.sum()),
-            "empty_filtered": int(empty.sum()), "frequency": float(empty.sum() / valid.sum()),
-            "stats_empty_filtered": results["fvor"].stats.empty_filtered,
-            "max_abs_fvor_minus_vor_sn": float(np.abs(fvor[empty] - vor_sn[empty]).max())
-            if empty.any() else None,
-            "mean_N_when_empty": float(counts[empty].mean()) if empty.any() else None,
-            "rms_error_empty": float(rmse(fvor[empty] - exact)) if empty.any() else None,
-            "rms_error_kept": float(rmse(fvor[valid & ~empty] - exact))})
+        rows.append(
+            {
+                "n": n,
+                "pixels": pixels,
+                "eps": batch.eps,
+                "valid_nonempty": int(valid.sum()),
+                "empty_filtered": int(empty.sum()),
+                "frequency": float(empty.sum() / valid.sum()),
+                "stats_empty_filtered": results["fvor"].stats.empty_filtered,
+                "max_abs_fvor_minus_vor_sn": float(np.abs(fvor[empty] - vor_sn[empty]).max())
+                if empty.any()
+                else None,
+                "mean_N_when_empty": float(counts[empty].mean()) if empty.any() else None,
+                "rms_error_empty": float(rmse(fvor[empty] - exact)) if empty.any() else None,
+                "rms_error_kept": float(rmse(fvor[valid & ~empty] - exact)),
+            }
+        )
     return rows
 
 
@@ -337,9 +382,17 @@ def rejection_frequency(n: int, alpha: float, pixels: int, rng) -> dict:
         batch = draw_sppp(rng, n, min(per_call, pixels - start), eps=eps)
         samples = PixelSamples.from_sppp(batch, np.ones(len(batch.traced)), n)
         rejected += int(estimate("vor", samples).needs_redraw.sum())
-    return {"n": n, "alpha": alpha, "eps": eps, "n_aux": auxiliary_count(n, eps),
-            "bound": rejection_bound(n, eps), "pixels": pixels, "rejected": rejected,
-            "frequency": rejected / pixels, "upper_95": upper_95(rejected, pixels)}
+    return {
+        "n": n,
+        "alpha": alpha,
+        "eps": eps,
+        "n_aux": auxiliary_count(n, eps),
+        "bound": rejection_bound(n, eps),
+        "pixels": pixels,
+        "rejected": rejected,
+        "frequency": rejected / pixels,
+        "upper_95": upper_95(rejected, pixels),
+    }
 
 
 def rejection_section(ns, pixels_for, rng) -> list[dict]:
@@ -352,8 +405,7 @@ def rejection_section(ns, pixels_for, rng) -> list[dict]:
 
 def storm_run(label: str, pixels: int, rng, driver: dict) -> dict:
     start = time.perf_counter()
-    estimates, counts, accept_eps, stats = run_sppp(STORM_N, pixels, rng, eps=STORM_EPS,
-                                                    **driver)
+    estimates, counts, accept_eps, stats = run_sppp(STORM_N, pixels, rng, eps=STORM_EPS, **driver)
     seconds = time.perf_counter() - start
     summary = {}
     for fname in ("holder_1", "smooth"):
@@ -362,9 +414,16 @@ def storm_run(label: str, pixels: int, rng, driver: dict) -> dict:
         for d in summary[fname].values():
             d["z"] = d["bias"] / d["se"] if d["se"] > 0 else math.inf
     by_eps = storm_by_eps(estimates, accept_eps)
-    return {"label": label, "driver": driver, "pixels": pixels, "seconds": seconds,
-            "redraw": stats, "summary": summary, "by_accept_eps": by_eps,
-            "holder_1": {k: v[:, col("holder_1")] for k, v in estimates.items()}}
+    return {
+        "label": label,
+        "driver": driver,
+        "pixels": pixels,
+        "seconds": seconds,
+        "redraw": stats,
+        "summary": summary,
+        "by_accept_eps": by_eps,
+        "holder_1": {k: v[:, col("holder_1")] for k, v in estimates.items()},
+    }
 
 
 def storm_by_eps(estimates: dict, accept_eps: np.ndarray) -> list[dict]:
@@ -373,9 +432,12 @@ def storm_by_eps(estimates: dict, accept_eps: np.ndarray) -> list[dict]:
     c, exact = col("holder_1"), EXACT[col("holder_1")]
     for eps in np.unique(accept_eps):
         mask = accept_eps == eps
-        row = {"eps": float(eps), "pixels": int(mask.sum()),
-               "bound": rejection_bound(STORM_N, float(eps)),
-               "n_aux": auxiliary_count(STORM_N, float(eps))}
+        row = {
+            "eps": float(eps),
+            "pixels": int(mask.sum()),
+            "bound": rejection_bound(STORM_N, float(eps)),
+            "n_aux": auxiliary_count(STORM_N, float(eps)),
+        }
         for name, e in estimates.items():
             row[name] = float(e[mask, c].mean() - exact)
         rows.append(row)
@@ -383,15 +445,22 @@ def storm_by_eps(estimates: dict, accept_eps: np.ndarray) -> list[dict]:
 
 
 def storm_section(pixels: int, rng) -> dict:
-    runs = {label: storm_run(label, pixels, rng, dict(driver))
-            for label, driver in STORM_DRIVERS.items()}
+    runs = {
+        label: storm_run(label, pixels, rng, dict(driver))
+        for label, driver in STORM_DRIVERS.items()
+    }
     try:
         run_sppp(STORM_N, 20, rng, eps=STORM_EPS)
         raised = None
     except ClrenderError as error:
         raised = str(error)
-    return {"n": STORM_N, "eps": STORM_EPS, "paper_eps": sppp_eps(STORM_N), "runs": runs,
-            "defaults_on_exhausted_raise": raised}
+    return {
+        "n": STORM_N,
+        "eps": STORM_EPS,
+        "paper_eps": sppp_eps(STORM_N),
+        "runs": runs,
+        "defaults_on_exhausted_raise": raised,
+    }
 
 
 def storm_reference(all_runs: dict[int, Runs]) -> dict | None:
@@ -408,8 +477,14 @@ def storm_reference(all_runs: dict[int, Runs]) -> dict | None:
 
 def discontinuity_section(all_runs: dict[int, Runs], ns) -> dict:
     c, exact = col("discontinuity"), EXACT[col("discontinuity")]
-    return {n: {name: describe(all_runs[n].estimates[name][:, c], exact)
-                for name in [*ROW_NAMES, "baseline"]} for n in ns if n in all_runs}
+    return {
+        n: {
+            name: describe(all_runs[n].estimates[name][:, c], exact)
+            for name in [*ROW_NAMES, "baseline"]
+        }
+        for n in ns
+        if n in all_runs
+    }
 
 
 def firefly_section(all_runs: dict[int, Runs], ns) -> dict:
@@ -426,8 +501,9 @@ def firefly_section(all_runs: dict[int, Runs], ns) -> dict:
                 + [float(rmse(e[:, col(c)] - exact)) for c in FIREFLY_COLUMNS],
                 "finite": bool(np.isfinite(e[:, [col(c) for c in FIREFLY_COLUMNS]]).all()),
                 "n_weight_mean": float(n * weights.mean()),
-                "n_weight_rms": float(n * np.sqrt((weights ** 2).mean())),
-                "n_weight_max": float(n * weights.max())}
+                "n_weight_rms": float(n * np.sqrt((weights**2).mean())),
+                "n_weight_max": float(n * weights.max()),
+            }
     return {"gains": [1, *FIREFLY_GAINS], "by_n": out}
 
 
@@ -441,8 +517,11 @@ def flat_section(all_runs: dict[int, Runs]) -> list[dict]:
         for name in [*ROW_NAMES, "baseline"]:
             e = runs.estimates[name][:, c]
             mask = nonempty if name in SPPP_NAMES else np.ones(len(e), bool)
-            row["estimators"][name] = {"std": float(e.std(ddof=1)), "mean": float(e.mean()),
-                                       "max_abs_error_N_ge_1": float(np.abs(e[mask] - 1).max())}
+            row["estimators"][name] = {
+                "std": float(e.std(ddof=1)),
+                "mean": float(e.mean()),
+                "max_abs_error_N_ge_1": float(np.abs(e[mask] - 1).max()),
+            }
         rows.append(row)
     return rows
 
@@ -481,8 +560,9 @@ def build_atlas(all_runs: dict[int, Runs], storm: dict, rng) -> list[dict]:
         for name in ROW_NAMES:
             r = ratio_ci(all_runs[n].estimates[name][:, c] - exact, base, metric, rng)
             cells[name] = {**r, "verdict": verdict(r)}
-        rows.append({"situation": label, "n": n, "column": column, "metric": metric,
-                     "cells": cells})
+        rows.append(
+            {"situation": label, "n": n, "column": column, "metric": metric, "cells": cells}
+        )
     if STORM_N in all_runs:
         rows.append(storm_atlas_row(all_runs[STORM_N], storm, rng))
     return rows
@@ -496,8 +576,13 @@ def storm_atlas_row(runs: Runs, storm: dict, rng) -> dict:
     for name in SPPP_NAMES:
         r = ratio_ci(storm["runs"][label]["holder_1"][name] - exact, base, "RMSE", rng)
         cells[name] = {**r, "verdict": verdict(r)}
-    return {"situation": f"storm eps {STORM_EPS:g} ({label}): holder_1, n = {STORM_N}",
-            "n": STORM_N, "column": "holder_1", "metric": "RMSE", "cells": cells}
+    return {
+        "situation": f"storm eps {STORM_EPS:g} ({label}): holder_1, n = {STORM_N}",
+        "n": STORM_N,
+        "column": "holder_1",
+        "metric": "RMSE",
+        "cells": cells,
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -513,8 +598,12 @@ def save(fig, out: Path, name: str, tight: bool = True) -> str:
 
 
 def plot_atlas(atlas: list[dict], out: Path) -> str:
-    ratios = np.array([[row["cells"][name]["ratio"] if name in row["cells"] else np.nan
-                        for name in ROW_NAMES] for row in atlas])
+    ratios = np.array(
+        [
+            [row["cells"][name]["ratio"] if name in row["cells"] else np.nan for name in ROW_NAMES]
+            for row in atlas
+        ]
+    )
     shown = np.clip(np.log2(np.where(np.isinf(ratios), 8.0, ratios)), -3, 3)
     fig, ax = plt.subplots(figsize=(13, 0.45 * len(atlas) + 1.5))
     image = ax.imshow(shown, cmap="RdBu_r", vmin=-3, vmax=3, aspect="auto")
@@ -523,8 +612,15 @@ def plot_atlas(atlas: list[dict], out: Path) -> str:
             cell = row["cells"].get(name)
             if cell is not None:
                 text = "inf" if math.isinf(cell["ratio"]) else f"{cell['ratio']:.2g}"
-                ax.text(j, i, f"{text}\n{cell['verdict'].split()[0]}", ha="center",
-                        va="center", fontsize=6, color="w" if abs(shown[i, j]) > 2 else "k")
+                ax.text(
+                    j,
+                    i,
+                    f"{text}\n{cell['verdict'].split()[0]}",
+                    ha="center",
+                    va="center",
+                    fontsize=6,
+                    color="w" if abs(shown[i, j]) > 2 else "k",
+                )
     ax.set_xticks(range(len(ROW_NAMES)), ROW_NAMES)
     ax.set_yticks(range(len(atlas)), [row["situation"] for row in atlas], fontsize=7)
     fig.colorbar(image, ax=ax, label="log2(error ratio estimator / mc), clipped to +-3")
@@ -541,14 +637,20 @@ def plot_small_n(small: dict, out: Path) -> str:
     ax0.semilogy(ns, [max(r["p_empty_poisson"], 1e-7) for r in rows], "-", label="exp(-n)")
     for k in (1, 2, 3):
         ax0.semilogy(ns, [max(r[f"p_N{k}"], 1e-6) for r in rows], ".--", label=f"P(N = {k})")
-    ax0.set(xscale="log", ylim=(5e-7, 1.5), xlabel="n",
-            ylabel="fraction of pixels (0 drawn at 1e-6)", title="Poisson count of the SPPP draws")
+    ax0.set(
+        xscale="log",
+        ylim=(5e-7, 1.5),
+        xlabel="n",
+        ylabel="fraction of pixels (0 drawn at 1e-6)",
+        title="Poisson count of the SPPP draws",
+    )
     for name in ROW_NAMES:
         bias = np.array([r["estimators"][name]["bias"] for r in rows])
         se = np.array([r["estimators"][name]["se"] for r in rows])
         ax1.errorbar(ns, bias, yerr=2 * se, marker="o", ms=3, capsize=2, label=name)
-        ax2.loglog(ns, [r["estimators"][name]["rmse_ratio"] for r in rows], marker="o", ms=3,
-                   label=name)
+        ax2.loglog(
+            ns, [r["estimators"][name]["rmse_ratio"] for r in rows], marker="o", ms=3, label=name
+        )
     ax1.axhline(0, color="k", lw=0.8)
     ax1.set(xscale="log", xlabel="n", ylabel="bias +- 2 SE", title="smooth pixel: bias")
     ax2.axhline(1, color="k", lw=0.8, ls="--")
@@ -564,21 +666,36 @@ def plot_rejection(rows: list[dict], out: Path) -> str:
     cmap = plt.get_cmap("viridis")
     for i, n in enumerate(ns):
         sel = [r for r in rows if r["n"] == n]
-        ax0.loglog([r["bound"] for r in sel], [max(r["frequency"], 1e-6) for r in sel],
-                   "o-", ms=3, color=cmap(i / max(1, len(ns) - 1)), label=f"n = {n}")
+        ax0.loglog(
+            [r["bound"] for r in sel],
+            [max(r["frequency"], 1e-6) for r in sel],
+            "o-",
+            ms=3,
+            color=cmap(i / max(1, len(ns) - 1)),
+            label=f"n = {n}",
+        )
     ax0.loglog([1e-3, 1], [1e-3, 1], "k--", lw=0.8, label="frequency = bound")
-    ax0.set(xlabel="paper's bound 4 pi n^2 eps^2 exp(-pi n eps^2)",
-            ylabel="measured rejection frequency (0 drawn at 1e-6)",
-            title="Rejection frequency against the bound")
+    ax0.set(
+        xlabel="paper's bound 4 pi n^2 eps^2 exp(-pi n eps^2)",
+        ylabel="measured rejection frequency (0 drawn at 1e-6)",
+        title="Rejection frequency against the bound",
+    )
     ax0.legend(fontsize=6, ncol=2)
     sel = [r for r in rows if r["alpha"] == min(REJECTION_BOUNDS)]
-    ax1.semilogy([r["n"] for r in sel], [max(r["frequency"], 1e-6) for r in sel], "o",
-                 label="measured (0 drawn at 1e-6)")
-    ax1.semilogy([r["n"] for r in sel], [r["upper_95"] for r in sel], "v",
-                 label="95 % upper bound")
+    ax1.semilogy(
+        [r["n"] for r in sel],
+        [max(r["frequency"], 1e-6) for r in sel],
+        "o",
+        label="measured (0 drawn at 1e-6)",
+    )
+    ax1.semilogy([r["n"] for r in sel], [r["upper_95"] for r in sel], "v", label="95 % upper bound")
     ax1.axhline(min(REJECTION_BOUNDS), color="k", ls="--", lw=0.8, label="bound = alpha")
-    ax1.set(xscale="log", xlabel="n", ylabel="rejection frequency",
-            title=f"At the default eps (bound {min(REJECTION_BOUNDS):g})")
+    ax1.set(
+        xscale="log",
+        xlabel="n",
+        ylabel="rejection frequency",
+        title=f"At the default eps (bound {min(REJECTION_BOUNDS):g})",
+    )
     ax1.legend(fontsize=7)
     return save(fig, out, "rejection.png")
 
@@ -589,8 +706,7 @@ def plot_storm(storm: dict, out: Path) -> str:
     width = 0.8 / len(labels)
     for i, label in enumerate(labels):
         z = [storm["runs"][label]["summary"]["holder_1"][name]["z"] for name in SPPP_NAMES]
-        ax0.bar(np.arange(len(SPPP_NAMES)) + i * width, np.clip(z, -60, 60), width,
-                label=label)
+        ax0.bar(np.arange(len(SPPP_NAMES)) + i * width, np.clip(z, -60, 60), width, label=label)
     if storm["reference"] is not None:
         z = [storm["reference"][name]["z"] for name in SPPP_NAMES]
         ax0.plot(np.arange(len(SPPP_NAMES)) + 0.4, z, "kD", label="paper's eps, no storm")
@@ -600,10 +716,14 @@ def plot_storm(storm: dict, out: Path) -> str:
     ax0.legend(fontsize=7)
     rows = storm["runs"][STORM_ATLAS_DRIVER]["by_accept_eps"]
     ax1.bar(range(len(rows)), [r["pixels"] for r in rows])
-    ax1.set_xticks(range(len(rows)), [f"{r['eps']:.3g}\nb={r['bound']:.2g}" for r in rows],
-                   fontsize=6)
-    ax1.set(xlabel="eps at acceptance (b = paper's bound there)", ylabel="pixels",
-            title=f"Storm (factor 1.5): paper's eps = {storm['paper_eps']:.3f}")
+    ax1.set_xticks(
+        range(len(rows)), [f"{r['eps']:.3g}\nb={r['bound']:.2g}" for r in rows], fontsize=6
+    )
+    ax1.set(
+        xlabel="eps at acceptance (b = paper's bound there)",
+        ylabel="pixels",
+        title=f"Storm (factor 1.5): paper's eps = {storm['paper_eps']:.3f}",
+    )
     return save(fig, out, "storm.png")
 
 
@@ -615,13 +735,20 @@ def plot_discontinuity(disc: dict, all_runs: dict[int, Runs], out: Path) -> str:
         errors = np.sort(np.abs(all_runs[n].estimates[name][:, c] - exact))
         survival = 1.0 - np.arange(len(errors)) / len(errors)
         ax0.loglog(errors, survival, lw=1, label="mc (uniform)" if name == "baseline" else name)
-    ax0.set(xlabel="|estimate - exact|", ylabel="fraction of pixels with a larger error",
-            title=f"discontinuity, n = {n}: error tails")
+    ax0.set(
+        xlabel="|estimate - exact|",
+        ylabel="fraction of pixels with a larger error",
+        title=f"discontinuity, n = {n}: error tails",
+    )
     ax0.legend(fontsize=7)
     names = list(disc[n])
     x = np.arange(len(names))
-    for offset, key, label in ((-0.3, "std", "std"), (-0.1, "iqr", "IQR"), (0.1, "mad", "MAD"),
-                               (0.3, "median_abs_error", "median |error|")):
+    for offset, key, label in (
+        (-0.3, "std", "std"),
+        (-0.1, "iqr", "IQR"),
+        (0.1, "mad", "MAD"),
+        (0.3, "median_abs_error", "median |error|"),
+    ):
         ax1.bar(x + offset, [disc[n][m][key] for m in names], 0.2, label=label)
     ax1.set_xticks(x, names, fontsize=7)
     ax1.set(yscale="log", title=f"discontinuity, n = {n}: spread")
@@ -638,16 +765,23 @@ def plot_fireflies(fire: dict, out: Path) -> str:
             ratio = np.array(fire["by_n"][n][name]["rmse_by_gain"]) / base
             ax.loglog(fire["gains"], ratio, marker="o", ms=3, label=name)
         ax.axhline(1, color="k", lw=0.8, ls="--")
-        ax.set(xlabel="firefly gain (1 = no firefly)", ylabel="RMSE / RMSE(mc uniform)",
-               title=f"smooth pixel, one firefly, n = {n}")
+        ax.set(
+            xlabel="firefly gain (1 = no firefly)",
+            ylabel="RMSE / RMSE(mc uniform)",
+            title=f"smooth pixel, one firefly, n = {n}",
+        )
         ax.legend(fontsize=7)
     n = ns[-1]
     names = list(fire["by_n"][n])
     axes[-1].bar(names, [fire["by_n"][n][m]["n_weight_rms"] for m in names], label="rms")
-    axes[-1].plot(names, [fire["by_n"][n][m]["n_weight_max"] for m in names], "v", color="C3",
-                  label="max")
-    axes[-1].set(yscale="log", ylabel="n x weight of the firefly sample (rms, max)",
-                 title=f"firefly weight, n = {n}")
+    axes[-1].plot(
+        names, [fire["by_n"][n][m]["n_weight_max"] for m in names], "v", color="C3", label="max"
+    )
+    axes[-1].set(
+        yscale="log",
+        ylabel="n x weight of the firefly sample (rms, max)",
+        title=f"firefly weight, n = {n}",
+    )
     axes[-1].tick_params(axis="x", labelsize=7)
     axes[-1].legend(fontsize=7)
     return save(fig, out, "fireflies.png")
@@ -658,11 +792,13 @@ def plot_flat(flat: list[dict], out: Path) -> str:
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for name in ROW_NAMES + ["baseline"]:
         std = [max(r["estimators"][name]["std"], 1e-17) for r in flat]
-        ax.loglog(ns, std, marker="o", ms=3, label="mc (uniform)" if name == "baseline"
-                  else name)
-    ax.loglog(ns, [n ** -0.5 for n in ns], "k--", lw=0.8, label="1 / sqrt(n)")
-    ax.set(xlabel="n", ylabel="std on f == 1 (0 drawn at 1e-17)",
-           title="Flat pixel: noise added by the estimator")
+        ax.loglog(ns, std, marker="o", ms=3, label="mc (uniform)" if name == "baseline" else name)
+    ax.loglog(ns, [n**-0.5 for n in ns], "k--", lw=0.8, label="1 / sqrt(n)")
+    ax.set(
+        xlabel="n",
+        ylabel="std on f == 1 (0 drawn at 1e-17)",
+        title="Flat pixel: noise added by the estimator",
+    )
     ax.legend(fontsize=7)
     return save(fig, out, "flat.png")
 
@@ -696,8 +832,10 @@ def atlas_markdown(atlas: list[dict]) -> list[str]:
             elif cell["verdict"].endswith("exact)"):
                 cells.append(f"{cell['verdict']} ({fmt(cell['value'])} vs {fmt(cell['baseline'])})")
             else:
-                cells.append(f"**{cell['verdict']}** {fmt(cell['ratio'])} "
-                             f"[{fmt(cell['lo'])}, {fmt(cell['hi'])}]")
+                cells.append(
+                    f"**{cell['verdict']}** {fmt(cell['ratio'])} "
+                    f"[{fmt(cell['lo'])}, {fmt(cell['hi'])}]"
+                )
         rows.append([row["situation"], row["metric"], *cells])
     return table(["situation", "metric", *ROW_NAMES], rows)
 
@@ -711,126 +849,288 @@ def ratio_text(cell: dict) -> str:
 def worse_than_mc_markdown(atlas: list[dict]) -> list[str]:
     lines = []
     for name in ROW_NAMES:
-        worse = [f"{row['situation']} ({ratio_text(row['cells'][name])})" for row in atlas
-                 if name in row["cells"] and row["cells"][name]["verdict"].startswith("worse")]
+        worse = [
+            f"{row['situation']} ({ratio_text(row['cells'][name])})"
+            for row in atlas
+            if name in row["cells"] and row["cells"][name]["verdict"].startswith("worse")
+        ]
         lines.append(f"- **{name}**: " + ("; ".join(worse) if worse else "never worse here"))
     return lines
 
 
 def small_n_markdown(small: dict, near: dict, fvor_rows: list[dict]) -> list[str]:
-    counts = [[r["n"], r["pixels"], fmt(r["p_empty"]), fmt(r["p_empty_poisson"]),
-               fmt(r["p_N1"]), fmt(r["p_N2"]), fmt(r["p_N3"])] for r in small["rows"]]
-    lines = ["### Poisson counts of the SPPP draws", "",
-             *table(["n", "pixels", "P(N = 0)", "exp(-n)", "P(N = 1)", "P(N = 2)", "P(N = 3)"],
-                    counts), "",
-             "### Smooth pixel: bias (z = bias / SE) and RMSE ratio against mc over n uniform "
-             "points", ""]
-    rows = [[r["n"], *[f"{fmt(r['estimators'][m]['bias'])} (z {r['estimators'][m]['bias'] / r['estimators'][m]['se']:+.1f}); {fmt(r['estimators'][m]['rmse_ratio'])}" for m in ROW_NAMES]]  # noqa: E501
-            for r in small["rows"]]
+    counts = [
+        [
+            r["n"],
+            r["pixels"],
+            fmt(r["p_empty"]),
+            fmt(r["p_empty_poisson"]),
+            fmt(r["p_N1"]),
+            fmt(r["p_N2"]),
+            fmt(r["p_N3"]),
+        ]
+        for r in small["rows"]
+    ]
+    lines = [
+        "### Poisson counts of the SPPP draws",
+        "",
+        *table(["n", "pixels", "P(N = 0)", "exp(-n)", "P(N = 1)", "P(N = 2)", "P(N = 3)"], counts),
+        "",
+        "### Smooth pixel: bias (z = bias / SE) and RMSE ratio against mc over n uniform points",
+        "",
+    ]
+
+    def bias_cell(measured: dict) -> str:
+        z = measured["bias"] / measured["se"]
+        return f"{fmt(measured['bias'])} (z {z:+.1f}); {fmt(measured['rmse_ratio'])}"
+
+    rows = [[r["n"], *[bias_cell(r["estimators"][m]) for m in ROW_NAMES]] for r in small["rows"]]
     lines += table(["n", *ROW_NAMES], rows)
-    lines += ["", f"### Near-empty pixels at n = {near['n']} (SPPP estimators conditioned on N; "
-              "smooth pixel; mean error / RMS error / max |estimate|)", ""]
+    lines += [
+        "",
+        f"### Near-empty pixels at n = {near['n']} (SPPP estimators conditioned on N; "
+        "smooth pixel; mean error / RMS error / max |estimate|)",
+        "",
+    ]
     rows = []
     for label, entry in near["classes"].items():
-        cells = ["-" if entry[m] is None else
-                 f"{fmt(entry[m]['mean_error'])} / {fmt(entry[m]['rms_error'])} / "
-                 f"{fmt(entry[m]['max_abs'])}" + ("" if entry[m]["finite"] else " NON-FINITE")
-                 for m in SPPP_NAMES]
+        cells = [
+            "-"
+            if entry[m] is None
+            else f"{fmt(entry[m]['mean_error'])} / {fmt(entry[m]['rms_error'])} / "
+            f"{fmt(entry[m]['max_abs'])}" + ("" if entry[m]["finite"] else " NON-FINITE")
+            for m in SPPP_NAMES
+        ]
         rows.append([label, entry["pixels"], *cells])
     lines += table(["N", "pixels", *SPPP_NAMES], rows)
-    lines += ["", "### fvor with an empty filtered set (no W cell inside W')", "",
-              *table(["n", "eps", "valid pixels with N >= 1", "empty filter",
-                      "stats.empty_filtered", "frequency",
-                      "mean N when empty", "max abs(fvor - vor_sn) there",
-                      "RMS error: empty / kept"],
-                     [[r["n"], fmt(r["eps"]), r["valid_nonempty"], r["empty_filtered"],
-                       r["stats_empty_filtered"], fmt(r["frequency"]), fmt(r["mean_N_when_empty"]),
-                       fmt(r["max_abs_fvor_minus_vor_sn"]),
-                       f"{fmt(r['rms_error_empty'])} / {fmt(r['rms_error_kept'])}"]
-                      for r in fvor_rows])]
+    lines += [
+        "",
+        "### fvor with an empty filtered set (no W cell inside W')",
+        "",
+        *table(
+            [
+                "n",
+                "eps",
+                "valid pixels with N >= 1",
+                "empty filter",
+                "stats.empty_filtered",
+                "frequency",
+                "mean N when empty",
+                "max abs(fvor - vor_sn) there",
+                "RMS error: empty / kept",
+            ],
+            [
+                [
+                    r["n"],
+                    fmt(r["eps"]),
+                    r["valid_nonempty"],
+                    r["empty_filtered"],
+                    r["stats_empty_filtered"],
+                    fmt(r["frequency"]),
+                    fmt(r["mean_N_when_empty"]),
+                    fmt(r["max_abs_fvor_minus_vor_sn"]),
+                    f"{fmt(r['rms_error_empty'])} / {fmt(r['rms_error_kept'])}",
+                ]
+                for r in fvor_rows
+            ],
+        ),
+    ]
     return lines
 
 
 def rejection_markdown(rows: list[dict]) -> list[str]:
     worst = max(rows, key=lambda r: r["frequency"] / r["bound"])
-    lines = [*table(["n", "target bound", "eps", "n'", "rejected / pixels", "frequency",
-                     "95 % upper", "frequency / bound"],
-                    [[r["n"], fmt(r["bound"]), fmt(r["eps"]), r["n_aux"],
-                      f"{r['rejected']} / {r['pixels']}", fmt(r["frequency"]),
-                      fmt(r["upper_95"]), fmt(r["frequency"] / r["bound"])] for r in rows]), "",
-             f"Largest frequency / bound over all {len(rows)} configurations: "
-             f"{fmt(worst['frequency'] / worst['bound'])} (n = {worst['n']}, bound "
-             f"{fmt(worst['bound'])}). Configurations whose 95 % upper bound exceeds the "
-             f"paper's bound: {sum(r['upper_95'] > r['bound'] for r in rows)} (with few "
-             "pixels the upper bound can exceed a small bound without any rejection)."]
+    lines = [
+        *table(
+            [
+                "n",
+                "target bound",
+                "eps",
+                "n'",
+                "rejected / pixels",
+                "frequency",
+                "95 % upper",
+                "frequency / bound",
+            ],
+            [
+                [
+                    r["n"],
+                    fmt(r["bound"]),
+                    fmt(r["eps"]),
+                    r["n_aux"],
+                    f"{r['rejected']} / {r['pixels']}",
+                    fmt(r["frequency"]),
+                    fmt(r["upper_95"]),
+                    fmt(r["frequency"] / r["bound"]),
+                ]
+                for r in rows
+            ],
+        ),
+        "",
+        f"Largest frequency / bound over all {len(rows)} configurations: "
+        f"{fmt(worst['frequency'] / worst['bound'])} (n = {worst['n']}, bound "
+        f"{fmt(worst['bound'])}). Configurations whose 95 % upper bound exceeds the "
+        f"paper's bound: {sum(r['upper_95'] > r['bound'] for r in rows)} (with few "
+        "pixels the upper bound can exceed a small bound without any rejection).",
+    ]
     return lines
 
 
 def storm_markdown(storm: dict) -> list[str]:
-    header = ["driver", "seconds", "rounds", "redraws", "eps enlargements", "final eps",
-              "exhausted", "Qhull calls", *[f"{m} z" for m in SPPP_NAMES]]
+    header = [
+        "driver",
+        "seconds",
+        "rounds",
+        "redraws",
+        "eps enlargements",
+        "final eps",
+        "exhausted",
+        "Qhull calls",
+        *[f"{m} z" for m in SPPP_NAMES],
+    ]
     rows = []
     reference = storm["reference"]
     if reference is not None:
         pixels = reference["mc"]["runs"]
-        rows.append([f"reference: paper's eps, no storm ({pixels} pixels)", "-", "-", "-", "-",
-                     fmt(storm["paper_eps"]), "-", "-",
-                     *[f"{reference[m]['z']:+.1f}" for m in SPPP_NAMES]])
+        rows.append(
+            [
+                f"reference: paper's eps, no storm ({pixels} pixels)",
+                "-",
+                "-",
+                "-",
+                "-",
+                fmt(storm["paper_eps"]),
+                "-",
+                "-",
+                *[f"{reference[m]['z']:+.1f}" for m in SPPP_NAMES],
+            ]
+        )
     for label, run in storm["runs"].items():
         s = run["redraw"]
-        rows.append([label, f"{run['seconds']:.1f}", s["rounds"], s["redraws"],
-                     s["eps_enlargements"], fmt(s["final_eps"]), s["exhausted_pixels"],
-                     s["qhull_calls"],
-                     *[f"{run['summary']['holder_1'][m]['z']:+.1f}" for m in SPPP_NAMES]])
-    lines = [f"n = {storm['n']}, eps = {storm['eps']:g} (the paper's eps is "
-             f"{storm['paper_eps']:.4f}), {next(iter(storm['runs'].values()))['pixels']} "
-             "pixels per driver setting; z = bias / SE of each estimator on holder_1 (exact "
-             "1/16). Rounds and Qhull calls are per driver call (pixels are split into calls "
-             "of about 200 000 points).", "", *table(header, rows), "",
-             "With on_exhausted='raise' and the default driver: "
-             + (f"`{storm['defaults_on_exhausted_raise']}`"
-                if storm["defaults_on_exhausted_raise"] else
-                "no error (the driver recovered: its first enlargement reaches the paper's "
-                "eps)"), "",
-             "Bias on holder_1 of the pixels accepted at each eps (driver factor 1.5):", ""]
+        rows.append(
+            [
+                label,
+                f"{run['seconds']:.1f}",
+                s["rounds"],
+                s["redraws"],
+                s["eps_enlargements"],
+                fmt(s["final_eps"]),
+                s["exhausted_pixels"],
+                s["qhull_calls"],
+                *[f"{run['summary']['holder_1'][m]['z']:+.1f}" for m in SPPP_NAMES],
+            ]
+        )
+    lines = [
+        f"n = {storm['n']}, eps = {storm['eps']:g} (the paper's eps is "
+        f"{storm['paper_eps']:.4f}), {next(iter(storm['runs'].values()))['pixels']} "
+        "pixels per driver setting; z = bias / SE of each estimator on holder_1 (exact "
+        "1/16). Rounds and Qhull calls are per driver call (pixels are split into calls "
+        "of about 200 000 points).",
+        "",
+        *table(header, rows),
+        "",
+        "With on_exhausted='raise' and the default driver: "
+        + (
+            f"`{storm['defaults_on_exhausted_raise']}`"
+            if storm["defaults_on_exhausted_raise"]
+            else "no error (the driver recovered: its first enlargement reaches the paper's eps)"
+        ),
+        "",
+        "Bias on holder_1 of the pixels accepted at each eps (driver factor 1.5):",
+        "",
+    ]
     by_eps = storm["runs"][STORM_ATLAS_DRIVER]["by_accept_eps"]
-    lines += table(["eps at acceptance", "n'", "paper's bound there", "pixels", *SPPP_NAMES],
-                   [[fmt(r["eps"]), r["n_aux"], fmt(r["bound"]), r["pixels"],
-                     *[fmt(r[m]) for m in SPPP_NAMES]] for r in by_eps])
+    lines += table(
+        ["eps at acceptance", "n'", "paper's bound there", "pixels", *SPPP_NAMES],
+        [
+            [
+                fmt(r["eps"]),
+                r["n_aux"],
+                fmt(r["bound"]),
+                r["pixels"],
+                *[fmt(r[m]) for m in SPPP_NAMES],
+            ]
+            for r in by_eps
+        ],
+    )
     return lines
 
 
 def discontinuity_markdown(disc: dict) -> list[str]:
     lines = []
     for n, stats in disc.items():
-        lines += [f"n = {n} (exact {EXACT[col('discontinuity')]:.6f}):", "",
-                  *table(["estimator", "mean", "std", "IQR", "MAD", "median |error|",
-                          "max |error|", "5 largest estimates"],
-                         [["mc (uniform)" if name == "baseline" else name, fmt(d["mean"]),
-                           fmt(d["std"]), fmt(d["iqr"]), fmt(d["mad"]),
-                           fmt(d["median_abs_error"]), fmt(d["max_abs_error"]),
-                           ", ".join(fmt(v) for v in d["largest"])]
-                          for name, d in stats.items()]), ""]
+        lines += [
+            f"n = {n} (exact {EXACT[col('discontinuity')]:.6f}):",
+            "",
+            *table(
+                [
+                    "estimator",
+                    "mean",
+                    "std",
+                    "IQR",
+                    "MAD",
+                    "median |error|",
+                    "max |error|",
+                    "5 largest estimates",
+                ],
+                [
+                    [
+                        "mc (uniform)" if name == "baseline" else name,
+                        fmt(d["mean"]),
+                        fmt(d["std"]),
+                        fmt(d["iqr"]),
+                        fmt(d["mad"]),
+                        fmt(d["median_abs_error"]),
+                        fmt(d["max_abs_error"]),
+                        ", ".join(fmt(v) for v in d["largest"]),
+                    ]
+                    for name, d in stats.items()
+                ],
+            ),
+            "",
+        ]
     return lines
 
 
 def firefly_markdown(fire: dict) -> list[str]:
     lines = []
     for n, stats in fire["by_n"].items():
-        header = ["estimator", *[f"RMSE x{g}" for g in fire["gains"]], "finite",
-                  "n w mean", "n w rms", "n w max"]
-        rows = [["mc (uniform)" if name == "baseline" else name,
-                 *[fmt(v) for v in d["rmse_by_gain"]], d["finite"], fmt(d["n_weight_mean"]),
-                 fmt(d["n_weight_rms"]), fmt(d["n_weight_max"])] for name, d in stats.items()]
+        header = [
+            "estimator",
+            *[f"RMSE x{g}" for g in fire["gains"]],
+            "finite",
+            "n w mean",
+            "n w rms",
+            "n w max",
+        ]
+        rows = [
+            [
+                "mc (uniform)" if name == "baseline" else name,
+                *[fmt(v) for v in d["rmse_by_gain"]],
+                d["finite"],
+                fmt(d["n_weight_mean"]),
+                fmt(d["n_weight_rms"]),
+                fmt(d["n_weight_max"]),
+            ]
+            for name, d in stats.items()
+        ]
         lines += [f"n = {n}:", "", *table(header, rows), ""]
     return lines
 
 
 def flat_markdown(flat: list[dict]) -> list[str]:
     names = [*ROW_NAMES, "baseline"]
-    rows = [[r["n"], *[f"{fmt(r['estimators'][m]['std'])} / "
-                       f"{fmt(r['estimators'][m]['max_abs_error_N_ge_1'])}" for m in names]]
-            for r in flat]
+    rows = [
+        [
+            r["n"],
+            *[
+                f"{fmt(r['estimators'][m]['std'])} / "
+                f"{fmt(r['estimators'][m]['max_abs_error_N_ge_1'])}"
+                for m in names
+            ],
+        ]
+        for r in flat
+    ]
     return table(["n", *ROW_NAMES, "mc (uniform)"], rows)
 
 
@@ -842,63 +1142,106 @@ EXPLANATIONS = {
         "cell compares the two errors directly. The discontinuity function has infinite "
         "variance, so its rows compare median absolute errors. mc, mc_n, vor, vor_sn and fvor "
         "run on SPPP draws (Poisson N, redrawn when rejected), cvor and pvor on the same kind "
-        "of n uniform points as the baseline (paired resampling)."),
+        "of n uniform points as the baseline (paired resampling)."
+    ),
     "small_n": (
         "Under Poisson N a pixel is empty with probability exp(-n) and every estimator returns "
         "0 there. mc (sum / n) and vor stay unbiased; the conditional forms (mc_n, vor_sn, "
         "fvor) lose the exp(-n) mass: their expectation is (1 - exp(-n)) I plus, for the "
         "ratio estimators, an O(1/n) term. cvor and pvor here use N = n uniform points and "
-        "never see an empty pixel."),
+        "never see an empty pixel."
+    ),
     "storm": (
         "The driver enlarges eps only after redraws_before_enlarge rounds and by a constant "
         "factor. A pixel is accepted at the first eps that happens to give it bounded cells, "
         "so in a storm most pixels are accepted at an eps where the paper's bound is far above "
         "alpha: those draws are conditioned on an event that is not rare, and the accepted "
-        "estimates inherit its bias (all estimators, mc included, since they share the draw)."),
+        "estimates inherit its bias (all estimators, mc included, since they share the draw)."
+    ),
     "fireflies": (
         "Every estimator is linear in the sample values, so a firefly of gain g at sample k "
         "moves the estimate by exactly (g - 1) f(x_k) w_k, w_k the sample's weight (1/n for "
         "mc, 1/N for mc_n, its cell area for vor, cell area over the summed areas for vor_sn "
         "and fvor (0 if fvor drops the cell), its clipped or torus cell area for cvor and "
         "pvor). The RMSE at large gains is therefore g f E[w^2]^(1/2); n w measures the "
-        "weight against mc's 1/n."),
+        "weight against mc's 1/n."
+    ),
     "flat": (
         "Cells: std over all pixels / max |estimate - 1| over pixels with N >= 1. Weights "
         "that sum to 1 (mc_n, vor_sn, fvor, cvor, pvor) are exact on f == 1 whenever N >= 1; "
         "mc (N / n) and the literal E_V (sum of the W nuclei's cell areas, which overhang W "
-        "and miss the parts of W covered by strip cells) are not."),
+        "and miss the parts of W covered by strip cells) are not."
+    ),
 }
 
 
 def build_report(results: dict, charts: dict, argv: list[str]) -> str:
     cfg = results["config"]
-    lines = ["# Stability of the pixel estimators: the failure atlas", "",
-             f"Command: `{' '.join(['python bench/stability_study.py', *argv])}` "
-             f"(seed {cfg['seed']}, {'quick' if cfg['quick'] else 'full'} run, "
-             f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}.", "",
-             "## Failure atlas", "", EXPLANATIONS["atlas"], "",
-             *atlas_markdown(results["atlas"]), "", f"![atlas]({charts['atlas']})", "",
-             "## Where each estimator is worse than mc", "",
-             *worse_than_mc_markdown(results["atlas"]), "",
-             "## Small n: empty and near-empty pixels", "", EXPLANATIONS["small_n"], "",
-             *small_n_markdown(results["small_n"], results["near_empty"],
-                               results["fvor_empty"]), "",
-             f"![small n]({charts['small_n']})", "",
-             "## Rejection frequency against the paper's bound", "",
-             "First-draw frequency of pixels with a W nucleus whose cell is unbounded, at the "
-             "eps where the paper's bound 4 pi n^2 eps^2 exp(-pi n eps^2) equals each target.",
-             "", *rejection_markdown(results["rejection"]), "",
-             f"![rejection]({charts['rejection']})", "",
-             "## Forced rejection storm", "", EXPLANATIONS["storm"], "",
-             *storm_markdown(results["storm"]), "", f"![storm]({charts['storm']})", "",
-             "## Discontinuity function (infinite variance)", "",
-             *discontinuity_markdown(results["discontinuity"]),
-             f"![discontinuity]({charts['discontinuity']})", "",
-             "## Fireflies: one sample of a smooth pixel multiplied by a gain", "",
-             EXPLANATIONS["fireflies"], "", *firefly_markdown(results["fireflies"]),
-             f"![fireflies]({charts['fireflies']})", "",
-             "## Flat pixel (f == 1)", "", EXPLANATIONS["flat"], "",
-             *flat_markdown(results["flat"]), "", f"![flat]({charts['flat']})", ""]
+    lines = [
+        "# Stability of the pixel estimators: the failure atlas",
+        "",
+        f"Command: `{' '.join(['python bench/stability_study.py', *argv])}` "
+        f"(seed {cfg['seed']}, {'quick' if cfg['quick'] else 'full'} run, "
+        f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}.",
+        "",
+        "## Failure atlas",
+        "",
+        EXPLANATIONS["atlas"],
+        "",
+        *atlas_markdown(results["atlas"]),
+        "",
+        f"![atlas]({charts['atlas']})",
+        "",
+        "## Where each estimator is worse than mc",
+        "",
+        *worse_than_mc_markdown(results["atlas"]),
+        "",
+        "## Small n: empty and near-empty pixels",
+        "",
+        EXPLANATIONS["small_n"],
+        "",
+        *small_n_markdown(results["small_n"], results["near_empty"], results["fvor_empty"]),
+        "",
+        f"![small n]({charts['small_n']})",
+        "",
+        "## Rejection frequency against the paper's bound",
+        "",
+        "First-draw frequency of pixels with a W nucleus whose cell is unbounded, at the "
+        "eps where the paper's bound 4 pi n^2 eps^2 exp(-pi n eps^2) equals each target.",
+        "",
+        *rejection_markdown(results["rejection"]),
+        "",
+        f"![rejection]({charts['rejection']})",
+        "",
+        "## Forced rejection storm",
+        "",
+        EXPLANATIONS["storm"],
+        "",
+        *storm_markdown(results["storm"]),
+        "",
+        f"![storm]({charts['storm']})",
+        "",
+        "## Discontinuity function (infinite variance)",
+        "",
+        *discontinuity_markdown(results["discontinuity"]),
+        f"![discontinuity]({charts['discontinuity']})",
+        "",
+        "## Fireflies: one sample of a smooth pixel multiplied by a gain",
+        "",
+        EXPLANATIONS["fireflies"],
+        "",
+        *firefly_markdown(results["fireflies"]),
+        f"![fireflies]({charts['fireflies']})",
+        "",
+        "## Flat pixel (f == 1)",
+        "",
+        EXPLANATIONS["flat"],
+        "",
+        *flat_markdown(results["flat"]),
+        "",
+        f"![flat]({charts['flat']})",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -930,19 +1273,38 @@ class Config:
 def make_config(quick: bool, seed: int) -> Config:
     if quick:
         ns = (1, 2, 4, 16, 64)
-        return Config(True, seed, ns, {n: 300 if n <= 16 else 150 for n in ns}, (1, 4, 16),
-                      300, (1, 4), 400, 40, discontinuity_ns=(16, 64), firefly_ns=(16, 64))
+        return Config(
+            True,
+            seed,
+            ns,
+            {n: 300 if n <= 16 else 150 for n in ns},
+            (1, 4, 16),
+            300,
+            (1, 4),
+            400,
+            40,
+            discontinuity_ns=(16, 64),
+            firefly_ns=(16, 64),
+        )
     ns = (1, 2, 3, 4, 6, 8, 12, 16, 32, 64, 256)
     runs = {n: 6000 if n <= 16 else 4000 if n <= 32 else 3000 if n <= 64 else 1500 for n in ns}
-    return Config(False, seed, ns, runs, (*range(1, 17), 32, 64, 256), 3000,
-                  (1, 2, 3, 4, 6, 8, 12, 16, 64), 4000, 800)
+    return Config(
+        False,
+        seed,
+        ns,
+        runs,
+        (*range(1, 17), 32, 64, 256),
+        3000,
+        (1, 2, 3, 4, 6, 8, 12, 16, 64),
+        4000,
+        800,
+    )
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run (well under a minute)")
-    parser.add_argument("--out", type=Path,
-                        default=Path(__file__).parent / "results" / "stability")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "stability")
     parser.add_argument("--seed", type=int, default=2026)
     return parser.parse_args(argv)
 
@@ -951,8 +1313,11 @@ def measure(cfg: Config, rng) -> tuple[dict, dict[int, Runs]]:
     all_runs = {}
     for n in cfg.ns:
         all_runs[n] = run_all(n, cfg.runs[n], rng)
-        print(f"n = {n}: {cfg.runs[n]} pixels, {all_runs[n].seconds:.1f} s, redraw "
-              f"{all_runs[n].redraw}", flush=True)
+        print(
+            f"n = {n}: {cfg.runs[n]} pixels, {all_runs[n].seconds:.1f} s, redraw "
+            f"{all_runs[n].redraw}",
+            flush=True,
+        )
     start = time.perf_counter()
     fvor_rows = fvor_empty_section(cfg.fvor_ns, cfg.fvor_pixels, rng)
     print(f"fvor empty filter: {time.perf_counter() - start:.1f} s", flush=True)
@@ -982,13 +1347,15 @@ def analyse(cfg: Config, measured: dict, all_runs: dict[int, Runs], rng) -> dict
 
 
 def plot_all(results: dict, all_runs: dict[int, Runs], out: Path) -> dict:
-    return {"atlas": plot_atlas(results["atlas"], out),
-            "small_n": plot_small_n(results["small_n"], out),
-            "rejection": plot_rejection(results["rejection"], out),
-            "storm": plot_storm(results["storm"], out),
-            "discontinuity": plot_discontinuity(results["discontinuity"], all_runs, out),
-            "fireflies": plot_fireflies(results["fireflies"], out),
-            "flat": plot_flat(results["flat"], out)}
+    return {
+        "atlas": plot_atlas(results["atlas"], out),
+        "small_n": plot_small_n(results["small_n"], out),
+        "rejection": plot_rejection(results["rejection"], out),
+        "storm": plot_storm(results["storm"], out),
+        "discontinuity": plot_discontinuity(results["discontinuity"], all_runs, out),
+        "fireflies": plot_fireflies(results["fireflies"], out),
+        "flat": plot_flat(results["flat"], out),
+    }
 
 
 def jsonable(obj):
@@ -1008,21 +1375,35 @@ def jsonable(obj):
 
 def write_outputs(results: dict, all_runs: dict[int, Runs], out: Path, argv) -> None:
     storm_raw = {label: run.pop("holder_1") for label, run in results["storm"]["runs"].items()}
-    np.savez_compressed(out / "estimates.npz", columns=np.array(COLUMNS),
-                        **{f"n{n}_{name}": e for n, r in all_runs.items()
-                           for name, e in r.estimates.items()},
-                        **{f"n{n}_counts": r.counts for n, r in all_runs.items()},
-                        **{f"storm_{i}_{name}": e for i, raw in enumerate(storm_raw.values())
-                           for name, e in raw.items()})
+    np.savez_compressed(
+        out / "estimates.npz",
+        columns=np.array(COLUMNS),
+        **{f"n{n}_{name}": e for n, r in all_runs.items() for name, e in r.estimates.items()},
+        **{f"n{n}_counts": r.counts for n, r in all_runs.items()},
+        **{
+            f"storm_{i}_{name}": e
+            for i, raw in enumerate(storm_raw.values())
+            for name, e in raw.items()
+        },
+    )
     (out / "results.json").write_text(json.dumps(jsonable(results), indent=1))
     charts = results.pop("charts")
     (out / "report.md").write_text(build_report(results, charts, argv))
 
 
 def print_summary(results: dict) -> None:
-    print("\n".join(["", "Failure atlas (error ratio estimator / mc over n uniform points):",
-                     *atlas_markdown(results["atlas"]), "", "Worse than mc:",
-                     *worse_than_mc_markdown(results["atlas"])]))
+    print(
+        "\n".join(
+            [
+                "",
+                "Failure atlas (error ratio estimator / mc over n uniform points):",
+                *atlas_markdown(results["atlas"]),
+                "",
+                "Worse than mc:",
+                *worse_than_mc_markdown(results["atlas"]),
+            ]
+        )
+    )
 
 
 def main(argv=None) -> None:
@@ -1034,17 +1415,25 @@ def main(argv=None) -> None:
     start = time.perf_counter()
     measured, all_runs = measure(cfg, rng)
     results = analyse(cfg, measured, all_runs, rng)
-    results["config"] = {"quick": cfg.quick, "seed": cfg.seed, "runs": cfg.runs,
-                         "rejection_ns": cfg.rejection_ns, "fvor_ns": cfg.fvor_ns,
-                         "storm_pixels": cfg.storm_pixels, "columns": COLUMNS,
-                         "exact": dict(zip(COLUMNS, EXACT.tolist(), strict=True)),
-                         "baseline": BASELINE}
+    results["config"] = {
+        "quick": cfg.quick,
+        "seed": cfg.seed,
+        "runs": cfg.runs,
+        "rejection_ns": cfg.rejection_ns,
+        "fvor_ns": cfg.fvor_ns,
+        "storm_pixels": cfg.storm_pixels,
+        "columns": COLUMNS,
+        "exact": dict(zip(COLUMNS, EXACT.tolist(), strict=True)),
+        "baseline": BASELINE,
+    }
     results["charts"] = plot_all(results, all_runs, args.out)
     results["seconds"] = time.perf_counter() - start
     print_summary(results)
     write_outputs(results, all_runs, args.out, argv)
-    print(f"wrote {args.out}/report.md, results.json, estimates.npz and PNG charts "
-          f"({results['seconds']:.0f} s)")
+    print(
+        f"wrote {args.out}/report.md, results.json, estimates.npz and PNG charts "
+        f"({results['seconds']:.0f} s)"
+    )
 
 
 if __name__ == "__main__":

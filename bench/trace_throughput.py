@@ -117,11 +117,14 @@ def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defi
 
 
 def print_row(row, label):
-    print(f"{row['scene']:20s} {label:28s} wall {row['paths_per_s'] / 1e6:6.3f} M paths/s "
-          f"{row['rays_per_s'] / 1e6:6.2f} M rays/s | cpu/wall {row['cpu_over_wall']:.2f} | "
-          f"CPU-time estimate {row['cpu_paths_per_s'] / 1e6:6.3f} M paths/s "
-          f"{row['cpu_rays_per_s'] / 1e6:6.2f} M rays/s ({row['rays_per_path']:.2f} rays/path, "
-          f"{row['cpu_ns_per_path']:.0f} CPU ns/path)", flush=True)  # fmt: skip
+    print(
+        f"{row['scene']:20s} {label:28s} wall {row['paths_per_s'] / 1e6:6.3f} M paths/s "
+        f"{row['rays_per_s'] / 1e6:6.2f} M rays/s | cpu/wall {row['cpu_over_wall']:.2f} | "
+        f"CPU-time estimate {row['cpu_paths_per_s'] / 1e6:6.3f} M paths/s "
+        f"{row['cpu_rays_per_s'] / 1e6:6.2f} M rays/s ({row['rays_per_path']:.2f} rays/path, "
+        f"{row['cpu_ns_per_path']:.0f} CPU ns/path)",
+        flush=True,
+    )
 
 
 PROFILE_VARIANTS = {
@@ -153,10 +156,13 @@ def profile_scene(runtime, scene_name, sampler, args, full):
         # BSDF sampling, two Philox draws and the closest-hit query, per bounce (no NEE)
         "bounce_ns_per_vertex": (ns["no_nee"] - ns["depth0"]) / max(bounce_rays, 1e-9),
     }
-    print(f"{scene_name:20s} profile: camera ray {derived['camera_ray_ns']:.0f} ns; per bounce "
-          f"vertex {derived['bounce_ns_per_vertex']:.0f} ns; per shadow ray: NEE "
-          f"{derived['nee_ns_per_shadow_ray']:.0f} ns of which the occlusion query "
-          f"{derived['shadow_query_ns_per_shadow_ray']:.0f} ns (CPU ns)", flush=True)  # fmt: skip
+    print(
+        f"{scene_name:20s} profile: camera ray {derived['camera_ray_ns']:.0f} ns; per bounce "
+        f"vertex {derived['bounce_ns_per_vertex']:.0f} ns; per shadow ray: NEE "
+        f"{derived['nee_ns_per_shadow_ray']:.0f} ns of which the occlusion query "
+        f"{derived['shadow_query_ns_per_shadow_ray']:.0f} ns (CPU ns)",
+        flush=True,
+    )
     return {"variants": list(rows.values())[1:], "derived": derived}
 
 
@@ -172,8 +178,9 @@ def main(argv=None):
             rows.append(row)
             print_row(row, sampler)
         if args.profile:
-            profiles[scene_name] = profile_scene(runtime, scene_name, args.samplers[0], args,
-                                                 rows[-len(args.samplers)])  # fmt: skip
+            profiles[scene_name] = profile_scene(
+                runtime, scene_name, args.samplers[0], args, rows[-len(args.samplers)]
+            )
     report = {
         "device": runtime.describe(),
         "compute_units": runtime.device.max_compute_units,

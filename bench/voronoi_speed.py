@@ -64,11 +64,11 @@ def cpu_time(fn) -> float:
 def interleaved_times(fns: dict, repeats: int) -> dict[str, list[float]]:
     """CPU times of each function over `repeats` turns, alternating the order."""
     names = list(fns)
-    for name in names:    # warm-up: caches, allocator, lazy imports
+    for name in names:  # warm-up: caches, allocator, lazy imports
         fns[name]()
     times = {name: [] for name in names}
     for turn in range(repeats):
-        for name in (names if turn % 2 == 0 else names[::-1]):
+        for name in names if turn % 2 == 0 else names[::-1]:
             times[name].append(cpu_time(fns[name]))
     return times
 
@@ -77,9 +77,15 @@ def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict
     batch = draw_sppp(rng, n, pixels)
     samples = PixelSamples.from_sppp(batch, np.abs(batch.traced[:, 0] * batch.traced[:, 1]), n)
     arrays = qhull_point_arrays(batch.traced, batch.offsets, batch.aux, batch.aux_offsets)
-    per_pixel = [np.concatenate([batch.traced[batch.offsets[p]:batch.offsets[p + 1]],
-                                 batch.aux[batch.aux_offsets[p]:batch.aux_offsets[p + 1]]])
-                 for p in range(pixels)]
+    per_pixel = [
+        np.concatenate(
+            [
+                batch.traced[batch.offsets[p] : batch.offsets[p + 1]],
+                batch.aux[batch.aux_offsets[p] : batch.aux_offsets[p + 1]],
+            ]
+        )
+        for p in range(pixels)
+    ]
 
     def stage():
         result = estimate("vor", samples)
@@ -93,22 +99,29 @@ def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict
         for points in per_pixel:
             Delaunay(points, qhull_options=QHULL_OPTIONS)
 
-    times = interleaved_times({"stage": stage, "bare_same_calls": bare_same_calls,
-                               "bare_per_pixel": bare_per_pixel}, repeats)
+    times = interleaved_times(
+        {"stage": stage, "bare_same_calls": bare_same_calls, "bare_per_pixel": bare_per_pixel},
+        repeats,
+    )
     t = {name: float(np.median(v)) for name, v in times.items()}
     samples_count = len(batch.traced)
     points = samples_count + len(batch.aux)
-    return {"n": n, "pixels": pixels, "samples": samples_count, "points": points,
-            "qhull_calls": len(arrays),
-            "recomputed_pixels": stage.tessellation.recomputed_pixels,
-            "stage_ms_per_pixel": 1e3 * t["stage"] / pixels,
-            "bare_same_calls_ms_per_pixel": 1e3 * t["bare_same_calls"] / pixels,
-            "bare_per_pixel_ms_per_pixel": 1e3 * t["bare_per_pixel"] / pixels,
-            "ratio_same_calls": t["stage"] / t["bare_same_calls"],
-            "ratio_per_pixel": t["stage"] / t["bare_per_pixel"],
-            "us_per_sample": 1e6 * t["stage"] / samples_count,
-            "bare_us_per_point": 1e6 * t["bare_same_calls"] / points,
-            "cpu_seconds": times}
+    return {
+        "n": n,
+        "pixels": pixels,
+        "samples": samples_count,
+        "points": points,
+        "qhull_calls": len(arrays),
+        "recomputed_pixels": stage.tessellation.recomputed_pixels,
+        "stage_ms_per_pixel": 1e3 * t["stage"] / pixels,
+        "bare_same_calls_ms_per_pixel": 1e3 * t["bare_same_calls"] / pixels,
+        "bare_per_pixel_ms_per_pixel": 1e3 * t["bare_per_pixel"] / pixels,
+        "ratio_same_calls": t["stage"] / t["bare_same_calls"],
+        "ratio_per_pixel": t["stage"] / t["bare_per_pixel"],
+        "us_per_sample": 1e6 * t["stage"] / samples_count,
+        "bare_us_per_point": 1e6 * t["bare_same_calls"] / points,
+        "cpu_seconds": times,
+    }
 
 
 def device_one_pixel(repeats: int, seed: int) -> dict:
@@ -122,27 +135,31 @@ def device_one_pixel(repeats: int, seed: int) -> dict:
     samples = PixelSamples.from_sppp(batch, np.abs(batch.traced[:, 0] * batch.traced[:, 1]), 4096)
 
     def run():
-        cells = device_sppp_cells_from_arrays(runtime, batch.traced, batch.offsets, batch.aux,
-                                              batch.aux_offsets)
+        cells = device_sppp_cells_from_arrays(
+            runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets
+        )
         return estimate("vor", samples, {"sppp": cells}), cells
 
-    result, cells = run()    # warm-up: kernel build, first launch
+    result, cells = run()  # warm-up: kernel build, first launch
     walls, cpus = [], []
     for _ in range(repeats):
         wall0, cpu0 = time.perf_counter(), time.process_time()
         run()
         walls.append(time.perf_counter() - wall0)
         cpus.append(time.process_time() - cpu0)
-    rounded = [np.asarray(a, np.float32).astype(np.float64)
-               for a in (batch.traced, batch.aux)]
+    rounded = [np.asarray(a, np.float32).astype(np.float64) for a in (batch.traced, batch.aux)]
     host = sppp_cells(rounded[0], batch.offsets, rounded[1], batch.aux_offsets)
-    return {"samples": len(batch.traced), "points": len(batch.traced) + len(batch.aux),
-            "device": runtime.describe(), "repeats": repeats,
-            "wall_ms": 1e3 * float(np.median(walls)), "cpu_ms": 1e3 * float(np.median(cpus)),
-            "walked_cells": cells.stats.walked_cells,
-            "max_relative_area_difference": float(np.nanmax(np.abs(cells.areas / host.areas
-                                                                    - 1.0))),
-            "estimate": float(result.estimates[0])}
+    return {
+        "samples": len(batch.traced),
+        "points": len(batch.traced) + len(batch.aux),
+        "device": runtime.describe(),
+        "repeats": repeats,
+        "wall_ms": 1e3 * float(np.median(walls)),
+        "cpu_ms": 1e3 * float(np.median(cpus)),
+        "walked_cells": cells.stats.walked_cells,
+        "max_relative_area_difference": float(np.nanmax(np.abs(cells.areas / host.areas - 1.0))),
+        "estimate": float(result.estimates[0]),
+    }
 
 
 def pin_to_one_core() -> None:
@@ -159,9 +176,12 @@ def device_one_pixel_on_one_core(repeats: int, processes: int = 5) -> dict | Non
     env = dict(os.environ, POCL_MAX_PTHREAD_COUNT="1")
     children = []
     for _ in range(processes):
-        child = subprocess.run([sys.executable, __file__, "--device-one-pixel-child",
-                                "--repeats", str(repeats)], env=env, capture_output=True,
-                               text=True)
+        child = subprocess.run(
+            [sys.executable, __file__, "--device-one-pixel-child", "--repeats", str(repeats)],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         if child.returncode != 0:
             print(f"device one-pixel measurement failed:\n{child.stderr.strip()}")
             return None
@@ -170,8 +190,9 @@ def device_one_pixel_on_one_core(repeats: int, processes: int = 5) -> dict | Non
     for key in ("wall_ms", "cpu_ms"):
         summary[key] = float(np.median([c[key] for c in children]))
         summary[f"{key}_per_process"] = [c[key] for c in children]
-    summary["max_relative_area_difference"] = max(c["max_relative_area_difference"]
-                                                  for c in children)
+    summary["max_relative_area_difference"] = max(
+        c["max_relative_area_difference"] for c in children
+    )
     summary["processes"] = processes
     return summary
 
@@ -180,12 +201,13 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--repeats", type=int, default=None)
-    parser.add_argument("--no-device", action="store_true",
-                        help="skip the one-pixel measurement with device cells")
-    parser.add_argument("--device-one-pixel-child", action="store_true",
-                        help=argparse.SUPPRESS)
-    parser.add_argument("--out", type=Path,
-                        default=Path(__file__).parent / "results" / "voronoi_speed.json")
+    parser.add_argument(
+        "--no-device", action="store_true", help="skip the one-pixel measurement with device cells"
+    )
+    parser.add_argument("--device-one-pixel-child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--out", type=Path, default=Path(__file__).parent / "results" / "voronoi_speed.json"
+    )
     args = parser.parse_args(argv)
     repeats = args.repeats or (3 if args.quick else 7)
     if args.device_one_pixel_child:
@@ -201,45 +223,66 @@ def main(argv=None) -> None:
         rows.append(measure(n, pixels, repeats, rng))
     # A batch of 4096 pixels (n = 64 in quick mode, 256 otherwise).
     rows.append(measure(64 if args.quick else 256, 256 if args.quick else 4096, repeats, rng))
-    print(f"CPU time (process_time), medians of {repeats} interleaved repeats; "
-          f"POINTS_PER_QHULL_CALL = {POINTS_PER_QHULL_CALL}")
-    print("| n | pixels | Qhull calls | recomputed | stage ms/pixel | bare (same calls) | "
-          "bare (per pixel) | stage/bare same | stage/bare per-pixel | us/sample | "
-          "bare us/point |")
+    print(
+        f"CPU time (process_time), medians of {repeats} interleaved repeats; "
+        f"POINTS_PER_QHULL_CALL = {POINTS_PER_QHULL_CALL}"
+    )
+    print(
+        "| n | pixels | Qhull calls | recomputed | stage ms/pixel | bare (same calls) | "
+        "bare (per pixel) | stage/bare same | stage/bare per-pixel | us/sample | "
+        "bare us/point |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['n']} | {r['pixels']} | {r['qhull_calls']} | {r['recomputed_pixels']} | "
-              f"{r['stage_ms_per_pixel']:.3f} | {r['bare_same_calls_ms_per_pixel']:.3f} | "
-              f"{r['bare_per_pixel_ms_per_pixel']:.3f} | {r['ratio_same_calls']:.3f} | "
-              f"{r['ratio_per_pixel']:.3f} | {r['us_per_sample']:.2f} | "
-              f"{r['bare_us_per_point']:.2f} |")
+        print(
+            f"| {r['n']} | {r['pixels']} | {r['qhull_calls']} | {r['recomputed_pixels']} | "
+            f"{r['stage_ms_per_pixel']:.3f} | {r['bare_same_calls_ms_per_pixel']:.3f} | "
+            f"{r['bare_per_pixel_ms_per_pixel']:.3f} | {r['ratio_same_calls']:.3f} | "
+            f"{r['ratio_per_pixel']:.3f} | {r['us_per_sample']:.2f} | "
+            f"{r['bare_us_per_point']:.2f} |"
+        )
     single = rows[0]
-    print(f"one 4096-sample pixel with Qhull cells: {single['stage_ms_per_pixel']:.2f} ms "
-          f"(bare Qhull alone on its {single['points']} points: "
-          f"{single['bare_same_calls_ms_per_pixel']:.2f} ms, so no Qhull-based estimate reaches "
-          f"the {TARGET_ONE_PIXEL_MS} ms target; the device cells below do)")
+    print(
+        f"one 4096-sample pixel with Qhull cells: {single['stage_ms_per_pixel']:.2f} ms "
+        f"(bare Qhull alone on its {single['points']} points: "
+        f"{single['bare_same_calls_ms_per_pixel']:.2f} ms, so no Qhull-based estimate reaches "
+        f"the {TARGET_ONE_PIXEL_MS} ms target; the device cells below do)"
+    )
     device = None if args.no_device else device_one_pixel_on_one_core(repeats)
     if device is not None:
         met_one = device["wall_ms"] <= TARGET_ONE_PIXEL_MS
         walls = device["wall_ms_per_process"]
-        print(f"one 4096-sample pixel with device cells on one core ({device['device']}, "
-              f"process pinned to one core, POCL_MAX_PTHREAD_COUNT=1): "
-              f"{device['wall_ms']:.2f} ms wall, "
-              f"{device['cpu_ms']:.2f} ms CPU: median over {device['processes']} processes "
-              f"(each the median of {device['repeats']}; range {min(walls):.2f}-"
-              f"{max(walls):.2f} ms wall) (target <= "
-              f"{TARGET_ONE_PIXEL_MS} ms: {'met' if met_one else 'NOT met'}); "
-              f"areas vs Qhull max relative difference "
-              f"{device['max_relative_area_difference']:.1e}")
+        print(
+            f"one 4096-sample pixel with device cells on one core ({device['device']}, "
+            f"process pinned to one core, POCL_MAX_PTHREAD_COUNT=1): "
+            f"{device['wall_ms']:.2f} ms wall, "
+            f"{device['cpu_ms']:.2f} ms CPU: median over {device['processes']} processes "
+            f"(each the median of {device['repeats']}; range {min(walls):.2f}-"
+            f"{max(walls):.2f} ms wall) (target <= "
+            f"{TARGET_ONE_PIXEL_MS} ms: {'met' if met_one else 'NOT met'}); "
+            f"areas vs Qhull max relative difference "
+            f"{device['max_relative_area_difference']:.1e}"
+        )
     worst = max(rows, key=lambda r: r["ratio_same_calls"])
     met = all(r["ratio_same_calls"] <= TARGET_RATIO for r in rows)
-    print(f"vor stage / bare Delaunay (same calls): worst {worst['ratio_same_calls']:.3f} at "
-          f"n = {worst['n']}, {worst['pixels']} pixel(s); target <= {TARGET_RATIO} "
-          f"{'met' if met else 'NOT met'} on every row")
+    print(
+        f"vor stage / bare Delaunay (same calls): worst {worst['ratio_same_calls']:.3f} at "
+        f"n = {worst['n']}, {worst['pixels']} pixel(s); target <= {TARGET_RATIO} "
+        f"{'met' if met else 'NOT met'} on every row"
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"repeats": repeats, "clock": "process_time",
-                                    "points_per_qhull_call": POINTS_PER_QHULL_CALL,
-                                    "rows": rows, "device_one_pixel": device}, indent=1))
+    args.out.write_text(
+        json.dumps(
+            {
+                "repeats": repeats,
+                "clock": "process_time",
+                "points_per_qhull_call": POINTS_PER_QHULL_CALL,
+                "rows": rows,
+                "device_one_pixel": device,
+            },
+            indent=1,
+        )
+    )
     print(f"wrote {args.out}")
 
 

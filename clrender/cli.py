@@ -78,46 +78,93 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def add_device_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--device", default=None,
-                        help="OpenCL device: index in the list, or a name substring "
-                             "(default: PYOPENCL_CTX, else the first device)")  # fmt: skip
+    parser.add_argument(
+        "--device",
+        default=None,
+        help="OpenCL device: index in the list, or a name substring "
+        "(default: PYOPENCL_CTX, else the first device)",
+    )
 
 
 def add_render_options(parser: argparse.ArgumentParser) -> None:
     from clrender.render import ESTIMATOR_NAMES
 
     add = parser.add_argument
-    add("scene", nargs="?", default=DEFAULT_SCENE,
-        help=f"scene name, .toml file or analytic[:KIND] (default: {DEFAULT_SCENE})")
-    add("-o", "--output", default=None, metavar="OUT.exr",
-        help="output EXR; the PNG preview goes beside it (default: SCENE.exr here)")
-    add("--spp", type=int, default=DEFAULT_SPP,
-        help=f"samples per pixel (the SPPP intensity n) (default: {DEFAULT_SPP})")
-    add("--res", default=str(DEFAULT_WIDTH), metavar="WxH|N|scene",
+    add(
+        "scene",
+        nargs="?",
+        default=DEFAULT_SCENE,
+        help=f"scene name, .toml file or analytic[:KIND] (default: {DEFAULT_SCENE})",
+    )
+    add(
+        "-o",
+        "--output",
+        default=None,
+        metavar="OUT.exr",
+        help="output EXR; the PNG preview goes beside it (default: SCENE.exr here)",
+    )
+    add(
+        "--spp",
+        type=int,
+        default=DEFAULT_SPP,
+        help=f"samples per pixel (the SPPP intensity n) (default: {DEFAULT_SPP})",
+    )
+    add(
+        "--res",
+        default=str(DEFAULT_WIDTH),
+        metavar="WxH|N|scene",
         help=f"image size: WxH, a width N (scene's aspect ratio), or 'scene' for the scene "
-             f"file's own size (default: {DEFAULT_WIDTH})")
-    add("--sampler", default=DEFAULT_SAMPLER, metavar="NAME",
-        help=f"uniform, stratified (spp a perfect square) or sppp (default: {DEFAULT_SAMPLER})")
-    add("--estimator", default=None, metavar="NAME",
+        f"file's own size (default: {DEFAULT_WIDTH})",
+    )
+    add(
+        "--sampler",
+        default=DEFAULT_SAMPLER,
+        metavar="NAME",
+        help=f"uniform, stratified (spp a perfect square) or sppp (default: {DEFAULT_SAMPLER})",
+    )
+    add(
+        "--estimator",
+        default=None,
+        metavar="NAME",
         help=f"pixel estimator: {', '.join(ESTIMATOR_NAMES)} "
-             "(default: vor_sn with sppp, mc otherwise)")
+        "(default: vor_sn with sppp, mc otherwise)",
+    )
     add("--seed", type=int, default=0, help="random seed, 0 <= S < 2^32 (default: 0)")
-    add("--max-depth", type=int, default=8, metavar="D",
-        help="scattering vertices per path (default: 8)")
-    add("--tile-samples", type=int, default=None, metavar="N",
+    add(
+        "--max-depth",
+        type=int,
+        default=8,
+        metavar="D",
+        help="scattering vertices per path (default: 8)",
+    )
+    add(
+        "--tile-samples",
+        type=int,
+        default=None,
+        metavar="N",
         help="samples per tile (traced + auxiliary): bounds memory whatever the image size, "
-             "about 600 MB at the default 4000000")
-    add("--no-overlap", action="store_true",
-        help="run the host estimator after each tile instead of during the next one")
-    add("--voronoi-backend", default="device", metavar="NAME",
+        "about 600 MB at the default 4000000",
+    )
+    add(
+        "--no-overlap",
+        action="store_true",
+        help="run the host estimator after each tile instead of during the next one",
+    )
+    add(
+        "--voronoi-backend",
+        default="device",
+        metavar="NAME",
         help="where vor, vor_sn and fvor get their Voronoi cells: device (an OpenCL kernel, "
-             "exact, default) or qhull (SciPy's Qhull on the host)")
-    add("--strict", action="store_true",
-        help="exit with status 3 if any sample's radiance was NaN or infinite")
+        "exact, default) or qhull (SciPy's Qhull on the host)",
+    )
+    add(
+        "--strict",
+        action="store_true",
+        help="exit with status 3 if any sample's radiance was NaN or infinite",
+    )
     # SUPPRESS: without a default here, `--debug render` keeps the top-level flag's value.
-    add("--debug", action="store_true", default=argparse.SUPPRESS,
-        help="show tracebacks on errors")
-    add_device_option(parser)  # fmt: skip
+    add("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks on errors")
+    add_device_option(parser)
 
 
 def command_devices(args: argparse.Namespace) -> int:
@@ -126,8 +173,7 @@ def command_devices(args: argparse.Namespace) -> int:
     devices = list_devices()
     print("OpenCL devices:")
     for index, device in enumerate(devices):
-        print(f"  [{index}] {describe_device(device)}, "
-              f"{device.max_compute_units} compute units")  # fmt: skip
+        print(f"  [{index}] {describe_device(device)}, {device.max_compute_units} compute units")
     runtime = create_runtime(args.device)
     print(f"selected: {runtime.describe()}")
     ok, message = run_self_check(runtime)
@@ -167,8 +213,9 @@ def parse_resolution(text: str) -> tuple[int | None, int | None] | None:
     except ValueError:
         sizes = []
     if len(sizes) not in (1, 2) or min(sizes) <= 0:
-        raise ParameterError(f"--res must be WxH, N or 'scene' with positive integers, "
-                             f"got {text!r}")  # fmt: skip
+        raise ParameterError(
+            f"--res must be WxH, N or 'scene' with positive integers, got {text!r}"
+        )
     return (sizes[0], sizes[1]) if len(sizes) == 2 else (sizes[0], None)
 
 
@@ -193,9 +240,16 @@ def settings_from_args(args: argparse.Namespace, width: int, height: int):
     tile_samples = DEFAULT_TILE_SAMPLES if args.tile_samples is None else args.tile_samples
     if tile_samples <= 0:
         raise ParameterError(f"--tile-samples must be a positive integer, got {tile_samples}")
-    return RenderSettings(width, height, make_sampler(args.sampler, args.spp), estimator,
-                          args.seed, tile_samples, not args.no_overlap,
-                          args.voronoi_backend)  # fmt: skip
+    return RenderSettings(
+        width,
+        height,
+        make_sampler(args.sampler, args.spp),
+        estimator,
+        args.seed,
+        tile_samples,
+        not args.no_overlap,
+        args.voronoi_backend,
+    )
 
 
 def check_render_args(args: argparse.Namespace) -> None:
@@ -294,13 +348,18 @@ def command_render(args: argparse.Namespace) -> int:
 
 def exit_status(args: argparse.Namespace, result, interrupted_while_writing: bool) -> int:
     if result.stats.interrupted or interrupted_while_writing:
-        print(f"clrender: interrupted: the image holds {result.film.rendered_count} of "
-              f"{result.film.pixel_count} pixels (partial=1)", file=sys.stderr)  # fmt: skip
+        print(
+            f"clrender: interrupted: the image holds {result.film.rendered_count} of "
+            f"{result.film.pixel_count} pixels (partial=1)",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     if result.stats.nonfinite_samples or result.film.flagged_count:
-        print(f"clrender: warning: {result.stats.nonfinite_samples} samples had NaN or "
-              f"infinite radiance; {result.film.flagged_count} pixels flagged and set to 0",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"clrender: warning: {result.stats.nonfinite_samples} samples had NaN or "
+            f"infinite radiance; {result.film.flagged_count} pixels flagged and set to 0",
+            file=sys.stderr,
+        )
         if args.strict:
             return EXIT_STRICT
     return 0

@@ -76,10 +76,10 @@ class _Layout:
     """A launch's point layout: traced nuclei then auxiliary ones in one float2 buffer."""
 
     positions: cl.Buffer
-    traced_offsets: np.ndarray   # (P + 1,) int64
-    aux_offsets: np.ndarray      # (P + 1,) int64, relative to the first auxiliary nucleus
-    half_extent: float           # the grid covers [-half_extent, half_extent]^2
-    grid_side: int               # cells per side of every pixel's grid
+    traced_offsets: np.ndarray  # (P + 1,) int64
+    aux_offsets: np.ndarray  # (P + 1,) int64, relative to the first auxiliary nucleus
+    half_extent: float  # the grid covers [-half_extent, half_extent]^2
+    grid_side: int  # cells per side of every pixel's grid
 
     @property
     def pixel_count(self) -> int:
@@ -94,8 +94,12 @@ class _Layout:
 # Public entry points
 
 
-def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: float | None = None,
-                      precision: str = "auto") -> CellAreas:
+def device_sppp_cells(
+    runtime: Runtime,
+    sample_sets: DeviceSampleSets,
+    box: float | None = None,
+    precision: str = "auto",
+) -> CellAreas:
     """Cells of the W nuclei of a launch's SPPP sample sets, from the positions on the device.
 
     box: also report which cells lie inside [-box, box]^2 (box = 1/2 + eps is W' for fvor).
@@ -109,10 +113,15 @@ def device_sppp_cells(runtime: Runtime, sample_sets: DeviceSampleSets, box: floa
     return _cells(runtime, layout, box, precision, fetch)
 
 
-def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offsets: np.ndarray,
-                                  aux: np.ndarray, aux_offsets: np.ndarray,
-                                  box: float | None = None,
-                                  precision: str = "auto") -> CellAreas:
+def device_sppp_cells_from_arrays(
+    runtime: Runtime,
+    positions: np.ndarray,
+    offsets: np.ndarray,
+    aux: np.ndarray,
+    aux_offsets: np.ndarray,
+    box: float | None = None,
+    precision: str = "auto",
+) -> CellAreas:
     """The same cells from NumPy arrays (sppp_cells' arguments), uploaded as float32."""
     traced32, aux32 = _check_arrays(positions, offsets, aux, aux_offsets)
     offsets = np.asarray(offsets, np.int64)
@@ -131,14 +140,14 @@ def device_sppp_cells_from_arrays(runtime: Runtime, positions: np.ndarray, offse
     return cells
 
 
-def sppp_cells_backend(runtime: Runtime, precision: str = "auto"
-                       ) -> Callable[..., CellAreas]:  # fmt: skip
+def sppp_cells_backend(runtime: Runtime, precision: str = "auto") -> Callable[..., CellAreas]:
     """A drop-in for voronoi_cells.sppp_cells (same arguments, same result) that runs on the
     device: lets the host estimators use device cells without other changes."""
 
     def cells(positions, offsets, aux, aux_offsets, box: float | None = None) -> CellAreas:
-        return device_sppp_cells_from_arrays(runtime, positions, offsets, aux, aux_offsets, box,
-                                             precision)
+        return device_sppp_cells_from_arrays(
+            runtime, positions, offsets, aux, aux_offsets, box, precision
+        )
 
     return cells
 
@@ -151,14 +160,15 @@ class DeviceSums:
     sums) and of traced samples."""
 
     sums: SpppSums
-    redraw: np.ndarray       # (P,) bool
-    fallback: np.ndarray     # (P,) bool
-    nonfinite: np.ndarray    # (P,) int64
-    counts: np.ndarray       # (P,) int64
+    redraw: np.ndarray  # (P,) bool
+    fallback: np.ndarray  # (P,) bool
+    nonfinite: np.ndarray  # (P,) int64
+    counts: np.ndarray  # (P,) int64
 
 
-def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
-                     box: float, precision: str = "auto") -> DeviceSums:
+def device_sppp_sums(
+    runtime: Runtime, sample_sets: DeviceSampleSets, radiance, box: float, precision: str = "auto"
+) -> DeviceSums:
     """The SpppSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
     and radiance ((T, 3) float32 device buffer, traced-sample order) kept on the device: only
     SUMS_PER_PIXEL values and a flag byte per pixel come back. box = 1/2 + eps (W')."""
@@ -169,23 +179,39 @@ def device_sppp_sums(runtime: Runtime, sample_sets: DeviceSampleSets, radiance,
     flags = np.zeros(pixels, np.uint8)
     nonfinite = np.zeros(pixels, np.uint32)
     if layout.traced_total and pixels:
-        areas, status, offsets, upload = _enqueue_cells(runtime, layout, box, defines,
-                                                        np.dtype(real).itemsize)
+        areas, status, offsets, upload = _enqueue_cells(
+            runtime, layout, box, defines, np.dtype(real).itemsize
+        )
         sums_buf, flags_buf = runtime.allocate(sums.nbytes), runtime.allocate(flags.nbytes)
         nonfinite_buf = runtime.allocate(nonfinite.nbytes)
         reduce = runtime.kernel(SUMS_KERNEL_FILE, "voronoi_pixel_sums", defines)
         local = runtime.local_size
-        reduce(runtime.queue, (padded_global_size(pixels, local),), (local,), np.uint32(pixels),
-               offsets, radiance, areas, status, sums_buf, flags_buf, nonfinite_buf)
+        reduce(
+            runtime.queue,
+            (padded_global_size(pixels, local),),
+            (local,),
+            np.uint32(pixels),
+            offsets,
+            radiance,
+            areas,
+            status,
+            sums_buf,
+            flags_buf,
+            nonfinite_buf,
+        )
         # One wait: the in-order queue finishes the copies in order
         cl.enqueue_copy(runtime.queue, sums, sums_buf, is_blocking=False)
         cl.enqueue_copy(runtime.queue, flags, flags_buf, is_blocking=False)
         cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
         del upload  # the blocking read above has run the upload
     sums = sums.astype(np.float64)
-    return DeviceSums(SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
-                      (flags & SUMS_REDRAW) != 0, (flags & SUMS_FALLBACK) != 0,
-                      nonfinite.astype(np.int64), np.diff(layout.traced_offsets))
+    return DeviceSums(
+        SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
+        (flags & SUMS_REDRAW) != 0,
+        (flags & SUMS_FALLBACK) != 0,
+        nonfinite.astype(np.int64),
+        np.diff(layout.traced_offsets),
+    )
 
 
 def settle_undecided(device: DeviceSums, host_sets, values: np.ndarray, box: float) -> DeviceSums:
@@ -196,8 +222,12 @@ def settle_undecided(device: DeviceSums, host_sets, values: np.ndarray, box: flo
     pixels = np.flatnonzero(device.fallback)
     offsets = np.asarray(host_sets.offsets, np.int64)
     traced, t_offsets, aux, a_offsets = _slice_pixels(
-        host_sets.traced, offsets, host_sets.aux, np.asarray(host_sets.aux_offsets, np.int64),
-        pixels)
+        host_sets.traced,
+        offsets,
+        host_sets.aux,
+        np.asarray(host_sets.aux_offsets, np.int64),
+        pixels,
+    )
     cells = sppp_cells(traced, t_offsets, aux, a_offsets, box)
     samples = PixelSamples(traced, values[_pixel_slots(offsets, pixels)], t_offsets, 1.0)
     settled = sppp_sums(samples, cells)
@@ -207,8 +237,9 @@ def settle_undecided(device: DeviceSums, host_sets, values: np.ndarray, box: flo
         merged[name][pixels] = getattr(settled, name)
     redraw = device.redraw.copy()
     redraw[pixels] = np.bincount(samples.pixel_index, ~cells.bounded, len(pixels)) > 0
-    return replace(device, sums=SpppSums(**merged), redraw=redraw,
-                   fallback=np.zeros_like(device.fallback))
+    return replace(
+        device, sums=SpppSums(**merged), redraw=redraw, fallback=np.zeros_like(device.fallback)
+    )
 
 
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
@@ -223,15 +254,17 @@ def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
 
 
 def resolve_precision(runtime: Runtime, precision: str) -> str:
-    """"single", "mixed" or "double"; DeviceError if double is asked of a device without it."""
+    """ "single", "mixed" or "double"; DeviceError if double is asked of a device without it."""
     if precision not in PRECISIONS:
         raise ParameterError(f"unknown precision {precision!r}; accepted: {', '.join(PRECISIONS)}")
     has_fp64 = "cl_khr_fp64" in runtime.device.extensions.split()
     if precision == "auto":
         return "mixed" if has_fp64 else "single"
     if precision != "single" and not has_fp64:
-        raise DeviceError(f"device {runtime.describe()} has no cl_khr_fp64 (double precision), "
-                          f"which precision={precision!r} needs: use 'single' or 'auto'")
+        raise DeviceError(
+            f"device {runtime.describe()} has no cl_khr_fp64 (double precision), "
+            f"which precision={precision!r} needs: use 'single' or 'auto'"
+        )
     return precision
 
 
@@ -252,8 +285,13 @@ def _sample_set_layout(sample_sets: DeviceSampleSets) -> _Layout:
     it is computed in."""
     config = sample_sets.config
     aux_offsets = np.arange(sample_sets.pixel_count + 1, dtype=np.int64) * config.n_aux
-    return _Layout(sample_sets.positions, np.asarray(sample_sets.traced_offsets, np.int64),
-                   aux_offsets, 0.5 + config.eps, grid_side(config.n + config.n_aux, 1))
+    return _Layout(
+        sample_sets.positions,
+        np.asarray(sample_sets.traced_offsets, np.int64),
+        aux_offsets,
+        0.5 + config.eps,
+        grid_side(config.n + config.n_aux, 1),
+    )
 
 
 def _precision_setup(runtime: Runtime, precision: str) -> tuple[dict[str, object], type]:
@@ -262,30 +300,34 @@ def _precision_setup(runtime: Runtime, precision: str) -> tuple[dict[str, object
     return kernel_defines(runtime, precision), np.float32 if single else np.float64
 
 
-def _cells(runtime: Runtime, layout: _Layout, box: float | None, precision: str,
-           fetch: FetchPixels) -> CellAreas:
+def _cells(
+    runtime: Runtime, layout: _Layout, box: float | None, precision: str, fetch: FetchPixels
+) -> CellAreas:
     defines, real = _precision_setup(runtime, precision)
     areas, status = _launch(runtime, layout, box, defines, real)
     bounded = (status & STATUS_BOUNDED) != 0
-    cells = CellAreas(np.where(bounded, areas.astype(np.float64), np.nan), bounded,
-                      (status & STATUS_INSIDE) != 0 if box is not None else None,
-                      TessellationStats(walked_cells=int(((status & STATUS_WALKED) != 0).sum())))
+    cells = CellAreas(
+        np.where(bounded, areas.astype(np.float64), np.nan),
+        bounded,
+        (status & STATUS_INSIDE) != 0 if box is not None else None,
+        TessellationStats(walked_cells=int(((status & STATUS_WALKED) != 0).sum())),
+    )
     fallback = _fallback_pixels(layout.traced_offsets, (status & STATUS_FALLBACK) != 0)
     if fallback.size:
         _recompute_on_host(cells, layout.traced_offsets, fallback, fetch, box)
     return cells
 
 
-def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[str, object],
-            real: type) -> tuple[np.ndarray, np.ndarray]:
+def _launch(
+    runtime: Runtime, layout: _Layout, box: float | None, defines: dict[str, object], real: type
+) -> tuple[np.ndarray, np.ndarray]:
     """Run both kernels; (areas, status) of every traced nucleus."""
     traced = layout.traced_total
     areas = np.empty(traced, real)
     status = np.empty(traced, np.uint8)
     if traced == 0:
         return areas, status
-    areas_buf, status_buf, _, upload = _enqueue_cells(runtime, layout, box, defines,
-                                                      areas.itemsize)
+    areas_buf, status_buf, _, upload = _enqueue_cells(runtime, layout, box, defines, areas.itemsize)
     # One wait: the in-order queue finishes the upload and the first copy before the second
     cl.enqueue_copy(runtime.queue, areas, areas_buf, is_blocking=False)
     cl.enqueue_copy(runtime.queue, status, status_buf)
@@ -293,8 +335,13 @@ def _launch(runtime: Runtime, layout: _Layout, box: float | None, defines: dict[
     return areas, status
 
 
-def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
-                   defines: dict[str, object], area_bytes: int):
+def _enqueue_cells(
+    runtime: Runtime,
+    layout: _Layout,
+    box: float | None,
+    defines: dict[str, object],
+    area_bytes: int,
+):
     """Queue the grid and cell kernels of a non-empty layout; (areas, status, offsets) device
     buffers (offsets: the traced offsets, then the auxiliary ones) and the offsets' upload
     event, to hold until a blocking read (Runtime.upload_async)."""
@@ -306,7 +353,8 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
         raise ParameterError("too many nuclei in one launch (over 2^32): use smaller tiles")
     # Traced then auxiliary offsets in one buffer (each blocking upload costs a round trip)
     offsets, upload = runtime.upload_async(
-        np.concatenate([layout.traced_offsets, layout.aux_offsets]).astype(np.uint32))
+        np.concatenate([layout.traced_offsets, layout.aux_offsets]).astype(np.uint32)
+    )
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
     sorted_index = runtime.allocate(4 * total)
@@ -315,15 +363,38 @@ def _enqueue_cells(runtime: Runtime, layout: _Layout, box: float | None,
     half = np.float32(layout.half_extent)
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
-    build(queue, (padded_global_size(pixels, local[0]),), local, np.uint32(pixels),
-          np.uint32(traced), np.int32(side), half, layout.positions, offsets, cell_start,
-          sorted_points, sorted_index)
+    build(
+        queue,
+        (padded_global_size(pixels, local[0]),),
+        local,
+        np.uint32(pixels),
+        np.uint32(traced),
+        np.int32(side),
+        half,
+        layout.positions,
+        offsets,
+        cell_start,
+        sorted_points,
+        sorted_index,
+    )
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
-    compute(queue, (padded_global_size(pixels * side * side, local[0]),), local,
-            np.uint32(pixels), np.uint32(traced), np.int32(side), half,
-            np.float32(layout.half_extent * START_BOX_SCALE),
-            np.float32(box if box is not None else np.inf), offsets, cell_start,
-            sorted_points, sorted_index, areas_buf, status_buf)
+    compute(
+        queue,
+        (padded_global_size(pixels * side * side, local[0]),),
+        local,
+        np.uint32(pixels),
+        np.uint32(traced),
+        np.int32(side),
+        half,
+        np.float32(layout.half_extent * START_BOX_SCALE),
+        np.float32(box if box is not None else np.inf),
+        offsets,
+        cell_start,
+        sorted_points,
+        sorted_index,
+        areas_buf,
+        status_buf,
+    )
     return areas_buf, status_buf, offsets, upload
 
 
@@ -334,8 +405,13 @@ def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndar
     return np.unique(owner[flagged])
 
 
-def _recompute_on_host(cells: CellAreas, traced_offsets: np.ndarray, pixels: np.ndarray,
-                       fetch: FetchPixels, box: float | None) -> None:
+def _recompute_on_host(
+    cells: CellAreas,
+    traced_offsets: np.ndarray,
+    pixels: np.ndarray,
+    fetch: FetchPixels,
+    box: float | None,
+) -> None:
     """Exact cells of the given pixels from Qhull, written over the device's."""
     traced, offsets, aux, aux_offsets = fetch(pixels)
     redo = sppp_cells(traced, offsets, aux, aux_offsets, box)
@@ -356,15 +432,24 @@ def _pixel_slots(offsets: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     return np.repeat(starts - first, counts) + np.arange(int(counts.sum()), dtype=np.int64)
 
 
-def _slice_pixels(traced: np.ndarray, offsets: np.ndarray, aux: np.ndarray,
-                  aux_offsets: np.ndarray, pixels: np.ndarray):
+def _slice_pixels(
+    traced: np.ndarray,
+    offsets: np.ndarray,
+    aux: np.ndarray,
+    aux_offsets: np.ndarray,
+    pixels: np.ndarray,
+):
     """Some pixels' positions (float64) with offsets of their own."""
     t_index = _pixel_slots(offsets, pixels)
     a_index = _pixel_slots(aux_offsets, pixels)
     t_counts = offsets[pixels + 1] - offsets[pixels]
     a_counts = aux_offsets[pixels + 1] - aux_offsets[pixels]
-    return (traced[t_index].astype(np.float64), _counts_to_offsets(t_counts),
-            aux[a_index].astype(np.float64), _counts_to_offsets(a_counts))
+    return (
+        traced[t_index].astype(np.float64),
+        _counts_to_offsets(t_counts),
+        aux[a_index].astype(np.float64),
+        _counts_to_offsets(a_counts),
+    )
 
 
 def _counts_to_offsets(counts: np.ndarray) -> np.ndarray:
@@ -376,10 +461,17 @@ def _check_arrays(positions, offsets, aux, aux_offsets) -> tuple[np.ndarray, np.
     traced = np.ascontiguousarray(positions, np.float32).reshape(-1, 2)
     aux32 = np.ascontiguousarray(aux, np.float32).reshape(-1, 2)
     offsets, aux_offsets = np.asarray(offsets), np.asarray(aux_offsets)
-    for name, off, total in (("offsets", offsets, len(traced)),
-                             ("aux_offsets", aux_offsets, len(aux32))):
-        if (off.ndim != 1 or len(off) < 1 or off[0] != 0 or off[-1] != total
-                or (np.diff(off) < 0).any()):
+    for name, off, total in (
+        ("offsets", offsets, len(traced)),
+        ("aux_offsets", aux_offsets, len(aux32)),
+    ):
+        if (
+            off.ndim != 1
+            or len(off) < 1
+            or off[0] != 0
+            or off[-1] != total
+            or (np.diff(off) < 0).any()
+        ):
             raise ParameterError(f"{name} must rise from 0 to {total}")
     if len(offsets) != len(aux_offsets):
         raise ParameterError("offsets and aux_offsets must describe the same pixels")

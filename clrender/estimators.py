@@ -54,26 +54,55 @@ from clrender.voronoi_cells import (
 class EstimatorInfo:
     name: str
     description: str
-    needs_aux: bool   # requires SPPP auxiliary nuclei (and eps)
-    cells: str        # tessellation it uses: "none", "sppp", "clipped" or "periodic"
+    needs_aux: bool  # requires SPPP auxiliary nuclei (and eps)
+    cells: str  # tessellation it uses: "none", "sppp", "clipped" or "periodic"
 
 
-ESTIMATORS: dict[str, EstimatorInfo] = {info.name: info for info in [
-    EstimatorInfo("mc", "Monte Carlo: sum of values / intensity n (unbiased for Poisson N)",
-                  False, "none"),
-    EstimatorInfo("mc_n", "Monte Carlo, conditional form: mean of the N values (0 if N = 0)",
-                  False, "none"),
-    EstimatorInfo("vor", "Voronoi E_V: sum f(x) area(cell(x)), cells of W + auxiliary nuclei, "
-                  "not normalised", True, "sppp"),
-    EstimatorInfo("vor_sn", "self-normalised Voronoi: sum f v / sum v over the W nuclei "
-                  "(the authors' renderer's 'vor')", True, "sppp"),
-    EstimatorInfo("fvor", "filtered Voronoi E_F: self-normalised over the nuclei whose cell "
-                  "lies inside W'", True, "sppp"),
-    EstimatorInfo("cvor", "clipped Voronoi E_C: cells of the W nuclei alone clipped to W "
-                  "(biased near edges)", False, "clipped"),
-    EstimatorInfo("pvor", "periodic Voronoi: cells on the torus W (unbiased, no auxiliary "
-                  "nuclei, no rejection)", False, "periodic"),
-]}
+ESTIMATORS: dict[str, EstimatorInfo] = {
+    info.name: info
+    for info in [
+        EstimatorInfo(
+            "mc", "Monte Carlo: sum of values / intensity n (unbiased for Poisson N)", False, "none"
+        ),
+        EstimatorInfo(
+            "mc_n",
+            "Monte Carlo, conditional form: mean of the N values (0 if N = 0)",
+            False,
+            "none",
+        ),
+        EstimatorInfo(
+            "vor",
+            "Voronoi E_V: sum f(x) area(cell(x)), cells of W + auxiliary nuclei, not normalised",
+            True,
+            "sppp",
+        ),
+        EstimatorInfo(
+            "vor_sn",
+            "self-normalised Voronoi: sum f v / sum v over the W nuclei "
+            "(the authors' renderer's 'vor')",
+            True,
+            "sppp",
+        ),
+        EstimatorInfo(
+            "fvor",
+            "filtered Voronoi E_F: self-normalised over the nuclei whose cell lies inside W'",
+            True,
+            "sppp",
+        ),
+        EstimatorInfo(
+            "cvor",
+            "clipped Voronoi E_C: cells of the W nuclei alone clipped to W (biased near edges)",
+            False,
+            "clipped",
+        ),
+        EstimatorInfo(
+            "pvor",
+            "periodic Voronoi: cells on the torus W (unbiased, no auxiliary nuclei, no rejection)",
+            False,
+            "periodic",
+        ),
+    ]
+}
 
 
 def estimator_info(name: str) -> EstimatorInfo:
@@ -81,8 +110,9 @@ def estimator_info(name: str) -> EstimatorInfo:
     try:
         return ESTIMATORS[name]
     except (KeyError, TypeError):
-        raise ParameterError(f"unknown estimator {name!r}; accepted: "
-                             f"{', '.join(ESTIMATORS)}") from None
+        raise ParameterError(
+            f"unknown estimator {name!r}; accepted: {', '.join(ESTIMATORS)}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -104,8 +134,15 @@ class PixelSamples:
 
     @classmethod
     def from_sppp(cls, batch: SpppBatch, values: np.ndarray, intensity: float) -> PixelSamples:
-        return cls(batch.traced, np.asarray(values, dtype=np.float64), batch.offsets,
-                   float(intensity), batch.aux, batch.aux_offsets, batch.eps)
+        return cls(
+            batch.traced,
+            np.asarray(values, dtype=np.float64),
+            batch.offsets,
+            float(intensity),
+            batch.aux,
+            batch.aux_offsets,
+            batch.eps,
+        )
 
     @property
     def pixel_count(self) -> int:
@@ -129,9 +166,9 @@ class PixelSamples:
 @dataclass
 class EstimateStats:
     pixels: int = 0
-    needs_redraw: int = 0     # pixels with an unbounded W cell (vor, vor_sn, fvor)
-    empty_pixels: int = 0     # pixels with N = 0 (estimate 0)
-    empty_filtered: int = 0   # fvor pixels with no cell inside W' (fell back to vor_sn)
+    needs_redraw: int = 0  # pixels with an unbounded W cell (vor, vor_sn, fvor)
+    empty_pixels: int = 0  # pixels with N = 0 (estimate 0)
+    empty_filtered: int = 0  # fvor pixels with no cell inside W' (fell back to vor_sn)
     tessellation: TessellationStats = field(default_factory=TessellationStats)
 
 
@@ -144,14 +181,16 @@ class EstimateResult:
     stats: EstimateStats
 
 
-def estimate(name: str, samples: PixelSamples,
-             cells: dict[str, CellAreas] | None = None) -> EstimateResult:
+def estimate(
+    name: str, samples: PixelSamples, cells: dict[str, CellAreas] | None = None
+) -> EstimateResult:
     """One estimate per pixel with estimator `name` (see the module docstring)."""
     return estimate_all([name], samples, cells)[name]
 
 
-def estimate_all(names: Sequence[str], samples: PixelSamples,
-                 cells: dict[str, CellAreas] | None = None) -> dict[str, EstimateResult]:
+def estimate_all(
+    names: Sequence[str], samples: PixelSamples, cells: dict[str, CellAreas] | None = None
+) -> dict[str, EstimateResult]:
     """Several estimators on the same samples, computing each tessellation once.
 
     cells: tessellations already computed elsewhere, by kind ("sppp", "clipped", "periodic"),
@@ -175,8 +214,9 @@ def _check_samples(samples: PixelSamples, infos: list[EstimatorInfo]) -> None:
     if pos.ndim != 2 or pos.shape[1] != 2:
         raise ParameterError(f"positions must have shape (T, 2), got {pos.shape}")
     if val.ndim not in (1, 2) or len(val) != len(pos):
-        raise ParameterError(f"values must have shape (T,) or (T, C) with T = {len(pos)}, "
-                             f"got {val.shape}")
+        raise ParameterError(
+            f"values must have shape (T,) or (T, C) with T = {len(pos)}, got {val.shape}"
+        )
     _check_offsets("offsets", off, len(pos))
     if not np.isfinite(pos).all() or (np.abs(pos) > 0.5).any():
         raise ParameterError("sample positions must be finite and inside W = [-1/2, 1/2]^2")
@@ -186,7 +226,8 @@ def _check_samples(samples: PixelSamples, infos: list[EstimatorInfo]) -> None:
         if info.needs_aux and not samples.has_aux:
             raise ParameterError(
                 f"estimator {info.name!r} needs SPPP auxiliary nuclei (aux, aux_offsets and "
-                "eps, e.g. from the sppp sampler); use mc, cvor or pvor with other samplers")
+                "eps, e.g. from the sppp sampler); use mc, cvor or pvor with other samplers"
+            )
     if samples.has_aux and any(info.needs_aux for info in infos):
         aux = samples.aux
         if aux.ndim != 2 or aux.shape[1] != 2 or not np.isfinite(aux).all():
@@ -199,19 +240,26 @@ def _check_samples(samples: PixelSamples, infos: list[EstimatorInfo]) -> None:
 
 
 def _check_offsets(name: str, offsets: np.ndarray, total: int) -> None:
-    if (offsets.ndim != 1 or len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != total
-            or (offsets[1:] < offsets[:-1]).any()):
+    if (
+        offsets.ndim != 1
+        or len(offsets) < 1
+        or offsets[0] != 0
+        or offsets[-1] != total
+        or (offsets[1:] < offsets[:-1]).any()
+    ):
         raise ParameterError(f"{name} must rise from 0 to {total} (one more entry than pixels)")
 
 
-def _tessellations(samples: PixelSamples, infos: list[EstimatorInfo],
-                   skip: set[str] = frozenset()) -> dict[str, CellAreas]:  # fmt: skip
+def _tessellations(
+    samples: PixelSamples, infos: list[EstimatorInfo], skip: set[str] = frozenset()
+) -> dict[str, CellAreas]:
     kinds = {info.cells for info in infos} - set(skip)
     cells = {}
     if "sppp" in kinds:
         box = 0.5 + samples.eps if any(info.name == "fvor" for info in infos) else None
-        cells["sppp"] = sppp_cells(samples.positions, samples.offsets, samples.aux,
-                                   samples.aux_offsets, box)
+        cells["sppp"] = sppp_cells(
+            samples.positions, samples.offsets, samples.aux, samples.aux_offsets, box
+        )
     if "clipped" in kinds:
         cells["clipped"] = clipped_cells(samples.positions, samples.offsets)
     if "periodic" in kinds:
@@ -244,8 +292,7 @@ def _per_pixel(column: np.ndarray, estimates: np.ndarray) -> np.ndarray:
 
 
 def _base_stats(samples: PixelSamples, tessellation: TessellationStats | None) -> EstimateStats:
-    stats = EstimateStats(pixels=samples.pixel_count,
-                          empty_pixels=int((samples.counts == 0).sum()))
+    stats = EstimateStats(pixels=samples.pixel_count, empty_pixels=int((samples.counts == 0).sum()))
     if tessellation is not None:
         stats.tessellation = tessellation
     return stats
@@ -292,10 +339,10 @@ class SpppSums:
     sum f v; over those whose cell lies inside W' (fvor's kept nuclei), the same. Computed on
     the host (sppp_sums) or on the device (clrender.device_voronoi.device_sppp_sums)."""
 
-    area: np.ndarray            # (P,)
-    weighted: np.ndarray        # (P,) or (P, C)
-    kept_area: np.ndarray       # (P,)
-    kept_weighted: np.ndarray   # (P,) or (P, C)
+    area: np.ndarray  # (P,)
+    weighted: np.ndarray  # (P,) or (P, C)
+    kept_area: np.ndarray  # (P,)
+    kept_weighted: np.ndarray  # (P,) or (P, C)
 
 
 def sppp_sums(samples: PixelSamples, cells: CellAreas, kept: bool = True) -> SpppSums:
@@ -309,9 +356,11 @@ def sppp_sums(samples: PixelSamples, cells: CellAreas, kept: bool = True) -> Spp
         # where, not a product with 0: a dropped nucleus's value is ignored even if infinite
         kept_area = _pixel_sums(samples, np.where(cells.inside_box, cells.areas, 0.0))
         kept_weighted = _pixel_sums(
-            samples, np.where(_per_sample(cells.inside_box, products), products, 0.0))
-    return SpppSums(_pixel_sums(samples, cells.areas), _pixel_sums(samples, products),
-                    kept_area, kept_weighted)
+            samples, np.where(_per_sample(cells.inside_box, products), products, 0.0)
+        )
+    return SpppSums(
+        _pixel_sums(samples, cells.areas), _pixel_sums(samples, products), kept_area, kept_weighted
+    )
 
 
 def sppp_estimates(name: str, sums: SpppSums, counts: np.ndarray) -> np.ndarray:
@@ -326,15 +375,19 @@ def sppp_estimates(name: str, sums: SpppSums, counts: np.ndarray) -> np.ndarray:
     if name != "fvor":
         raise ParameterError(f"{name!r} is not an estimator of SPPP cell sums")
     use_fallback = _fvor_fallback(sums, counts)
-    return np.where(_per_pixel(use_fallback, ratio), ratio,
-                    _ratio(sums.kept_weighted, sums.kept_area))
+    return np.where(
+        _per_pixel(use_fallback, ratio), ratio, _ratio(sums.kept_weighted, sums.kept_area)
+    )
 
 
 def _ratio(weighted: np.ndarray, area: np.ndarray) -> np.ndarray:
     """weighted / area per pixel, 0 where area == 0."""
     empty = area == 0
-    return np.where(_per_pixel(empty, weighted), 0.0,
-                    weighted / _per_pixel(np.where(empty, 1.0, area), weighted))
+    return np.where(
+        _per_pixel(empty, weighted),
+        0.0,
+        weighted / _per_pixel(np.where(empty, 1.0, area), weighted),
+    )
 
 
 def _fvor_fallback(sums: SpppSums, counts: np.ndarray) -> np.ndarray:
@@ -366,15 +419,26 @@ def _fvor(samples: PixelSamples, cells) -> EstimateResult:
 
 def _cvor(samples: PixelSamples, cells) -> EstimateResult:
     clipped = cells["clipped"]
-    return EstimateResult(_weighted(samples, clipped.areas), _no_redraw(samples),
-                          _base_stats(samples, clipped.stats))
+    return EstimateResult(
+        _weighted(samples, clipped.areas), _no_redraw(samples), _base_stats(samples, clipped.stats)
+    )
 
 
 def _pvor(samples: PixelSamples, cells) -> EstimateResult:
     periodic = cells["periodic"]
-    return EstimateResult(_weighted(samples, periodic.areas), _no_redraw(samples),
-                          _base_stats(samples, periodic.stats))
+    return EstimateResult(
+        _weighted(samples, periodic.areas),
+        _no_redraw(samples),
+        _base_stats(samples, periodic.stats),
+    )
 
 
-_ESTIMATE = {"mc": _mc, "mc_n": _mc_n, "vor": _vor, "vor_sn": _vor_sn, "fvor": _fvor,
-             "cvor": _cvor, "pvor": _pvor}
+_ESTIMATE = {
+    "mc": _mc,
+    "mc_n": _mc_n,
+    "vor": _vor,
+    "vor_sn": _vor_sn,
+    "fvor": _fvor,
+    "cvor": _cvor,
+    "pvor": _pvor,
+}

@@ -73,8 +73,8 @@ from clrender.voronoi_cells import QHULL_OPTIONS, _triangle_geometry
 ESTIMATOR_NAMES = ("ivor", "ivor_sn")
 BORDERS = ("frame", "periodic")
 DEFAULT_BORDER = "frame"
-BLOCK_POINTS = 6000          # nuclei per Qhull call (block pixels only, guard excluded)
-MAX_GUARD = 16.0             # widest guard (pixels) the fallback tries
+BLOCK_POINTS = 6000  # nuclei per Qhull call (block pixels only, guard excluded)
+MAX_GUARD = 16.0  # widest guard (pixels) the fallback tries
 # Unique point ids: plane pixel (x, y) and sample s -> ((y + ID_OFFSET) 2^16 + x + ID_OFFSET)
 # 2^30 + s, for |x|, |y| < 2^15 and s < 2^30.
 ID_OFFSET = 1 << 15
@@ -116,7 +116,7 @@ class PixelRect:
         return PixelRect(self.x0 - ring, self.y0 - ring, self.x1 + ring, self.y1 + ring)
 
     def coords(self) -> tuple[np.ndarray, np.ndarray]:
-        ys, xs = np.mgrid[self.y0:self.y1, self.x0:self.x1]
+        ys, xs = np.mgrid[self.y0 : self.y1, self.x0 : self.x1]
         return xs.ravel(), ys.ravel()
 
     def contains(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
@@ -128,13 +128,18 @@ def frame_keys(xs: np.ndarray, ys: np.ndarray, width: int, height: int) -> np.nd
     xs, ys = np.asarray(xs, np.int64), np.asarray(ys, np.int64)
     ring = np.maximum.reduce([-xs, xs - width + 1, -ys, ys - height + 1, np.zeros_like(xs)])
     k = np.maximum(ring, 1)
-    side = width + 2 * k              # length of ring k's top and bottom rows
+    side = width + 2 * k  # length of ring k's top and bottom rows
     top, bottom = ys == -k, ys == height - 1 + k
     left = ~top & ~bottom & (xs == -k)
-    place = np.where(top, xs + k,
-                     np.where(bottom, side + xs + k,
-                              np.where(left, 2 * side + ys + k - 1,
-                                       2 * side + height + 2 * k - 2 + ys + k - 1)))
+    place = np.where(
+        top,
+        xs + k,
+        np.where(
+            bottom,
+            side + xs + k,
+            np.where(left, 2 * side + ys + k - 1, 2 * side + height + 2 * k - 2 + ys + k - 1),
+        ),
+    )
     outside = width * height + (k - 1) * (2 * width + 2 * height + 4 * k - 4) + place
     keys = np.where(ring > 0, outside, ys * width + xs)
     if len(keys) and keys.max() >= 2**32:
@@ -179,10 +184,10 @@ def point_ids(xs: np.ndarray, ys: np.ndarray, counts: np.ndarray) -> np.ndarray:
 class PixelPoints:
     """Nuclei of a list of plane pixels, pixel by pixel: positions in image coordinates."""
 
-    positions: np.ndarray   # (M, 2) float64
-    counts: np.ndarray      # (len(pixels),) int64
-    ids: np.ndarray         # (M,) int64, unique
-    values: np.ndarray      # (M,) or (M, C) float64; meaningful for traced pixels only
+    positions: np.ndarray  # (M, 2) float64
+    counts: np.ndarray  # (len(pixels),) int64
+    ids: np.ndarray  # (M,) int64, unique
+    values: np.ndarray  # (M,) or (M, C) float64; meaningful for traced pixels only
 
 
 @dataclass
@@ -212,8 +217,9 @@ def _segment_index(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return np.arange(ends[-1] if len(ends) else 0) - np.repeat(ends - counts - starts, counts)
 
 
-def grid_from_points(rect: PixelRect, positions: np.ndarray, values: np.ndarray,
-                     ids: np.ndarray) -> PointGrid:
+def grid_from_points(
+    rect: PixelRect, positions: np.ndarray, values: np.ndarray, ids: np.ndarray
+) -> PointGrid:
     """Sort image-coordinate nuclei into the pixels of rect (nuclei outside rect dropped)."""
     px = np.floor(positions[:, 0]).astype(np.int64)
     py = np.floor(positions[:, 1]).astype(np.int64)
@@ -233,12 +239,13 @@ def grid_from_points(rect: PixelRect, positions: np.ndarray, values: np.ndarray,
 class RegionCells:
     """Cells of the traced nuclei (the first traced_count points) of one tessellation."""
 
-    areas: np.ndarray       # (T,) float64, NaN where the cell is unbounded in the finite set
-    certified: np.ndarray   # (T,) bool: provably the cell of the complete process
+    areas: np.ndarray  # (T,) float64, NaN where the cell is unbounded in the finite set
+    certified: np.ndarray  # (T,) bool: provably the cell of the complete process
 
 
-def region_cells(points: np.ndarray, traced_count: int, known: tuple[float, ...],
-                 ids: np.ndarray | None = None) -> RegionCells:
+def region_cells(
+    points: np.ndarray, traced_count: int, known: tuple[float, ...], ids: np.ndarray | None = None
+) -> RegionCells:
     """Voronoi cell areas of points[:traced_count] among all points, one Qhull call.
 
     known = (x0, y0, x1, y1): the rectangle in which `points` hold every nucleus of the
@@ -248,11 +255,11 @@ def region_cells(points: np.ndarray, traced_count: int, known: tuple[float, ...]
     t = traced_count
     if t == 0:
         return RegionCells(np.zeros(0), np.zeros(0, bool))
-    origin = np.floor(np.asarray(known[:2], np.float64))   # integer shift: exact
+    origin = np.floor(np.asarray(known[:2], np.float64))  # integer shift: exact
     local = np.asarray(points, np.float64) - origin
     try:
         tri = Delaunay(local, qhull_options=QHULL_OPTIONS)
-    except (QhullError, ValueError):   # < 3 points or collinear: no bounded cell
+    except (QhullError, ValueError):  # < 3 points or collinear: no bounded cell
         return RegionCells(np.full(t, np.nan), np.zeros(t, bool))
     simplices = tri.simplices if ids is None else _canonical(tri.simplices, ids)
     areas, bad = _areas_and_flags(tri, local, simplices, np.asarray(known) - np.tile(origin, 2))
@@ -267,20 +274,28 @@ def _canonical(simplices: np.ndarray, ids: np.ndarray) -> np.ndarray:
     return s[np.lexsort((key[:, 2], key[:, 1], key[:, 0]))]
 
 
-def _areas_and_flags(tri: Delaunay, points: np.ndarray, s: np.ndarray,
-                     known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _areas_and_flags(
+    tri: Delaunay, points: np.ndarray, s: np.ndarray, known: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Cell areas of every point and the flags "not certified" (hull, disc outside known)."""
     count = len(points)
     g = _triangle_geometry(points, s)
-    areas = (np.bincount(s[:, 0], g.area_a, count) + np.bincount(s[:, 1], g.area_b, count)
-             + np.bincount(s[:, 2], g.area_c, count))
+    areas = (
+        np.bincount(s[:, 0], g.area_a, count)
+        + np.bincount(s[:, 1], g.area_b, count)
+        + np.bincount(s[:, 2], g.area_c, count)
+    )
     bad = np.zeros(count, bool)
     bad[np.unique(tri.convex_hull)] = True
     with np.errstate(invalid="ignore"):
         cx, cy = g.ax + g.ux, g.ay + g.uy
         radius = np.sqrt(g.ux * g.ux + g.uy * g.uy)
-        inside = ((cx - radius >= known[0]) & (cx + radius <= known[2])
-                  & (cy - radius >= known[1]) & (cy + radius <= known[3]))
+        inside = (
+            (cx - radius >= known[0])
+            & (cx + radius <= known[2])
+            & (cy - radius >= known[1])
+            & (cy + radius <= known[3])
+        )
     bad[s[~(inside & np.isfinite(g.area_a + g.area_b + g.area_c))].ravel()] = True
     # Coincident points: the vertex Qhull kept and the points it dropped share the cell.
     if len(tri.coplanar):
@@ -300,10 +315,10 @@ class ImageVoronoiStats:
     blocks: int = 0
     qhull_calls: int = 0
     traced_nuclei: int = 0
-    guard_nuclei: int = 0         # untraced nuclei handed to Qhull
-    widened_blocks: int = 0       # blocks redone with a doubled guard (fallback)
-    uncertified_nuclei: int = 0   # cells still not provably exact after the last widening
-    empty_pixels: int = 0         # pixels with N = 0
+    guard_nuclei: int = 0  # untraced nuclei handed to Qhull
+    widened_blocks: int = 0  # blocks redone with a doubled guard (fallback)
+    uncertified_nuclei: int = 0  # cells still not provably exact after the last widening
+    empty_pixels: int = 0  # pixels with N = 0
 
     def add(self, other: ImageVoronoiStats) -> None:
         for name in self.__dataclass_fields__:
@@ -312,11 +327,11 @@ class ImageVoronoiStats:
 
 @dataclass
 class BlockResult:
-    sums: np.ndarray          # (P,) or (P, C): sum f v per block pixel
-    area_sums: np.ndarray     # (P,): sum v per block pixel
-    counts: np.ndarray        # (P,): nuclei per block pixel
-    ids: np.ndarray           # traced nuclei ids
-    areas: np.ndarray         # their cell areas
+    sums: np.ndarray  # (P,) or (P, C): sum f v per block pixel
+    area_sums: np.ndarray  # (P,): sum v per block pixel
+    counts: np.ndarray  # (P,): nuclei per block pixel
+    ids: np.ndarray  # traced nuclei ids
+    areas: np.ndarray  # their cell areas
     stats: ImageVoronoiStats = field(default_factory=ImageVoronoiStats)
 
 
@@ -324,8 +339,9 @@ class BlockResult:
 PointSource = Callable[[np.ndarray, np.ndarray], PixelPoints]
 
 
-def estimate_block(source: PointSource, rect: PixelRect, delta: float,
-                   extent: tuple[float, ...] | None = None) -> BlockResult:
+def estimate_block(
+    source: PointSource, rect: PixelRect, delta: float, extent: tuple[float, ...] | None = None
+) -> BlockResult:
     """One block: tessellate rect's nuclei with the guard nuclei within delta of rect, and
     widen the guard (doubling delta, up to MAX_GUARD) while a cell is not certified."""
     stats = ImageVoronoiStats(blocks=1)
@@ -344,23 +360,36 @@ def estimate_block(source: PointSource, rect: PixelRect, delta: float,
     stats.guard_nuclei = guard_count
     stats.uncertified_nuclei = int((~cells.certified).sum())
     stats.empty_pixels = int((traced.counts == 0).sum())
-    return BlockResult(_bincount_columns(owner, weighted, rect.count),
-                       np.bincount(owner, areas, rect.count), traced.counts, traced.ids, areas,
-                       stats)
+    return BlockResult(
+        _bincount_columns(owner, weighted, rect.count),
+        np.bincount(owner, areas, rect.count),
+        traced.counts,
+        traced.ids,
+        areas,
+        stats,
+    )
 
 
-def _block_cells(source: PointSource, rect: PixelRect, delta: float, traced: PixelPoints,
-                 extent: tuple[float, ...] | None) -> tuple[RegionCells, int]:
+def _block_cells(
+    source: PointSource,
+    rect: PixelRect,
+    delta: float,
+    traced: PixelPoints,
+    extent: tuple[float, ...] | None,
+) -> tuple[RegionCells, int]:
     known = (rect.x0 - delta, rect.y0 - delta, rect.x1 + delta, rect.y1 + delta)
-    if extent is not None:   # a finite realisation holds no nuclei beyond its extent
-        known = (max(known[0], extent[0]), max(known[1], extent[1]),
-                 min(known[2], extent[2]), min(known[3], extent[3]))
+    if extent is not None:  # a finite realisation holds no nuclei beyond its extent
+        known = (
+            max(known[0], extent[0]),
+            max(known[1], extent[1]),
+            min(known[2], extent[2]),
+            min(known[3], extent[3]),
+        )
     xs, ys = rect.grown(math.ceil(delta)).coords()
     ring = ~rect.contains(xs, ys)
     guard = source(xs[ring], ys[ring])
     p = guard.positions
-    near = ((p[:, 0] > known[0]) & (p[:, 0] < known[2]) & (p[:, 1] > known[1])
-            & (p[:, 1] < known[3]))
+    near = (p[:, 0] > known[0]) & (p[:, 0] < known[2]) & (p[:, 1] > known[1]) & (p[:, 1] < known[3])
     points = np.concatenate([traced.positions, p[near]])
     ids = np.concatenate([traced.ids, guard.ids[near]])
     return region_cells(points, len(traced.positions), known, ids), int(near.sum())
@@ -369,8 +398,9 @@ def _block_cells(source: PointSource, rect: PixelRect, delta: float, traced: Pix
 def _bincount_columns(owner: np.ndarray, weights: np.ndarray, count: int) -> np.ndarray:
     if weights.ndim == 1:
         return np.bincount(owner, weights, count)
-    return np.column_stack([np.bincount(owner, weights[:, c], count)
-                            for c in range(weights.shape[1])])
+    return np.column_stack(
+        [np.bincount(owner, weights[:, c], count) for c in range(weights.shape[1])]
+    )
 
 
 def run_blocks(width: int, start: int, stop: int, n: float) -> list[PixelRect]:
@@ -379,7 +409,7 @@ def run_blocks(width: int, start: int, stop: int, n: float) -> list[PixelRect]:
     blocks of about BLOCK_POINTS nuclei."""
     rows = []
     y_first, x_first = divmod(start, width)
-    y_last, x_last = divmod(stop, width)       # stop is exclusive
+    y_last, x_last = divmod(stop, width)  # stop is exclusive
     if y_first == y_last:
         rows.append(PixelRect(x_first, y_first, x_last, y_first + 1))
     else:
@@ -394,8 +424,11 @@ def run_blocks(width: int, start: int, stop: int, n: float) -> list[PixelRect]:
 def _cut(rect: PixelRect, side: int, pixels: int) -> list[PixelRect]:
     bh = min(rect.height, side)
     bw = min(rect.width, max(1, pixels // bh))
-    return [PixelRect(x, y, min(x + bw, rect.x1), min(y + bh, rect.y1))
-            for y in range(rect.y0, rect.y1, bh) for x in range(rect.x0, rect.x1, bw)]
+    return [
+        PixelRect(x, y, min(x + bw, rect.x1), min(y + bh, rect.y1))
+        for y in range(rect.y0, rect.y1, bh)
+        for x in range(rect.x0, rect.x1, bw)
+    ]
 
 
 @dataclass
@@ -403,13 +436,20 @@ class RunEstimate:
     """Estimates of a scanline run of pixels, in run order: name -> (P,) or (P, C)."""
 
     estimates: dict[str, np.ndarray]
-    ids: np.ndarray      # traced nuclei ids, block by block
-    areas: np.ndarray    # their cell areas
+    ids: np.ndarray  # traced nuclei ids, block by block
+    areas: np.ndarray  # their cell areas
     stats: ImageVoronoiStats
 
 
-def estimate_run(source: PointSource, width: int, start: int, stop: int, n: float,
-                 delta: float, extent: tuple[float, ...] | None = None) -> RunEstimate:
+def estimate_run(
+    source: PointSource,
+    width: int,
+    start: int,
+    stop: int,
+    n: float,
+    delta: float,
+    extent: tuple[float, ...] | None = None,
+) -> RunEstimate:
     """ivor and ivor_sn of the image pixels start .. stop - 1 (scanline order)."""
     stats = ImageVoronoiStats()
     blocks = run_blocks(width, start, stop, n)
@@ -422,17 +462,21 @@ def estimate_run(source: PointSource, width: int, start: int, stop: int, n: floa
         stats.add(r.stats)
     normaliser = np.where(area_sums > 0, area_sums, 1.0)
     ratio = sums / (normaliser if sums.ndim == 1 else normaliser[:, None])
-    return RunEstimate({"ivor": sums, "ivor_sn": ratio},
-                       np.concatenate([r.ids for r in results]),
-                       np.concatenate([r.areas for r in results]), stats)
+    return RunEstimate(
+        {"ivor": sums, "ivor_sn": ratio},
+        np.concatenate([r.ids for r in results]),
+        np.concatenate([r.areas for r in results]),
+        stats,
+    )
 
 
 # ---------------------------------------------------------------------------------------------
 # Plain NumPy entry point (analytic tests and benchmarks)
 
 
-def draw_plane_poisson(rng: np.random.Generator, n: float,
-                       extent: tuple[float, float, float, float]) -> np.ndarray:
+def draw_plane_poisson(
+    rng: np.random.Generator, n: float, extent: tuple[float, float, float, float]
+) -> np.ndarray:
     """A Poisson process of intensity n on the rectangle extent = (x0, y0, x1, y1)."""
     x0, y0, x1, y1 = extent
     count = rng.poisson(n * (x1 - x0) * (y1 - y0))
@@ -449,9 +493,17 @@ class ImageEstimate:
     stats: ImageVoronoiStats
 
 
-def estimate_image(positions: np.ndarray, values: np.ndarray, width: int, height: int,
-                   n: float, frame: float, delta: float | None = None,
-                   start: int = 0, stop: int | None = None) -> ImageEstimate:
+def estimate_image(
+    positions: np.ndarray,
+    values: np.ndarray,
+    width: int,
+    height: int,
+    n: float,
+    frame: float,
+    delta: float | None = None,
+    start: int = 0,
+    stop: int | None = None,
+) -> ImageEstimate:
     """ivor and ivor_sn of every image pixel from one realisation of the process.
 
     positions: (M, 2) image coordinates of a Poisson(n) realisation on the image grown by
@@ -466,8 +518,9 @@ def estimate_image(positions: np.ndarray, values: np.ndarray, width: int, height
     stop = width * height if stop is None else stop
     delta = guard_distance(n) if delta is None else delta
     ring = math.ceil(frame)
-    grid = grid_from_points(PixelRect(0, 0, width, height).grown(ring), positions, values,
-                            np.arange(len(positions)))
+    grid = grid_from_points(
+        PixelRect(0, 0, width, height).grown(ring), positions, values, np.arange(len(positions))
+    )
     extent = (-frame, -frame, width + frame, height + frame)
     run = estimate_run(grid.take, width, start, stop, n, delta, extent)
     areas = np.full(len(positions), np.nan)
@@ -484,9 +537,19 @@ def estimate_image(positions: np.ndarray, values: np.ndarray, width: int, height
 # Renderer adapter: a tile of traced samples, guard nuclei regenerated on the device
 
 
-def tile_point_source(runtime, config, seed: int, width: int, height: int,
-                      pixels: np.ndarray, traced: np.ndarray, offsets: np.ndarray,
-                      values: np.ndarray, ring: int, border: str = DEFAULT_BORDER) -> PointSource:
+def tile_point_source(
+    runtime,
+    config,
+    seed: int,
+    width: int,
+    height: int,
+    pixels: np.ndarray,
+    traced: np.ndarray,
+    offsets: np.ndarray,
+    values: np.ndarray,
+    ring: int,
+    border: str = DEFAULT_BORDER,
+) -> PointSource:
     """A PointSource for a render tile: the tile's traced samples (pixel-local positions,
     offsets per tile pixel, values) plus the nuclei of every plane pixel within `ring` pixels
     of it, drawn with generate_sample_sets under the border's keys (positions only, no
@@ -501,8 +564,9 @@ def tile_point_source(runtime, config, seed: int, width: int, height: int,
         counts = sets.counts().astype(np.int64)
         shift = np.repeat(np.column_stack([xs, ys]) + 0.5, counts, axis=0)
         zeros = np.zeros((len(sets.traced),) + values.shape[1:])
-        return PixelPoints(sets.traced.astype(np.float64) + shift, counts,
-                           point_ids(xs, ys, counts), zeros)
+        return PixelPoints(
+            sets.traced.astype(np.float64) + shift, counts, point_ids(xs, ys, counts), zeros
+        )
 
     grid = _tile_grid(pixels, traced, offsets, values, width, ring, generate)
 
@@ -517,8 +581,7 @@ def tile_point_source(runtime, config, seed: int, width: int, height: int,
 def _tile_grid(pixels, traced, offsets, values, width, ring, generate) -> PointGrid:
     """The tile's rows grown by `ring`: traced samples of the tile, generated guard nuclei."""
     ty, tx = np.divmod(np.asarray(pixels, np.int64), width)
-    rect = PixelRect(int(tx.min()), int(ty.min()), int(tx.max()) + 1,
-                     int(ty.max()) + 1).grown(ring)
+    rect = PixelRect(int(tx.min()), int(ty.min()), int(tx.max()) + 1, int(ty.max()) + 1).grown(ring)
     xs, ys = rect.coords()
     in_tile = np.zeros(rect.count, bool)
     in_tile[(ty - rect.y0) * rect.width + tx - rect.x0] = True
@@ -526,34 +589,65 @@ def _tile_grid(pixels, traced, offsets, values, width, ring, generate) -> PointG
     counts = np.diff(offsets).astype(np.int64)
     own = traced.astype(np.float64) + np.repeat(np.column_stack([tx, ty]) + 0.5, counts, axis=0)
     positions = np.concatenate([own, guard.positions])
-    cell = np.concatenate([np.repeat((ty - rect.y0) * rect.width + tx - rect.x0, counts),
-                           np.repeat(np.flatnonzero(~in_tile), guard.counts)])
+    cell = np.concatenate(
+        [
+            np.repeat((ty - rect.y0) * rect.width + tx - rect.x0, counts),
+            np.repeat(np.flatnonzero(~in_tile), guard.counts),
+        ]
+    )
     order = np.argsort(cell, kind="stable")
     all_counts = np.zeros(rect.count, np.int64)
     all_counts[in_tile] = counts[np.argsort((ty - rect.y0) * rect.width + tx - rect.x0)]
     all_counts[~in_tile] = guard.counts
     ids = np.concatenate([point_ids(tx, ty, counts), guard.ids])
     vals = np.concatenate([np.asarray(values, np.float64), guard.values])
-    return PointGrid(rect, positions[order], np.concatenate([[0], np.cumsum(all_counts)]),
-                     ids[order], vals[order])
+    return PointGrid(
+        rect,
+        positions[order],
+        np.concatenate([[0], np.cumsum(all_counts)]),
+        ids[order],
+        vals[order],
+    )
 
 
-def estimate_tile_image(runtime, config, seed: int, width: int, height: int,
-                        pixels: np.ndarray, traced: np.ndarray, offsets: np.ndarray,
-                        values: np.ndarray, border: str = DEFAULT_BORDER,
-                        delta: float | None = None) -> RunEstimate:
+def estimate_tile_image(
+    runtime,
+    config,
+    seed: int,
+    width: int,
+    height: int,
+    pixels: np.ndarray,
+    traced: np.ndarray,
+    offsets: np.ndarray,
+    values: np.ndarray,
+    border: str = DEFAULT_BORDER,
+    delta: float | None = None,
+) -> RunEstimate:
     """ivor and ivor_sn of a render tile (a scanline run of global pixel indices, each drawn
     with redraw number 0 by an SPPP sampler config); traced/offsets/values as in
     HostSampleSets and the tile's radiance. Returns estimates in tile order."""
     pixels = np.asarray(pixels, np.int64)
     if config.name != "sppp":
-        raise ParameterError("image-level Voronoi estimators need Poisson counts: use the "
-                             f"sppp sampler, got {config.name!r}")
+        raise ParameterError(
+            "image-level Voronoi estimators need Poisson counts: use the "
+            f"sppp sampler, got {config.name!r}"
+        )
     start = int(pixels[0]) if len(pixels) else 0
     if len(pixels) and not np.array_equal(pixels, np.arange(start, start + len(pixels))):
         raise ParameterError("image-level Voronoi estimation needs a scanline run of pixels")
     check_border(border)
     delta = guard_distance(config.n, config.alpha) if delta is None else float(delta)
-    source = tile_point_source(runtime, config, seed, width, height, pixels, traced, offsets,
-                               values, math.ceil(delta), border)
+    source = tile_point_source(
+        runtime,
+        config,
+        seed,
+        width,
+        height,
+        pixels,
+        traced,
+        offsets,
+        values,
+        math.ceil(delta),
+        border,
+    )
     return estimate_run(source, width, start, start + len(pixels), config.n, delta)

@@ -30,9 +30,16 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 SRGB_BLOCK = 1 << 18  # values per block of the sRGB encoding (2 MB float64 temporaries)
 # Attributes every scanline EXR carries; read_exr leaves them out of the metadata it returns.
 STANDARD_EXR_ATTRIBUTES = {
-    "channels", "compression", "dataWindow", "displayWindow", "lineOrder",
-    "pixelAspectRatio", "screenWindowCenter", "screenWindowWidth", "type",
-}  # fmt: skip
+    "channels",
+    "compression",
+    "dataWindow",
+    "displayWindow",
+    "lineOrder",
+    "pixelAspectRatio",
+    "screenWindowCenter",
+    "screenWindowWidth",
+    "type",
+}
 
 
 class OutputPathError(ClrenderError):
@@ -186,13 +193,15 @@ def encode_png(rgb8: np.ndarray) -> bytes:
     header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
     rows = np.zeros((height, 1 + 3 * width), np.uint8)  # leading 0 = filter type None
     rows[:, 1:] = np.ascontiguousarray(rgb8, np.uint8).reshape(height, 3 * width)
-    return b"".join([
-        PNG_SIGNATURE,
-        png_chunk(b"IHDR", header),
-        png_chunk(b"sRGB", b"\x00"),  # rendering intent: perceptual
-        png_chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)),
-        png_chunk(b"IEND", b""),
-    ])  # fmt: skip
+    return b"".join(
+        [
+            PNG_SIGNATURE,
+            png_chunk(b"IHDR", header),
+            png_chunk(b"sRGB", b"\x00"),  # rendering intent: perceptual
+            png_chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)),
+            png_chunk(b"IEND", b""),
+        ]
+    )
 
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:

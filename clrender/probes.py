@@ -60,8 +60,7 @@ class ProbePixel:
 def camera_frame(scene: Scene, width: int, height: int) -> tuple[np.ndarray, ...]:
     """(origin, forward, right, up) in float64, right/up scaled as in Camera.basis."""
     basis = scene.camera.basis(width, height)
-    return tuple(np.asarray(basis[key], np.float64) for key in ("origin", "forward", "right",
-                                                                 "up"))
+    return tuple(np.asarray(basis[key], np.float64) for key in ("origin", "forward", "right", "up"))
 
 
 def project(scene: Scene, width: int, height: int, points: np.ndarray) -> np.ndarray:
@@ -75,8 +74,9 @@ def project(scene: Scene, width: int, height: int, points: np.ndarray) -> np.nda
     return np.stack([(sx + 1.0) * width / 2.0, (1.0 - sy) * height / 2.0], axis=-1)
 
 
-def camera_rays(scene: Scene, width: int, height: int, image_pos: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def camera_rays(
+    scene: Scene, width: int, height: int, image_pos: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(origins, unit directions) of the camera rays through image positions (..., 2)."""
     origin, forward, right, up = camera_frame(scene, width, height)
     sx = 2.0 * image_pos[..., 0] / width - 1.0
@@ -162,13 +162,18 @@ def sees_points(scene: Scene, points: np.ndarray, targets: np.ndarray) -> np.nda
 # Pixel finders
 
 
-def clip_to_box(polygon: np.ndarray, low: tuple[float, float], high: tuple[float, float]
-                ) -> np.ndarray:  # fmt: skip
+def clip_to_box(
+    polygon: np.ndarray, low: tuple[float, float], high: tuple[float, float]
+) -> np.ndarray:
     """The part of a convex polygon (V, 2) inside the box [low, high] (Sutherland-Hodgman on
     the box's four edges); (0, 2) if nothing is left."""
     poly = np.asarray(polygon, np.float64)
-    for axis, bound, keep_below in ((0, low[0], False), (0, high[0], True),
-                                    (1, low[1], False), (1, high[1], True)):  # fmt: skip
+    for axis, bound, keep_below in (
+        (0, low[0], False),
+        (0, high[0], True),
+        (1, low[1], False),
+        (1, high[1], True),
+    ):
         if len(poly) == 0:
             break
         inside = poly[:, axis] <= bound if keep_below else poly[:, axis] >= bound
@@ -204,8 +209,13 @@ def light_edge_pixel(scene: Scene, width: int, height: int, emitter: int = 0) ->
     coverage = np.array([polygon_pixel_coverage(polygon, x, y) for x, y in candidates])
     best = int(np.argmin(np.abs(coverage - 0.5)))
     x, y = (int(v) for v in candidates[best])
-    return ProbePixel(x, y, width, "light edge", {"light_coverage": float(coverage[best]),
-                                                  "light_polygon": polygon.tolist()})
+    return ProbePixel(
+        x,
+        y,
+        width,
+        "light edge",
+        {"light_coverage": float(coverage[best]), "light_polygon": polygon.tolist()},
+    )
 
 
 def _outline_pixels(polygon: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -214,15 +224,17 @@ def _outline_pixels(polygon: np.ndarray, width: int, height: int) -> np.ndarray:
     s = np.linspace(0.02, 0.98, 200)[:, None, None]
     points = (polygon + s * (ends - polygon)).reshape(-1, 2)
     pixels = np.unique(np.floor(points).astype(int), axis=0)
-    inside = (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (
-        pixels[:, 1] < height)
+    inside = (
+        (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
+    )
     if not inside.any():
         raise ParameterError("the light's outline is outside the image")
     return pixels[inside]
 
 
-def diffuse_wall_pixel(scene: Scene, width: int, height: int, wall: str = "back wall"
-                       ) -> ProbePixel:  # fmt: skip
+def diffuse_wall_pixel(
+    scene: Scene, width: int, height: int, wall: str = "back wall"
+) -> ProbePixel:
     """The pixel deepest inside the part of a wall that is seen directly and fully lit (every
     probe ray hits the wall, and each hit sees the light's corners and centre): farthest from
     any other pixel, ties broken towards the image centre."""
@@ -242,8 +254,9 @@ def _deepest(mask: np.ndarray, width: int, height: int, what: str) -> ProbePixel
     centre = np.hypot(xs + 0.5 - width / 2, ys + 0.5 - height / 2)
     score = np.where(mask, depth - 1e-3 * centre, -np.inf)
     y, x = np.unravel_index(int(np.argmax(score)), score.shape)
-    return ProbePixel(int(x), int(y), width, what, {"distance_to_region_edge_px":
-                                                    float(depth[y, x])})
+    return ProbePixel(
+        int(x), int(y), width, what, {"distance_to_region_edge_px": float(depth[y, x])}
+    )
 
 
 def sphere_pixel(scene: Scene, width: int, height: int, sphere: int = 0) -> ProbePixel:
@@ -261,8 +274,9 @@ def glossy_pixels(scene: Scene, width: int, height: int) -> np.ndarray:
     """(H, W) mask of pixels whose probe rays all hit one rough-conductor shape."""
     shape, _ = pixel_hits(scene, width, height)
     materials = shape_materials(scene)[np.maximum(shape, 0)]
-    glossy = np.isin(materials, np.flatnonzero(scene.materials["type"]
-                                               == MATERIAL_TYPES["roughconductor"]))
+    glossy = np.isin(
+        materials, np.flatnonzero(scene.materials["type"] == MATERIAL_TYPES["roughconductor"])
+    )
     same = (shape == shape[..., :1]).all(axis=-1)
     return glossy.all(axis=-1) & same & (shape[..., 0] != NO_HIT)
 
@@ -279,8 +293,9 @@ def glossy_highlight_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
     if not np.isfinite(score).any():
         raise ParameterError("the scene has no glossy surface in view")
     y, x = np.unravel_index(int(np.argmax(score)), score.shape)
-    return ProbePixel(int(x), int(y), width, "glossy highlight",
-                      {"short_render_radiance": float(score[y, x])})
+    return ProbePixel(
+        int(x), int(y), width, "glossy highlight", {"short_render_radiance": float(score[y, x])}
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -301,9 +316,17 @@ class PixelRuns:
         return len(self.sets.offsets) - 1
 
 
-def trace_pixel_runs(runtime: Runtime, tracer: PathTracer, sampler: SamplerConfig, seed: int,
-                     pixel: int, runs: int, width: int, height: int,
-                     first_redraw: int = 0) -> PixelRuns:  # fmt: skip
+def trace_pixel_runs(
+    runtime: Runtime,
+    tracer: PathTracer,
+    sampler: SamplerConfig,
+    seed: int,
+    pixel: int,
+    runs: int,
+    width: int,
+    height: int,
+    first_redraw: int = 0,
+) -> PixelRuns:
     """Draw and trace `runs` independent sample sets of one pixel in one launch (run r uses
     redraw number first_redraw + r)."""
     pixels = np.full(runs, pixel, np.uint32)

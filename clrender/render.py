@@ -104,14 +104,19 @@ class RenderSettings:
 
     def __post_init__(self) -> None:
         if self.voronoi_backend not in VORONOI_BACKENDS:
-            raise ParameterError(f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "
-                                 f"{', '.join(VORONOI_BACKENDS)}")  # fmt: skip
+            raise ParameterError(
+                f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "
+                f"{', '.join(VORONOI_BACKENDS)}"
+            )
 
     @property
     def device_cells(self) -> bool:
         """Whether the tiles' SPPP cells come from the device kernel (vor, vor_sn, fvor)."""
-        return (self.voronoi_backend == "device" and self.estimator in ESTIMATORS
-                and estimator_info(self.estimator).cells == "sppp")  # fmt: skip
+        return (
+            self.voronoi_backend == "device"
+            and self.estimator in ESTIMATORS
+            and estimator_info(self.estimator).cells == "sppp"
+        )
 
     @property
     def pixel_count(self) -> int:
@@ -185,8 +190,7 @@ def needs_sppp(estimator: str) -> bool:
 def check_compatible(estimator: str, sampler: str) -> None:
     """A one-line error if the estimator needs what only the sppp sampler draws."""
     if needs_sppp(estimator) and sampler != "sppp":
-        what = ("Poisson sample counts" if estimator in IMAGE_ESTIMATORS
-                else "auxiliary nuclei")  # fmt: skip
+        what = "Poisson sample counts" if estimator in IMAGE_ESTIMATORS else "auxiliary nuclei"
         anywhere = ", ".join(name for name in ESTIMATOR_NAMES if not needs_sppp(name))
         raise ParameterError(
             f"estimator {estimator!r} needs the {what} of the sppp sampler, and the "
@@ -244,12 +248,14 @@ def trace_tile(
             values = pending.to_host().values.astype(np.float64)
             values[~np.isfinite(values).all(axis=1)] = 0.0  # as in the sums kernel
             sums = settle_undecided(sums, device_sets.to_host(runtime.queue), values, box)
-        return TileSamples(pixels, redraws, None, None, radiance.ray_count,
-                           radiance.device_nonfinite, sums=sums)  # fmt: skip
+        return TileSamples(
+            pixels, redraws, None, None, radiance.ray_count, radiance.device_nonfinite, sums=sums
+        )
     sets = device_sets.to_host(runtime.queue)
     radiance = pending.to_host()
-    return TileSamples(pixels, redraws, sets, radiance.values, radiance.ray_count,
-                       radiance.device_nonfinite)  # fmt: skip
+    return TileSamples(
+        pixels, redraws, sets, radiance.values, radiance.ray_count, radiance.device_nonfinite
+    )
 
 
 def estimate_tile(
@@ -285,8 +291,14 @@ def sums_estimate(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
     device = tile.sums
     estimates = sppp_estimates(settings.estimator, device.sums, device.counts)
     estimates = np.where(device.redraw[:, None], np.nan, estimates)
-    return TileEstimate(tile.pixels, tile.redraws, estimates, device.nonfinite > 0,
-                        device.redraw, int(device.nonfinite.sum()) + tile.source_nonfinite)
+    return TileEstimate(
+        tile.pixels,
+        tile.redraws,
+        estimates,
+        device.nonfinite > 0,
+        device.redraw,
+        int(device.nonfinite.sum()) + tile.source_nonfinite,
+    )
 
 
 def pixel_estimates(
@@ -311,9 +323,16 @@ def image_estimates(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(estimates, no redraws) of an image-level estimator (clrender.image_voronoi)."""
     run = image_voronoi.estimate_tile_image(
-        host_runtime, settings.sampler, settings.seed, settings.width, settings.height,
-        tile.pixels, tile.sets.traced, tile.sets.offsets, values,
-    )  # fmt: skip
+        host_runtime,
+        settings.sampler,
+        settings.seed,
+        settings.width,
+        settings.height,
+        tile.pixels,
+        tile.sets.traced,
+        tile.sets.offsets,
+        values,
+    )
     return run.estimates[settings.estimator], np.zeros(len(tile.pixels), bool)
 
 
@@ -347,8 +366,9 @@ class TilePipeline:
         # Tiles use the device cells if configured; redraws go through Qhull in the driver.
         device_cells = sampler is None and self.settings.device_cells
         sampler = sampler or self.settings.sampler
-        tile = trace_tile(self.runtime, self.source, sampler, self.settings.seed, pixels, redraws,
-                          device_cells)  # fmt: skip
+        tile = trace_tile(
+            self.runtime, self.source, sampler, self.settings.seed, pixels, redraws, device_cells
+        )
         self.stats.device_seconds += time.perf_counter() - start
         self.stats.traced_samples += tile.traced_count
         self.stats.rays += tile.rays
@@ -386,10 +406,17 @@ class TilePipeline:
         draws = PixelRedraws(self, pixels, redraws)
         sampler = self.settings.sampler
         outcome = estimate_with_redraw(
-            self.settings.estimator, draws.draw, draws.values, len(pixels), sampler.n,
-            eps=sampler.eps, alpha=sampler.alpha, redraws_before_enlarge=REDRAWS_BEFORE_ENLARGE,
-            max_rounds=MAX_REDRAW_ROUNDS, on_exhausted="mc",
-        )  # fmt: skip
+            self.settings.estimator,
+            draws.draw,
+            draws.values,
+            len(pixels),
+            sampler.n,
+            eps=sampler.eps,
+            alpha=sampler.alpha,
+            redraws_before_enlarge=REDRAWS_BEFORE_ENLARGE,
+            max_rounds=MAX_REDRAW_ROUNDS,
+            on_exhausted="mc",
+        )
         estimates = outcome.estimates[self.settings.estimator].reshape(len(pixels), 3)
         self.film.record(pixels, estimates, np.zeros(len(pixels), bool))
         self.stats.redrawn_pixels += outcome.stats.redraws + len(pixels)

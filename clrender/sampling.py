@@ -97,9 +97,9 @@ class DeviceSampleSets:
     redraws: np.ndarray  # (P,) uint32 redraw numbers
     traced_offsets: np.ndarray  # (P + 1,) int64 host copy
     positions: cl.Buffer
-    offsets_buffer: cl.Buffer   # traced_offsets as uint32, on the device
-    pixels_buffer: cl.Buffer    # pixels as uint32, on the device
-    redraws_buffer: cl.Buffer   # redraws as uint32, on the device
+    offsets_buffer: cl.Buffer  # traced_offsets as uint32, on the device
+    pixels_buffer: cl.Buffer  # pixels as uint32, on the device
+    redraws_buffer: cl.Buffer  # redraws as uint32, on the device
 
     @property
     def pixel_count(self) -> int:
@@ -158,28 +158,66 @@ def generate_sample_sets(
     offsets_buf = runtime.upload(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
     positions = runtime.allocate(8 * total)
-    _launch_fill(runtime, config, seed, pixels_buf, redraws_buf, offsets_buf, positions,
-                 len(pixels), int(offsets[-1]))  # fmt: skip
-    return DeviceSampleSets(config, pixels, redraws, offsets, positions, offsets_buf,
-                            pixels_buf, redraws_buf)  # fmt: skip
+    _launch_fill(
+        runtime,
+        config,
+        seed,
+        pixels_buf,
+        redraws_buf,
+        offsets_buf,
+        positions,
+        len(pixels),
+        int(offsets[-1]),
+    )
+    return DeviceSampleSets(
+        config, pixels, redraws, offsets, positions, offsets_buf, pixels_buf, redraws_buf
+    )
 
 
-def _launch_fill(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,
-                 redraws_buf: cl.Buffer, offsets_buf: cl.Buffer, positions: cl.Buffer,
-                 pixel_count: int, traced_total: int) -> None:  # fmt: skip
+def _launch_fill(
+    runtime: Runtime,
+    config: SamplerConfig,
+    seed: int,
+    pixels_buf: cl.Buffer,
+    redraws_buf: cl.Buffer,
+    offsets_buf: cl.Buffer,
+    positions: cl.Buffer,
+    pixel_count: int,
+    traced_total: int,
+) -> None:
     queue, local = runtime.queue, (runtime.local_size,)
     if traced_total:
         fill = runtime.kernel("sampling.cl", "fill_traced")
-        fill(queue, (padded_global_size(traced_total),), local, np.uint32(pixel_count),
-             np.uint32(seed), np.int32(SAMPLERS[config.name]),
-             np.uint32(config.n), np.uint32(config.strata), np.uint32(traced_total),
-             pixels_buf, redraws_buf, offsets_buf, positions)  # fmt: skip
+        fill(
+            queue,
+            (padded_global_size(traced_total),),
+            local,
+            np.uint32(pixel_count),
+            np.uint32(seed),
+            np.int32(SAMPLERS[config.name]),
+            np.uint32(config.n),
+            np.uint32(config.strata),
+            np.uint32(traced_total),
+            pixels_buf,
+            redraws_buf,
+            offsets_buf,
+            positions,
+        )
     if config.n_aux and pixel_count:
         fill = runtime.kernel("sampling.cl", "fill_auxiliary")
-        fill(queue, (padded_global_size(config.n_aux * pixel_count),), local,
-             np.uint32(pixel_count), np.uint32(seed), np.float32(config.eps),
-             np.uint32(config.n_aux), np.uint32(traced_total), pixels_buf, redraws_buf,
-             positions)  # fmt: skip
+        fill(
+            queue,
+            (padded_global_size(config.n_aux * pixel_count),),
+            local,
+            np.uint32(pixel_count),
+            np.uint32(seed),
+            np.float32(config.eps),
+            np.uint32(config.n_aux),
+            np.uint32(traced_total),
+            pixels_buf,
+            redraws_buf,
+            positions,
+        )
 
 
 def count_samples(
@@ -191,33 +229,51 @@ def count_samples(
 ) -> np.ndarray:
     """Only the first pass: each pixel's number of traced samples (N ~ Poisson(n) for SPPP)."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
-    return _launch_count(runtime, config, seed, runtime.upload(pixels),
-                         runtime.upload(redraws), len(pixels))  # fmt: skip
+    return _launch_count(
+        runtime, config, seed, runtime.upload(pixels), runtime.upload(redraws), len(pixels)
+    )
 
 
-def _launch_count(runtime: Runtime, config: SamplerConfig, seed: int, pixels_buf: cl.Buffer,
-                  redraws_buf: cl.Buffer, pixel_count: int) -> np.ndarray:  # fmt: skip
+def _launch_count(
+    runtime: Runtime,
+    config: SamplerConfig,
+    seed: int,
+    pixels_buf: cl.Buffer,
+    redraws_buf: cl.Buffer,
+    pixel_count: int,
+) -> np.ndarray:
     counts_buf = runtime.allocate(4 * pixel_count)
     count = runtime.kernel("sampling.cl", "count_samples")
-    count(runtime.queue, (padded_global_size(pixel_count),), (runtime.local_size,),
-          np.uint32(pixel_count), np.uint32(seed), np.int32(SAMPLERS[config.name]),
-          np.uint32(config.n), np.float32(config.n), pixels_buf, redraws_buf,
-          counts_buf)  # fmt: skip
+    count(
+        runtime.queue,
+        (padded_global_size(pixel_count),),
+        (runtime.local_size,),
+        np.uint32(pixel_count),
+        np.uint32(seed),
+        np.int32(SAMPLERS[config.name]),
+        np.uint32(config.n),
+        np.float32(config.n),
+        pixels_buf,
+        redraws_buf,
+        counts_buf,
+    )
     counts = np.empty(pixel_count, np.uint32)
     cl.enqueue_copy(runtime.queue, counts, counts_buf)
     return counts
 
 
-def _check_launch(seed: int, pixels: np.ndarray, redraws: np.ndarray | None
-                  ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+def _check_launch(
+    seed: int, pixels: np.ndarray, redraws: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     check_seed(seed)
     pixels = np.ascontiguousarray(pixels, np.uint32)
     if redraws is None:
         return pixels, np.zeros(len(pixels), np.uint32)
     redraws = np.ascontiguousarray(redraws, np.uint32)
     if redraws.shape != pixels.shape:
-        raise ParameterError(f"redraws must match pixels in shape, got {redraws.shape} "
-                             f"and {pixels.shape}")  # fmt: skip
+        raise ParameterError(
+            f"redraws must match pixels in shape, got {redraws.shape} and {pixels.shape}"
+        )
     return pixels, redraws
 
 

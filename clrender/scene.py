@@ -407,8 +407,9 @@ class SceneBuilder:
         top = _Table(self.path, "top level", document)
         for key in ("emitters", "emitter", "lights", "light"):
             if key in document:
-                top.fail(key, "unknown field: an emitter is a [[shapes]] quad with an "
-                              "`emission` field")  # fmt: skip
+                top.fail(
+                    key, "unknown field: an emitter is a [[shapes]] quad with an `emission` field"
+                )
         top.check_keys(TOP_FIELDS)
         description = top.string("description", "") or ""
         camera = self.read_camera(_Table(self.path, "[camera]", top.get("camera", _REQUIRED)))
@@ -437,8 +438,10 @@ class SceneBuilder:
             or len(resolution) != 2
             or not all(isinstance(r, int) and not isinstance(r, bool) and r > 0 for r in resolution)
         ):
-            table.fail("resolution", f"expected [width, height], positive integers, got "
-                                     f"{_describe(resolution)}")  # fmt: skip
+            table.fail(
+                "resolution",
+                f"expected [width, height], positive integers, got {_describe(resolution)}",
+            )
         forward = np.subtract(look_at, look_from)
         if np.linalg.norm(forward) == 0.0:
             table.fail("look_at", "must differ from look_from")
@@ -453,8 +456,10 @@ class SceneBuilder:
         kind = table.string("type", _REQUIRED)
         if kind not in MATERIAL_FIELDS:
             hint = _did_you_mean(kind, tuple(MATERIAL_FIELDS))
-            table.fail("type", f"unknown material type {kind!r}{hint}; accepted: "
-                               f"{', '.join(MATERIAL_FIELDS)}")  # fmt: skip
+            table.fail(
+                "type",
+                f"unknown material type {kind!r}{hint}; accepted: {', '.join(MATERIAL_FIELDS)}",
+            )
         table.check_keys(MATERIAL_FIELDS[kind])
         record = np.zeros((), MATERIAL_DTYPE)
         record["type"] = MATERIAL_TYPES[kind]
@@ -487,13 +492,17 @@ class SceneBuilder:
         kind = table.string("type", _REQUIRED)
         if kind not in SHAPE_FIELDS:
             hint = _did_you_mean(kind, tuple(SHAPE_FIELDS))
-            table.fail("type", f"unknown shape type {kind!r}{hint}; accepted: "
-                               f"{', '.join(SHAPE_FIELDS)}")  # fmt: skip
+            table.fail(
+                "type", f"unknown shape type {kind!r}{hint}; accepted: {', '.join(SHAPE_FIELDS)}"
+            )
         if kind != "quad" and table.has("emission"):
             table.fail("emission", f"a {kind} cannot be an emitter: only quads emit")
         if table.has("emitter"):  # Mitsuba's nested emitter: here a quad field, no types
-            table.fail("emitter", "unknown field: there are no emitter types; a quad emits "
-                                  "with `emission = [r, g, b]`")  # fmt: skip
+            table.fail(
+                "emitter",
+                "unknown field: there are no emitter types; a quad emits "
+                "with `emission = [r, g, b]`",
+            )
         table.check_keys(SHAPE_FIELDS[kind])
         name = table.string("name", None) or f"shapes[{index}]"
         emission = table.rgb("emission", None) if table.has("emission") else None
@@ -513,8 +522,9 @@ class SceneBuilder:
             self.spheres.append({"center": center, "radius": radius, "material": material})
             self.sphere_names.append(name)
             centre = np.array(center)
-            self.solids.append((f"{label} (a sphere)",
-                                lambda p: float(np.linalg.norm(p - centre)) < radius))  # fmt: skip
+            self.solids.append(
+                (f"{label} (a sphere)", lambda p: float(np.linalg.norm(p - centre)) < radius)
+            )
 
     def material_reference(self, table: _Table, required: bool) -> int:
         name = table.string("material", _REQUIRED if required else None)
@@ -523,8 +533,10 @@ class SceneBuilder:
         if name not in self.material_index:
             known = tuple(self.material_index)
             hint = _did_you_mean(name, known)
-            table.fail("material", f"unknown material {name!r}{hint}; defined: "
-                                   f"{', '.join(known) or 'none'}")  # fmt: skip
+            table.fail(
+                "material",
+                f"unknown material {name!r}{hint}; defined: {', '.join(known) or 'none'}",
+            )
         return self.material_index[name]
 
     def read_quad_frame(self, table: _Table) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -549,8 +561,11 @@ class SceneBuilder:
         v0, v1, v2, v3 = points
         scale = max(np.abs(np.array(points)).max(), np.linalg.norm(v1 - v0), 1e-30)
         if np.abs(v1 + v3 - v0 - v2).max() > PARALLELOGRAM_TOLERANCE * scale:
-            table.fail("vertices", "not a parallelogram: v2 must equal v1 + v3 - v0 "
-                                   f"(off by {np.abs(v1 + v3 - v0 - v2).max():g})")  # fmt: skip
+            table.fail(
+                "vertices",
+                "not a parallelogram: v2 must equal v1 + v3 - v0 "
+                f"(off by {np.abs(v1 + v3 - v0 - v2).max():g})",
+            )
         return v0, v1 - v0, v3 - v0
 
     def add_quad(self, table, name, corner, edge1, edge2, material, emission) -> None:
@@ -567,7 +582,7 @@ class SceneBuilder:
                 "edge2": edge2,
                 "material": material,
                 "emission": emission,
-            }  # fmt: skip
+            }
         )
         self.quad_names.append(name)
 
@@ -575,8 +590,11 @@ class SceneBuilder:
         low = np.array(table.vector("min", _REQUIRED))
         high = np.array(table.vector("max", _REQUIRED))
         if np.any(high <= low):
-            table.fail("max", f"expected max > min on every axis (a box of positive size), "
-                              f"got min {list(low)}, max {list(high)}")  # fmt: skip
+            table.fail(
+                "max",
+                f"expected max > min on every axis (a box of positive size), "
+                f"got min {list(low)}, max {list(high)}",
+            )
         angle = math.radians(table.number("rotate_y", 0.0))
         translate = np.array(table.vector("translate", [0.0, 0.0, 0.0]))
         for face, (corner, edge1, edge2) in enumerate(box_faces(low, high)):
@@ -588,7 +606,7 @@ class SceneBuilder:
                     "edge2": rotated[2],
                     "material": material,
                     "emission": None,
-                }  # fmt: skip
+                }
             )
             self.quad_names.append(f"{name}/face{face}")
 
@@ -614,8 +632,9 @@ class SceneBuilder:
         diagonal = float(np.linalg.norm(high.astype(np.float64) - low))
         notes = []
         if len(emitters) == 0:
-            notes.append(f"{self.path}: the scene has no emitter (no quad with emission): "
-                         "it renders black")  # fmt: skip
+            notes.append(
+                f"{self.path}: the scene has no emitter (no quad with emission): it renders black"
+            )
             warnings.warn(notes[-1], SceneWarning, stacklevel=3)
         origin = np.array(camera.look_from)
         for label, inside in self.solids:

@@ -9,13 +9,22 @@ from clrender.runtime import Runtime, padded_global_size
 
 # Random123 tests/kat_vectors, philox4x32 10: counter, key, expected output.
 PHILOX_KAT = (
-    ((0x00000000, 0x00000000, 0x00000000, 0x00000000), (0x00000000, 0x00000000),
-     (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
-    ((0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF), (0xFFFFFFFF, 0xFFFFFFFF),
-     (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
-    ((0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344), (0xA4093822, 0x299F31D0),
-     (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1)),
-)  # fmt: skip
+    (
+        (0x00000000, 0x00000000, 0x00000000, 0x00000000),
+        (0x00000000, 0x00000000),
+        (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8),
+    ),
+    (
+        (0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF, 0xFFFFFFFF),
+        (0xFFFFFFFF, 0xFFFFFFFF),
+        (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD),
+    ),
+    (
+        (0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344),
+        (0xA4093822, 0x299F31D0),
+        (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1),
+    ),
+)
 
 
 def device_philox(runtime: Runtime, counters: np.ndarray, keys: np.ndarray) -> np.ndarray:
@@ -26,8 +35,15 @@ def device_philox(runtime: Runtime, counters: np.ndarray, keys: np.ndarray) -> n
     ctr_buf, key_buf = runtime.upload(counters), runtime.upload(keys)
     out_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=out.nbytes)
     kernel = runtime.kernel("rng_test.cl", "philox_blocks")
-    kernel(runtime.queue, (padded_global_size(len(out)),), (runtime.local_size,),
-           np.uint32(len(out)), ctr_buf, key_buf, out_buf)  # fmt: skip
+    kernel(
+        runtime.queue,
+        (padded_global_size(len(out)),),
+        (runtime.local_size,),
+        np.uint32(len(out)),
+        ctr_buf,
+        key_buf,
+        out_buf,
+    )
     cl.enqueue_copy(runtime.queue, out, out_buf)
     return out
 

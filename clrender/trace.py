@@ -43,7 +43,7 @@ class TraceResult:
     radiance: cl.Buffer
     sample_count: int
     queue: cl.CommandQueue
-    counters: cl.Buffer         # uint32: non-finite count, then rays per work-group
+    counters: cl.Buffer  # uint32: non-finite count, then rays per work-group
     counter_count: int
     event: cl.Event | None
     _counts: np.ndarray | None = field(default=None, repr=False)

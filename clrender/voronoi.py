@@ -37,8 +37,18 @@ from clrender.estimators import (
 )
 from clrender.sppp import DEFAULT_ALPHA, SpppBatch, sppp_eps
 
-__all__ = ["ESTIMATORS", "EstimateResult", "EstimatorInfo", "PixelSamples", "RedrawOutcome",
-           "RedrawStats", "estimate", "estimate_all", "estimate_with_redraw", "estimator_info"]
+__all__ = [
+    "ESTIMATORS",
+    "EstimateResult",
+    "EstimatorInfo",
+    "PixelSamples",
+    "RedrawOutcome",
+    "RedrawStats",
+    "estimate",
+    "estimate_all",
+    "estimate_with_redraw",
+    "estimator_info",
+]
 
 DrawFn = Callable[[np.ndarray, float], SpppBatch]
 ValuesFn = Callable[[SpppBatch, np.ndarray], np.ndarray]
@@ -46,30 +56,39 @@ ValuesFn = Callable[[SpppBatch, np.ndarray], np.ndarray]
 
 @dataclass
 class RedrawStats:
-    rounds: int = 0              # estimation rounds run (1 = no redraw needed)
-    redraws: int = 0             # pixel redraws, summed over rounds
-    eps_enlargements: int = 0    # rounds that ran with an enlarged eps
+    rounds: int = 0  # estimation rounds run (1 = no redraw needed)
+    redraws: int = 0  # pixel redraws, summed over rounds
+    eps_enlargements: int = 0  # rounds that ran with an enlarged eps
     initial_eps: float = 0.0
     final_eps: float = 0.0
-    exhausted_pixels: int = 0    # pixels still rejected after max_rounds (on_exhausted="mc")
-    empty_filtered: int = 0      # fvor pixels that fell back to vor_sn
-    empty_pixels: int = 0        # accepted draws with N = 0
-    recomputed_pixels: int = 0   # pixels whose cells were recomputed alone (geometry check)
+    exhausted_pixels: int = 0  # pixels still rejected after max_rounds (on_exhausted="mc")
+    empty_filtered: int = 0  # fvor pixels that fell back to vor_sn
+    empty_pixels: int = 0  # accepted draws with N = 0
+    recomputed_pixels: int = 0  # pixels whose cells were recomputed alone (geometry check)
     qhull_calls: int = 0
     redraws_per_round: list[int] = field(default_factory=list)
 
 
 @dataclass
 class RedrawOutcome:
-    estimates: dict[str, np.ndarray]   # name -> (P,) or (P, C)
+    estimates: dict[str, np.ndarray]  # name -> (P,) or (P, C)
     stats: RedrawStats
 
 
-def estimate_with_redraw(names: str | Sequence[str], draw_fn: DrawFn, values_fn: ValuesFn,
-                         pixels: int, n: float, *, eps: float | None = None,
-                         alpha: float = DEFAULT_ALPHA, redraws_before_enlarge: int = 3,
-                         enlarge_factor: float = 1.5, max_rounds: int = 12,
-                         on_exhausted: str = "raise") -> RedrawOutcome:
+def estimate_with_redraw(
+    names: str | Sequence[str],
+    draw_fn: DrawFn,
+    values_fn: ValuesFn,
+    pixels: int,
+    n: float,
+    *,
+    eps: float | None = None,
+    alpha: float = DEFAULT_ALPHA,
+    redraws_before_enlarge: int = 3,
+    enlarge_factor: float = 1.5,
+    max_rounds: int = 12,
+    on_exhausted: str = "raise",
+) -> RedrawOutcome:
     """Estimate `pixels` pixels with every estimator in `names`, redrawing rejected pixels.
 
     draw_fn(pixel_ids, eps) returns an SpppBatch for exactly those pixels (in that order) at
@@ -80,8 +99,9 @@ def estimate_with_redraw(names: str | Sequence[str], draw_fn: DrawFn, values_fn:
     names = [names] if isinstance(names, str) else list(names)
     for name in names:
         estimator_info(name)
-    _check_redraw_parameters(pixels, redraws_before_enlarge, enlarge_factor, max_rounds,
-                             on_exhausted)
+    _check_redraw_parameters(
+        pixels, redraws_before_enlarge, enlarge_factor, max_rounds, on_exhausted
+    )
     eps = sppp_eps(n, alpha) if eps is None else float(eps)
     stats = RedrawStats(initial_eps=eps, final_eps=eps)
     estimates: dict[str, np.ndarray] = {}
@@ -107,8 +127,9 @@ def estimate_with_redraw(names: str | Sequence[str], draw_fn: DrawFn, values_fn:
     return RedrawOutcome(estimates, stats)
 
 
-def _check_redraw_parameters(pixels, redraws_before_enlarge, enlarge_factor, max_rounds,
-                             on_exhausted) -> None:
+def _check_redraw_parameters(
+    pixels, redraws_before_enlarge, enlarge_factor, max_rounds, on_exhausted
+) -> None:
     if not (isinstance(pixels, int | np.integer) and pixels >= 0):
         raise ParameterError(f"pixels must be a non-negative integer, got {pixels!r}")
     if redraws_before_enlarge < 0 or max_rounds < 1:
@@ -119,12 +140,14 @@ def _check_redraw_parameters(pixels, redraws_before_enlarge, enlarge_factor, max
         raise ParameterError(f"on_exhausted must be 'raise' or 'mc', got {on_exhausted!r}")
 
 
-def _draw(draw_fn: DrawFn, values_fn: ValuesFn, pixel_ids: np.ndarray, eps: float,
-          n: float) -> PixelSamples:
+def _draw(
+    draw_fn: DrawFn, values_fn: ValuesFn, pixel_ids: np.ndarray, eps: float, n: float
+) -> PixelSamples:
     batch = draw_fn(pixel_ids, eps)
     if batch.pixel_count != len(pixel_ids):
-        raise ParameterError(f"draw_fn returned {batch.pixel_count} pixels for "
-                             f"{len(pixel_ids)} requested")
+        raise ParameterError(
+            f"draw_fn returned {batch.pixel_count} pixels for {len(pixel_ids)} requested"
+        )
     values = np.asarray(values_fn(batch, pixel_ids), dtype=np.float64)
     return PixelSamples.from_sppp(batch, values, n)
 
@@ -137,8 +160,14 @@ def _store(estimates, results, pending, accepted, pixels) -> None:
         estimates[name][pending[accepted]] = result.estimates[accepted]
 
 
-def _count(stats: RedrawStats, results: dict[str, EstimateResult], samples: PixelSamples,
-           rejected: np.ndarray, round_index: int, eps: float) -> None:
+def _count(
+    stats: RedrawStats,
+    results: dict[str, EstimateResult],
+    samples: PixelSamples,
+    rejected: np.ndarray,
+    round_index: int,
+    eps: float,
+) -> None:
     stats.rounds = round_index + 1
     stats.final_eps = eps
     accepted_counts = np.diff(samples.offsets)[~rejected]
@@ -160,7 +189,8 @@ def _exhausted(estimates, samples, pending, names, stats, on_exhausted, max_roun
         raise ClrenderError(
             f"{pending.size} pixel(s) still had an unbounded Voronoi cell after {max_rounds} "
             f"draws (final eps {stats.final_eps:.4g}); check that the sampler draws auxiliary "
-            "nuclei around W, or pass on_exhausted='mc'")
+            "nuclei around W, or pass on_exhausted='mc'"
+        )
     # The last round's samples hold exactly the pending pixels, in order.
     fallback = estimate("mc", samples).estimates
     for name in names:

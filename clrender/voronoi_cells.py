@@ -80,9 +80,9 @@ class TessellationStats:
     """Counters of one cell computation."""
 
     qhull_calls: int = 0
-    recomputed_pixels: int = 0      # pixels redone alone (joint cell not provably exact)
-    degenerate_pixels: int = 0      # pixels Qhull could not triangulate (all cells unbounded)
-    walked_cells: int = 0           # device cells found by the walk (the others by clipping)
+    recomputed_pixels: int = 0  # pixels redone alone (joint cell not provably exact)
+    degenerate_pixels: int = 0  # pixels Qhull could not triangulate (all cells unbounded)
+    walked_cells: int = 0  # device cells found by the walk (the others by clipping)
 
     def add(self, other: TessellationStats) -> None:
         self.qhull_calls += other.qhull_calls
@@ -110,12 +110,12 @@ class CellAreas:
 class _PointSet:
     """Originals and ghosts of a batch, each block sorted by pixel, in pixel-local coordinates."""
 
-    originals: np.ndarray      # (T, 2)
-    ghosts: np.ndarray         # (G, 2)
-    offsets: np.ndarray        # (P + 1,) originals per pixel
+    originals: np.ndarray  # (T, 2)
+    ghosts: np.ndarray  # (G, 2)
+    offsets: np.ndarray  # (P + 1,) originals per pixel
     ghost_offsets: np.ndarray  # (P + 1,) ghosts per pixel
-    half_extent: float         # every point lies in [-half_extent, half_extent]^2
-    disc_box: float | None     # check circumdiscs against [-disc_box, disc_box]^2 (partial ghosts)
+    half_extent: float  # every point lies in [-half_extent, half_extent]^2
+    disc_box: float | None  # check circumdiscs against [-disc_box, disc_box]^2 (partial ghosts)
 
     @property
     def pixel_count(self) -> int:
@@ -123,16 +123,25 @@ class _PointSet:
 
     def pixel_points(self, p: int) -> np.ndarray:
         """Pixel p's originals then its ghosts."""
-        return np.concatenate([self.originals[self.offsets[p]:self.offsets[p + 1]],
-                               self.ghosts[self.ghost_offsets[p]:self.ghost_offsets[p + 1]]])
+        return np.concatenate(
+            [
+                self.originals[self.offsets[p] : self.offsets[p + 1]],
+                self.ghosts[self.ghost_offsets[p] : self.ghost_offsets[p + 1]],
+            ]
+        )
 
 
 # ---------------------------------------------------------------------------------------------
 # Public entry points
 
 
-def sppp_cells(positions: np.ndarray, offsets: np.ndarray, aux: np.ndarray,
-               aux_offsets: np.ndarray, box: float | None = None) -> CellAreas:
+def sppp_cells(
+    positions: np.ndarray,
+    offsets: np.ndarray,
+    aux: np.ndarray,
+    aux_offsets: np.ndarray,
+    box: float | None = None,
+) -> CellAreas:
     """Cells of the W nuclei among W + auxiliary nuclei (the paper's SPPP tessellation).
 
     box: also report which cells lie inside [-box, box]^2 (box = 1/2 + eps is W' for fvor).
@@ -160,13 +169,17 @@ def periodic_cells(positions: np.ndarray, offsets: np.ndarray) -> CellAreas:
     return _ghost_cells(_wrap_torus(positions), offsets, _periodic_ghosts)
 
 
-def qhull_point_arrays(positions: np.ndarray, offsets: np.ndarray, aux: np.ndarray,
-                       aux_offsets: np.ndarray) -> list[np.ndarray]:
+def qhull_point_arrays(
+    positions: np.ndarray, offsets: np.ndarray, aux: np.ndarray, aux_offsets: np.ndarray
+) -> list[np.ndarray]:
     """The point arrays sppp_cells hands to Qhull (for timing bare Delaunay on the same points)."""
     layout = _call_layout(_sppp_point_set(positions, offsets, aux, aux_offsets), False)
     bounds = layout.call_bounds
-    return [layout.call_points(call)[0] for call in range(len(bounds) - 1)
-            if bounds[call + 1] > bounds[call]]
+    return [
+        layout.call_points(call)[0]
+        for call in range(len(bounds) - 1)
+        if bounds[call + 1] > bounds[call]
+    ]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -180,16 +193,23 @@ def _sppp_point_set(positions, offsets, aux, aux_offsets) -> _PointSet:
     for block in (positions, aux):
         if len(block):
             half_extent = max(half_extent, float(block.max()), -float(block.min()))
-    return _PointSet(positions, aux, np.asarray(offsets), np.asarray(aux_offsets), half_extent,
-                     None)
+    return _PointSet(
+        positions, aux, np.asarray(offsets), np.asarray(aux_offsets), half_extent, None
+    )
 
 
 def _subset_sppp(point_set: _PointSet, pixels: np.ndarray) -> _PointSet:
     """The same point set restricted to some pixels (renumbered 0..len(pixels)-1)."""
     orig_idx, orig_offsets = _segments(point_set.offsets, pixels)
     ghost_idx, ghost_offsets = _segments(point_set.ghost_offsets, pixels)
-    return _PointSet(point_set.originals[orig_idx], point_set.ghosts[ghost_idx], orig_offsets,
-                     ghost_offsets, point_set.half_extent, None)
+    return _PointSet(
+        point_set.originals[orig_idx],
+        point_set.ghosts[ghost_idx],
+        orig_offsets,
+        ghost_offsets,
+        point_set.half_extent,
+        None,
+    )
 
 
 def _segments(offsets: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -227,13 +247,18 @@ def _mirror_ghosts(positions: np.ndarray, margin: float) -> tuple[np.ndarray, np
     right, left, top, bottom = _near_edges(positions, margin)
     source, kind = np.nonzero(np.column_stack([right, left, top, bottom]))
     maps = _MIRROR_MAPS[kind]
-    ghosts = np.column_stack([maps[:, 0] * positions[source, 0] + maps[:, 1],
-                              maps[:, 2] * positions[source, 1] + maps[:, 3]])
+    ghosts = np.column_stack(
+        [
+            maps[:, 0] * positions[source, 0] + maps[:, 1],
+            maps[:, 2] * positions[source, 1] + maps[:, 3],
+        ]
+    )
     return ghosts, source
 
 
-_SHIFTS = np.array([(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if (dx, dy) != (0, 0)],
-                   float)
+_SHIFTS = np.array(
+    [(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if (dx, dy) != (0, 0)], float
+)
 
 
 def _periodic_ghosts(positions: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
@@ -262,8 +287,9 @@ def _ghost_point_set(positions, offsets, make_ghosts, margin: float) -> _PointSe
     ghost_offsets = np.searchsorted(source, offsets)
     full = margin >= 1.0
     half_extent = 1.5 if full else 0.5 + margin
-    return _PointSet(positions, ghosts, offsets, ghost_offsets, half_extent,
-                     None if full else 0.5 + margin)
+    return _PointSet(
+        positions, ghosts, offsets, ghost_offsets, half_extent, None if full else 0.5 + margin
+    )
 
 
 def _ghost_cells(positions: np.ndarray, offsets: np.ndarray, make_ghosts) -> CellAreas:
@@ -277,8 +303,10 @@ def _ghost_cells(positions: np.ndarray, offsets: np.ndarray, make_ghosts) -> Cel
         subset = _ghost_point_set(positions[index], sub_offsets, make_ghosts, 1.0)
         redo, redo_stats = _cells(subset, None, one_pixel_per_call=True)
         if not redo.bounded.all():
-            raise ClrenderError("internal error: a clipped/periodic Voronoi cell came out "
-                                "unbounded; please report the sample set")
+            raise ClrenderError(
+                "internal error: a clipped/periodic Voronoi cell came out "
+                "unbounded; please report the sample set"
+            )
         _scatter_pixels(cells, redo, offsets, suspect)
         stats.add(redo_stats)
         stats.recomputed_pixels += suspect.size
@@ -294,8 +322,9 @@ def _suspect_pixels(point_set: _PointSet, exact: np.ndarray) -> np.ndarray:
     return np.unique(np.searchsorted(point_set.offsets, bad, side="right") - 1)
 
 
-def _scatter_pixels(cells: CellAreas, redo: CellAreas, offsets: np.ndarray,
-                    pixels: np.ndarray) -> None:
+def _scatter_pixels(
+    cells: CellAreas, redo: CellAreas, offsets: np.ndarray, pixels: np.ndarray
+) -> None:
     index, _ = _segments(offsets, pixels)
     cells.areas[index] = redo.areas
     cells.bounded[index] = redo.bounded
@@ -313,17 +342,17 @@ class _Layout:
     so that every Qhull call is one contiguous run of whole pixels. Points are complex128
     x + iy, so that one gather moves both coordinates."""
 
-    z: np.ndarray              # (N,) pixel-local positions, laid out
-    counts: np.ndarray         # (P,) points per pixel
-    original_at: np.ndarray    # (T,) laid-out index of every original
-    call_bounds: list[int]     # (C + 1,) laid-out index where each call starts
-    call_pixels: list[int]     # (C + 1,) first pixel of each call
-    slot_width: float          # distance between the slots of pixels that share a call
+    z: np.ndarray  # (N,) pixel-local positions, laid out
+    counts: np.ndarray  # (P,) points per pixel
+    original_at: np.ndarray  # (T,) laid-out index of every original
+    call_bounds: list[int]  # (C + 1,) laid-out index where each call starts
+    call_pixels: list[int]  # (C + 1,) first pixel of each call
+    slot_width: float  # distance between the slots of pixels that share a call
 
     def call_points(self, call: int) -> tuple[np.ndarray, np.ndarray | None]:
         """What Qhull gets for one call, (K, 2) float64 with pixel k of the call moved by
         k * slot_width along x, and each point's slot k (None for a one-pixel call)."""
-        z = self.z[self.call_bounds[call]:self.call_bounds[call + 1]]
+        z = self.z[self.call_bounds[call] : self.call_bounds[call + 1]]
         p0, p1 = self.call_pixels[call], self.call_pixels[call + 1]
         if p1 - p0 == 1:
             return z.view(np.float64).reshape(-1, 2), None
@@ -342,10 +371,12 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
     ends = np.cumsum(counts)
     starts = ends - counts
     total = int(ends[-1]) if len(ends) else 0
-    original_at = np.arange(len(point_set.originals)) + np.repeat(starts - offsets[:-1],
-                                                                   orig_counts)
+    original_at = np.arange(len(point_set.originals)) + np.repeat(
+        starts - offsets[:-1], orig_counts
+    )
     ghost_at = np.arange(len(point_set.ghosts)) + np.repeat(
-        starts + orig_counts - ghost_offsets[:-1], ghost_counts)
+        starts + orig_counts - ghost_offsets[:-1], ghost_counts
+    )
     z = np.empty(total, np.complex128)
     z[original_at] = _as_complex(point_set.originals)
     z[ghost_at] = _as_complex(point_set.ghosts)
@@ -360,8 +391,7 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
         call_pixels = np.flatnonzero(new_call)
     call_bounds = np.concatenate([starts, [total]])[call_pixels]
     slot_width = 2.0 * point_set.half_extent * (1.0 + SLOT_GAP_FACTOR)
-    return _Layout(z, counts, original_at, call_bounds.tolist(), call_pixels.tolist(),
-                   slot_width)
+    return _Layout(z, counts, original_at, call_bounds.tolist(), call_pixels.tolist(), slot_width)
 
 
 def _as_complex(points: np.ndarray) -> np.ndarray:
@@ -373,8 +403,9 @@ def _as_complex(points: np.ndarray) -> np.ndarray:
 # Areas from triangles
 
 
-def _cells(point_set: _PointSet, box: float | None,
-           one_pixel_per_call: bool = False) -> tuple[CellAreas, TessellationStats]:
+def _cells(
+    point_set: _PointSet, box: float | None, one_pixel_per_call: bool = False
+) -> tuple[CellAreas, TessellationStats]:
     """Areas and exactness flags of the originals' cells; see the module docstring.
 
     Each Qhull call's triangles are processed right after the call, while they are in cache,
@@ -384,7 +415,7 @@ def _cells(point_set: _PointSet, box: float | None,
     layout = _call_layout(point_set, one_pixel_per_call)
     total = len(layout.z)
     areas = np.zeros(total)
-    suspect = np.zeros(total, bool)    # cell not provably that of the pixel's own diagram
+    suspect = np.zeros(total, bool)  # cell not provably that of the pixel's own diagram
     outside = np.zeros(total, bool) if box is not None else None
     failed_alone = []
     bounds, first_pixels = layout.call_bounds, layout.call_pixels
@@ -404,8 +435,16 @@ def _cells(point_set: _PointSet, box: float | None,
                 if slot is None:
                     failed_alone.append(first_pixels[call])
                 continue
-            _call_cells(tri, layout.z[lo:hi], slot, point_set.disc_box, box, areas[lo:hi],
-                        suspect[lo:hi], None if outside is None else outside[lo:hi])
+            _call_cells(
+                tri,
+                layout.z[lo:hi],
+                slot,
+                point_set.disc_box,
+                box,
+                areas[lo:hi],
+                suspect[lo:hi],
+                None if outside is None else outside[lo:hi],
+            )
 
     # Pixels Qhull could not triangulate alone: every cell is unbounded (or it is an error if
     # the set was not degenerate).
@@ -419,14 +458,21 @@ def _cells(point_set: _PointSet, box: float | None,
     return CellAreas(cell_areas, bounded, inside), stats
 
 
-def _call_cells(tri: Delaunay, z: np.ndarray, slot: np.ndarray | None, disc_box: float | None,
-                box: float | None, areas: np.ndarray, suspect: np.ndarray,
-                outside: np.ndarray | None) -> None:
+def _call_cells(
+    tri: Delaunay,
+    z: np.ndarray,
+    slot: np.ndarray | None,
+    disc_box: float | None,
+    box: float | None,
+    areas: np.ndarray,
+    suspect: np.ndarray,
+    outside: np.ndarray | None,
+) -> None:
     """Areas, suspect flags and outside-box flags of one Qhull call's points z, written into
     areas, suspect and outside (views of the call's range). slot: each point's pixel slot
     (None: one pixel). Runs under np.errstate(divide="ignore", invalid="ignore")."""
     count = len(z)
-    s = np.ascontiguousarray(tri.simplices.T, dtype=np.intp)    # (3, M): vertices a, b, c
+    s = np.ascontiguousarray(tri.simplices.T, dtype=np.intp)  # (3, M): vertices a, b, c
     t = _TriangleTerms(z, s)
     local_areas = np.bincount(s.ravel(), t.pieces.ravel(), count)
 
@@ -478,7 +524,7 @@ class _TriangleTerms:
         self.l1 = l1 = _squared_norm(e1)
         self.l2 = l2 = _squared_norm(e2)
         w = e1.conjugate()
-        w *= e2                         # conj(e1) e2 = (e1 . e2) + i (e1 x e2)
+        w *= e2  # conj(e1) e2 = (e1 . e2) + i (e1 x e2)
         dot, self.det = w.real, w.imag
         # With U = (e2y l1 - e1y l2, e1x l2 - e2x l1), o - a = U / (2 det); the quadrilateral
         # areas 0.25 cross(b - c, o - a) etc. reduce to these forms (k = 1 / (8 |det|)).
@@ -534,11 +580,11 @@ class _TriangleGeometry:
 def _triangle_geometry(points: np.ndarray, simplices: np.ndarray) -> _TriangleGeometry:
     """The same terms for (N, 2) points and (M, 3) simplices (used by clrender.image_voronoi)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = _TriangleTerms(_as_complex(points),
-                           np.ascontiguousarray(np.asarray(simplices).T, dtype=np.intp))
+        t = _TriangleTerms(
+            _as_complex(points), np.ascontiguousarray(np.asarray(simplices).T, dtype=np.intp)
+        )
         ux, uy = t.circumcentre_offset()
-    return _TriangleGeometry(t.za.real, t.za.imag, ux, uy, t.pieces[0], t.pieces[1],
-                             t.pieces[2])
+    return _TriangleGeometry(t.za.real, t.za.imag, ux, uy, t.pieces[0], t.pieces[1], t.pieces[2])
 
 
 def _check_degenerate(point_set: _PointSet, pixels: list[int]) -> None:
@@ -546,8 +592,10 @@ def _check_degenerate(point_set: _PointSet, pixels: list[int]) -> None:
     for p in pixels:  # rare: only pixels whose whole set is degenerate get here
         pts = point_set.pixel_points(p)
         if not _is_degenerate(pts):
-            raise ClrenderError(f"Qhull failed on a non-degenerate set of {len(pts)} points "
-                                "(not collinear, >= 3 distinct); please report the sample set")
+            raise ClrenderError(
+                f"Qhull failed on a non-degenerate set of {len(pts)} points "
+                "(not collinear, >= 3 distinct); please report the sample set"
+            )
 
 
 def _is_degenerate(points: np.ndarray) -> bool:

@@ -50,8 +50,13 @@ def run_child(*argv, env=None, cwd=None):
     """A `python -m clrender` subprocess, environment changes applied."""
     environment = {**os.environ, **(env or {})}
     environment = {k: v for k, v in environment.items() if v is not None}
-    return subprocess.run([sys.executable, "-m", "clrender", *argv], capture_output=True,
-                          text=True, env=environment, cwd=cwd)  # fmt: skip
+    return subprocess.run(
+        [sys.executable, "-m", "clrender", *argv],
+        capture_output=True,
+        text=True,
+        env=environment,
+        cwd=cwd,
+    )
 
 
 def assert_one_line_error(status, err, *fragments):
@@ -78,28 +83,53 @@ SCENE_ERRORS = [
     ("radius = 1.0", 'radius = "big"', ["shapes[1] ('ball'), field 'radius'", "a string"]),
     ('type = "sphere"', 'type = "cone"', ["unknown shape type 'cone'", "quad, box, sphere"]),
     ('type = "diffuse"', 'type = "glass"', ["unknown material type 'glass'", "dielectric"]),
-    ("radius = 1.0", "radius = 1.0\nemission = [1.0, 1.0, 1.0]",
-     ["'ball'), field 'emission'", "a sphere cannot be an emitter: only quads emit"]),
-    ("emission = [1.0, 1.0, 1.0]", 'emitter = { type = "area", radiance = [1.0, 1.0, 1.0] }',
-     ["shapes[0] ('lamp'), field 'emitter'", "no emitter types", "`emission = [r, g, b]`"]),
-    ("[materials.white]", '[[emitters]]\ntype = "area"\n\n[materials.white]',
-     ["top level, field 'emitters'", "an emitter is a [[shapes]] quad with an `emission`"]),
+    (
+        "radius = 1.0",
+        "radius = 1.0\nemission = [1.0, 1.0, 1.0]",
+        ["'ball'), field 'emission'", "a sphere cannot be an emitter: only quads emit"],
+    ),
+    (
+        "emission = [1.0, 1.0, 1.0]",
+        'emitter = { type = "area", radiance = [1.0, 1.0, 1.0] }',
+        ["shapes[0] ('lamp'), field 'emitter'", "no emitter types", "`emission = [r, g, b]`"],
+    ),
+    (
+        "[materials.white]",
+        '[[emitters]]\ntype = "area"\n\n[materials.white]',
+        ["top level, field 'emitters'", "an emitter is a [[shapes]] quad with an `emission`"],
+    ),
     ("radius = 1.0", "radius = -0.5", ["field 'radius'", "> 0, got -0.5"]),
     ("radius = 1.0", "radius = nan", ["field 'radius'", "finite", "nan"]),
     ("radius = 1.0", "radius = inf", ["field 'radius'", "finite", "inf"]),
     ("edge2 = [0.0, 2.0, 0.0]", "edge2 = [-inf, 2.0, 0.0]", ["'edge2'", "non-finite"]),
-    ("edge2 = [0.0, 2.0, 0.0]", "edge2 = [3.0, 0.0, 0.0]",
-     ["shapes[0] ('lamp')", "degenerate quad"]),
-    ('type = "sphere"\ncenter = [0.0, 0.0, -2.0]\nradius = 1.0',
-     'type = "box"\nmin = [0.0, 0.0, 0.0]\nmax = [1.0, -1.0, 1.0]',
-     ["shapes[1] ('ball'), field 'max'", "max > min on every axis"]),
-]  # fmt: skip
+    (
+        "edge2 = [0.0, 2.0, 0.0]",
+        "edge2 = [3.0, 0.0, 0.0]",
+        ["shapes[0] ('lamp')", "degenerate quad"],
+    ),
+    (
+        'type = "sphere"\ncenter = [0.0, 0.0, -2.0]\nradius = 1.0',
+        'type = "box"\nmin = [0.0, 0.0, 0.0]\nmax = [1.0, -1.0, 1.0]',
+        ["shapes[1] ('ball'), field 'max'", "max > min on every axis"],
+    ),
+]
 SCENE_ERROR_IDS = [
-    "toml-syntax", "missing-field", "misspelt-field", "wrong-type", "unknown-shape",
-    "unknown-material", "emitter-on-sphere", "emitter-type", "emitters-table",
-    "negative-radius", "nan-radius", "inf-radius", "inf-vector", "degenerate-quad",
+    "toml-syntax",
+    "missing-field",
+    "misspelt-field",
+    "wrong-type",
+    "unknown-shape",
+    "unknown-material",
+    "emitter-on-sphere",
+    "emitter-type",
+    "emitters-table",
+    "negative-radius",
+    "nan-radius",
+    "inf-radius",
+    "inf-vector",
+    "degenerate-quad",
     "negative-box-size",
-]  # fmt: skip
+]
 
 
 @pytest.mark.parametrize(("old", "new", "fragments"), SCENE_ERRORS, ids=SCENE_ERROR_IDS)
@@ -114,15 +144,18 @@ def test_scene_errors_are_one_line_naming_the_file(capsys, tmp_path, old, new, f
 @pytest.mark.parametrize(
     "text, message",
     [
-        (SCENE.replace("emission = [1.0, 1.0, 1.0]", 'material = "white"'),
-         "the scene has no emitter (no quad with emission): it renders black"),
-        (SCENE.replace("radius = 1.0", "radius = 8.0"),
-         "[camera] look_from [0.0, 0.0, 5.0] is inside shapes[1] ('ball') (a sphere)"),
-        (SCENE + BOX,
-         "[camera] look_from [0.0, 0.0, 5.0] is inside shapes[2] ('crate') (a box)"),
+        (
+            SCENE.replace("emission = [1.0, 1.0, 1.0]", 'material = "white"'),
+            "the scene has no emitter (no quad with emission): it renders black",
+        ),
+        (
+            SCENE.replace("radius = 1.0", "radius = 8.0"),
+            "[camera] look_from [0.0, 0.0, 5.0] is inside shapes[1] ('ball') (a sphere)",
+        ),
+        (SCENE + BOX, "[camera] look_from [0.0, 0.0, 5.0] is inside shapes[2] ('crate') (a box)"),
     ],
     ids=["no-emitter", "camera-in-sphere", "camera-in-rotated-box"],
-)  # fmt: skip
+)
 def test_scene_warnings_print_once_and_exit_0(capsys, tmp_path, text, message):
     path = write_scene(tmp_path, text)
     out = tmp_path / "o.exr"
@@ -153,8 +186,7 @@ def test_read_only_output_directory_fails_before_rendering(capsys, tmp_path, mon
     finally:
         (tmp_path / "read-only").chmod(0o755)
     assert_one_line_error(status, err)
-    assert err == f"clrender: error: cannot write {target}: directory {directory} is not " \
-                  "writable\n"  # fmt: skip
+    assert err == f"clrender: error: cannot write {target}: directory {directory} is not writable\n"
     assert not target.exists()
 
 
@@ -176,8 +208,13 @@ def test_no_opencl_platform_says_what_to_install(tmp_path, command):
     missing = tmp_path / "no-vendors"
     env = {"OCL_ICD_VENDORS": str(missing), "PYOPENCL_CTX": None}
     child = run_child(*command, env=env, cwd=tmp_path)
-    assert_one_line_error(child.returncode, child.stderr, "no OpenCL platform found: install",
-                          'pip install "pyopencl[pocl]"', "pocl-opencl-icd")  # fmt: skip
+    assert_one_line_error(
+        child.returncode,
+        child.stderr,
+        "no OpenCL platform found: install",
+        'pip install "pyopencl[pocl]"',
+        "pocl-opencl-icd",
+    )
     assert child.stdout == ""
     assert list(tmp_path.iterdir()) == []
 
@@ -185,8 +222,9 @@ def test_no_opencl_platform_says_what_to_install(tmp_path, command):
 def test_pyopencl_ctx_naming_a_missing_platform(capsys, tmp_path, monkeypatch):
     monkeypatch.setenv("PYOPENCL_CTX", "no-such-platform")
     status, _, err = run_cli(capsys, "render", "analytic", "-o", str(tmp_path / "o.exr"))
-    assert_one_line_error(status, err, "PYOPENCL_CTX platform 'no-such-platform' matches "
-                                       "nothing; accepted: 0: ")  # fmt: skip
+    assert_one_line_error(
+        status, err, "PYOPENCL_CTX platform 'no-such-platform' matches nothing; accepted: 0: "
+    )
 
 
 BROKEN_KERNEL = """// sampling.cl with an error on line 3
@@ -209,8 +247,7 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     err = child.stderr
     assert "Traceback" not in err
     message = err[err.index("clrender: error: ") :]
-    assert message.startswith(f"clrender: error: OpenCL build of {kernels / 'sampling.cl'} "
-                              "failed")  # fmt: skip
+    assert message.startswith(f"clrender: error: OpenCL build of {kernels / 'sampling.cl'} failed")
     assert f"{kernels / 'sampling.cl'}:3:" in message and "undefined_symbol" in message
     assert not out.exists()
     debug = run_child("--debug", "render", "analytic", "--res", "4", "-o", str(out), env=env)
@@ -275,10 +312,23 @@ SLACK_MB = 16  # allocator and thread-arena noise between two processes
 def peak_rss_mb(tmp_path: Path, width: int, tile_samples: int) -> float:
     """Peak resident memory (VmHWM) of one render of analytic:edge, measured in the child."""
     out = tmp_path / f"peak-{width}.exr"
-    argv = ["render", "analytic:edge", "--res", str(width), "--spp", "4", "--sampler",
-            "uniform", "--tile-samples", str(tile_samples), "-o", str(out)]  # fmt: skip
-    child = subprocess.run([sys.executable, "-c", PEAK_SCRIPT, *argv], capture_output=True,
-                           text=True)  # fmt: skip
+    argv = [
+        "render",
+        "analytic:edge",
+        "--res",
+        str(width),
+        "--spp",
+        "4",
+        "--sampler",
+        "uniform",
+        "--tile-samples",
+        str(tile_samples),
+        "-o",
+        str(out),
+    ]
+    child = subprocess.run(
+        [sys.executable, "-c", PEAK_SCRIPT, *argv], capture_output=True, text=True
+    )
     assert child.returncode == 0, child.stderr
     line = next(x for x in child.stderr.splitlines() if x.startswith("peak_kb"))
     return int(line.split()[1]) / 1024

@@ -22,8 +22,21 @@ def private_references(tmp_path, monkeypatch):
 def test_01_pixel_study(tmp_path):
     import pixel_study
 
-    pixel_study.main(["--quick", "--runs", "4", "--spp", "16", "--timing-runs", "2", "--size", "64",
-                      "--out", str(tmp_path)])
+    pixel_study.main(
+        [
+            "--quick",
+            "--runs",
+            "4",
+            "--spp",
+            "16",
+            "--timing-runs",
+            "2",
+            "--size",
+            "64",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     results = json.loads((tmp_path / "results.json").read_text())
     assert set(results["pixels"]) == {"light_edge", "diffuse_wall", "glass_ball"}
     for name in results["pixels"]:
@@ -33,8 +46,9 @@ def test_01_pixel_study(tmp_path):
 def test_02_image_study(tmp_path):
     import image_study
 
-    image_study.main(["--quick", "--size", "8", "--spp", "4", "--reference-spp", "16",
-                      "--out", str(tmp_path)])
+    image_study.main(
+        ["--quick", "--size", "8", "--spp", "4", "--reference-spp", "16", "--out", str(tmp_path)]
+    )
     results = json.loads((tmp_path / "results.json").read_text())
     assert len(results["rows"]) == len(common.RENDER_PAIRS)
     assert (tmp_path / "error_maps.png").exists() and (tmp_path / "report.md").exists()
@@ -43,11 +57,25 @@ def test_02_image_study(tmp_path):
 def test_03_efficiency_study_and_perf_ratio(tmp_path):
     import efficiency_study
 
-    efficiency_study.main(["--quick", "--size", "8", "--spp", "4", "--reference-spp", "16",
-                           "--scenes", "cornell-box", "--out", str(tmp_path)])
+    efficiency_study.main(
+        [
+            "--quick",
+            "--size",
+            "8",
+            "--spp",
+            "4",
+            "--reference-spp",
+            "16",
+            "--scenes",
+            "cornell-box",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert (tmp_path / "efficiency_cornell-box.png").exists()
-    efficiency_study.main(["--perf-ratio", "--quick", "--size", "8", "--spp", "4",
-                           "--out", str(tmp_path)])
+    efficiency_study.main(
+        ["--perf-ratio", "--quick", "--size", "8", "--spp", "4", "--out", str(tmp_path)]
+    )
     ratio = json.loads((tmp_path / "perf_ratio.json").read_text())
     assert ratio["ratio_wall"] > 0 and ratio["repeats"] == 1
 

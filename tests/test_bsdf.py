@@ -84,8 +84,9 @@ def bsdf(runtime):
 
 def direction(theta_deg, phi_deg=30.0):
     theta, phi = math.radians(theta_deg), math.radians(phi_deg)
-    return np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi),
-                     math.cos(theta)])  # fmt: skip
+    return np.array(
+        [math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)]
+    )
 
 
 def uniforms(seed, count):
@@ -156,8 +157,10 @@ def test_sampling_matches_pdf_chi_square(bsdf, kind, params, theta_o):
     wo = direction(theta_o)
     wi, weight, pdf = bsdf.sample(mat, np.tile(wo, (SAMPLES, 1)), uniforms(7, SAMPLES))
     valid = pdf > 0
-    observed = np.bincount(bin_index(wi[valid].astype(np.float64), THETA_BINS, PHI_BINS),
-                           minlength=THETA_BINS * PHI_BINS)  # fmt: skip
+    observed = np.bincount(
+        bin_index(wi[valid].astype(np.float64), THETA_BINS, PHI_BINS),
+        minlength=THETA_BINS * PHI_BINS,
+    )
     per_bin, _ = integrated_pdf(bsdf, mat, wo)
     # Failed samples (below the horizon) are the pdf's missing mass
     assert abs(valid.mean() - per_bin.sum()) < 5 * math.sqrt(0.25 / SAMPLES) + 2e-3

@@ -39,8 +39,9 @@ def both(runtime, traced, offsets, aux, aux_offsets, box, precision="auto"):
     """(device cells, host cells) of one float32-rounded batch."""
     traced, aux = rounded(traced), rounded(aux)
     host = sppp_cells(traced, offsets, aux, aux_offsets, box)
-    device = device_sppp_cells_from_arrays(runtime, traced, offsets, aux, aux_offsets, box,
-                                           precision)
+    device = device_sppp_cells_from_arrays(
+        runtime, traced, offsets, aux, aux_offsets, box, precision
+    )
     return device, host
 
 
@@ -57,8 +58,9 @@ def sppp_batch(n, pixels, seed, eps=None):
 
 
 # 1. Random SPPP pixels: areas, bounded and inside-W' flags equal Qhull's
-@pytest.mark.parametrize("n, pixels", [(1, 3000), (4, 3000), (16, 1500), (64, 600),
-                                       (256, 150), (1024, 40)])
+@pytest.mark.parametrize(
+    "n, pixels", [(1, 3000), (4, 3000), (16, 1500), (64, 600), (256, 150), (1024, 40)]
+)
 def test_areas_and_flags_match_qhull(runtime, n, pixels):
     batch, box = sppp_batch(n, pixels, seed=100 + n)
     device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
@@ -78,8 +80,9 @@ def test_inside_flags_match_qhull(runtime, n):
 # 2. Float32 geometry throughout (for devices without cl_khr_fp64) stays within 1e-4
 def test_single_precision_close_to_qhull(runtime):
     batch, box = sppp_batch(64, 400, seed=7)
-    device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box,
-                        precision="single")
+    device, host = both(
+        runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box, precision="single"
+    )
     assert_same_cells(device, host, rtol=SINGLE_RTOL)
     ok = host.bounded
     assert np.median(np.abs(device.areas[ok] / host.areas[ok] - 1)) < 1e-6
@@ -96,8 +99,15 @@ def test_mirror_frame_cells_tile_the_pixel(runtime, n):
     # Dyadic coordinates (multiples of 2^-20) keep the mirrors exact in float32
     traced = rng.integers(0, 2**20, (offsets[-1], 2)) / 2**20 - 0.5
     x, y = traced[:, 0], traced[:, 1]
-    mirrors = np.stack([np.column_stack([1 - x, y]), np.column_stack([-1 - x, y]),
-                        np.column_stack([x, 1 - y]), np.column_stack([x, -1 - y])], axis=1)
+    mirrors = np.stack(
+        [
+            np.column_stack([1 - x, y]),
+            np.column_stack([-1 - x, y]),
+            np.column_stack([x, 1 - y]),
+            np.column_stack([x, -1 - y]),
+        ],
+        axis=1,
+    )
     aux = mirrors.reshape(-1, 2)  # pixel by pixel, since traced is
     cells = device_sppp_cells_from_arrays(runtime, traced, offsets, aux, offsets * 4)
     assert cells.bounded.all()
@@ -113,8 +123,7 @@ def test_lattice_cells_are_squares(runtime):
     centres = (np.arange(k) + 0.5) * h - 0.5
     grid = np.array([(cx, cy) for cy in centres for cx in centres])
     ring = (np.arange(-1, k + 1) + 0.5) * h - 0.5
-    aux = np.array([(cx, cy) for cy in ring for cx in ring
-                    if max(abs(cx), abs(cy)) > 0.5])
+    aux = np.array([(cx, cy) for cy in ring for cx in ring if max(abs(cx), abs(cy)) > 0.5])
     offsets, aux_offsets = offsets_of([len(grid)]), offsets_of([len(aux)])
     device, host = both(runtime, grid, offsets, aux, aux_offsets, 0.5 + h)
     assert device.bounded.all()
@@ -158,21 +167,25 @@ def degenerate_pixels():
     spread = rng.random((6, 2)) - 0.5
     strip = np.array([[-0.6, -0.6], [0.6, -0.6], [0.6, 0.6], [-0.6, 0.6]])
     pixels = [
-        (np.zeros((0, 2)), strip),                    # N = 0 with aux nuclei
-        (np.zeros((0, 2)), np.zeros((0, 2))),         # N = 0, nothing at all
-        (spread[:1], np.zeros((0, 2))),               # N = 1 alone: unbounded
-        (spread[:1], strip),                          # N = 1 in a frame: bounded
-        (spread[:2], np.zeros((0, 2))),               # N = 2
-        (line, np.zeros((0, 2))),                     # collinear
-        (line, np.column_stack([[-0.55, 0.55], [0.1, 0.1]])),   # collinear with aux on the line
-        (np.concatenate([spread, spread[:2]]), strip),          # duplicated W nuclei
-        (np.concatenate([spread[:3], strip[:1]]), strip),       # a W nucleus on an aux nucleus
-        (np.repeat(spread[:1], 3, axis=0), np.zeros((0, 2))),   # one point three times
+        (np.zeros((0, 2)), strip),  # N = 0 with aux nuclei
+        (np.zeros((0, 2)), np.zeros((0, 2))),  # N = 0, nothing at all
+        (spread[:1], np.zeros((0, 2))),  # N = 1 alone: unbounded
+        (spread[:1], strip),  # N = 1 in a frame: bounded
+        (spread[:2], np.zeros((0, 2))),  # N = 2
+        (line, np.zeros((0, 2))),  # collinear
+        (line, np.column_stack([[-0.55, 0.55], [0.1, 0.1]])),  # collinear with aux on the line
+        (np.concatenate([spread, spread[:2]]), strip),  # duplicated W nuclei
+        (np.concatenate([spread[:3], strip[:1]]), strip),  # a W nucleus on an aux nucleus
+        (np.repeat(spread[:1], 3, axis=0), np.zeros((0, 2))),  # one point three times
     ]
     traced = np.concatenate([t for t, _ in pixels])
     aux = np.concatenate([a for _, a in pixels])
-    return (traced, offsets_of([len(t) for t, _ in pixels]), aux,
-            offsets_of([len(a) for _, a in pixels]))
+    return (
+        traced,
+        offsets_of([len(t) for t, _ in pixels]),
+        aux,
+        offsets_of([len(a) for _, a in pixels]),
+    )
 
 
 def test_degenerate_pixels_match_host(runtime):
@@ -189,8 +202,13 @@ def test_device_sample_sets_match_host(runtime):
     box = float(np.float32(0.5 + config.eps))
     device = device_sppp_cells(runtime, sets, box)
     host_sets = sets.to_host(runtime.queue)
-    host = sppp_cells(host_sets.traced.astype(np.float64), host_sets.offsets,
-                      host_sets.aux.astype(np.float64), host_sets.aux_offsets, box)
+    host = sppp_cells(
+        host_sets.traced.astype(np.float64),
+        host_sets.offsets,
+        host_sets.aux.astype(np.float64),
+        host_sets.aux_offsets,
+        box,
+    )
     assert_same_cells(device, host)
 
 
@@ -220,30 +238,36 @@ def test_overflow_falls_back_to_host(runtime, monkeypatch):
 def test_estimates_from_device_cells_match(runtime, monkeypatch):
     batch, _ = sppp_batch(64, 500, seed=9)
     traced, aux = rounded(batch.traced), rounded(batch.aux)
-    values = np.column_stack([np.abs(traced[:, 0] * traced[:, 1]) ** 0.5,
-                              (traced[:, 0] > 0.1).astype(float), np.ones(len(traced))])
-    samples = PixelSamples(traced, values, batch.offsets, 64.0, aux, batch.aux_offsets,
-                           batch.eps)
+    values = np.column_stack(
+        [
+            np.abs(traced[:, 0] * traced[:, 1]) ** 0.5,
+            (traced[:, 0] > 0.1).astype(float),
+            np.ones(len(traced)),
+        ]
+    )
+    samples = PixelSamples(traced, values, batch.offsets, 64.0, aux, batch.aux_offsets, batch.eps)
     names = ["vor", "vor_sn", "fvor"]
     host = estimate_all(names, samples)
     monkeypatch.setattr(estimators, "sppp_cells", sppp_cells_backend(runtime))
     device = estimate_all(names, samples)
     for name in names:
         np.testing.assert_array_equal(device[name].needs_redraw, host[name].needs_redraw)
-        np.testing.assert_allclose(device[name].estimates, host[name].estimates, rtol=1e-9,
-                                   atol=1e-12, equal_nan=True)
+        np.testing.assert_allclose(
+            device[name].estimates, host[name].estimates, rtol=1e-9, atol=1e-12, equal_nan=True
+        )
 
 
 def test_bad_arguments_are_rejected(runtime):
     with pytest.raises(ParameterError, match="precision"):
-        device_sppp_cells_from_arrays(runtime, np.zeros((1, 2)), [0, 1], np.zeros((0, 2)),
-                                      [0, 0], precision="quad")
+        device_sppp_cells_from_arrays(
+            runtime, np.zeros((1, 2)), [0, 1], np.zeros((0, 2)), [0, 0], precision="quad"
+        )
     with pytest.raises(ParameterError, match="offsets"):
-        device_sppp_cells_from_arrays(runtime, np.zeros((2, 2)), [0, 1], np.zeros((0, 2)),
-                                      [0, 0])
+        device_sppp_cells_from_arrays(runtime, np.zeros((2, 2)), [0, 1], np.zeros((0, 2)), [0, 0])
     with pytest.raises(ParameterError, match="finite"):
-        device_sppp_cells_from_arrays(runtime, np.full((1, 2), np.nan), [0, 1],
-                                      np.zeros((0, 2)), [0, 0])
+        device_sppp_cells_from_arrays(
+            runtime, np.full((1, 2), np.nan), [0, 1], np.zeros((0, 2)), [0, 0]
+        )
 
 
 # 11. Per-pixel sums on the device (device_sppp_sums) equal the host's sums of the same cells;
@@ -264,8 +288,9 @@ def test_device_sums_match_host_sums(runtime, eps):
     cells = device_sppp_cells(runtime, sets, box)
     bad = ~np.isfinite(radiance).all(axis=1)
     clean = np.where(bad[:, None], 0.0, radiance.astype(np.float64))  # as the render does
-    samples = PixelSamples(host.traced, clean, host.offsets, 64.0, host.aux, host.aux_offsets,
-                           config.eps)
+    samples = PixelSamples(
+        host.traced, clean, host.offsets, 64.0, host.aux, host.aux_offsets, config.eps
+    )
     expected = estimators.sppp_sums(samples, cells)
     # Pixels with an undecided cell (none at the paper's eps, 24 at eps = 0.08: bounded
     # cells beyond the start box) are left to the host
@@ -278,8 +303,13 @@ def test_device_sums_match_host_sums(runtime, eps):
     np.testing.assert_array_equal(device.nonfinite, np.bincount(samples.pixel_index, bad, 500))
     ok = decided & ~redraw
     for name in ("area", "weighted", "kept_area", "kept_weighted"):
-        np.testing.assert_allclose(getattr(device.sums, name)[ok], getattr(expected, name)[ok],
-                                   rtol=1e-12, atol=1e-15, err_msg=name)
+        np.testing.assert_allclose(
+            getattr(device.sums, name)[ok],
+            getattr(expected, name)[ok],
+            rtol=1e-12,
+            atol=1e-15,
+            err_msg=name,
+        )
 
 
 def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
@@ -287,6 +317,7 @@ def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
     config = make_sampler("sppp", 64)
     sets = generate_sample_sets(runtime, config, 2, np.arange(60, dtype=np.uint32))
     radiance = np.ones((sets.traced_total, 3), np.float32)
-    device = device_voronoi.device_sppp_sums(runtime, sets, runtime.upload(radiance),
-                                             0.5 + config.eps)
+    device = device_voronoi.device_sppp_sums(
+        runtime, sets, runtime.upload(radiance), 0.5 + config.eps
+    )
     assert device.fallback.sum() > 30

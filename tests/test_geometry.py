@@ -58,11 +58,21 @@ def device_intersect(runtime, scene, origins, directions):
     t_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
     id_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
     kernel = runtime.kernel("bsdf_test.cl", "intersect_rays")
-    kernel(queue, (padded_global_size(count),), (runtime.local_size,), np.uint32(count),
-           upload(blocks), np.uint32(len(scene.quads)), np.uint32(len(blocks)),
-           upload(scene.spheres),
-           np.uint32(len(scene.spheres)), upload(origins.astype(np.float32)),
-           upload(directions.astype(np.float32)), t_buf, id_buf)  # fmt: skip
+    kernel(
+        queue,
+        (padded_global_size(count),),
+        (runtime.local_size,),
+        np.uint32(count),
+        upload(blocks),
+        np.uint32(len(scene.quads)),
+        np.uint32(len(blocks)),
+        upload(scene.spheres),
+        np.uint32(len(scene.spheres)),
+        upload(origins.astype(np.float32)),
+        upload(directions.astype(np.float32)),
+        t_buf,
+        id_buf,
+    )
     t, ids = np.empty(count, np.float32), np.empty(count, np.int32)
     cl.enqueue_copy(queue, t, t_buf)
     cl.enqueue_copy(queue, ids, id_buf)

@@ -44,8 +44,9 @@ def polygon_areas(points, which):
 
 
 def inside_image(points, width, height):
-    return ((points[:, 0] >= 0) & (points[:, 0] < width) & (points[:, 1] >= 0)
-            & (points[:, 1] < height))
+    return (
+        (points[:, 0] >= 0) & (points[:, 0] < width) & (points[:, 1] >= 0) & (points[:, 1] < height)
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -95,10 +96,14 @@ def test_frame_keys_number_the_rings_without_gaps():
     # Ring 1 keys come right after the image and do not depend on how many rings exist.
     ring1 = PixelRect(0, 0, width, height).grown(1)
     r1 = ring1.contains(xs, ys) & ~inside
-    assert keys[r1].min() == width * height and keys[r1].max() == width * height + 2 * (
-        width + height) + 4 - 1
-    assert np.array_equal(periodic_keys(np.array([-1, width]), np.array([0, -1]), width, height),
-                          np.array([width - 1, (height - 1) * width]))
+    assert (
+        keys[r1].min() == width * height
+        and keys[r1].max() == width * height + 2 * (width + height) + 4 - 1
+    )
+    assert np.array_equal(
+        periodic_keys(np.array([-1, width]), np.array([0, -1]), width, height),
+        np.array([width - 1, (height - 1) * width]),
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -116,8 +121,9 @@ def render_tiles(runtime, width, height, n, seed, step, border="frame", image="a
         sets = generate_sample_sets(runtime, config, seed, pixels).to_host(runtime.queue)
         x, y = sample_image_positions(pixels, sets.offsets, sets.traced, width)
         values = scene.radiance(x, y).astype(np.float64)
-        run = estimate_tile_image(runtime, config, seed, width, height, pixels, sets.traced,
-                                  sets.offsets, values, border)
+        run = estimate_tile_image(
+            runtime, config, seed, width, height, pixels, sets.traced, sets.offsets, values, border
+        )
         for name in out:
             out[name][pixels] = run.estimates[name]
         stats.append(run.stats)
@@ -140,8 +146,7 @@ def test_estimates_do_not_depend_on_the_tiling(runtime):
 def test_periodic_border_tiles_the_torus_and_matches_frame_inside(runtime):
     width, height, n, seed = 23, 19, 16, 3
     frame, _ = render_tiles(runtime, width, height, n, seed, 150, "frame", "analytic:edge")
-    torus, stats = render_tiles(runtime, width, height, n, seed, 150, "periodic",
-                                "analytic:edge")
+    torus, stats = render_tiles(runtime, width, height, n, seed, 150, "periodic", "analytic:edge")
     assert sum(s.uncertified_nuclei for s in stats) == 0
     # Far from the border (ring of guard pixels + 1) both borders see the same nuclei.
     ring = math.ceil(guard_distance(n)) + 1
@@ -153,8 +158,12 @@ def test_periodic_border_tiles_the_torus_and_matches_frame_inside(runtime):
     # With the constant function 1 on a torus the cells tile it: sum of ivor = W H. f = 1 is
     # not available as a scene, so use the tessellation of `periodic` through ivor / ivor_sn:
     # for each pixel with nuclei, ivor / ivor_sn = sum of its cell areas.
-    areas = np.divide(torus["ivor"][:, 0], torus["ivor_sn"][:, 0],
-                      out=np.zeros(width * height), where=torus["ivor_sn"][:, 0] != 0)
+    areas = np.divide(
+        torus["ivor"][:, 0],
+        torus["ivor_sn"][:, 0],
+        out=np.zeros(width * height),
+        where=torus["ivor_sn"][:, 0] != 0,
+    )
     assert abs(areas.sum() - width * height) < 1e-9
 
 
@@ -162,14 +171,34 @@ def test_renderer_adapter_errors(runtime):
     config = make_sampler("sppp", 16)
     empty = np.zeros((0, 2))
     with pytest.raises(ParameterError, match="sppp sampler"):
-        estimate_tile_image(runtime, make_sampler("uniform", 16), 0, 4, 4, np.arange(4), empty,
-                            np.zeros(5, np.int64), np.zeros(0))
+        estimate_tile_image(
+            runtime,
+            make_sampler("uniform", 16),
+            0,
+            4,
+            4,
+            np.arange(4),
+            empty,
+            np.zeros(5, np.int64),
+            np.zeros(0),
+        )
     with pytest.raises(ParameterError, match="scanline run"):
-        estimate_tile_image(runtime, config, 0, 4, 4, np.array([0, 2]), empty,
-                            np.zeros(3, np.int64), np.zeros(0))
+        estimate_tile_image(
+            runtime, config, 0, 4, 4, np.array([0, 2]), empty, np.zeros(3, np.int64), np.zeros(0)
+        )
     with pytest.raises(ParameterError, match="border"):
-        estimate_tile_image(runtime, config, 0, 4, 4, np.arange(2), empty,
-                            np.zeros(3, np.int64), np.zeros(0), border="mirror")
+        estimate_tile_image(
+            runtime,
+            config,
+            0,
+            4,
+            4,
+            np.arange(2),
+            empty,
+            np.zeros(3, np.int64),
+            np.zeros(0),
+            border="mirror",
+        )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -197,16 +226,18 @@ def analytic_integrals():
     """Exact pixel integrals (H, W, 4) of the four columns (the ramp's is its centre value)."""
     functions = analytic_functions(WIDTH, HEIGHT)
     ys, xs = np.mgrid[0:HEIGHT, 0:WIDTH] + 0.5
-    return np.stack([functions[k].pixel_integrals(WIDTH, HEIGHT) for k in COLUMNS]
-                    + [ramp(xs, ys)], axis=-1)
+    return np.stack(
+        [functions[k].pixel_integrals(WIDTH, HEIGHT) for k in COLUMNS] + [ramp(xs, ys)], axis=-1
+    )
 
 
 def mc_image(points, values, n):
     """mc = sum f / n per pixel, from the same nuclei (the image part of the realisation)."""
     inside = inside_image(points, WIDTH, HEIGHT)
     pixel = (np.floor(points[inside, 1]) * WIDTH + np.floor(points[inside, 0])).astype(int)
-    sums = np.column_stack([np.bincount(pixel, values[inside, c], WIDTH * HEIGHT)
-                            for c in range(values.shape[1])])
+    sums = np.column_stack(
+        [np.bincount(pixel, values[inside, c], WIDTH * HEIGHT) for c in range(values.shape[1])]
+    )
     return (sums / n).reshape(HEIGHT, WIDTH, -1)
 
 
@@ -239,11 +270,12 @@ def test_ivor_is_unbiased_on_analytic_images(error_runs):
     assert np.all(np.abs(z) < 4.0), z
     spread = errors.std(axis=0, ddof=1)
     exact = analytic_integrals()
-    levels = [(1.0, 0.1), (0.9, 0.05)]   # inside/outside values of edge and disc
+    levels = [(1.0, 0.1), (0.9, 0.05)]  # inside/outside values of edge and disc
     boundary = np.zeros((HEIGHT, WIDTH), bool)
     for column, (inside, outside) in zip((0, 2), levels, strict=True):
-        boundary |= ~np.isclose(exact[..., column], inside) & ~np.isclose(exact[..., column],
-                                                                          outside)
+        boundary |= ~np.isclose(exact[..., column], inside) & ~np.isclose(
+            exact[..., column], outside
+        )
     boundary_means = errors[:, boundary, :].mean(axis=1)
     zb = boundary_means.mean(axis=0) / (boundary_means.std(axis=0, ddof=1) / math.sqrt(runs))
     assert boundary.sum() >= 20 and np.all(np.abs(zb) < 4.0), zb
@@ -257,8 +289,7 @@ def test_variance_below_monte_carlo_on_smooth_images(error_runs):
     # smooth: mc 0.064, ivor 0.022, ivor_sn 0.0061; ramp: mc 0.063, ivor 0.021, ivor_sn 0.0006.
     # ivor keeps an error from the jump of f 1_P at the pixel edge (cells straddle it), which
     # the self-normalised ratio largely cancels.
-    rmse = {name: np.sqrt((e**2).mean(axis=0)).mean(axis=(0, 1)) for name, e in
-            error_runs.items()}
+    rmse = {name: np.sqrt((e**2).mean(axis=0)).mean(axis=(0, 1)) for name, e in error_runs.items()}
     smooth, linear = 1, 3
     for column in (smooth, linear):
         assert rmse["ivor"][column] * 2.0 < rmse["mc"][column]
@@ -282,8 +313,11 @@ def test_empty_pixels_estimate_zero_and_ivor_stays_unbiased():
         assert result.stats.uncertified_nuclei == 0
         counts = np.zeros(width * height, int)
         inside = inside_image(points, width, height)
-        np.add.at(counts, (np.floor(points[inside, 1]) * width
-                           + np.floor(points[inside, 0])).astype(int), 1)
+        np.add.at(
+            counts,
+            (np.floor(points[inside, 1]) * width + np.floor(points[inside, 0])).astype(int),
+            1,
+        )
         none = counts.reshape(height, width) == 0
         assert np.all(result.estimates["ivor"][none] == 0.0)
         assert np.all(result.estimates["ivor_sn"][none] == 0.0)
@@ -291,9 +325,10 @@ def test_empty_pixels_estimate_zero_and_ivor_stays_unbiased():
         ivor.append(result.estimates["ivor"].mean())
         ivor_sn.append(result.estimates["ivor_sn"].mean())
     assert empty == pytest.approx(runs * width * height * math.exp(-1.0), rel=0.1)
-    for means, expected, check in [(ivor, 1.0, lambda z: abs(z) < 4.0),
-                                   (ivor_sn, 1.0, lambda z: z < -20.0)]:
+    for means, expected, check in [
+        (ivor, 1.0, lambda z: abs(z) < 4.0),
+        (ivor_sn, 1.0, lambda z: z < -20.0),
+    ]:
         means = np.array(means)
         z = (means.mean() - expected) / (means.std(ddof=1) / math.sqrt(runs))
         assert check(z), z
-

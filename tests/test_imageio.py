@@ -19,14 +19,26 @@ def test_exr_round_trip_keeps_pixels_and_metadata(tmp_path):
     rng = np.random.default_rng(1)
     image = rng.random((5, 7, 3)).astype(np.float32) * 30.0
     image[0, 0] = [0.0, 1e-30, 65504.0 * 4]  # beyond half range: float32 must survive
-    metadata = {"scene": "cornell-box", "spp": 64, "seed": 4_000_000_000, "partial": True,
-                "render_time_s": 1.25, "nonfinite_samples": 0}  # fmt: skip
+    metadata = {
+        "scene": "cornell-box",
+        "spp": 64,
+        "seed": 4_000_000_000,
+        "partial": True,
+        "render_time_s": 1.25,
+        "nonfinite_samples": 0,
+    }
     write_exr(tmp_path / "out.exr", image, metadata)
     pixels, meta = read_exr(tmp_path / "out.exr")
     assert pixels.dtype == np.float32 and pixels.shape == (5, 7, 3)
     assert np.array_equal(pixels, image)
-    assert meta == {"scene": "cornell-box", "spp": 64, "seed": "4000000000", "partial": 1,
-                    "render_time_s": 1.25, "nonfinite_samples": 0}  # fmt: skip
+    assert meta == {
+        "scene": "cornell-box",
+        "spp": 64,
+        "seed": "4000000000",
+        "partial": 1,
+        "render_time_s": 1.25,
+        "nonfinite_samples": 0,
+    }
 
 
 def test_exr_writes_non_contiguous_and_float64_images_correctly(tmp_path):

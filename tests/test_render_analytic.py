@@ -81,7 +81,8 @@ def test_smooth_and_bowl_integrals_are_exact():
     smooth = SmoothSines(kx=0.9, ky=1.3)
     y, x = 3, 7
     assert smooth.pixel_integrals(10, 5)[y, x] == pytest.approx(
-        midpoint_integral(smooth, x, y, 400), abs=1e-6)  # fmt: skip
+        midpoint_integral(smooth, x, y, 400), abs=1e-6
+    )
     assert PixelBowl().pixel_integrals(3, 2) == pytest.approx(np.full((2, 3), 1 / 6))
 
 
@@ -101,9 +102,16 @@ def test_pixel_estimates_land_on_the_right_pixels(runtime):
 
 @pytest.mark.parametrize(
     "estimator, sampler",
-    [("mc", "uniform"), ("mc", "stratified"), ("mc", "sppp"), ("vor", "sppp"),
-     ("pvor", "uniform"), ("pvor", "sppp"), ("ivor", "sppp")],
-)  # fmt: skip
+    [
+        ("mc", "uniform"),
+        ("mc", "stratified"),
+        ("mc", "sppp"),
+        ("vor", "sppp"),
+        ("pvor", "uniform"),
+        ("pvor", "sppp"),
+        ("ivor", "sppp"),
+    ],
+)
 def test_unbiased_estimators_within_4_standard_errors(runtime, estimator, sampler):
     errors = render_errors(runtime, check_image(WIDTH, HEIGHT), estimator, sampler)
     assert np.all(np.abs(z_scores(errors)) < 4.0), z_scores(errors)
@@ -117,9 +125,14 @@ def check_errors(runtime):
     image = check_image(WIDTH, HEIGHT)
     return {
         name: render_errors(runtime, image, name, sampler)
-        for name, sampler in [("vor_sn", "sppp"), ("fvor", "sppp"), ("ivor_sn", "sppp"),
-                              ("mc", "uniform"), ("mc_n", "sppp")]
-    }  # fmt: skip
+        for name, sampler in [
+            ("vor_sn", "sppp"),
+            ("fvor", "sppp"),
+            ("ivor_sn", "sppp"),
+            ("mc", "uniform"),
+            ("mc_n", "sppp"),
+        ]
+    }
 
 
 @pytest.mark.parametrize("estimator", ["vor_sn", "fvor", "ivor_sn"])
@@ -131,9 +144,7 @@ def test_normalised_voronoi_bias_below_2_percent(check_errors, estimator):
 
 
 @pytest.mark.parametrize("estimator", ["vor_sn", "fvor", "ivor_sn"])
-def test_normalised_voronoi_beats_mc_on_smooth_and_discontinuous_channels(
-    check_errors, estimator
-):
+def test_normalised_voronoi_beats_mc_on_smooth_and_discontinuous_channels(check_errors, estimator):
     # Same spp: below i.i.d. uniform mc (measured ratios 0.7 and 0.75) and well below mc_n
     # on the same SPPP samples, whose Poisson count adds variance.
     voronoi = rmse(check_errors[estimator])[:2]

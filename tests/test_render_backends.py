@@ -14,8 +14,15 @@ WIDTH, HEIGHT = 24, 16
 
 def render_image(runtime, estimator, backend, eps=None, **options):
     source = AnalyticSource.for_scene("analytic:mix", runtime.queue, WIDTH, HEIGHT)
-    settings = RenderSettings(WIDTH, HEIGHT, make_sampler("sppp", 32, eps=eps), estimator,
-                              seed=3, voronoi_backend=backend, **options)  # fmt: skip
+    settings = RenderSettings(
+        WIDTH,
+        HEIGHT,
+        make_sampler("sppp", 32, eps=eps),
+        estimator,
+        seed=3,
+        voronoi_backend=backend,
+        **options,
+    )
     return render(runtime, source, settings)
 
 
@@ -44,8 +51,15 @@ def test_qhull_backend_is_bit_identical_whatever_the_tiling(runtime):
 
 def test_only_sppp_cell_estimators_use_the_device_cells():
     sampler = make_sampler("sppp", 16)
-    for estimator, expected in [("vor", True), ("vor_sn", True), ("fvor", True), ("mc", False),
-                                ("pvor", False), ("cvor", False), ("ivor", False)]:  # fmt: skip
+    for estimator, expected in [
+        ("vor", True),
+        ("vor_sn", True),
+        ("fvor", True),
+        ("mc", False),
+        ("pvor", False),
+        ("cvor", False),
+        ("ivor", False),
+    ]:
         assert RenderSettings(4, 4, sampler, estimator).device_cells is expected, estimator
     assert not RenderSettings(4, 4, sampler, "vor", voronoi_backend="qhull").device_cells
 
@@ -65,6 +79,7 @@ def test_pixels_with_undecided_cells_are_settled_on_the_host(runtime, monkeypatc
     # Cells over 5 vertices overflow the kernel: most pixels' device sums are refused and the
     # host settles them (Qhull cells, host sums): the same image.
     from clrender import device_voronoi
+
     monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
     device = render_image(runtime, "vor_sn", "device").film.image()
     qhull = render_image(runtime, "vor_sn", "qhull").film.image()

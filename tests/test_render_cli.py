@@ -31,8 +31,19 @@ def run_cli(capsys, *argv):
 
 def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_path):
     out = tmp_path / "mix.exr"
-    status, stdout, _ = run_cli(capsys, "render", "analytic:mix", "--res", "24x16",
-                                "--spp", "16", "--seed", "7", "-o", str(out))  # fmt: skip
+    status, stdout, _ = run_cli(
+        capsys,
+        "render",
+        "analytic:mix",
+        "--res",
+        "24x16",
+        "--spp",
+        "16",
+        "--seed",
+        "7",
+        "-o",
+        str(out),
+    )
     assert status == 0
     assert "done: 384/384 pixels" in stdout and "host Voronoi" in stdout
     pixels, meta = read_exr(out)
@@ -47,8 +58,9 @@ def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mix.exr", "mix.png"]
 
 
-def test_default_output_name_is_the_scene_name_in_the_current_directory(capsys, tmp_path,
-                                                                         monkeypatch):  # fmt: skip
+def test_default_output_name_is_the_scene_name_in_the_current_directory(
+    capsys, tmp_path, monkeypatch
+):
     monkeypatch.chdir(tmp_path)
     status, _, _ = run_cli(capsys, "render", "analytic:edge", "--res", "8", "--spp", "4")
     assert status == 0
@@ -58,8 +70,19 @@ def test_default_output_name_is_the_scene_name_in_the_current_directory(capsys, 
 @pytest.mark.parametrize("estimator", ESTIMATOR_NAMES)
 def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
     out = tmp_path / "e.exr"
-    status, _, err = run_cli(capsys, "render", "analytic", "--res", "8", "--spp", "9",
-                             "--estimator", estimator, "-o", str(out))  # fmt: skip
+    status, _, err = run_cli(
+        capsys,
+        "render",
+        "analytic",
+        "--res",
+        "8",
+        "--spp",
+        "9",
+        "--estimator",
+        estimator,
+        "-o",
+        str(out),
+    )
     assert status == 0, err
     assert read_exr(out)[1]["estimator"] == estimator
 
@@ -67,8 +90,19 @@ def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
 @pytest.mark.parametrize("sampler", ["uniform", "stratified"])
 def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
     out = tmp_path / "s.exr"
-    status, _, _ = run_cli(capsys, "render", "analytic", "--res", "8", "--spp", "9",
-                           "--sampler", sampler, "-o", str(out))  # fmt: skip
+    status, _, _ = run_cli(
+        capsys,
+        "render",
+        "analytic",
+        "--res",
+        "8",
+        "--spp",
+        "9",
+        "--sampler",
+        sampler,
+        "-o",
+        str(out),
+    )
     assert status == 0
     assert (read_exr(out)[1]["sampler"], read_exr(out)[1]["estimator"]) == (sampler, "mc")
 
@@ -80,9 +114,11 @@ def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
         (["--spp", "-3"], "--spp must be a positive integer"),
         (["--sampler", "halton"], "unknown sampler 'halton'; accepted: uniform, stratified, sppp"),
         (["--estimator", "median"], "unknown estimator 'median'; accepted: mc, mc_n, vor"),
-        (["--sampler", "uniform", "--estimator", "vor"],
-         "estimator 'vor' needs the auxiliary nuclei of the sppp sampler, and the 'uniform' "
-         "sampler draws none: use --sampler sppp"),
+        (
+            ["--sampler", "uniform", "--estimator", "vor"],
+            "estimator 'vor' needs the auxiliary nuclei of the sppp sampler, and the 'uniform' "
+            "sampler draws none: use --sampler sppp",
+        ),
         (["--sampler", "stratified", "--estimator", "fvor"], "'fvor' needs the auxiliary"),
         (["--sampler", "stratified", "--spp", "10"], "perfect square"),
         (["--res", "0x4"], "--res must be WxH"),
@@ -96,7 +132,7 @@ def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
         (["--spp", "many"], "argument --spp: invalid int value: 'many'"),
         (["--frobnicate"], "unrecognized arguments: --frobnicate"),
     ],
-)  # fmt: skip
+)
 def test_bad_arguments_give_one_line_errors_and_status_2(capsys, tmp_path, argv, message):
     status, _, err = run_cli(capsys, "render", *argv)
     assert status == 2
@@ -113,8 +149,9 @@ def test_unwritable_output_fails_before_any_device_work(capsys, tmp_path, monkey
     target = tmp_path / "missing" / "out.exr"
     status, _, err = run_cli(capsys, "render", "-o", str(target))
     assert status == 2
-    assert err == f"clrender: error: cannot write {target}: directory {target.parent} " \
-                  "does not exist\n"  # fmt: skip
+    assert (
+        err == f"clrender: error: cannot write {target}: directory {target.parent} does not exist\n"
+    )
 
 
 @pytest.mark.parametrize("argv", [["--debug", "render"], ["render", "--debug"]])
@@ -134,9 +171,14 @@ def fake_result(nonfinite: int, flagged: int, interrupted: bool = False) -> Rend
 
 @pytest.mark.parametrize(
     "strict, nonfinite, flagged, interrupted, status",
-    [(False, 0, 0, False, 0), (False, 5, 2, False, 0), (True, 5, 2, False, 3),
-     (True, 0, 0, False, 0), (True, 5, 2, True, 130)],
-)  # fmt: skip
+    [
+        (False, 0, 0, False, 0),
+        (False, 5, 2, False, 0),
+        (True, 5, 2, False, 3),
+        (True, 0, 0, False, 0),
+        (True, 5, 2, True, 130),
+    ],
+)
 def test_exit_status(capsys, strict, nonfinite, flagged, interrupted, status):
     args = cli.build_parser().parse_args(["render"] + (["--strict"] if strict else []))
     result = fake_result(nonfinite, flagged, interrupted)
@@ -165,8 +207,19 @@ def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
     # done, which is when the interrupt is sent (no timing guesses).
     out = tmp_path / "slow.exr"
     controller, terminal = pty.openpty()
-    command = [sys.executable, "-m", "clrender", "render", "analytic", "--res", "256",
-               "--spp", "64", "-o", str(out)]  # fmt: skip
+    command = [
+        sys.executable,
+        "-m",
+        "clrender",
+        "render",
+        "analytic",
+        "--res",
+        "256",
+        "--spp",
+        "64",
+        "-o",
+        str(out),
+    ]
     child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=terminal, cwd=tmp_path)
     os.close(terminal)
     try:

@@ -59,15 +59,15 @@ def test_cornell_estimators_agree_on_the_image_mean(runtime, cornell):
 def test_cornell_render_is_bit_identical_across_tilings_and_overlap(runtime, cornell, estimator):
     reference = render_cornell(runtime, cornell, estimator).film.image()
     for tile_samples, overlap in [(16 * 40, True), (16 * 100, False)]:
-        image = render_cornell(runtime, cornell, estimator, tile_samples=tile_samples,
-                               overlap=overlap).film.image()  # fmt: skip
+        image = render_cornell(
+            runtime, cornell, estimator, tile_samples=tile_samples, overlap=overlap
+        ).film.image()
         assert np.array_equal(image, reference)
 
 
 def test_default_command_renders_the_cornell_box(capsys, tmp_path):
     out = tmp_path / "cb.exr"
-    status = cli.main(["render", "--res", "12x8", "--spp", "4", "--max-depth", "3",
-                       "-o", str(out)])  # fmt: skip
+    status = cli.main(["render", "--res", "12x8", "--spp", "4", "--max-depth", "3", "-o", str(out)])
     assert status == 0
     stdout = capsys.readouterr().out
     assert "cornell-box: 12x8, 4 spp, sppp + vor_sn" in stdout and "rays" in stdout

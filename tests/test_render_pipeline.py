@@ -20,8 +20,9 @@ def analytic_source(runtime, scene="analytic:mix"):
 
 
 def settings(sampler="sppp", estimator="vor_sn", spp=16, eps=None, **options):
-    config = make_sampler(sampler, spp, eps=eps) if sampler == "sppp" else make_sampler(
-        sampler, spp)  # fmt: skip
+    config = (
+        make_sampler(sampler, spp, eps=eps) if sampler == "sppp" else make_sampler(sampler, spp)
+    )
     return RenderSettings(WIDTH, HEIGHT, config, estimator, seed=5, **options)
 
 
@@ -108,8 +109,9 @@ class PoisonedPending:
         return SampleRadiance(values, 0, self.reported)
 
     def to_device(self, runtime) -> DeviceRadiance:
-        return DeviceRadiance(runtime.upload(self.to_host().values.astype(np.float32)), 0,
-                              self.reported)
+        return DeviceRadiance(
+            runtime.upload(self.to_host().values.astype(np.float32)), 0, self.reported
+        )
 
 
 @dataclass

@@ -31,8 +31,9 @@ def test_device_philox_equals_numpy_on_random_inputs(runtime):
     gen = np.random.default_rng(1)
     counters = gen.integers(0, 2**32, size=(10_000, 4), dtype=np.uint32)
     keys = gen.integers(0, 2**32, size=(10_000, 2), dtype=np.uint32)
-    np.testing.assert_array_equal(device_philox(runtime, counters, keys),
-                                  rng.philox4x32_10(counters, keys))  # fmt: skip
+    np.testing.assert_array_equal(
+        device_philox(runtime, counters, keys), rng.philox4x32_10(counters, keys)
+    )
 
 
 def _device_uniform_slots(runtime, seed, slots):
@@ -42,8 +43,15 @@ def _device_uniform_slots(runtime, seed, slots):
     slots_buf = cl.Buffer(runtime.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=slots)
     out_buf = cl.Buffer(runtime.context, mf.WRITE_ONLY, size=out.nbytes)
     kernel = runtime.kernel("rng_test.cl", "uniform_slots")
-    kernel(runtime.queue, (padded_global_size(len(slots)),), (runtime.local_size,),
-           np.uint32(len(slots)), np.uint32(seed), slots_buf, out_buf)  # fmt: skip
+    kernel(
+        runtime.queue,
+        (padded_global_size(len(slots)),),
+        (runtime.local_size,),
+        np.uint32(len(slots)),
+        np.uint32(seed),
+        slots_buf,
+        out_buf,
+    )
     cl.enqueue_copy(runtime.queue, out, out_buf)
     return out
 
@@ -66,6 +74,11 @@ def test_unit_floats_are_strictly_inside_the_open_interval():
 
 def test_streams_differ_in_every_coordinate():
     base = rng.bits4(7, 3, 5, 1, 0)
-    for other in (rng.bits4(8, 3, 5, 1, 0), rng.bits4(7, 4, 5, 1, 0), rng.bits4(7, 3, 6, 1, 0),
-                  rng.bits4(7, 3, 5, 2, 0), rng.bits4(7, 3, 5, 1, 1)):  # fmt: skip
+    for other in (
+        rng.bits4(8, 3, 5, 1, 0),
+        rng.bits4(7, 4, 5, 1, 0),
+        rng.bits4(7, 3, 6, 1, 0),
+        rng.bits4(7, 3, 5, 2, 0),
+        rng.bits4(7, 3, 5, 1, 1),
+    ):
         assert not np.array_equal(base, other)

@@ -112,10 +112,21 @@ def test_an_installed_wheel_carries_the_kernels(tmp_path):
     if importlib.util.find_spec("hatchling") is None:
         pytest.skip("hatchling is not installed (it comes with the test extras)")
     build = subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
-         "-w", str(tmp_path), str(REPO)],
-        capture_output=True, text=True,
-    )  # fmt: skip
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(tmp_path),
+            str(REPO),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert build.returncode == 0, build.stderr
     wheel = next(tmp_path.glob("clrender-*.whl"))
     site = tmp_path / "site"
@@ -124,7 +135,10 @@ def test_an_installed_wheel_carries_the_kernels(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(site)}
     probe = subprocess.run(
         [sys.executable, "-c", "import clrender.runtime as r; print(r.kernels_dir())"],
-        capture_output=True, text=True, cwd=tmp_path, env=env,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=env,
+    )
     assert probe.returncode == 0, probe.stderr
     assert Path(probe.stdout.strip()) == site / "clrender" / "kernels"

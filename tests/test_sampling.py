@@ -32,10 +32,16 @@ def poisson_chi_square(counts, mean):
     every expected count is at least 5."""
     lo, hi = int(stats.poisson.ppf(1e-7, mean)), int(stats.poisson.ppf(1 - 1e-7, mean)) + 1
     edges = np.arange(lo, hi + 1)
-    observed = np.array([np.sum(counts < lo)] + [np.sum(counts == k) for k in edges[:-1]]
-                        + [np.sum(counts >= hi)])  # fmt: skip
-    probs = np.concatenate([[stats.poisson.cdf(lo - 1, mean)], stats.poisson.pmf(edges[:-1], mean),
-                            [stats.poisson.sf(hi - 1, mean)]])  # fmt: skip
+    observed = np.array(
+        [np.sum(counts < lo)] + [np.sum(counts == k) for k in edges[:-1]] + [np.sum(counts >= hi)]
+    )
+    probs = np.concatenate(
+        [
+            [stats.poisson.cdf(lo - 1, mean)],
+            stats.poisson.pmf(edges[:-1], mean),
+            [stats.poisson.sf(hi - 1, mean)],
+        ]
+    )
     expected = probs * len(counts)
     observed, expected = merge_small_bins(observed, expected)
     chi2 = np.sum((observed - expected) ** 2 / expected)
@@ -165,8 +171,9 @@ def test_eps_follows_alpha():
     assert sppp_eps(256, 1e-6) > sppp_eps(256, 1e-3) > sppp_eps(256, 0.5)
 
 
-@pytest.mark.parametrize("sampler, n", [("uniform", 9), ("stratified", 9), ("sppp", 9),
-                                        ("sppp", 300)])  # fmt: skip
+@pytest.mark.parametrize(
+    "sampler, n", [("uniform", 9), ("stratified", 9), ("sppp", 9), ("sppp", 300)]
+)
 def test_sample_sets_do_not_depend_on_the_tiling(runtime, sampler, n):
     width, height = 13, 10
     config = make_sampler(sampler, n)
@@ -184,9 +191,13 @@ def test_sample_sets_do_not_depend_on_the_tiling(runtime, sampler, n):
 
 
 def split_by_pixel(sets, pixels):
-    return {int(p): (sets.traced[sets.offsets[i]:sets.offsets[i + 1]],
-                     sets.aux[sets.aux_offsets[i]:sets.aux_offsets[i + 1]])
-            for i, p in enumerate(pixels)}  # fmt: skip
+    return {
+        int(p): (
+            sets.traced[sets.offsets[i] : sets.offsets[i + 1]],
+            sets.aux[sets.aux_offsets[i] : sets.aux_offsets[i + 1]],
+        )
+        for i, p in enumerate(pixels)
+    }
 
 
 def test_a_redraw_changes_only_the_redrawn_pixel(runtime):
@@ -206,16 +217,19 @@ def test_different_seeds_give_different_sets(runtime):
     assert not np.array_equal(a.traced, b.traced)
 
 
-@pytest.mark.parametrize("kwargs, names", [
-    (dict(name="sobol", n=16), ["sampler", "uniform, stratified, sppp"]),
-    (dict(name="uniform", n=0), ["n (samples per pixel)", "positive"]),
-    (dict(name="sppp", n=-4), ["n (samples per pixel)"]),
-    (dict(name="uniform", n=2.5), ["n (samples per pixel)", "integer"]),
-    (dict(name="stratified", n=10), ["perfect square", "9 or 16"]),
-    (dict(name="sppp", n=64, alpha=0.0), ["alpha", "(0, 1)"]),
-    (dict(name="sppp", n=64, alpha=1.5), ["alpha", "(0, 1)"]),
-    (dict(name="sppp", n=64, eps=-1.0), ["eps"]),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    "kwargs, names",
+    [
+        (dict(name="sobol", n=16), ["sampler", "uniform, stratified, sppp"]),
+        (dict(name="uniform", n=0), ["n (samples per pixel)", "positive"]),
+        (dict(name="sppp", n=-4), ["n (samples per pixel)"]),
+        (dict(name="uniform", n=2.5), ["n (samples per pixel)", "integer"]),
+        (dict(name="stratified", n=10), ["perfect square", "9 or 16"]),
+        (dict(name="sppp", n=64, alpha=0.0), ["alpha", "(0, 1)"]),
+        (dict(name="sppp", n=64, alpha=1.5), ["alpha", "(0, 1)"]),
+        (dict(name="sppp", n=64, eps=-1.0), ["eps"]),
+    ],
+)
 def test_bad_sampler_parameters_name_the_parameter(kwargs, names):
     with pytest.raises(ParameterError) as err:
         make_sampler(**kwargs)

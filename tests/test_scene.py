@@ -56,8 +56,14 @@ def test_struct_layouts_match_the_kernel(runtime):
     buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=sizes.nbytes)
     runtime.kernel("bsdf_test.cl", "struct_sizes")(runtime.queue, (1,), None, buf)
     cl.enqueue_copy(runtime.queue, sizes, buf)
-    dtypes = [QUAD_DTYPE, SPHERE_DTYPE, MATERIAL_DTYPE, EMITTER_DTYPE, CAMERA_DTYPE,
-              quad_block_dtype()]  # fmt: skip
+    dtypes = [
+        QUAD_DTYPE,
+        SPHERE_DTYPE,
+        MATERIAL_DTYPE,
+        EMITTER_DTYPE,
+        CAMERA_DTYPE,
+        quad_block_dtype(),
+    ]
     assert list(sizes) == [d.itemsize for d in dtypes]
 
 
@@ -72,11 +78,24 @@ def test_authors_cornell_box_geometry():
     assert light["material"] == -1  # the light only emits
     # Box (0,0,0)-(165,330,165) rotated 15 degrees about y, then moved by (265, 0, 295)
     box = scene.quads[6:]
-    corners = np.array([q["corner"] + a * q["edge1"] + b * q["edge2"]
-                        for q in box for a in (0, 1) for b in (0, 1)], np.float64)  # fmt: skip
+    corners = np.array(
+        [
+            q["corner"] + a * q["edge1"] + b * q["edge2"]
+            for q in box
+            for a in (0, 1)
+            for b in (0, 1)
+        ],
+        np.float64,
+    )
     c, s = math.cos(math.radians(15)), math.sin(math.radians(15))
-    expected = np.array([[c * x + s * z + 265, y, -s * x + c * z + 295]
-                         for x in (0, 165) for y in (0, 330) for z in (0, 165)])  # fmt: skip
+    expected = np.array(
+        [
+            [c * x + s * z + 265, y, -s * x + c * z + 295]
+            for x in (0, 165)
+            for y in (0, 330)
+            for z in (0, 165)
+        ]
+    )
     distances = np.linalg.norm(corners[:, None, :] - expected[None, :, :], axis=2)
     assert distances.min(axis=1).max() < 1e-3  # every face corner is a box corner
     assert distances.min(axis=0).max() < 1e-3  # every box corner is used
@@ -102,12 +121,19 @@ def test_mitsuba_geometry_is_exactly_the_json():
     source = json.loads((DATA / "mitsuba-cbox.json").read_text())
     scene = load_scene("mitsuba-cbox")
     quad_vertices = [
-        np.array([q["corner"], q["corner"] + q["edge1"],
-                  q["corner"] + q["edge1"] + q["edge2"], q["corner"] + q["edge2"]])
+        np.array(
+            [
+                q["corner"],
+                q["corner"] + q["edge1"],
+                q["corner"] + q["edge1"] + q["edge2"],
+                q["corner"] + q["edge2"],
+            ]
+        )
         for q in scene.quads
-    ]  # fmt: skip
-    triangles = [np.array(shape["vertices"])[tri] for shape in source["shapes"]
-                 for tri in shape["triangles"]]  # fmt: skip
+    ]
+    triangles = [
+        np.array(shape["vertices"])[tri] for shape in source["shapes"] for tri in shape["triangles"]
+    ]
     assert len(triangles) == 2 * len(scene.quads)
     for k, tri in enumerate(triangles):
         quad = quad_vertices[k // 2]

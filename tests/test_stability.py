@@ -15,9 +15,9 @@ from clrender.sppp import auxiliary_count, draw_sppp, rejection_bound, sppp_eps
 from clrender.voronoi import estimate_with_redraw
 
 ALL = list(ESTIMATORS)
-VOR_FAMILY = ["vor", "vor_sn", "fvor"]          # need aux nuclei, may reject a pixel
-NORMALISED = ["mc_n", "vor_sn", "fvor", "cvor", "pvor"]   # weights sum to 1 when N >= 1
-HOLDER_1 = 1.0 / 16.0                           # integral of |x y| over W
+VOR_FAMILY = ["vor", "vor_sn", "fvor"]  # need aux nuclei, may reject a pixel
+NORMALISED = ["mc_n", "vor_sn", "fvor", "cvor", "pvor"]  # weights sum to 1 when N >= 1
+HOLDER_1 = 1.0 / 16.0  # integral of |x y| over W
 
 
 def smooth(positions: np.ndarray) -> np.ndarray:
@@ -67,8 +67,9 @@ def fixed_count_samples(seed: int, count: int, pixels: int) -> PixelSamples:
     positions = rng.random((pixels * count, 2)) - 0.5
     values = np.column_stack([smooth(positions), np.ones(len(positions))])
     offsets = np.arange(pixels + 1, dtype=np.int64) * count
-    return PixelSamples(positions, values, offsets, float(count), batch.aux, batch.aux_offsets,
-                        batch.eps)
+    return PixelSamples(
+        positions, values, offsets, float(count), batch.aux, batch.aux_offsets, batch.eps
+    )
 
 
 @pytest.mark.parametrize("count", [1, 2, 3])
@@ -86,17 +87,18 @@ def test_near_empty_pixels_give_finite_defined_estimates(count):
         assert not redraw.any() if name not in VOR_FAMILY else redraw.mean() < 0.05, name
         assert np.isfinite(result.estimates[~redraw]).all(), name
         assert np.isnan(result.estimates[redraw]).all(), name
-    for name in NORMALISED:   # convex weights: the estimate lies between the pixel's values
+    for name in NORMALISED:  # convex weights: the estimate lies between the pixel's values
         ok = ~results[name].needs_redraw
         est = results[name].estimates[ok, 0]
         assert (est >= lo[ok] - 1e-12).all() and (est <= hi[ok] + 1e-12).all(), name
     ok = ~results["vor"].needs_redraw
-    assert (results["vor"].estimates[ok, 1] > 0).all()   # sum of the W cells' areas
-    if count == 1:   # one nucleus: every normalised weight is 1, mc's is 1/n = 1
+    assert (results["vor"].estimates[ok, 1] > 0).all()  # sum of the W cells' areas
+    if count == 1:  # one nucleus: every normalised weight is 1, mc's is 1/n = 1
         for name in [*NORMALISED, "mc"]:
             ok = ~results[name].needs_redraw
-            np.testing.assert_allclose(results[name].estimates[ok, 0], f[ok], rtol=1e-12,
-                                       err_msg=name)
+            np.testing.assert_allclose(
+                results[name].estimates[ok, 0], f[ok], rtol=1e-12, err_msg=name
+            )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -132,9 +134,9 @@ def test_rejected_pixels_are_those_with_a_w_nucleus_on_the_hull():
     samples = PixelSamples.from_sppp(batch, np.ones(len(batch.traced)), n)
     rejected = estimate("vor", samples).needs_redraw
     on_hull = np.zeros(pixels, bool)
-    for p in range(pixels):   # reference loop over pixels (test only)
-        traced = batch.traced[batch.offsets[p]:batch.offsets[p + 1]]
-        aux = batch.aux[batch.aux_offsets[p]:batch.aux_offsets[p + 1]]
+    for p in range(pixels):  # reference loop over pixels (test only)
+        traced = batch.traced[batch.offsets[p] : batch.offsets[p + 1]]
+        aux = batch.aux[batch.aux_offsets[p] : batch.aux_offsets[p + 1]]
         hull = ConvexHull(np.vstack([traced, aux]))
         on_hull[p] = (hull.vertices < len(traced)).any()
     assert rejected.sum() >= 5
@@ -156,8 +158,9 @@ def storm(seed: int, pixels: int, names, **driver):
         accept_eps[pixel_ids] = eps
         return draw_sppp(rng, STORM_N, len(pixel_ids), eps=eps)
 
-    outcome = estimate_with_redraw(names, draw, lambda b, ids: holder_1(b.traced), pixels,
-                                   STORM_N, eps=STORM_EPS, **driver)
+    outcome = estimate_with_redraw(
+        names, draw, lambda b, ids: holder_1(b.traced), pixels, STORM_N, eps=STORM_EPS, **driver
+    )
     return outcome, accept_eps
 
 
@@ -179,8 +182,9 @@ def unrecoverable_storm(seed: int, pixels: int, names, **driver):
     """A sampler that ignores the driver's eps: it never draws an auxiliary nucleus."""
     rng = np.random.default_rng(seed)
     draw = lambda pixel_ids, eps: draw_sppp(rng, STORM_N, len(pixel_ids), eps=STORM_EPS)  # noqa: E731
-    return estimate_with_redraw(names, draw, lambda b, ids: holder_1(b.traced), pixels,
-                                STORM_N, eps=STORM_EPS, **driver)
+    return estimate_with_redraw(
+        names, draw, lambda b, ids: holder_1(b.traced), pixels, STORM_N, eps=STORM_EPS, **driver
+    )
 
 
 def test_an_unrecoverable_storm_stops_after_max_rounds_and_falls_back_to_mc():
@@ -239,7 +243,7 @@ def test_flat_pixel_is_exact_for_weights_that_sum_to_one(n):
     nonempty = counts_of(samples) >= 1
     for name, result in estimate_all(NORMALISED, samples).items():
         ok = nonempty & ~result.needs_redraw
-        assert ok.sum() >= 0.8 * 600, name     # P(N = 0) = exp(-2) = 0.14 at n = 2
+        assert ok.sum() >= 0.8 * 600, name  # P(N = 0) = exp(-2) = 0.14 at n = 2
         assert np.abs(result.estimates[ok] - 1.0).max() <= 1e-12, name
 
 
@@ -251,7 +255,7 @@ def test_flat_pixel_mc_and_literal_vor_add_noise():
     samples = sppp_samples(510, n, 600, lambda p: np.ones(len(p)))
     results = estimate_all(["mc", "vor"], samples)
     mc = results["mc"].estimates
-    assert mc.std(ddof=1) == pytest.approx(n ** -0.5, rel=0.15)
+    assert mc.std(ddof=1) == pytest.approx(n**-0.5, rel=0.15)
     vor = results["vor"].estimates[~results["vor"].needs_redraw]
     assert vor.std(ddof=1) > 0.05 and np.abs(vor - 1.0).max() > 0.1
     assert abs(z_score(vor, 1.0)) < 4
@@ -286,8 +290,13 @@ def test_firefly_moves_each_estimate_by_value_times_its_weight(fireflies):
         weight = est[:, 1]
         for j, gain in enumerate(GAINS, start=2):
             assert np.isfinite(est[:, j]).all(), name
-            np.testing.assert_allclose(est[:, j] - est[:, 0], (gain - 1) * f_k[ok] * weight,
-                                       rtol=1e-9, atol=1e-12 * gain, err_msg=name)
+            np.testing.assert_allclose(
+                est[:, j] - est[:, 0],
+                (gain - 1) * f_k[ok] * weight,
+                rtol=1e-9,
+                atol=1e-12 * gain,
+                err_msg=name,
+            )
 
 
 def test_firefly_error_is_bounded_by_the_largest_weight(fireflies):
@@ -296,8 +305,14 @@ def test_firefly_error_is_bounded_by_the_largest_weight(fireflies):
     # firefly's cell area, finite and positive.
     samples, f_k, results = fireflies
     n, counts = samples.intensity, counts_of(samples)
-    exact = 0.5 + 0.4 * (np.cos(-1.0 + 0.3) - np.cos(1.0 + 0.3)) / 2.0 * (
-        np.cos(-0.75 + 1.1) - np.cos(0.75 + 1.1)) / 1.5
+    exact = (
+        0.5
+        + 0.4
+        * (np.cos(-1.0 + 0.3) - np.cos(1.0 + 0.3))
+        / 2.0
+        * (np.cos(-0.75 + 1.1) - np.cos(0.75 + 1.1))
+        / 1.5
+    )
     w_max = {"mc": np.full(len(counts), 1.0 / n), "mc_n": 1.0 / np.maximum(counts, 1)}
     for name, result in results.items():
         ok = ~result.needs_redraw & (counts > 0)

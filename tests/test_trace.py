@@ -93,8 +93,9 @@ def project(scene, point, width, height):
     return (sx + 1.0) / 2.0 * width, (1.0 - sy) / 2.0 * height
 
 
-@pytest.mark.parametrize(("name", "depth"), [("cornell-box", 1), ("cornell-box", 8),
-                                             ("mitsuba-cbox", 1)])  # fmt: skip
+@pytest.mark.parametrize(
+    ("name", "depth"), [("cornell-box", 1), ("cornell-box", 8), ("mitsuba-cbox", 1)]
+)
 def test_pixel_seeing_only_the_light_equals_its_radiance(runtime, name, depth):
     scene = load_scene(name)
     width = height = 64
@@ -104,9 +105,13 @@ def test_pixel_seeing_only_the_light_equals_its_radiance(runtime, name, depth):
     # The whole pixel must lie inside the light's image
     for cx in (x, x + 1):
         for cy in (y, y + 1):
-            corner_hits = [project(scene, light["corner"] + a * light["edge1"]
-                                   + b * light["edge2"], width, height)
-                           for a in (0, 1) for b in (0, 1)]  # fmt: skip
+            corner_hits = [
+                project(
+                    scene, light["corner"] + a * light["edge1"] + b * light["edge2"], width, height
+                )
+                for a in (0, 1)
+                for b in (0, 1)
+            ]
             xs, ys = zip(*corner_hits, strict=True)
             assert min(xs) < cx < max(xs) and min(ys) < cy < max(ys)
     tracer = PathTracer(runtime, scene, max_depth=depth)
@@ -170,8 +175,10 @@ def test_tiling_does_not_change_per_sample_radiance(cornell_tracer, sampler):
     width = height = 16
     seed = 33
     whole, _, whole_sets = render(cornell_tracer, sampler, 16, seed, width, height)
-    per_pixel = {int(p): whole[whole_sets.traced_offsets[k] : whole_sets.traced_offsets[k + 1]]
-                 for k, p in enumerate(whole_sets.pixels)}  # fmt: skip
+    per_pixel = {
+        int(p): whole[whole_sets.traced_offsets[k] : whole_sets.traced_offsets[k + 1]]
+        for k, p in enumerate(whole_sets.pixels)
+    }
     shuffled = np.random.default_rng(0).permutation(tile_pixels(width, 0, 0, width, height))
     tiles = [tile_pixels(width, x0, y0, 8, 8) for x0 in (0, 8) for y0 in (0, 8)]
     for group in [*tiles, shuffled[:37], shuffled[37:]]:

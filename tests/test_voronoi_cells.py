@@ -34,13 +34,22 @@ def scipy_areas(points: np.ndarray, count: int) -> np.ndarray:
 
 
 def pixel_slices(batch, p):
-    return (slice(batch.offsets[p], batch.offsets[p + 1]),
-            slice(batch.aux_offsets[p], batch.aux_offsets[p + 1]))
+    return (
+        slice(batch.offsets[p], batch.offsets[p + 1]),
+        slice(batch.aux_offsets[p], batch.aux_offsets[p + 1]),
+    )
 
 
 def mirrored(x: np.ndarray) -> np.ndarray:
-    return np.concatenate([x, np.c_[1 - x[:, 0], x[:, 1]], np.c_[-1 - x[:, 0], x[:, 1]],
-                           np.c_[x[:, 0], 1 - x[:, 1]], np.c_[x[:, 0], -1 - x[:, 1]]])
+    return np.concatenate(
+        [
+            x,
+            np.c_[1 - x[:, 0], x[:, 1]],
+            np.c_[-1 - x[:, 0], x[:, 1]],
+            np.c_[x[:, 0], 1 - x[:, 1]],
+            np.c_[x[:, 0], -1 - x[:, 1]],
+        ]
+    )
 
 
 def periodic_copies(x: np.ndarray) -> np.ndarray:
@@ -83,8 +92,9 @@ def test_periodic_areas_match_nine_copies_and_tile_torus(batch):
     for p in range(batch.pixel_count):
         w, _ = pixel_slices(batch, p)
         x = batch.traced[w]
-        np.testing.assert_allclose(cells.areas[w], scipy_areas(periodic_copies(x), len(x)),
-                                   rtol=RTOL)
+        np.testing.assert_allclose(
+            cells.areas[w], scipy_areas(periodic_copies(x), len(x)), rtol=RTOL
+        )
         assert cells.areas[w].sum() == pytest.approx(1.0, abs=1e-12)
 
 
@@ -93,8 +103,14 @@ def single_pixel_areas(batch, cell_fn) -> np.ndarray:
     for p in range(batch.pixel_count):
         w, a = pixel_slices(batch, p)
         count = len(batch.traced[w])
-        parts.append(cell_fn(batch.traced[w], np.array([0, count]),
-                             batch.aux[a], np.array([0, len(batch.aux[a])])).areas)
+        parts.append(
+            cell_fn(
+                batch.traced[w],
+                np.array([0, count]),
+                batch.aux[a],
+                np.array([0, len(batch.aux[a])]),
+            ).areas
+        )
     return np.concatenate(parts)
 
 

@@ -13,7 +13,7 @@ from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimate_all
 from clrender.sppp import draw_sppp, sppp_eps
 from clrender.voronoi_cells import sppp_cells
 
-EXACT = np.array([1 / 16, 2 / 9])   # holder_1, holder_0.5
+EXACT = np.array([1 / 16, 2 / 9])  # holder_1, holder_0.5
 
 
 def holder_columns(positions: np.ndarray) -> np.ndarray:
@@ -83,8 +83,11 @@ def test_aux_estimators_without_aux_raise_naming_the_estimator(name):
 
 
 def test_registry_entries_describe_requirements():
-    assert {name for name, info in ESTIMATORS.items() if info.needs_aux} == {"vor", "vor_sn",
-                                                                              "fvor"}
+    assert {name for name, info in ESTIMATORS.items() if info.needs_aux} == {
+        "vor",
+        "vor_sn",
+        "fvor",
+    }
     assert all(info.description for info in ESTIMATORS.values())
 
 
@@ -102,12 +105,20 @@ def test_positions_outside_w_or_not_finite_are_rejected(position):
 def sppp_samples(points, values, aux, n=16.0):
     points = np.asarray(points, float).reshape(-1, 2)
     aux = np.asarray(aux, float).reshape(-1, 2)
-    return PixelSamples(points, np.asarray(values, float), np.array([0, len(points)]), n,
-                        aux, np.array([0, len(aux)]), 0.25)
+    return PixelSamples(
+        points,
+        np.asarray(values, float),
+        np.array([0, len(points)]),
+        n,
+        aux,
+        np.array([0, len(aux)]),
+        0.25,
+    )
 
 
-RING = np.array([[np.cos(t), np.sin(t)] for t in np.linspace(0, 2 * np.pi, 12,
-                                                               endpoint=False)]) * 0.7
+RING = (
+    np.array([[np.cos(t), np.sin(t)] for t in np.linspace(0, 2 * np.pi, 12, endpoint=False)]) * 0.7
+)
 
 
 @pytest.mark.parametrize("count", [0, 1, 2, 3])
@@ -152,7 +163,7 @@ def test_duplicate_positions_share_their_cell():
     points[1] = points[0]
     points[2] = points[0]
     values = np.zeros(40)
-    values[:3] = 1.0   # the estimate is the (shared) area of the triple point's cell
+    values[:3] = 1.0  # the estimate is the (shared) area of the triple point's cell
     distinct = np.delete(points, [1, 2], axis=0)
     for name in ("cvor", "pvor"):
         with_dupes = estimate(name, sppp_samples(points, values, np.zeros((0, 2))))
@@ -175,8 +186,7 @@ def test_nuclei_on_the_pixel_edge():
     assert periodic.estimates[0] == pytest.approx(1.0, abs=1e-12)
     eps = sppp_eps(30)
     aux = draw_sppp(np.random.default_rng(25), 30, 1, eps=eps).aux
-    samples = PixelSamples(points, ones, np.array([0, 30]), 30.0, aux,
-                           np.array([0, len(aux)]), eps)
+    samples = PixelSamples(points, ones, np.array([0, 30]), 30.0, aux, np.array([0, len(aux)]), eps)
     result = estimate("vor_sn", samples)
     assert result.needs_redraw[0] or result.estimates[0] == pytest.approx(1.0)
 
@@ -186,26 +196,28 @@ def test_non_finite_values_stay_in_their_pixel(bad):
     n, pixels = 64, 3
     batch = draw_sppp(np.random.default_rng(26), n, pixels, eps=sppp_eps(n))
     values = np.ones(len(batch.traced))
-    values[batch.offsets[1]] = bad     # one bad value in pixel 1
+    values[batch.offsets[1]] = bad  # one bad value in pixel 1
     results = estimate_all(list(ESTIMATORS), PixelSamples.from_sppp(batch, values, n))
     for name, result in results.items():
         ok = ~result.needs_redraw
         assert np.isfinite(result.estimates[[0, 2]][ok[[0, 2]]]).all(), name
-        if name != "fvor" and ok[1]:   # fvor ignores values of dropped nuclei
+        if name != "fvor" and ok[1]:  # fvor ignores values of dropped nuclei
             assert not np.isfinite(result.estimates[1]), name
 
 
 def test_rgb_values_match_per_channel_scalar_estimates():
     n, pixels = 64, 20
     batch = draw_sppp(np.random.default_rng(27), n, pixels)
-    rgb = np.column_stack([batch.traced[:, 0] ** 2, np.abs(batch.traced[:, 1]),
-                           np.ones(len(batch.traced))])
+    rgb = np.column_stack(
+        [batch.traced[:, 0] ** 2, np.abs(batch.traced[:, 1]), np.ones(len(batch.traced))]
+    )
     together = estimate_all(list(ESTIMATORS), PixelSamples.from_sppp(batch, rgb, n))
     for c in range(3):
         alone = estimate_all(list(ESTIMATORS), PixelSamples.from_sppp(batch, rgb[:, c], n))
         for name in ESTIMATORS:
-            np.testing.assert_allclose(together[name].estimates[:, c], alone[name].estimates,
-                                       rtol=1e-12, err_msg=name)
+            np.testing.assert_allclose(
+                together[name].estimates[:, c], alone[name].estimates, rtol=1e-12, err_msg=name
+            )
 
 
 def test_fvor_against_a_per_pixel_reference_including_its_vor_sn_fallback():
@@ -217,8 +229,7 @@ def test_fvor_against_a_per_pixel_reference_including_its_vor_sn_fallback():
     values = holder_columns(batch.traced)
     samples = PixelSamples.from_sppp(batch, values, n)
     results = estimate_all(["fvor", "vor_sn"], samples)
-    cells = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets,
-                       0.5 + batch.eps)
+    cells = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5 + batch.eps)
     fallbacks = 0
     for p in range(pixels):
         if results["fvor"].needs_redraw[p]:

@@ -23,8 +23,9 @@ def test_tiny_eps_terminates_counts_and_enlarges_eps():
     # eps = 0.01 is far below sppp_eps(256) = 0.144: nearly every pixel is rejected until eps
     # has been enlarged: the first enlargement (after 3 redraws) jumps to the paper's eps at
     # least, each later one multiplies it by 1.5.
-    outcome = estimate_with_redraw(["vor", "vor_sn", "fvor"], sppp_drawer(31), holder_1,
-                                   pixels=40, n=N, eps=0.01)
+    outcome = estimate_with_redraw(
+        ["vor", "vor_sn", "fvor"], sppp_drawer(31), holder_1, pixels=40, n=N, eps=0.01
+    )
     stats = outcome.stats
     assert stats.redraws > 40
     assert stats.eps_enlargements >= 1
@@ -42,16 +43,18 @@ def test_default_eps_rarely_redraws():
 
 
 def test_zero_eps_is_enlarged_to_a_positive_width():
-    outcome = estimate_with_redraw("vor", sppp_drawer(33), holder_1, pixels=10, n=N, eps=0.0,
-                                   redraws_before_enlarge=0)
+    outcome = estimate_with_redraw(
+        "vor", sppp_drawer(33), holder_1, pixels=10, n=N, eps=0.0, redraws_before_enlarge=0
+    )
     assert outcome.stats.final_eps > 0 and np.isfinite(outcome.estimates["vor"]).all()
 
 
 def without_aux(pixel_ids, eps):
     """A sampler that ignores eps and never draws auxiliary nuclei."""
     batch = draw_sppp(np.random.default_rng(34), N, len(pixel_ids), eps=0.0)
-    return SpppBatch(batch.traced, batch.offsets, np.zeros((0, 2)),
-                     np.zeros(len(pixel_ids) + 1, np.int64), eps)
+    return SpppBatch(
+        batch.traced, batch.offsets, np.zeros((0, 2)), np.zeros(len(pixel_ids) + 1, np.int64), eps
+    )
 
 
 def test_hard_cap_raises_a_clear_error():
@@ -60,24 +63,29 @@ def test_hard_cap_raises_a_clear_error():
 
 
 def test_hard_cap_can_fall_back_to_mc():
-    outcome = estimate_with_redraw(["vor", "fvor"], without_aux, holder_1, pixels=3, n=N,
-                                   max_rounds=4, on_exhausted="mc")
+    outcome = estimate_with_redraw(
+        ["vor", "fvor"], without_aux, holder_1, pixels=3, n=N, max_rounds=4, on_exhausted="mc"
+    )
     assert outcome.stats.exhausted_pixels == 3
-    batch = without_aux(np.arange(3), 0.0)   # the same seed: the last draw's samples
-    mc = np.bincount(np.repeat(np.arange(3), np.diff(batch.offsets)),
-                     holder_1(batch, np.arange(3)), 3) / N
+    batch = without_aux(np.arange(3), 0.0)  # the same seed: the last draw's samples
+    mc = (
+        np.bincount(
+            np.repeat(np.arange(3), np.diff(batch.offsets)), holder_1(batch, np.arange(3)), 3
+        )
+        / N
+    )
     np.testing.assert_allclose(outcome.estimates["vor"], mc)
     np.testing.assert_allclose(outcome.estimates["fvor"], mc)
 
 
 def test_estimators_that_never_reject_finish_in_one_round():
-    outcome = estimate_with_redraw(["mc", "cvor", "pvor"], without_aux, holder_1, pixels=5,
-                                   n=N)
+    outcome = estimate_with_redraw(["mc", "cvor", "pvor"], without_aux, holder_1, pixels=5, n=N)
     assert outcome.stats.rounds == 1 and outcome.stats.redraws == 0
 
 
-@pytest.mark.parametrize("kwargs", [{"enlarge_factor": 1.0}, {"max_rounds": 0},
-                                    {"on_exhausted": "ignore"}])
+@pytest.mark.parametrize(
+    "kwargs", [{"enlarge_factor": 1.0}, {"max_rounds": 0}, {"on_exhausted": "ignore"}]
+)
 def test_bad_driver_parameters(kwargs):
     with pytest.raises(ParameterError):
         estimate_with_redraw("vor", sppp_drawer(35), holder_1, pixels=1, n=N, **kwargs)
@@ -86,5 +94,6 @@ def test_bad_driver_parameters(kwargs):
 def test_unknown_estimator_name_fails_before_drawing():
     def must_not_draw(pixel_ids, eps):
         raise AssertionError("drew samples for an unknown estimator")
+
     with pytest.raises(ParameterError, match="accepted"):
         estimate_with_redraw("nope", must_not_draw, holder_1, pixels=1, n=N)
