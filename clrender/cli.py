@@ -32,23 +32,21 @@ DEFAULT_SCENE = "cornell-box"
 DEFAULT_SPP = 64
 DEFAULT_WIDTH = 128
 DEFAULT_SAMPLER = "sppp"
-# vor_sn over SPPP samples, the paper's method in its self-normalised form. Measured with
-# bench/render_estimators.py (Cornell box 64x64, 64 spp, MSE against 4096 spp, 2 seeds):
-# mc uniform 0.0138, mc_n sppp 0.0132, vor 0.0096, vor_sn 0.0056 (= fvor), ivor_sn 0.0051,
-# pvor 0.0049, cvor 0.0042, mc over stratified samples 0.0028. Host time: vor_sn is the
-# cheapest of the Voronoi family (ivor_sn 1.1-1.6x, cvor and pvor 1.5-2.5x, on a loaded machine).
+# vor_sn over SPPP samples: the paper's method in its self-normalised form (the README's "What
+# the measurements say" compares it with the others, from bench/).
 DEFAULT_ESTIMATOR = {"sppp": "vor_sn", "uniform": "mc", "stratified": "mc"}
 
 RENDER_EPILOG = """\
 defaults: the authors' Cornell box at 128x128, 64 spp, the sppp sampler with the vor_sn
-estimator: the paper's Voronoi weights, self-normalised. On the Cornell box at 64 spp its
-mean squared error is 0.41x that of mc over uniform samples and 0.6x that of the
-unnormalised vor, at the lowest host cost of the Voronoi family (ivor_sn: 0.37x, at 1.1-1.6x
-the host time). mc over --sampler stratified does better still there (0.20x).
+estimator: the paper's Voronoi weights, self-normalised (the README's "What the measurements
+say" compares the estimators and samplers; mc over --sampler stratified often does better).
 --estimator defaults to vor_sn with sppp and mc with uniform or stratified samples.
-vor, vor_sn, fvor (auxiliary nuclei) and ivor, ivor_sn (Poisson counts) need the sppp
-sampler; mc, mc_n, cvor and pvor work with every sampler. SCENE is a shipped scene name, a
-.toml path, or analytic[:edge|smooth|disc|bowl|mix] (images with exact pixel integrals).
+
+estimators:
+{estimators}
+
+SCENE is a shipped scene name, a .toml path, or analytic[:edge|smooth|disc|bowl|mix]
+(images with exact pixel integrals).
 exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 130 interrupted
 (Ctrl-C writes the pixels done so far, with partial=1 in the EXR metadata)."""
 
@@ -70,11 +68,26 @@ def build_parser() -> argparse.ArgumentParser:
         "render",
         help="render a scene to OUT.exr (linear float) and OUT.png (sRGB preview)",
         description="Render a scene to a linear float32 EXR and an sRGB 8-bit PNG preview.",
-        epilog=RENDER_EPILOG,
+        epilog=render_epilog(),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_render_options(render)
     return parser
+
+
+def render_epilog() -> str:
+    """The render help's closing text, its estimator list from the registry."""
+    import textwrap
+
+    from clrender.estimators import ESTIMATORS
+
+    lines = []
+    for name, entry in ESTIMATORS.items():
+        mark = "*" if entry.needs_sppp else " "
+        text = f"{mark} {name:8s} {entry.description}"
+        lines.append(textwrap.fill(text, 92, subsequent_indent=" " * 11))
+    lines.append("  * needs --sampler sppp (auxiliary nuclei or Poisson counts)")
+    return RENDER_EPILOG.format(estimators="\n".join(lines))
 
 
 def add_device_option(parser: argparse.ArgumentParser) -> None:
@@ -87,7 +100,7 @@ def add_device_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_render_options(parser: argparse.ArgumentParser) -> None:
-    from clrender.render import ESTIMATOR_NAMES
+    from clrender.estimators import ESTIMATORS
 
     add = parser.add_argument
     add(
@@ -126,8 +139,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "--estimator",
         default=None,
         metavar="NAME",
-        help=f"pixel estimator: {', '.join(ESTIMATOR_NAMES)} "
-        "(default: vor_sn with sppp, mc otherwise)",
+        help=f"pixel estimator: {', '.join(ESTIMATORS)} (default: vor_sn with sppp, mc otherwise)",
     )
     add("--seed", type=int, default=0, help="random seed, 0 <= S < 2^32 (default: 0)")
     add(
@@ -228,15 +240,15 @@ def scene_label(scene: str) -> str:
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
-    from clrender.render import DEFAULT_TILE_SAMPLES, RenderSettings, check_compatible
+    from clrender.estimators import check_compatible
+    from clrender.render import DEFAULT_TILE_SAMPLES, RenderSettings
     from clrender.sampling import SAMPLERS, make_sampler
 
     if args.spp <= 0:
         raise ParameterError(f"--spp must be a positive integer, got {args.spp}")
     if args.sampler not in SAMPLERS:
         raise ParameterError(f"unknown sampler {args.sampler!r}; accepted: {', '.join(SAMPLERS)}")
-    estimator = args.estimator or DEFAULT_ESTIMATOR[args.sampler]
-    check_compatible(estimator, args.sampler)
+    estimator = check_compatible(args.estimator or DEFAULT_ESTIMATOR[args.sampler], args.sampler)
     tile_samples = DEFAULT_TILE_SAMPLES if args.tile_samples is None else args.tile_samples
     if tile_samples <= 0:
         raise ParameterError(f"--tile-samples must be a positive integer, got {tile_samples}")

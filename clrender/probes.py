@@ -25,7 +25,8 @@ from scipy import ndimage
 
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime
-from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets
+from clrender.samples import SampleSets
+from clrender.sampling import SamplerConfig, generate_sample_sets
 from clrender.scene import MATERIAL_TYPES, Scene
 from clrender.trace import PathTracer
 
@@ -307,7 +308,7 @@ class PixelRuns:
     """R sample sets of one pixel with their radiance (traced-sample order), and the time the
     device took to draw and trace them (seconds, whole launch)."""
 
-    sets: HostSampleSets
+    sets: SampleSets
     radiance: np.ndarray  # (T, 3) float64
     trace_seconds: float
 

@@ -2,8 +2,12 @@
 
     sample sets (kernels/sampling.cl, clrender.sampling.generate_sample_sets)
       -> radiance of each traced sample (a RadianceSource: the path tracer or an analytic image)
-      -> one estimate per pixel (clrender.estimators, on the host: Voronoi cells by Qhull)
+      -> one estimate per pixel (clrender.estimators: the registry entry says how)
       -> film (clrender.film)
+
+The estimator is validated once, when RenderSettings is made (its registry entry, checked
+against the sampler); the pipeline then asks that entry (its cells, whether the device forms
+its sums, whether it is image-level), never the name.
 
 A tile is a run of consecutive pixels (scanline order) holding about `tile_samples` samples,
 so memory stays bounded whatever the resolution and spp. With `overlap`, the host estimator of
@@ -12,7 +16,7 @@ pyopencl, NumPy and Qhull release the GIL in their long calls, so wall time appr
 max(device, host) instead of their sum.
 
 Rejections: a pixel whose SPPP tessellation leaves a nucleus of W with an unbounded cell is
-redrawn through clrender.voronoi.estimate_with_redraw: its sample set is generated again with
+redrawn through clrender.estimators.estimate_with_redraw: its sample set is generated again with
 its redraw number incremented (the same launch path as a tile, on a list of pixels), traced
 and estimated again; after a few redraws the driver widens eps, and after its last round it
 falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
@@ -20,7 +24,7 @@ Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
 Voronoi cells: with `voronoi_backend = "device"` (the default) the SPPP cells of vor, vor_sn
 and fvor are computed by a device kernel queued right after the tracing, and a second kernel
-forms each pixel's weighted sums (clrender.device_voronoi.device_sppp_sums): no per-sample
+forms each pixel's weighted sums (clrender.estimators.device_cells.device_sppp_sums): no per-sample
 array comes back, and the host stage only divides. A tile with a cell the kernel cannot
 certify has those pixels settled on the host (their samples read back, cells by Qhull). With
 "qhull" the host computes the cells with Qhull.
@@ -52,27 +56,22 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pyopencl as cl
 
-from clrender import image_voronoi
-from clrender.device_voronoi import DeviceSums, device_sppp_sums, settle_undecided
 from clrender.errors import ParameterError
-from clrender.estimators import (
-    ESTIMATORS,
-    PixelSamples,
-    estimate,
-    estimator_info,
-    sppp_estimates,
-)
+from clrender.estimators import image
+from clrender.estimators.device_cells import DeviceSums, device_sppp_sums, settle_undecided
+from clrender.estimators.pixel import estimate
+from clrender.estimators.redraw import estimate_with_redraw
+from clrender.estimators.registry import Estimator, check_compatible
 from clrender.film import Film
 from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime
-from clrender.sampling import HostSampleSets, SamplerConfig, generate_sample_sets, make_sampler
-from clrender.sppp import SpppBatch
-from clrender.voronoi import estimate_with_redraw
+from clrender.samples import SampleSets
+from clrender.sampling import SamplerConfig, generate_sample_sets, make_sampler
 
 DEFAULT_TILE_SAMPLES = 4_000_000
 # Where the SPPP Voronoi cells of vor, vor_sn and fvor are computed: the device kernel
-# (clrender.device_voronoi; exact, pixels it cannot certify recomputed with Qhull) or Qhull
-# on the host (clrender.voronoi_cells). Redraws always use Qhull.
+# (clrender.estimators.device_cells; exact, pixels it cannot certify recomputed with Qhull) or Qhull
+# on the host (clrender.estimators.qhull_cells). Redraws always use Qhull.
 VORONOI_BACKENDS = ("device", "qhull")
 # Split even small images into this many tiles (when tiles of MIN_TILE_PIXELS allow it), so
 # that the device and the host stage have something to overlap and progress moves.
@@ -85,10 +84,6 @@ REDRAWS_BEFORE_ENLARGE = 3 - 1
 MAX_REDRAW_ROUNDS = 12 - 1
 
 ProgressCallback = Callable[[int, int], None]
-# Per-pixel estimators (clrender.estimators) and image-level ones (clrender.image_voronoi:
-# one tessellation of the whole image plane, neighbours' nuclei shaping each pixel's cells).
-IMAGE_ESTIMATORS = tuple(image_voronoi.ESTIMATOR_NAMES)
-ESTIMATOR_NAMES = (*ESTIMATORS, *IMAGE_ESTIMATORS)
 
 
 @dataclass(frozen=True)
@@ -96,13 +91,17 @@ class RenderSettings:
     width: int
     height: int
     sampler: SamplerConfig
-    estimator: str
+    estimator: Estimator  # a name is accepted and replaced by its registry entry
     seed: int = 0
     tile_samples: int = DEFAULT_TILE_SAMPLES
     overlap: bool = True
     voronoi_backend: str = "device"
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "estimator", check_compatible(self.estimator, self.sampler.name))
+        if not self.estimator.needs_aux and self.sampler.n_aux:
+            # Auxiliary nuclei shape only the SPPP cells: they would be drawn for nothing.
+            object.__setattr__(self, "sampler", replace(self.sampler, n_aux=0))
         if self.voronoi_backend not in VORONOI_BACKENDS:
             raise ParameterError(
                 f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "
@@ -112,11 +111,7 @@ class RenderSettings:
     @property
     def device_cells(self) -> bool:
         """Whether the tiles' SPPP cells come from the device kernel (vor, vor_sn, fvor)."""
-        return (
-            self.voronoi_backend == "device"
-            and self.estimator in ESTIMATORS
-            and estimator_info(self.estimator).cells == "sppp"
-        )
+        return self.voronoi_backend == "device" and self.estimator.device_sums
 
     @property
     def pixel_count(self) -> int:
@@ -152,7 +147,7 @@ class TileSamples:
 
     pixels: np.ndarray  # (P,) uint32 global pixel indices
     redraws: np.ndarray  # (P,) uint32 redraw numbers
-    sets: HostSampleSets | None  # None with sums
+    sets: SampleSets | None  # None with sums
     radiance: np.ndarray | None  # (T, 3) float32, traced-sample order; None with sums
     rays: int
     source_nonfinite: int
@@ -174,29 +169,6 @@ class TileEstimate:
     needs_redraw: np.ndarray  # (P,) bool
     nonfinite_samples: int
     seconds: float = 0.0  # time the estimate took (added to the stats on the main thread)
-
-
-def check_estimator(name: str) -> None:
-    if name not in ESTIMATOR_NAMES:
-        raise ParameterError(f"unknown estimator {name!r}; accepted: {', '.join(ESTIMATOR_NAMES)}")
-
-
-def needs_sppp(estimator: str) -> bool:
-    """Whether the estimator needs the SPPP sampler (auxiliary nuclei or Poisson counts)."""
-    check_estimator(estimator)
-    return estimator in IMAGE_ESTIMATORS or estimator_info(estimator).needs_aux
-
-
-def check_compatible(estimator: str, sampler: str) -> None:
-    """A one-line error if the estimator needs what only the sppp sampler draws."""
-    if needs_sppp(estimator) and sampler != "sppp":
-        what = "Poisson sample counts" if estimator in IMAGE_ESTIMATORS else "auxiliary nuclei"
-        anywhere = ", ".join(name for name in ESTIMATOR_NAMES if not needs_sppp(name))
-        raise ParameterError(
-            f"estimator {estimator!r} needs the {what} of the sppp sampler, and the "
-            f"{sampler!r} sampler draws none: use --sampler sppp, or an estimator that works "
-            f"with any sampler ({anywhere})"
-        )
 
 
 def pixels_per_tile(settings: RenderSettings) -> int:
@@ -269,9 +241,8 @@ def estimate_tile(
     values = tile.radiance.astype(np.float64)
     bad_samples = ~np.isfinite(values).all(axis=1)
     values[bad_samples] = 0.0
-    owner = np.repeat(np.arange(len(tile.pixels)), tile.sets.counts())
-    flagged = np.bincount(owner, bad_samples, len(tile.pixels)) > 0
-    if settings.estimator in IMAGE_ESTIMATORS:
+    flagged = np.bincount(tile.sets.pixel_index, bad_samples, len(tile.pixels)) > 0
+    if settings.estimator.image_level:
         estimates, needs_redraw = image_estimates(settings, tile, values, host_runtime)
     else:
         estimates, needs_redraw = pixel_estimates(settings, tile.sets, values)
@@ -289,7 +260,7 @@ def sums_estimate(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
     """Host stage of a tile whose Voronoi sums the device formed: the estimator's division.
     Non-finite radiance counted 0 in the sums and flags its pixel."""
     device = tile.sums
-    estimates = sppp_estimates(settings.estimator, device.sums, device.counts)
+    estimates = settings.estimator.formula(device.sums)
     estimates = np.where(device.redraw[:, None], np.nan, estimates)
     return TileEstimate(
         tile.pixels,
@@ -302,27 +273,18 @@ def sums_estimate(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
 
 
 def pixel_estimates(
-    settings: RenderSettings, sets: HostSampleSets, values: np.ndarray
+    settings: RenderSettings, sets: SampleSets, values: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators)."""
-    samples = PixelSamples(
-        sets.traced.astype(np.float64),
-        values,
-        sets.offsets,
-        float(settings.sampler.n),
-        sets.aux.astype(np.float64),
-        sets.aux_offsets,
-        settings.sampler.eps,
-    )
-    result = estimate(settings.estimator, samples)
+    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators.pixel)."""
+    result = estimate(settings.estimator, sets, values)
     return result.estimates, result.needs_redraw
 
 
 def image_estimates(
     settings: RenderSettings, tile: TileSamples, values: np.ndarray, host_runtime: Runtime
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(estimates, no redraws) of an image-level estimator (clrender.image_voronoi)."""
-    run = image_voronoi.estimate_tile_image(
+    """(estimates, no redraws) of an image-level estimator (clrender.estimators.image)."""
+    run = image.estimate_tile_image(
         host_runtime,
         settings.sampler,
         settings.seed,
@@ -333,7 +295,7 @@ def image_estimates(
         tile.sets.offsets,
         values,
     )
-    return run.estimates[settings.estimator], np.zeros(len(tile.pixels), bool)
+    return settings.estimator.formula(run.sums), np.zeros(len(tile.pixels), bool)
 
 
 def sibling_runtime(runtime: Runtime) -> Runtime:
@@ -356,7 +318,7 @@ class TilePipeline:
         self.film = Film(settings.width, settings.height)
         self.stats = RenderStats()
         self.in_flight: Future | None = None  # the estimate of the previous tile
-        needs_device = settings.estimator in IMAGE_ESTIMATORS and settings.overlap
+        needs_device = settings.estimator.image_level and settings.overlap
         self.host_runtime = sibling_runtime(runtime) if needs_device else runtime
 
     def trace(
@@ -408,7 +370,6 @@ class TilePipeline:
         outcome = estimate_with_redraw(
             self.settings.estimator,
             draws.draw,
-            draws.values,
             len(pixels),
             sampler.n,
             eps=sampler.eps,
@@ -417,7 +378,7 @@ class TilePipeline:
             max_rounds=MAX_REDRAW_ROUNDS,
             on_exhausted="mc",
         )
-        estimates = outcome.estimates[self.settings.estimator].reshape(len(pixels), 3)
+        estimates = outcome.estimates[self.settings.estimator.name].reshape(len(pixels), 3)
         self.film.record(pixels, estimates, np.zeros(len(pixels), bool))
         self.stats.redrawn_pixels += outcome.stats.redraws + len(pixels)
         self.stats.eps_enlargements += outcome.stats.eps_enlargements
@@ -461,16 +422,15 @@ class TilePipeline:
 
 
 class PixelRedraws:
-    """draw_fn and values_fn of estimate_with_redraw for a list of rejected pixels: each draw
-    increments the drawn pixels' redraw numbers and traces them like a tile."""
+    """The draw of estimate_with_redraw for a list of rejected pixels: each draw increments the
+    drawn pixels' redraw numbers and traces them like a tile."""
 
     def __init__(self, pipeline: TilePipeline, pixels: np.ndarray, redraws: np.ndarray):
         self.pipeline = pipeline
         self.pixels = pixels
         self.redraws = redraws.astype(np.uint32)
-        self.radiance = np.empty((0, 3))
 
-    def draw(self, ids: np.ndarray, eps: float) -> SpppBatch:
+    def draw(self, ids: np.ndarray, eps: float) -> tuple[SampleSets, np.ndarray]:
         self.redraws[ids] += 1
         config = self.pipeline.settings.sampler
         sampler = make_sampler(config.name, config.n, config.alpha, eps)
@@ -478,18 +438,7 @@ class PixelRedraws:
         self.pipeline.stats.nonfinite_samples += tile.source_nonfinite + int(
             np.count_nonzero(~np.isfinite(tile.radiance).all(axis=1))
         )
-        self.radiance = tile.radiance.astype(np.float64)
-        sets = tile.sets
-        return SpppBatch(
-            sets.traced.astype(np.float64),
-            sets.offsets,
-            sets.aux.astype(np.float64),
-            sets.aux_offsets,
-            eps,
-        )
-
-    def values(self, batch: SpppBatch, ids: np.ndarray) -> np.ndarray:
-        return self.radiance
+        return tile.sets, tile.radiance.astype(np.float64)
 
 
 def render(
@@ -498,11 +447,7 @@ def render(
     settings: RenderSettings,
     progress: ProgressCallback | None = None,
 ) -> RenderResult:
-    """Render the source's image with the given sampler and estimator."""
-    check_compatible(settings.estimator, settings.sampler.name)
-    if settings.estimator in IMAGE_ESTIMATORS and settings.sampler.n_aux:
-        # Neighbouring pixels' nuclei shape the cells: auxiliary nuclei would be drawn for nothing.
-        settings = replace(settings, sampler=replace(settings.sampler, n_aux=0))
+    """Render the source's image with the settings' sampler and estimator."""
     if (source.width, source.height) != (settings.width, settings.height):
         raise ParameterError(
             f"the radiance source renders {source.width} x {source.height}, "

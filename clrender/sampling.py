@@ -23,6 +23,7 @@ import pyopencl as cl
 
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
+from clrender.samples import SampleSets
 from clrender.sppp import DEFAULT_ALPHA, auxiliary_count, check_alpha, check_intensity, sppp_eps
 
 SAMPLERS = {"uniform": 0, "stratified": 1, "sppp": 2}
@@ -78,9 +79,9 @@ def make_sampler(
     return SamplerConfig(name, int(n), alpha, eps, auxiliary_count(n, eps))
 
 
-def tile_pixels(width: int, x0: int, y0: int, tile_width: int, tile_height: int) -> np.ndarray:
-    """Global indices (y * width + x) of a tile's pixels, row by row."""
-    ys, xs = np.mgrid[y0 : y0 + tile_height, x0 : x0 + tile_width]
+def rectangle_pixels(width: int, x0: int, y0: int, rect_width: int, rect_height: int) -> np.ndarray:
+    """Global indices (y * width + x) of the pixels of a rectangle of the image, row by row."""
+    ys, xs = np.mgrid[y0 : y0 + rect_height, x0 : x0 + rect_width]
     return (ys * width + xs).ravel().astype(np.uint32)
 
 
@@ -113,32 +114,21 @@ class DeviceSampleSets:
     def aux_total(self) -> int:
         return self.config.n_aux * self.pixel_count
 
-    def to_host(self, queue: cl.CommandQueue) -> HostSampleSets:
+    def to_host(self, queue: cl.CommandQueue) -> SampleSets:
+        """The host copy (float32 positions, as on the device), in one read-back."""
         flat = np.empty((self.traced_total + self.aux_total, 2), np.float32)
         if len(flat):
             cl.enqueue_copy(queue, flat, self.positions)
         aux_offsets = np.arange(self.pixel_count + 1, dtype=np.int64) * self.config.n_aux
-        return HostSampleSets(
+        return SampleSets(
             flat[: self.traced_total],
             self.traced_offsets,
+            self.config.n,
             flat[self.traced_total :],
             aux_offsets,
-            self.config,
+            self.config.eps if self.config.name == "sppp" else None,
+            self.redraws,
         )
-
-
-@dataclass
-class HostSampleSets:
-    """Host copy: traced (T, 2) with offsets (P + 1,), auxiliary (A, 2) with aux_offsets."""
-
-    traced: np.ndarray
-    offsets: np.ndarray
-    aux: np.ndarray
-    aux_offsets: np.ndarray
-    config: SamplerConfig
-
-    def counts(self) -> np.ndarray:
-        return np.diff(self.offsets)
 
 
 def generate_sample_sets(

@@ -12,12 +12,12 @@ host-side reference used by the estimators' tests and the analytic benchmark.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq
 
 from clrender.errors import ParameterError
+from clrender.samples import SampleSets
 
 DEFAULT_ALPHA = 1e-3
 
@@ -64,25 +64,6 @@ def auxiliary_count(n: float, eps: float) -> int:
     return int(math.floor(n * (4.0 * eps + 4.0 * eps * eps)))
 
 
-@dataclass(frozen=True)
-class SpppBatch:
-    """Sample sets of many pixels in flat arrays with per-pixel offsets.
-
-    traced[offsets[p]:offsets[p+1]] are pixel p's nuclei in W; aux[aux_offsets[p]:...] its
-    auxiliary nuclei in the strip. Positions are pixel-local, in W = [-1/2, 1/2]^2.
-    """
-
-    traced: np.ndarray  # (T, 2) float64
-    offsets: np.ndarray  # (P + 1,) int64
-    aux: np.ndarray  # (A, 2) float64
-    aux_offsets: np.ndarray  # (P + 1,) int64
-    eps: float
-
-    @property
-    def pixel_count(self) -> int:
-        return len(self.offsets) - 1
-
-
 def sample_strip(rng: np.random.Generator, count: int, eps: float) -> np.ndarray:
     """count points uniform by area over W' minus W (corners at the same density as edges).
 
@@ -117,7 +98,7 @@ def draw_sppp(
     pixels: int,
     alpha: float = DEFAULT_ALPHA,
     eps: float | None = None,
-) -> SpppBatch:
+) -> SampleSets:
     """SPPP sample sets for `pixels` independent pixels (NumPy reference generator)."""
     eps = sppp_eps(n, alpha) if eps is None else float(eps)
     counts = rng.poisson(n, size=pixels)
@@ -126,4 +107,4 @@ def draw_sppp(
     n_aux = auxiliary_count(n, eps)
     aux = sample_strip(rng, n_aux * pixels, eps)
     aux_offsets = np.arange(pixels + 1, dtype=np.int64) * n_aux
-    return SpppBatch(traced, offsets, aux, aux_offsets, eps)
+    return SampleSets(traced, offsets, n, aux, aux_offsets, eps)

@@ -177,13 +177,13 @@ def test_eps_follows_alpha():
 def test_sample_sets_do_not_depend_on_the_tiling(runtime, sampler, n):
     width, height = 13, 10
     config = make_sampler(sampler, n)
-    whole = host_sets(runtime, config, 5, tile_pixels(width, 0, 0, width, height))
-    by_pixel = split_by_pixel(whole, tile_pixels(width, 0, 0, width, height))
+    whole = host_sets(runtime, config, 5, rectangle_pixels(width, 0, 0, width, height))
+    by_pixel = split_by_pixel(whole, rectangle_pixels(width, 0, 0, width, height))
     for tile_w, tile_h in [(4, 3), (1, 1), (13, 1), (6, 10)]:
         for y0 in range(0, height, tile_h):
             for x0 in range(0, width, tile_w):
                 tw, th = min(tile_w, width - x0), min(tile_h, height - y0)
-                pixels = tile_pixels(width, x0, y0, tw, th)
+                pixels = rectangle_pixels(width, x0, y0, tw, th)
                 tile = split_by_pixel(host_sets(runtime, config, 5, pixels), pixels)
                 for pixel, (traced, aux) in tile.items():
                     np.testing.assert_array_equal(traced, by_pixel[pixel][0])

@@ -12,7 +12,7 @@ import pyopencl as cl
 import pytest
 
 from clrender.errors import ParameterError
-from clrender.sampling import DeviceSampleSets, generate_sample_sets, make_sampler, tile_pixels
+from clrender.sampling import DeviceSampleSets, generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
@@ -21,7 +21,7 @@ FURNACE_ALBEDO = 0.5
 
 def render(tracer, sampler, n, seed, width, height, pixels=None):
     if pixels is None:
-        pixels = tile_pixels(width, 0, 0, width, height)
+        pixels = rectangle_pixels(width, 0, 0, width, height)
     sets = generate_sample_sets(tracer.runtime, make_sampler(sampler, n), seed, pixels)
     result = tracer.trace(sets, seed, width, height)
     return result.to_host(), result, sets
@@ -179,8 +179,8 @@ def test_tiling_does_not_change_per_sample_radiance(cornell_tracer, sampler):
         int(p): whole[whole_sets.traced_offsets[k] : whole_sets.traced_offsets[k + 1]]
         for k, p in enumerate(whole_sets.pixels)
     }
-    shuffled = np.random.default_rng(0).permutation(tile_pixels(width, 0, 0, width, height))
-    tiles = [tile_pixels(width, x0, y0, 8, 8) for x0 in (0, 8) for y0 in (0, 8)]
+    shuffled = np.random.default_rng(0).permutation(rectangle_pixels(width, 0, 0, width, height))
+    tiles = [rectangle_pixels(width, x0, y0, 8, 8) for x0 in (0, 8) for y0 in (0, 8)]
     for group in [*tiles, shuffled[:37], shuffled[37:]]:
         part, _, sets = render(cornell_tracer, sampler, 16, seed, width, height, group)
         for k, p in enumerate(sets.pixels):

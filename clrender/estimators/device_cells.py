@@ -1,24 +1,24 @@
 """Voronoi cell areas of per-pixel SPPP sample sets on the OpenCL device.
 
-The device counterpart of clrender.voronoi_cells.sppp_cells (SciPy Qhull on the host): the same
-cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas result, so the
-estimators vor, vor_sn and fvor can use either. kernels/voronoi_cells.cl sorts each pixel's
-nuclei into a grid; then, per traced nucleus, walks around its cell among the nuclei of the
-3 x 3 grid block around it (next neighbour = first crossing bisector) and clips that polygon
-with any nucleus beyond the block that lies in a disc through the nucleus centred on a vertex,
-which proves the cell exact; cells the walk cannot decide are clipped from a box (see the
-kernel's header). stats.walked_cells counts the walked cells (about 99.98 % of random SPPP
-cells).
+The device counterpart of clrender.estimators.qhull_cells.sppp_cells (SciPy Qhull on the host):
+the same cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas
+result, so the estimators vor, vor_sn and fvor can use either. kernels/voronoi_cells.cl sorts
+each pixel's nuclei into a grid; then, per traced nucleus, walks around its cell among the
+nuclei of the 3 x 3 grid block around it (next neighbour = first crossing bisector) and clips
+that polygon with any nucleus beyond the block that lies in a disc through the nucleus centred
+on a vertex, which proves the cell exact; cells the walk cannot decide are clipped from a box
+(see the kernel's header). stats.walked_cells counts the walked cells (about 99.98 % of random
+SPPP cells).
 
 Entry points:
   device_sppp_cells(runtime, sample_sets, box)     the positions already on the device
                                                    (clrender.sampling.DeviceSampleSets)
   device_sppp_cells_from_arrays(runtime, positions, offsets, aux, aux_offsets, box)
                                                    NumPy arrays, uploaded (tests, benchmarks)
-  sppp_cells_backend(runtime)                      a drop-in for voronoi_cells.sppp_cells
+  sppp_cells_backend(runtime)                      a drop-in for qhull_cells.sppp_cells
   device_sppp_sums(runtime, sample_sets, radiance, box)
                                                    the cells and then each pixel's sums of
-                                                   vor, vor_sn and fvor (estimators.SpppSums)
+                                                   vor, vor_sn and fvor (registry.PixelSums)
                                                    on the device: only the sums come back
 
 Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
@@ -46,10 +46,12 @@ import numpy as np
 import pyopencl as cl
 
 from clrender.errors import DeviceError, ParameterError
-from clrender.estimators import PixelSamples, SpppSums, sppp_sums
+from clrender.estimators.pixel import cell_sums
+from clrender.estimators.qhull_cells import CellAreas, TessellationStats, sppp_cells
+from clrender.estimators.registry import PixelSums
 from clrender.runtime import Runtime, padded_global_size
+from clrender.samples import SampleSets, segments
 from clrender.sampling import DeviceSampleSets
-from clrender.voronoi_cells import CellAreas, TessellationStats, sppp_cells
 
 KERNEL_FILE = "voronoi_cells.cl"
 SUMS_KERNEL_FILE = "voronoi_sums.cl"
@@ -67,8 +69,8 @@ MAX_VERTICES = 32
 # auto: "mixed" where the device has cl_khr_fp64, else "single".
 PRECISIONS = ("auto", "single", "mixed", "double")
 
-# Reads pixels' (traced, aux) positions as float64 arrays with their offsets, for fallbacks.
-FetchPixels = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
+# Reads some pixels' sample sets back to the host, for fallbacks.
+FetchPixels = Callable[[np.ndarray], SampleSets]
 
 
 @dataclass(frozen=True)
@@ -106,9 +108,9 @@ def device_sppp_cells(
     """
     layout = _sample_set_layout(sample_sets)
 
-    def fetch(wanted: np.ndarray):
-        host = sample_sets.to_host(runtime.queue)  # one read-back (fallbacks are rare)
-        return _slice_pixels(host.traced, host.offsets, host.aux, host.aux_offsets, wanted)
+    def fetch(wanted: np.ndarray) -> SampleSets:
+        # one read-back (fallbacks are rare)
+        return sample_sets.to_host(runtime.queue).subset(wanted)
 
     return _cells(runtime, layout, box, precision, fetch)
 
@@ -132,8 +134,8 @@ def device_sppp_cells_from_arrays(
     side = grid_side(len(flat), len(offsets) - 1)
     layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side)
 
-    def fetch(wanted: np.ndarray):
-        return _slice_pixels(traced32, offsets, aux32, aux_offsets, wanted)
+    def fetch(wanted: np.ndarray) -> SampleSets:
+        return SampleSets(traced32, offsets, 1.0, aux32, aux_offsets, 0.0).subset(wanted)
 
     cells = _cells(runtime, layout, box, precision, fetch)
     del upload
@@ -141,7 +143,7 @@ def device_sppp_cells_from_arrays(
 
 
 def sppp_cells_backend(runtime: Runtime, precision: str = "auto") -> Callable[..., CellAreas]:
-    """A drop-in for voronoi_cells.sppp_cells (same arguments, same result) that runs on the
+    """A drop-in for qhull_cells.sppp_cells (same arguments, same result) that runs on the
     device: lets the host estimators use device cells without other changes."""
 
     def cells(positions, offsets, aux, aux_offsets, box: float | None = None) -> CellAreas:
@@ -159,17 +161,21 @@ class DeviceSums:
     are not valid), each pixel's count of non-finite radiance samples (counted as 0 in the
     sums) and of traced samples."""
 
-    sums: SpppSums
+    sums: PixelSums
     redraw: np.ndarray  # (P,) bool
     fallback: np.ndarray  # (P,) bool
     nonfinite: np.ndarray  # (P,) int64
-    counts: np.ndarray  # (P,) int64
+
+    @property
+    def counts(self) -> np.ndarray:
+        """(P,) traced samples per pixel."""
+        return self.sums.counts
 
 
 def device_sppp_sums(
     runtime: Runtime, sample_sets: DeviceSampleSets, radiance, box: float, precision: str = "auto"
 ) -> DeviceSums:
-    """The SpppSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
+    """The PixelSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
     and radiance ((T, 3) float32 device buffer, traced-sample order) kept on the device: only
     SUMS_PER_PIXEL values and a flag byte per pixel come back. box = 1/2 + eps (W')."""
     layout = _sample_set_layout(sample_sets)
@@ -205,41 +211,41 @@ def device_sppp_sums(
         cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
         del upload  # the blocking read above has run the upload
     sums = sums.astype(np.float64)
+    pixel_sums = PixelSums(
+        np.diff(layout.traced_offsets),
+        sample_sets.config.n,
+        area=sums[:, 0],
+        weighted=sums[:, 1:4],
+        kept_area=sums[:, 4],
+        kept_weighted=sums[:, 5:8],
+    )
     return DeviceSums(
-        SpppSums(sums[:, 0], sums[:, 1:4], sums[:, 4], sums[:, 5:8]),
+        pixel_sums,
         (flags & SUMS_REDRAW) != 0,
         (flags & SUMS_FALLBACK) != 0,
         nonfinite.astype(np.int64),
-        np.diff(layout.traced_offsets),
     )
 
 
-def settle_undecided(device: DeviceSums, host_sets, values: np.ndarray, box: float) -> DeviceSums:
+def settle_undecided(
+    device: DeviceSums, host_sets: SampleSets, values: np.ndarray, box: float
+) -> DeviceSums:
     """device with the pixels it flagged as undecided (device.fallback) settled on the host:
-    their cells by Qhull from the host copy of the sample sets (host_sets: traced, offsets, aux,
-    aux_offsets, float32 as on the device), their sums from `values` ((T, C), the traced
-    samples' radiance with non-finite rows zeroed), their redraw flags from the cells."""
+    their cells by Qhull from the host copy of the sample sets (float32 as on the device), their
+    sums from `values` ((T, C), the traced samples' radiance with non-finite rows zeroed), their
+    redraw flags from the cells."""
     pixels = np.flatnonzero(device.fallback)
-    offsets = np.asarray(host_sets.offsets, np.int64)
-    traced, t_offsets, aux, a_offsets = _slice_pixels(
-        host_sets.traced,
-        offsets,
-        host_sets.aux,
-        np.asarray(host_sets.aux_offsets, np.int64),
-        pixels,
-    )
-    cells = sppp_cells(traced, t_offsets, aux, a_offsets, box)
-    samples = PixelSamples(traced, values[_pixel_slots(offsets, pixels)], t_offsets, 1.0)
-    settled = sppp_sums(samples, cells)
-    merged = {}
+    subset = host_sets.subset(pixels)
+    cells = sppp_cells(subset.traced, subset.offsets, subset.aux, subset.aux_offsets, box)
+    settled = cell_sums(subset, values[segments(host_sets.offsets, pixels)[0]], cells, kept=True)
+    merged = replace(device.sums)
     for name in ("area", "weighted", "kept_area", "kept_weighted"):
-        merged[name] = np.array(getattr(device.sums, name))
-        merged[name][pixels] = getattr(settled, name)
+        column = np.array(getattr(device.sums, name))
+        column[pixels] = getattr(settled, name)
+        setattr(merged, name, column)
     redraw = device.redraw.copy()
-    redraw[pixels] = np.bincount(samples.pixel_index, ~cells.bounded, len(pixels)) > 0
-    return replace(
-        device, sums=SpppSums(**merged), redraw=redraw, fallback=np.zeros_like(device.fallback)
-    )
+    redraw[pixels] = np.bincount(subset.pixel_index, ~cells.bounded, len(pixels)) > 0
+    return replace(device, sums=merged, redraw=redraw, fallback=np.zeros_like(device.fallback))
 
 
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
@@ -413,47 +419,15 @@ def _recompute_on_host(
     box: float | None,
 ) -> None:
     """Exact cells of the given pixels from Qhull, written over the device's."""
-    traced, offsets, aux, aux_offsets = fetch(pixels)
-    redo = sppp_cells(traced, offsets, aux, aux_offsets, box)
-    index = _pixel_slots(traced_offsets, pixels)
+    subset = fetch(pixels)
+    redo = sppp_cells(subset.traced, subset.offsets, subset.aux, subset.aux_offsets, box)
+    index = segments(traced_offsets, pixels)[0]
     cells.areas[index] = redo.areas
     cells.bounded[index] = redo.bounded
     if cells.inside_box is not None:
         cells.inside_box[index] = redo.inside_box
     cells.stats.add(redo.stats)
     cells.stats.recomputed_pixels = redo.stats.recomputed_pixels + len(pixels)
-
-
-def _pixel_slots(offsets: np.ndarray, pixels: np.ndarray) -> np.ndarray:
-    """Concatenated ranges offsets[p]:offsets[p+1] for p in pixels."""
-    starts = np.asarray(offsets, np.int64)[pixels]
-    counts = np.asarray(offsets, np.int64)[np.asarray(pixels) + 1] - starts
-    first = np.cumsum(counts) - counts  # where each pixel's range starts in the result
-    return np.repeat(starts - first, counts) + np.arange(int(counts.sum()), dtype=np.int64)
-
-
-def _slice_pixels(
-    traced: np.ndarray,
-    offsets: np.ndarray,
-    aux: np.ndarray,
-    aux_offsets: np.ndarray,
-    pixels: np.ndarray,
-):
-    """Some pixels' positions (float64) with offsets of their own."""
-    t_index = _pixel_slots(offsets, pixels)
-    a_index = _pixel_slots(aux_offsets, pixels)
-    t_counts = offsets[pixels + 1] - offsets[pixels]
-    a_counts = aux_offsets[pixels + 1] - aux_offsets[pixels]
-    return (
-        traced[t_index].astype(np.float64),
-        _counts_to_offsets(t_counts),
-        aux[a_index].astype(np.float64),
-        _counts_to_offsets(a_counts),
-    )
-
-
-def _counts_to_offsets(counts: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
 
 
 def _check_arrays(positions, offsets, aux, aux_offsets) -> tuple[np.ndarray, np.ndarray]:

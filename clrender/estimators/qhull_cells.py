@@ -14,13 +14,7 @@ positions[offsets[p]:offsets[p+1]]. Each pixel's originals are tessellated toget
   For z in a periodic cell (which lies in x + [-1/2, 1/2]^2) the nearest copy of any nucleus
   is one of these 9, so the 3 x 3 copies are exact.
 
-Cell areas from one triangulation. For a Delaunay triangle (a, b, c) with circumcentre o, the
-part of a's Voronoi cell inside the triangle's "star" is the quadrilateral
-(a, mid(a, b), o, mid(c, a)); its signed area (positive for counter-clockwise triangles) is
-0.25 * cross(b - c, o - a). Summed over all triangles around a bounded cell these pieces
-telescope to the cell polygon, so np.bincount over the three vertex columns gives every cell
-area from one pass over the triangles. Sign conventions are fixed by |det|, so Qhull's
-triangle orientation does not matter.
+Cell areas come from one triangulation per call (clrender.estimators.delaunay).
 
 Batching and exactness. Several small pixels share a Qhull call, each translated to its own slot
 in a row (gap of several pixel widths). A nucleus's cell in the joint triangulation equals its
@@ -40,15 +34,12 @@ are moved EDGE_NUDGE inside it so that each has a mirror image distinct from its
 cell boundaries by at most EDGE_NUDGE. For the periodic estimator a nucleus on the edge x = 1/2
 (or y = 1/2) is the same torus point as one on x = -1/2 and is wrapped there.
 
-Speed. Qhull's cost per point grows with the size of the call on this hardware (about
-1.9-2.1 us/point up to ~1000 points, 2.5-3 us/point at ~5 000, 3-6 us/point beyond), so pixels
-are packed into calls of about POINTS_PER_QHULL_CALL points; a large pixel gets a call of its
-own. The points are laid out once per batch, pixel by pixel (originals then ghosts), as complex
-x + iy, so that a call's points are a contiguous slice and one gather fetches both coordinates;
-each call's triangles are processed right after the call (in cache) into that slice, and one
-gather maps the slice back to the originals. Everything else Qhull's bare Delaunay does not do
-(layout, areas, exactness checks, per-pixel sums) costs about 4-6 % of Qhull's time
-(bench/voronoi_speed.py).
+Speed. Qhull's cost per point grows with the size of the call, so pixels are packed into calls
+of about POINTS_PER_QHULL_CALL points; a large pixel gets a call of its own. The points are laid
+out once per batch, pixel by pixel (originals then ghosts), as complex x + iy, so that a call's
+points are a contiguous slice and one gather fetches both coordinates; each call's triangles are
+processed right after the call (in cache) into that slice, and one gather maps the slice back to
+the originals. bench/voronoi_speed.py measures this stage against bare Qhull on the same points.
 """
 
 from __future__ import annotations
@@ -60,13 +51,11 @@ import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
 from clrender.errors import ClrenderError, ParameterError
+from clrender.estimators.delaunay import QHULL_OPTIONS, TriangleTerms, as_complex, share_coincident
+from clrender.samples import segments
 
-# SciPy's default for 2-D Delaunay ("Qt" is always added by SciPy). No "QJ": joggling moves the
-# points and so changes the cells.
-QHULL_OPTIONS = "Qbb Qc Qz Q12"
-# Measured (vor stage, CPU us per sample): flat within noise for 600-1600 points per call
-# (n = 64: 5.34, 5.21, 5.33, 5.35 at 600, 900, 1200, 1600); one pixel per call (~150 points)
-# costs ~15 % more (per-call overhead), 2400 points ~10 % more (Qhull's cost per point).
+# Points per Qhull call: the cost per point is flat over a range around this size and rises
+# with one pixel per call (per-call overhead) and with larger calls (bench/voronoi_speed.py).
 POINTS_PER_QHULL_CALL = 1200
 EDGE_NUDGE = 1e-9
 # Ghost margin for clipped/periodic cells, in mean nearest-neighbour distances 1/sqrt(N).
@@ -200,8 +189,8 @@ def _sppp_point_set(positions, offsets, aux, aux_offsets) -> _PointSet:
 
 def _subset_sppp(point_set: _PointSet, pixels: np.ndarray) -> _PointSet:
     """The same point set restricted to some pixels (renumbered 0..len(pixels)-1)."""
-    orig_idx, orig_offsets = _segments(point_set.offsets, pixels)
-    ghost_idx, ghost_offsets = _segments(point_set.ghost_offsets, pixels)
+    orig_idx, orig_offsets = segments(point_set.offsets, pixels)
+    ghost_idx, ghost_offsets = segments(point_set.ghost_offsets, pixels)
     return _PointSet(
         point_set.originals[orig_idx],
         point_set.ghosts[ghost_idx],
@@ -210,16 +199,6 @@ def _subset_sppp(point_set: _PointSet, pixels: np.ndarray) -> _PointSet:
         point_set.half_extent,
         None,
     )
-
-
-def _segments(offsets: np.ndarray, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the concatenated segments offsets[p]:offsets[p+1] for p in pixels, and the
-    offsets of those segments in the concatenation."""
-    starts = offsets[pixels]
-    lengths = offsets[pixels + 1] - starts
-    new_offsets = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    index = np.arange(new_offsets[-1]) - np.repeat(new_offsets[:-1] - starts, lengths)
-    return index, new_offsets
 
 
 def _nudge_inside(positions: np.ndarray) -> np.ndarray:
@@ -299,7 +278,7 @@ def _ghost_cells(positions: np.ndarray, offsets: np.ndarray, make_ghosts) -> Cel
     cells, stats = _cells(point_set, None)
     suspect = _suspect_pixels(point_set, cells.bounded)
     if suspect.size:
-        index, sub_offsets = _segments(offsets, suspect)
+        index, sub_offsets = segments(offsets, suspect)
         subset = _ghost_point_set(positions[index], sub_offsets, make_ghosts, 1.0)
         redo, redo_stats = _cells(subset, None, one_pixel_per_call=True)
         if not redo.bounded.all():
@@ -325,7 +304,7 @@ def _suspect_pixels(point_set: _PointSet, exact: np.ndarray) -> np.ndarray:
 def _scatter_pixels(
     cells: CellAreas, redo: CellAreas, offsets: np.ndarray, pixels: np.ndarray
 ) -> None:
-    index, _ = _segments(offsets, pixels)
+    index, _ = segments(offsets, pixels)
     cells.areas[index] = redo.areas
     cells.bounded[index] = redo.bounded
     if cells.inside_box is not None:
@@ -378,8 +357,8 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
         starts + orig_counts - ghost_offsets[:-1], ghost_counts
     )
     z = np.empty(total, np.complex128)
-    z[original_at] = _as_complex(point_set.originals)
-    z[ghost_at] = _as_complex(point_set.ghosts)
+    z[original_at] = as_complex(point_set.originals)
+    z[ghost_at] = as_complex(point_set.ghosts)
     if one_pixel_per_call:
         call_pixels = np.arange(len(counts) + 1)
     else:
@@ -392,11 +371,6 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
     call_bounds = np.concatenate([starts, [total]])[call_pixels]
     slot_width = 2.0 * point_set.half_extent * (1.0 + SLOT_GAP_FACTOR)
     return _Layout(z, counts, original_at, call_bounds.tolist(), call_pixels.tolist(), slot_width)
-
-
-def _as_complex(points: np.ndarray) -> np.ndarray:
-    """(K, 2) float64 points as (K,) complex128 x + iy (a view when already contiguous)."""
-    return np.ascontiguousarray(points, dtype=np.float64).view(np.complex128).reshape(-1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -473,7 +447,7 @@ def _call_cells(
     (None: one pixel). Runs under np.errstate(divide="ignore", invalid="ignore")."""
     count = len(z)
     s = np.ascontiguousarray(tri.simplices.T, dtype=np.intp)  # (3, M): vertices a, b, c
-    t = _TriangleTerms(z, s)
+    t = TriangleTerms(z, s)
     local_areas = np.bincount(s.ravel(), t.pieces.ravel(), count)
 
     # Hull edge: the vertex opposite it has no neighbour; both its end points are unbounded.
@@ -498,93 +472,8 @@ def _call_cells(
             outside[s[:, np.flatnonzero(out)]] = True
     suspect[s[:, np.flatnonzero(bad)]] = True
 
-    # Coincident points: the vertex Qhull kept and the points it dropped share the cell.
-    if len(tri.coplanar):
-        dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
-        local_areas /= 1.0 + np.bincount(kept, minlength=count)
-        local_areas[dropped] = local_areas[kept]
-        suspect[dropped] = suspect[kept]
-        if outside is not None:
-            outside[dropped] = outside[kept]
+    share_coincident(tri, local_areas, suspect, outside)
     areas[:] = local_areas
-
-
-class _TriangleTerms:
-    """Per-triangle terms of triangles (a, b, c) of complex points z = x + iy: e1 = b - a,
-    e2 = c - a, l1 = |e1|^2, l2 = |e2|^2, det = e1 x e2, and pieces[j], the signed area vertex
-    j's cell gets from the triangle."""
-
-    def __init__(self, z: np.ndarray, s: np.ndarray) -> None:
-        a, b, c = s
-        self.za = za = z.take(a)
-        self.e1 = e1 = z.take(b)
-        e1 -= za
-        self.e2 = e2 = z.take(c)
-        e2 -= za
-        self.l1 = l1 = _squared_norm(e1)
-        self.l2 = l2 = _squared_norm(e2)
-        w = e1.conjugate()
-        w *= e2  # conj(e1) e2 = (e1 . e2) + i (e1 x e2)
-        dot, self.det = w.real, w.imag
-        # With U = (e2y l1 - e1y l2, e1x l2 - e2x l1), o - a = U / (2 det); the quadrilateral
-        # areas 0.25 cross(b - c, o - a) etc. reduce to these forms (k = 1 / (8 |det|)).
-        k = np.abs(self.det)
-        half_tri = 0.25 * k
-        np.divide(0.125, k, out=k)
-        t1 = l2 - dot
-        t1 *= l1
-        t2 = l1 - dot
-        t2 *= l2
-        self.pieces = pieces = np.empty((3, len(k)))
-        np.add(t1, t2, out=pieces[0])
-        pieces[0] *= k
-        np.multiply(k, t2, out=pieces[1])
-        np.subtract(half_tri, pieces[1], out=pieces[1])
-        np.multiply(k, t1, out=pieces[2])
-        np.subtract(half_tri, pieces[2], out=pieces[2])
-
-    def circumcentre_offset(self) -> tuple[np.ndarray, np.ndarray]:
-        """u = o - a, the circumcentre relative to vertex a."""
-        inv = 0.5 / self.det
-        e1x, e1y, e2x, e2y = self.e1.real, self.e1.imag, self.e2.real, self.e2.imag
-        ux = (e2y * self.l1 - e1y * self.l2) * inv
-        uy = (e1x * self.l2 - e2x * self.l1) * inv
-        return ux, uy
-
-    def circumcircle(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Circumcentres (cx, cy) and circumradii."""
-        ux, uy = self.circumcentre_offset()
-        return self.za.real + ux, self.za.imag + uy, np.sqrt(ux * ux + uy * uy)
-
-
-def _squared_norm(e: np.ndarray) -> np.ndarray:
-    norm = e.real * e.real
-    norm += e.imag * e.imag
-    return norm
-
-
-@dataclass(frozen=True)
-class _TriangleGeometry:
-    """Per-triangle quantities: vertex a's position, circumcentre offset u = o - a, and the
-    signed areas each vertex's cell gets from the triangle."""
-
-    ax: np.ndarray
-    ay: np.ndarray
-    ux: np.ndarray
-    uy: np.ndarray
-    area_a: np.ndarray
-    area_b: np.ndarray
-    area_c: np.ndarray
-
-
-def _triangle_geometry(points: np.ndarray, simplices: np.ndarray) -> _TriangleGeometry:
-    """The same terms for (N, 2) points and (M, 3) simplices (used by clrender.image_voronoi)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = _TriangleTerms(
-            _as_complex(points), np.ascontiguousarray(np.asarray(simplices).T, dtype=np.intp)
-        )
-        ux, uy = t.circumcentre_offset()
-    return _TriangleGeometry(t.za.real, t.za.imag, ux, uy, t.pieces[0], t.pieces[1], t.pieces[2])
 
 
 def _check_degenerate(point_set: _PointSet, pixels: list[int]) -> None:

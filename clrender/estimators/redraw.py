@@ -15,7 +15,7 @@ cell). It always terminates:
   get the mc estimate of their last draw (on_exhausted="mc"), counted in the statistics.
 
 Estimators that never reject (mc, mc_n, cvor, pvor) finish in one round. The estimators
-themselves live in clrender.estimators, the cell geometry in clrender.voronoi_cells.
+themselves are in clrender.estimators.pixel, the registry in clrender.estimators.registry.
 """
 
 from __future__ import annotations
@@ -26,32 +26,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clrender.errors import ClrenderError, ParameterError
-from clrender.estimators import (
-    ESTIMATORS,
-    EstimateResult,
-    EstimatorInfo,
-    PixelSamples,
-    estimate,
-    estimate_all,
-    estimator_info,
-)
-from clrender.sppp import DEFAULT_ALPHA, SpppBatch, sppp_eps
+from clrender.estimators.pixel import EstimateResult, estimate, estimate_all
+from clrender.estimators.registry import MC, Estimator, estimator_info
+from clrender.samples import SampleSets
+from clrender.sppp import DEFAULT_ALPHA, sppp_eps
 
-__all__ = [
-    "ESTIMATORS",
-    "EstimateResult",
-    "EstimatorInfo",
-    "PixelSamples",
-    "RedrawOutcome",
-    "RedrawStats",
-    "estimate",
-    "estimate_all",
-    "estimate_with_redraw",
-    "estimator_info",
-]
-
-DrawFn = Callable[[np.ndarray, float], SpppBatch]
-ValuesFn = Callable[[SpppBatch, np.ndarray], np.ndarray]
+# draw(pixel_ids, eps) -> the sample sets of those pixels and the values of their traced samples
+DrawFn = Callable[[np.ndarray, float], tuple[SampleSets, np.ndarray]]
 
 
 @dataclass
@@ -76,9 +57,8 @@ class RedrawOutcome:
 
 
 def estimate_with_redraw(
-    names: str | Sequence[str],
-    draw_fn: DrawFn,
-    values_fn: ValuesFn,
+    names: str | Estimator | Sequence[str | Estimator],
+    draw: DrawFn,
     pixels: int,
     n: float,
     *,
@@ -91,14 +71,13 @@ def estimate_with_redraw(
 ) -> RedrawOutcome:
     """Estimate `pixels` pixels with every estimator in `names`, redrawing rejected pixels.
 
-    draw_fn(pixel_ids, eps) returns an SpppBatch for exactly those pixels (in that order) at
-    stretch eps, with n' = auxiliary_count(n, eps) auxiliary nuclei; values_fn(batch,
-    pixel_ids) returns the (T,) or (T, C) values of batch.traced. A pixel is redrawn when any
-    requested estimator rejects it; all estimators of a pixel use the same accepted draw.
+    draw(pixel_ids, eps) returns (SampleSets, values) for exactly those pixels (in that order)
+    at stretch eps, with n' = auxiliary_count(n, eps) auxiliary nuclei, and the (T,) or (T, C)
+    values of their traced samples. A pixel is redrawn when any requested estimator rejects it;
+    all estimators of a pixel use the same accepted draw.
     """
-    names = [names] if isinstance(names, str) else list(names)
-    for name in names:
-        estimator_info(name)
+    single = isinstance(names, str | Estimator)
+    entries = [estimator_info(name) for name in ([names] if single else names)]
     _check_redraw_parameters(
         pixels, redraws_before_enlarge, enlarge_factor, max_rounds, on_exhausted
     )
@@ -106,24 +85,24 @@ def estimate_with_redraw(
     stats = RedrawStats(initial_eps=eps, final_eps=eps)
     estimates: dict[str, np.ndarray] = {}
     pending = np.arange(pixels)
-    samples = None
+    samples = values = None
     for round_index in range(max_rounds):
         if pending.size == 0:
             break
         if round_index > redraws_before_enlarge:
             eps = max(eps * enlarge_factor, sppp_eps(n, alpha))
             stats.eps_enlargements += 1
-        samples = _draw(draw_fn, values_fn, pending, eps, n)
-        results = estimate_all(names, samples)
+        samples, values = _draw(draw, pending, eps)
+        results = estimate_all(entries, samples, values)
         rejected = np.logical_or.reduce([r.needs_redraw for r in results.values()])
         _store(estimates, results, pending, ~rejected, pixels)
-        _count(stats, results, samples, rejected, round_index, eps)
+        _count(stats, results, entries, samples, rejected, round_index, eps)
         pending = pending[rejected]
         if pending.size and round_index + 1 < max_rounds:
             stats.redraws += int(pending.size)
             stats.redraws_per_round.append(int(pending.size))
     if pending.size:
-        _exhausted(estimates, samples, pending, names, stats, on_exhausted, max_rounds)
+        _exhausted(estimates, samples, values, pending, stats, on_exhausted, max_rounds)
     return RedrawOutcome(estimates, stats)
 
 
@@ -140,16 +119,13 @@ def _check_redraw_parameters(
         raise ParameterError(f"on_exhausted must be 'raise' or 'mc', got {on_exhausted!r}")
 
 
-def _draw(
-    draw_fn: DrawFn, values_fn: ValuesFn, pixel_ids: np.ndarray, eps: float, n: float
-) -> PixelSamples:
-    batch = draw_fn(pixel_ids, eps)
-    if batch.pixel_count != len(pixel_ids):
+def _draw(draw: DrawFn, pixel_ids: np.ndarray, eps: float) -> tuple[SampleSets, np.ndarray]:
+    samples, values = draw(pixel_ids, eps)
+    if samples.pixel_count != len(pixel_ids):
         raise ParameterError(
-            f"draw_fn returned {batch.pixel_count} pixels for {len(pixel_ids)} requested"
+            f"draw returned {samples.pixel_count} pixels for {len(pixel_ids)} requested"
         )
-    values = np.asarray(values_fn(batch, pixel_ids), dtype=np.float64)
-    return PixelSamples.from_sppp(batch, values, n)
+    return samples, np.asarray(values, dtype=np.float64)
 
 
 def _store(estimates, results, pending, accepted, pixels) -> None:
@@ -163,28 +139,29 @@ def _store(estimates, results, pending, accepted, pixels) -> None:
 def _count(
     stats: RedrawStats,
     results: dict[str, EstimateResult],
-    samples: PixelSamples,
+    entries: list[Estimator],
+    samples: SampleSets,
     rejected: np.ndarray,
     round_index: int,
     eps: float,
 ) -> None:
     stats.rounds = round_index + 1
     stats.final_eps = eps
-    accepted_counts = np.diff(samples.offsets)[~rejected]
+    accepted_counts = samples.counts[~rejected]
     stats.empty_pixels += int((accepted_counts == 0).sum())
-    if "fvor" in results:
-        stats.empty_filtered += results["fvor"].stats.empty_filtered
-    # The vor family shares one tessellation: count it once.
+    # Estimators that share a tessellation (the vor family) count it once.
     counted = set()
-    for name, result in results.items():
-        cells = ESTIMATORS[name].cells
-        if cells != "none" and cells not in counted:
-            counted.add(cells)
+    for entry in entries:
+        result = results[entry.name]
+        if entry.kept_cells:
+            stats.empty_filtered += result.stats.empty_filtered
+        if entry.cells != "none" and entry.cells not in counted:
+            counted.add(entry.cells)
             stats.recomputed_pixels += result.stats.tessellation.recomputed_pixels
             stats.qhull_calls += result.stats.tessellation.qhull_calls
 
 
-def _exhausted(estimates, samples, pending, names, stats, on_exhausted, max_rounds) -> None:
+def _exhausted(estimates, samples, values, pending, stats, on_exhausted, max_rounds) -> None:
     if on_exhausted == "raise":
         raise ClrenderError(
             f"{pending.size} pixel(s) still had an unbounded Voronoi cell after {max_rounds} "
@@ -192,7 +169,7 @@ def _exhausted(estimates, samples, pending, names, stats, on_exhausted, max_roun
             "nuclei around W, or pass on_exhausted='mc'"
         )
     # The last round's samples hold exactly the pending pixels, in order.
-    fallback = estimate("mc", samples).estimates
-    for name in names:
+    fallback = estimate(MC, samples, values).estimates
+    for name in estimates:
         estimates[name][pending] = fallback
     stats.exhausted_pixels = int(pending.size)

@@ -14,7 +14,7 @@ from scipy.spatial import Voronoi
 
 from clrender.analytic import analytic_functions, analytic_image, sample_image_positions
 from clrender.errors import ParameterError
-from clrender.image_voronoi import (
+from clrender.estimators.image import (
     PixelRect,
     draw_plane_poisson,
     estimate_image,

@@ -32,7 +32,7 @@ traced). A nucleus's cell in this finite set equals its cell in eta if it is not
 and every Delaunay triangle around it has its circumdisc inside the "known" rectangle (block
 grown by delta), where all nuclei of eta are present: nuclei outside that rectangle are outside
 every such disc, so those triangles stay Delaunay in eta and the cell (the polygon of their
-circumcentres) is unchanged. This is the empty-disc check of clrender.voronoi_cells. A disc
+circumcentres) is unchanged. This is the empty-disc check of clrender.estimators.qhull_cells. A disc
 through x has radius at most R(C(x)), the cell's circumradius, so it stays within 2 R of x; the
 default delta = 2 eps(n) uses the paper's tail bound P(R > eps) and is almost never exceeded.
 Fallback: a block with an uncertified cell is redone with delta doubled (up to MAX_GUARD
@@ -52,7 +52,7 @@ Image border. The guard band reaches beyond the image; its pixels need RNG keys:
 
 Computation. A run of pixels (a render tile) is cut into rectangular blocks of about
 BLOCK_POINTS nuclei; each block is one Qhull Delaunay, cell areas come from the circumcentre
-quadrilaterals summed with np.bincount (clrender.voronoi_cells), per-pixel sums from
+quadrilaterals summed with np.bincount (clrender.estimators.delaunay), per-pixel sums from
 np.bincount. Triangles are put in a canonical order (vertices sorted by a unique point id, rows
 sorted) before summing, so a certified cell's area does not depend on the tiling or blocking.
 """
@@ -67,8 +67,9 @@ import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
 from clrender.errors import ParameterError
+from clrender.estimators.delaunay import QHULL_OPTIONS, share_coincident, triangle_geometry
+from clrender.estimators.registry import ESTIMATORS, PixelSums
 from clrender.sppp import DEFAULT_ALPHA, sppp_eps
-from clrender.voronoi_cells import QHULL_OPTIONS, _triangle_geometry
 
 ESTIMATOR_NAMES = ("ivor", "ivor_sn")
 BORDERS = ("frame", "periodic")
@@ -279,7 +280,7 @@ def _areas_and_flags(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Cell areas of every point and the flags "not certified" (hull, disc outside known)."""
     count = len(points)
-    g = _triangle_geometry(points, s)
+    g = triangle_geometry(points, s)
     areas = (
         np.bincount(s[:, 0], g.area_a, count)
         + np.bincount(s[:, 1], g.area_b, count)
@@ -297,12 +298,7 @@ def _areas_and_flags(
             & (cy + radius <= known[3])
         )
     bad[s[~(inside & np.isfinite(g.area_a + g.area_b + g.area_c))].ravel()] = True
-    # Coincident points: the vertex Qhull kept and the points it dropped share the cell.
-    if len(tri.coplanar):
-        dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
-        areas /= 1.0 + np.bincount(kept, minlength=count)
-        areas[dropped] = areas[kept]
-        bad[dropped] = bad[kept]
+    share_coincident(tri, areas, bad)
     return areas, bad
 
 
@@ -433,12 +429,22 @@ def _cut(rect: PixelRect, side: int, pixels: int) -> list[PixelRect]:
 
 @dataclass
 class RunEstimate:
-    """Estimates of a scanline run of pixels, in run order: name -> (P,) or (P, C)."""
+    """Per-pixel sums of a scanline run of pixels, in run order, over the image tessellation
+    (weighted: sum f v, area: sum v), with the cells of the run's traced nuclei."""
 
-    estimates: dict[str, np.ndarray]
+    sums: PixelSums
     ids: np.ndarray  # traced nuclei ids, block by block
     areas: np.ndarray  # their cell areas
     stats: ImageVoronoiStats
+
+    @property
+    def estimates(self) -> dict[str, np.ndarray]:
+        """Every image-level estimator of the registry: name -> (P,) or (P, C)."""
+        return image_estimates(self.sums)
+
+
+def image_estimates(sums: PixelSums) -> dict[str, np.ndarray]:
+    return {name: entry.formula(sums) for name, entry in ESTIMATORS.items() if entry.image_level}
 
 
 def estimate_run(
@@ -450,20 +456,22 @@ def estimate_run(
     delta: float,
     extent: tuple[float, ...] | None = None,
 ) -> RunEstimate:
-    """ivor and ivor_sn of the image pixels start .. stop - 1 (scanline order)."""
+    """The image-level sums of the image pixels start .. stop - 1 (scanline order)."""
     stats = ImageVoronoiStats()
     blocks = run_blocks(width, start, stop, n)
     results = [estimate_block(source, block, delta, extent) for block in blocks]
     index = np.concatenate([ys * width + xs - start for xs, ys in (b.coords() for b in blocks)])
     order = np.argsort(index)
-    sums = np.concatenate([r.sums for r in results])[order]
-    area_sums = np.concatenate([r.area_sums for r in results])[order]
     for r in results:
         stats.add(r.stats)
-    normaliser = np.where(area_sums > 0, area_sums, 1.0)
-    ratio = sums / (normaliser if sums.ndim == 1 else normaliser[:, None])
+    sums = PixelSums(
+        np.concatenate([r.counts for r in results])[order],
+        n,
+        weighted=np.concatenate([r.sums for r in results])[order],
+        area=np.concatenate([r.area_sums for r in results])[order],
+    )
     return RunEstimate(
-        {"ivor": sums, "ivor_sn": ratio},
+        sums,
         np.concatenate([r.ids for r in results]),
         np.concatenate([r.areas for r in results]),
         stats,
@@ -561,7 +569,7 @@ def tile_point_source(
     def generate(xs: np.ndarray, ys: np.ndarray) -> PixelPoints:
         keys = pixel_keys(xs, ys, width, height, border)
         sets = generate_sample_sets(runtime, guard_config, seed, keys).to_host(runtime.queue)
-        counts = sets.counts().astype(np.int64)
+        counts = sets.counts.astype(np.int64)
         shift = np.repeat(np.column_stack([xs, ys]) + 0.5, counts, axis=0)
         zeros = np.zeros((len(sets.traced),) + values.shape[1:])
         return PixelPoints(
@@ -625,7 +633,7 @@ def estimate_tile_image(
 ) -> RunEstimate:
     """ivor and ivor_sn of a render tile (a scanline run of global pixel indices, each drawn
     with redraw number 0 by an SPPP sampler config); traced/offsets/values as in
-    HostSampleSets and the tile's radiance. Returns estimates in tile order."""
+    SampleSets and the tile's radiance. Returns estimates in tile order."""
     pixels = np.asarray(pixels, np.int64)
     if config.name != "sppp":
         raise ParameterError(
