@@ -32,9 +32,6 @@ DEFAULT_SCENE = "cornell-box"
 DEFAULT_SPP = 64
 DEFAULT_WIDTH = 128
 DEFAULT_SAMPLER = "sppp"
-# vor_sn over SPPP samples: the paper's method in its self-normalised form (the README's "What
-# the measurements say" compares it with the others, from bench/).
-DEFAULT_ESTIMATOR = {"sppp": "vor_sn", "uniform": "mc", "stratified": "mc"}
 
 RENDER_EPILOG = """\
 defaults: the authors' Cornell box at 128x128, 64 spp, the sppp sampler with the vor_sn
@@ -215,8 +212,8 @@ def output_paths(output: str | None, scene_label: str) -> OutputPaths:
     return OutputPaths(check_writable(exr), check_writable(png))
 
 
-def parse_resolution(text: str) -> tuple[int | None, int | None] | None:
-    """(width, height) from 'WxH', (N, None) from 'N', None from 'scene'."""
+def parse_resolution(text: str) -> tuple[int, int] | int | None:
+    """(width, height) from 'WxH', the width N from 'N', None from 'scene'."""
     if text == "scene":
         return None
     parts = text.lower().split("x")
@@ -228,7 +225,7 @@ def parse_resolution(text: str) -> tuple[int | None, int | None] | None:
         raise ParameterError(
             f"--res must be WxH, N or 'scene' with positive integers, got {text!r}"
         )
-    return (sizes[0], sizes[1]) if len(sizes) == 2 else (sizes[0], None)
+    return (sizes[0], sizes[1]) if len(sizes) == 2 else sizes[0]
 
 
 def scene_label(scene: str) -> str:
@@ -240,6 +237,7 @@ def scene_label(scene: str) -> str:
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
+    from clrender.api import DEFAULT_ESTIMATOR
     from clrender.estimators import check_compatible
     from clrender.render import DEFAULT_TILE_SAMPLES, RenderSettings
     from clrender.sampling import SAMPLERS, make_sampler
@@ -299,18 +297,11 @@ def load_scene_arg(args: argparse.Namespace):
 def make_source(args: argparse.Namespace, runtime, scene):
     """(radiance source, max depth or None) for the scene (None: the analytic image named by
     the argument) at the requested size."""
-    from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource
-    from clrender.radiance import PathTracerSource
-    from clrender.trace import PathTracer
+    from clrender.api import radiance_source
 
     size = parse_resolution(args.res)
-    if scene is None:
-        width, height = DEFAULT_RESOLUTION if size is None else size
-        height = width if height is None else height
-        return AnalyticSource.for_scene(args.scene, runtime.queue, width, height), None
-    tracer = PathTracer(runtime, scene, max_depth=args.max_depth)
-    width, height = tracer.image_size(*(size or (None, None)))
-    return PathTracerSource(tracer, width, height), args.max_depth
+    source = radiance_source(runtime, scene or args.scene, size, args.max_depth)
+    return source, None if scene is None else args.max_depth
 
 
 @contextlib.contextmanager

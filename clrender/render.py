@@ -139,6 +139,11 @@ class RenderResult:
     stats: RenderStats
     settings: RenderSettings
 
+    @property
+    def image(self) -> np.ndarray:
+        """(height, width, 3) float32 linear RGB, row 0 at the top (0 where not rendered)."""
+        return self.film.image()
+
 
 @dataclass
 class TileSamples:
