@@ -27,7 +27,7 @@ def render_metadata(result: RenderResult, labels: RenderLabels) -> dict[str, obj
         "scene": labels.scene,
         "spp": sampler.n,
         "sampler": sampler.name,
-        "estimator": settings.estimator,
+        "estimator": settings.estimator.name,
         "seed": settings.seed,
         "device": labels.device,
         "render_time_s": stats.wall_seconds,
@@ -65,7 +65,7 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
     overlap = "on" if settings.overlap else "off"
     return [
         f"{labels.scene}: {settings.width}x{settings.height}, {sampler.n} spp, "
-        f"{sampler.name} + {settings.estimator}, seed {settings.seed} on {labels.device}",
+        f"{sampler.name} + {settings.estimator.name}, seed {settings.seed} on {labels.device}",
         f"{status}: {film.rendered_count}/{film.pixel_count} pixels in "
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
         f"host Voronoi {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "

@@ -1,5 +1,6 @@
-"""Device Voronoi cells (clrender.device_voronoi, kernels/voronoi_cells.cl) against the host
-reference (clrender.voronoi_cells.sppp_cells, SciPy Qhull) and against exact geometry.
+"""Device Voronoi cells (clrender.estimators.device_cells, kernels/voronoi_cells.cl) against the
+host reference (clrender.estimators.qhull_cells.sppp_cells, SciPy Qhull) and against exact
+geometry.
 
 Inputs are rounded to float32 first (the device's format), so both sides see one point set.
 Tolerances: precision "auto" (mixed on PoCL: final vertices in float64) must match Qhull to
@@ -11,17 +12,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clrender import device_voronoi, estimators
-from clrender.device_voronoi import (
+from clrender.errors import ParameterError
+from clrender.estimators import device_cells, estimate_all
+from clrender.estimators import pixel as pixel_estimators
+from clrender.estimators.device_cells import (
     device_sppp_cells,
     device_sppp_cells_from_arrays,
     sppp_cells_backend,
 )
-from clrender.errors import ParameterError
-from clrender.estimators import PixelSamples, estimate_all
+from clrender.estimators.pixel import cell_sums
+from clrender.estimators.qhull_cells import sppp_cells
+from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 from clrender.sppp import draw_sppp
-from clrender.voronoi_cells import sppp_cells
 
 AREA_RTOL = 1e-9
 SINGLE_RTOL = 1e-4
@@ -153,7 +156,7 @@ def test_forced_unbounded_cells_flagged_like_qhull(runtime, n, monkeypatch):
         redone.append(int((~cells.bounded).sum()))
         return cells
 
-    monkeypatch.setattr(device_voronoi, "sppp_cells", host_fallback)
+    monkeypatch.setattr(device_cells, "sppp_cells", host_fallback)
     batch, box = sppp_batch(n, 1500, seed=n, eps=0.003)
     device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
     assert_same_cells(device, host)
@@ -227,7 +230,7 @@ def test_cells_bit_identical_across_launches(runtime):
 
 # 8. Cells the kernel cannot finish (vertex overflow) are recomputed on the host, exactly
 def test_overflow_falls_back_to_host(runtime, monkeypatch):
-    monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
+    monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
     batch, box = sppp_batch(64, 60, seed=5)
     device, host = both(runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
     assert device.stats.recomputed_pixels > 30
@@ -245,11 +248,11 @@ def test_estimates_from_device_cells_match(runtime, monkeypatch):
             np.ones(len(traced)),
         ]
     )
-    samples = PixelSamples(traced, values, batch.offsets, 64.0, aux, batch.aux_offsets, batch.eps)
+    samples = SampleSets(traced, batch.offsets, 64.0, aux, batch.aux_offsets, batch.eps)
     names = ["vor", "vor_sn", "fvor"]
-    host = estimate_all(names, samples)
-    monkeypatch.setattr(estimators, "sppp_cells", sppp_cells_backend(runtime))
-    device = estimate_all(names, samples)
+    host = estimate_all(names, samples, values)
+    monkeypatch.setattr(pixel_estimators, "sppp_cells", sppp_cells_backend(runtime))
+    device = estimate_all(names, samples, values)
     for name in names:
         np.testing.assert_array_equal(device[name].needs_redraw, host[name].needs_redraw)
         np.testing.assert_allclose(
@@ -283,15 +286,13 @@ def test_device_sums_match_host_sums(runtime, eps):
     poisoned = rng.choice(sets.traced_total, 40, replace=False)
     radiance[poisoned[:20], 0] = np.nan
     radiance[poisoned[20:], 2] = np.inf
-    device = device_voronoi.device_sppp_sums(runtime, sets, runtime.upload(radiance), box)
+    device = device_cells.device_sppp_sums(runtime, sets, runtime.upload(radiance), box)
 
     cells = device_sppp_cells(runtime, sets, box)
     bad = ~np.isfinite(radiance).all(axis=1)
     clean = np.where(bad[:, None], 0.0, radiance.astype(np.float64))  # as the render does
-    samples = PixelSamples(
-        host.traced, clean, host.offsets, 64.0, host.aux, host.aux_offsets, config.eps
-    )
-    expected = estimators.sppp_sums(samples, cells)
+    samples = SampleSets(host.traced, host.offsets, 64.0, host.aux, host.aux_offsets, config.eps)
+    expected = cell_sums(samples, clean, cells, kept=True)
     # Pixels with an undecided cell (none at the paper's eps, 24 at eps = 0.08: bounded
     # cells beyond the start box) are left to the host
     decided = ~device.fallback
@@ -313,11 +314,11 @@ def test_device_sums_match_host_sums(runtime, eps):
 
 
 def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
-    monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
+    monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
     config = make_sampler("sppp", 64)
     sets = generate_sample_sets(runtime, config, 2, np.arange(60, dtype=np.uint32))
     radiance = np.ones((sets.traced_total, 3), np.float32)
-    device = device_voronoi.device_sppp_sums(
+    device = device_cells.device_sppp_sums(
         runtime, sets, runtime.upload(radiance), 0.5 + config.eps
     )
     assert device.fallback.sum() > 30

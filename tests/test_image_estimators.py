@@ -1,5 +1,6 @@
-"""Image-level Voronoi estimators (clrender.image_voronoi): exact cells, tiling invariance,
-unbiasedness on analytic images, variance against mc, guard fallback, empty pixels, borders.
+"""Image-level Voronoi estimators (clrender.estimators.image, plane pixels and RNG keys in
+clrender.estimators.image_plane): exact cells, tiling invariance, unbiasedness on analytic
+images, variance against mc, guard fallback, empty pixels, borders.
 
 Statistical tests use fixed seeds (deterministic outcomes) and the exact pixel integrals of
 clrender.analytic; tolerances are stated where they are used.
@@ -15,14 +16,12 @@ from scipy.spatial import Voronoi
 from clrender.analytic import analytic_functions, analytic_image, sample_image_positions
 from clrender.errors import ParameterError
 from clrender.estimators.image import (
-    PixelRect,
     draw_plane_poisson,
     estimate_image,
     estimate_tile_image,
-    frame_keys,
     guard_distance,
-    periodic_keys,
 )
+from clrender.estimators.image_plane import PixelRect, frame_keys, periodic_keys
 from clrender.sampling import generate_sample_sets, make_sampler
 
 

@@ -1,4 +1,5 @@
-"""Estimators (clrender.estimators): unbiasedness, variance, registry errors, degenerate sets.
+"""Per-pixel estimators (clrender.estimators.pixel, the registry clrender.estimators.registry):
+unbiasedness, variance, registry errors, degenerate sets.
 
 Statistical tests draw SPPP sets with the NumPy reference generator under fixed seeds and
 compare with the exact integrals of NOTES.md (holder_1: 1/16, holder_0.5: 2/9). Both functions
@@ -9,9 +10,13 @@ import numpy as np
 import pytest
 
 from clrender.errors import ParameterError
-from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimate_all
+from clrender.estimators import ESTIMATORS, estimate, estimate_all
+from clrender.estimators.qhull_cells import sppp_cells
+from clrender.samples import SampleSets
 from clrender.sppp import draw_sppp, sppp_eps
-from clrender.voronoi_cells import sppp_cells
+
+# The estimators `estimate` computes (the image-level ones tessellate the whole image).
+PER_PIXEL = [name for name, entry in ESTIMATORS.items() if not entry.image_level]
 
 EXACT = np.array([1 / 16, 2 / 9])  # holder_1, holder_0.5
 
@@ -25,8 +30,8 @@ def holder_columns(positions: np.ndarray) -> np.ndarray:
 def n64_results():
     n, pixels = 64, 2000
     batch = draw_sppp(np.random.default_rng(21), n, pixels)
-    samples = PixelSamples.from_sppp(batch, holder_columns(batch.traced), n)
-    return estimate_all(["mc", "vor", "vor_sn", "fvor", "cvor", "pvor"], samples)
+    values = holder_columns(batch.traced)
+    return estimate_all(["mc", "vor", "vor_sn", "fvor", "cvor", "pvor"], batch, values)
 
 
 def z_scores(result) -> np.ndarray:
@@ -52,7 +57,7 @@ def test_voronoi_variance_below_monte_carlo_at_n1024():
     n, pixels = 1024, 200
     batch = draw_sppp(np.random.default_rng(22), n, pixels)
     values = np.abs(batch.traced[:, 0] * batch.traced[:, 1])
-    results = estimate_all(["mc", "vor", "vor_sn"], PixelSamples.from_sppp(batch, values, n))
+    results = estimate_all(["mc", "vor", "vor_sn"], batch, values)
     std = {name: r.estimates[~r.needs_redraw].std(ddof=1) for name, r in results.items()}
     # Measured: mc 0.0025, vor_sn 0.00047 (5.4x), vor 0.00071 (3.5x).
     assert std["vor_sn"] * 3.0 < std["mc"]
@@ -70,16 +75,16 @@ def test_voronoi_variance_below_monte_carlo_at_n1024():
 
 def test_unknown_estimator_lists_accepted_names():
     with pytest.raises(ParameterError) as info:
-        estimate("voronoi", PixelSamples(np.zeros((0, 2)), np.zeros(0), np.array([0]), 1.0))
+        estimate("voronoi", SampleSets(np.zeros((0, 2)), np.array([0]), 1.0), np.zeros(0))
     for name in ESTIMATORS:
         assert name in str(info.value)
 
 
 @pytest.mark.parametrize("name", ["vor", "vor_sn", "fvor"])
 def test_aux_estimators_without_aux_raise_naming_the_estimator(name):
-    samples = PixelSamples(np.zeros((1, 2)), np.ones(1), np.array([0, 1]), 1.0)
+    samples = SampleSets(np.zeros((1, 2)), np.array([0, 1]), 1.0)
     with pytest.raises(ParameterError, match=f"'{name}'.*auxiliary"):
-        estimate(name, samples)
+        estimate(name, samples, np.ones(1))
 
 
 def test_registry_entries_describe_requirements():
@@ -93,9 +98,9 @@ def test_registry_entries_describe_requirements():
 
 @pytest.mark.parametrize("position", [[0.6, 0.0], [np.nan, 0.0], [0.0, -np.inf]])
 def test_positions_outside_w_or_not_finite_are_rejected(position):
-    samples = PixelSamples(np.array([position]), np.ones(1), np.array([0, 1]), 1.0)
+    samples = SampleSets(np.array([position]), np.array([0, 1]), 1.0)
     with pytest.raises(ParameterError, match="inside W"):
-        estimate("cvor", samples)
+        estimate("cvor", samples, np.ones(1))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -103,17 +108,11 @@ def test_positions_outside_w_or_not_finite_are_rejected(position):
 
 
 def sppp_samples(points, values, aux, n=16.0):
+    """One pixel's sample set and its values, as (SampleSets, values) for estimate(name, *...)."""
     points = np.asarray(points, float).reshape(-1, 2)
     aux = np.asarray(aux, float).reshape(-1, 2)
-    return PixelSamples(
-        points,
-        np.asarray(values, float),
-        np.array([0, len(points)]),
-        n,
-        aux,
-        np.array([0, len(aux)]),
-        0.25,
-    )
+    samples = SampleSets(points, np.array([0, len(points)]), n, aux, np.array([0, len(aux)]), 0.25)
+    return samples, np.asarray(values, float)
 
 
 RING = (
@@ -126,7 +125,7 @@ def test_small_sets_give_defined_estimates(count):
     points = np.array([[0.1, 0.2], [-0.3, 0.1], [0.2, -0.4]])[:count]
     values = np.arange(1.0, count + 1.0)
     # With a ring of aux nuclei every W cell is bounded.
-    results = estimate_all(list(ESTIMATORS), sppp_samples(points, values, RING))
+    results = estimate_all(PER_PIXEL, *sppp_samples(points, values, RING))
     for name, result in results.items():
         assert not result.needs_redraw[0], name
         assert np.isfinite(result.estimates[0]), name
@@ -140,7 +139,7 @@ def test_small_sets_give_defined_estimates(count):
 @pytest.mark.parametrize("count", [1, 2, 3])
 def test_sets_without_aux_points_are_rejected_not_looped(count):
     points = np.array([[0.1, 0.2], [-0.3, 0.1], [0.2, -0.4]])[:count]
-    result = estimate("vor", sppp_samples(points, np.ones(count), np.zeros((0, 2))))
+    result = estimate("vor", *sppp_samples(points, np.ones(count), np.zeros((0, 2))))
     assert result.needs_redraw[0] and np.isnan(result.estimates[0])
 
 
@@ -148,12 +147,12 @@ def test_collinear_nuclei():
     points = np.column_stack([np.linspace(-0.4, 0.4, 7), np.zeros(7)])
     ones = np.ones(7)
     # Alone the cells are unbounded strips: vor rejects; clipped and torus cells tile W.
-    assert estimate("vor", sppp_samples(points, ones, np.zeros((0, 2)))).needs_redraw[0]
+    assert estimate("vor", *sppp_samples(points, ones, np.zeros((0, 2)))).needs_redraw[0]
     for name in ("cvor", "pvor"):
-        value = estimate(name, sppp_samples(points, ones, np.zeros((0, 2)))).estimates[0]
+        value = estimate(name, *sppp_samples(points, ones, np.zeros((0, 2)))).estimates[0]
         assert value == pytest.approx(1.0, abs=1e-12), name
     # With a ring of aux nuclei the collinear W nuclei have bounded cells.
-    result = estimate("vor_sn", sppp_samples(points, ones, RING))
+    result = estimate("vor_sn", *sppp_samples(points, ones, RING))
     assert not result.needs_redraw[0] and result.estimates[0] == pytest.approx(1.0)
 
 
@@ -166,10 +165,10 @@ def test_duplicate_positions_share_their_cell():
     values[:3] = 1.0  # the estimate is the (shared) area of the triple point's cell
     distinct = np.delete(points, [1, 2], axis=0)
     for name in ("cvor", "pvor"):
-        with_dupes = estimate(name, sppp_samples(points, values, np.zeros((0, 2))))
-        reference = estimate(name, sppp_samples(distinct, np.eye(38)[0], np.zeros((0, 2))))
+        with_dupes = estimate(name, *sppp_samples(points, values, np.zeros((0, 2))))
+        reference = estimate(name, *sppp_samples(distinct, np.eye(38)[0], np.zeros((0, 2))))
         assert with_dupes.estimates[0] == pytest.approx(reference.estimates[0], rel=1e-10)
-        total = estimate(name, sppp_samples(points, np.ones(40), np.zeros((0, 2))))
+        total = estimate(name, *sppp_samples(points, np.ones(40), np.zeros((0, 2))))
         assert total.estimates[0] == pytest.approx(1.0, abs=1e-12)
 
 
@@ -179,15 +178,15 @@ def test_nuclei_on_the_pixel_edge():
     points[:6] = [[0.5, 0.1], [-0.5, 0.1], [0.2, 0.5], [0.2, -0.5], [0.5, 0.5], [-0.5, -0.5]]
     ones = np.ones(30)
     # The clipped cells still tile W (edge nuclei are nudged 1e-9 inside W).
-    clipped = estimate("cvor", sppp_samples(points, ones, np.zeros((0, 2))))
+    clipped = estimate("cvor", *sppp_samples(points, ones, np.zeros((0, 2))))
     assert clipped.estimates[0] == pytest.approx(1.0, abs=1e-8)
     # On the torus (0.5, 0.1) and (-0.5, 0.1) are one point: the cells still tile W.
-    periodic = estimate("pvor", sppp_samples(points, ones, np.zeros((0, 2))))
+    periodic = estimate("pvor", *sppp_samples(points, ones, np.zeros((0, 2))))
     assert periodic.estimates[0] == pytest.approx(1.0, abs=1e-12)
     eps = sppp_eps(30)
     aux = draw_sppp(np.random.default_rng(25), 30, 1, eps=eps).aux
-    samples = PixelSamples(points, ones, np.array([0, 30]), 30.0, aux, np.array([0, len(aux)]), eps)
-    result = estimate("vor_sn", samples)
+    samples = SampleSets(points, np.array([0, 30]), 30.0, aux, np.array([0, len(aux)]), eps)
+    result = estimate("vor_sn", samples, ones)
     assert result.needs_redraw[0] or result.estimates[0] == pytest.approx(1.0)
 
 
@@ -197,7 +196,7 @@ def test_non_finite_values_stay_in_their_pixel(bad):
     batch = draw_sppp(np.random.default_rng(26), n, pixels, eps=sppp_eps(n))
     values = np.ones(len(batch.traced))
     values[batch.offsets[1]] = bad  # one bad value in pixel 1
-    results = estimate_all(list(ESTIMATORS), PixelSamples.from_sppp(batch, values, n))
+    results = estimate_all(PER_PIXEL, batch, values)
     for name, result in results.items():
         ok = ~result.needs_redraw
         assert np.isfinite(result.estimates[[0, 2]][ok[[0, 2]]]).all(), name
@@ -211,10 +210,10 @@ def test_rgb_values_match_per_channel_scalar_estimates():
     rgb = np.column_stack(
         [batch.traced[:, 0] ** 2, np.abs(batch.traced[:, 1]), np.ones(len(batch.traced))]
     )
-    together = estimate_all(list(ESTIMATORS), PixelSamples.from_sppp(batch, rgb, n))
+    together = estimate_all(PER_PIXEL, batch, rgb)
     for c in range(3):
-        alone = estimate_all(list(ESTIMATORS), PixelSamples.from_sppp(batch, rgb[:, c], n))
-        for name in ESTIMATORS:
+        alone = estimate_all(PER_PIXEL, batch, rgb[:, c])
+        for name in PER_PIXEL:
             np.testing.assert_allclose(
                 together[name].estimates[:, c], alone[name].estimates, rtol=1e-12, err_msg=name
             )
@@ -227,8 +226,7 @@ def test_fvor_against_a_per_pixel_reference_including_its_vor_sn_fallback():
     n, pixels = 2, 600
     batch = draw_sppp(np.random.default_rng(31), n, pixels, eps=0.4)
     values = holder_columns(batch.traced)
-    samples = PixelSamples.from_sppp(batch, values, n)
-    results = estimate_all(["fvor", "vor_sn"], samples)
+    results = estimate_all(["fvor", "vor_sn"], batch, values)
     cells = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5 + batch.eps)
     fallbacks = 0
     for p in range(pixels):

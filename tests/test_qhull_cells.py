@@ -1,4 +1,4 @@
-"""Voronoi cell areas (clrender.voronoi_cells) against scipy.spatial.Voronoi polygons.
+"""Voronoi cell areas (clrender.estimators.qhull_cells) against scipy.spatial.Voronoi polygons.
 
 Reference areas: the shoelace formula over scipy.spatial.Voronoi's region vertices, on each
 pixel's own point set (W + aux nuclei; originals + all 4 mirrors; originals + all 8 copies).
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.spatial import Voronoi
 
-from clrender import voronoi_cells
+from clrender.estimators import qhull_cells
+from clrender.estimators.qhull_cells import clipped_cells, periodic_cells, sppp_cells
 from clrender.sppp import draw_sppp
-from clrender.voronoi_cells import clipped_cells, periodic_cells, sppp_cells
 
 RTOL = 1e-10
 
@@ -128,7 +128,7 @@ def test_exactness_check_catches_interacting_pixels(monkeypatch, gap):
     neighbour-purity check must notice and recompute them, so areas stay exact."""
     batch = draw_sppp(np.random.default_rng(13), 64, 24)
     alone = single_pixel_areas(batch, sppp_cells)
-    monkeypatch.setattr(voronoi_cells, "SLOT_GAP_FACTOR", gap)
+    monkeypatch.setattr(qhull_cells, "SLOT_GAP_FACTOR", gap)
     joint = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets)
     assert joint.stats.recomputed_pixels > 0
     np.testing.assert_allclose(joint.areas, alone, rtol=RTOL)
@@ -140,13 +140,13 @@ def test_partial_ghosts_are_checked_against_full_ghosts(monkeypatch, cell_fn):
     """A too-narrow ghost margin must be caught by the circumdisc check (recomputed with all
     ghosts); a generous one must agree with all ghosts without recomputation."""
     batch = draw_sppp(np.random.default_rng(14), 200, 20)
-    monkeypatch.setattr(voronoi_cells, "GHOST_MARGIN_SPACINGS", 100.0)  # all ghosts
+    monkeypatch.setattr(qhull_cells, "GHOST_MARGIN_SPACINGS", 100.0)  # all ghosts
     full = cell_fn(batch.traced, batch.offsets)
-    monkeypatch.setattr(voronoi_cells, "GHOST_MARGIN_SPACINGS", 0.7)
+    monkeypatch.setattr(qhull_cells, "GHOST_MARGIN_SPACINGS", 0.7)
     narrow = cell_fn(batch.traced, batch.offsets)
     assert narrow.stats.recomputed_pixels > 0
     np.testing.assert_allclose(narrow.areas, full.areas, rtol=RTOL)
-    monkeypatch.setattr(voronoi_cells, "GHOST_MARGIN_SPACINGS", 5.0)
+    monkeypatch.setattr(qhull_cells, "GHOST_MARGIN_SPACINGS", 5.0)
     default = cell_fn(batch.traced, batch.offsets)
     np.testing.assert_allclose(default.areas, full.areas, rtol=RTOL)
 

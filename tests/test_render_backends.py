@@ -78,9 +78,9 @@ def test_device_backend_is_bit_identical_whatever_the_tiling(runtime):
 def test_pixels_with_undecided_cells_are_settled_on_the_host(runtime, monkeypatch):
     # Cells over 5 vertices overflow the kernel: most pixels' device sums are refused and the
     # host settles them (Qhull cells, host sums): the same image.
-    from clrender import device_voronoi
+    from clrender.estimators import device_cells
 
-    monkeypatch.setattr(device_voronoi, "MAX_VERTICES", 5)
+    monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
     device = render_image(runtime, "vor_sn", "device").film.image()
     qhull = render_image(runtime, "vor_sn", "qhull").film.image()
     np.testing.assert_allclose(device, qhull, rtol=1e-9, atol=1e-12)

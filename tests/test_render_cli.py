@@ -12,10 +12,11 @@ import pytest
 
 from clrender import cli
 from clrender.errors import ParameterError
+from clrender.estimators import ESTIMATORS
 from clrender.film import Film
 from clrender.imageio import decode_png, read_exr, srgb8
 from clrender.progress import ProgressBar
-from clrender.render import ESTIMATOR_NAMES, RenderResult, RenderStats
+from clrender.render import RenderResult, RenderStats
 from clrender.sampling import make_sampler
 
 
@@ -67,7 +68,7 @@ def test_default_output_name_is_the_scene_name_in_the_current_directory(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["analytic-edge.exr", "analytic-edge.png"]
 
 
-@pytest.mark.parametrize("estimator", ESTIMATOR_NAMES)
+@pytest.mark.parametrize("estimator", list(ESTIMATORS))
 def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
     out = tmp_path / "e.exr"
     status, _, err = run_cli(

@@ -16,7 +16,7 @@ from clrender.sampling import (
     count_samples,
     generate_sample_sets,
     make_sampler,
-    tile_pixels,
+    rectangle_pixels,
 )
 from clrender.sppp import auxiliary_count, rejection_bound, sppp_eps
 
@@ -81,7 +81,7 @@ def test_poisson_counts_at_a_large_mean(runtime):
 @pytest.mark.parametrize("sampler", ["uniform", "stratified"])
 def test_fixed_count_samplers_draw_exactly_n(runtime, sampler):
     sets = host_sets(runtime, make_sampler(sampler, 16), 3, np.arange(500))
-    assert np.all(sets.counts() == 16)
+    assert np.all(sets.counts == 16)
     assert len(sets.aux) == 0
 
 

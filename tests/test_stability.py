@@ -10,11 +10,12 @@ import pytest
 from scipy.spatial import ConvexHull
 
 from clrender.errors import ClrenderError
-from clrender.estimators import ESTIMATORS, PixelSamples, estimate, estimate_all
+from clrender.estimators import ESTIMATORS, estimate, estimate_all, estimate_with_redraw
+from clrender.samples import SampleSets
 from clrender.sppp import auxiliary_count, draw_sppp, rejection_bound, sppp_eps
-from clrender.voronoi import estimate_with_redraw
 
-ALL = list(ESTIMATORS)
+# Every per-pixel estimator (the image-level ones tessellate the whole image, not a pixel).
+ALL = [name for name, entry in ESTIMATORS.items() if not entry.image_level]
 VOR_FAMILY = ["vor", "vor_sn", "fvor"]  # need aux nuclei, may reject a pixel
 NORMALISED = ["mc_n", "vor_sn", "fvor", "cvor", "pvor"]  # weights sum to 1 when N >= 1
 HOLDER_1 = 1.0 / 16.0  # integral of |x y| over W
@@ -30,13 +31,14 @@ def holder_1(positions: np.ndarray) -> np.ndarray:
     return np.abs(positions[:, 0] * positions[:, 1])
 
 
-def counts_of(samples: PixelSamples) -> np.ndarray:
+def counts_of(samples: SampleSets) -> np.ndarray:
     return np.diff(samples.offsets)
 
 
 def sppp_samples(seed: int, n: float, pixels: int, values_fn, eps: float | None = None):
+    """(SampleSets, values) of `pixels` SPPP pixels."""
     batch = draw_sppp(np.random.default_rng(seed), n, pixels, eps=eps)
-    return PixelSamples.from_sppp(batch, values_fn(batch.traced), n)
+    return batch, values_fn(batch.traced)
 
 
 def z_score(estimates: np.ndarray, exact: float) -> float:
@@ -50,36 +52,35 @@ def z_score(estimates: np.ndarray, exact: float) -> float:
 
 def test_empty_pixels_estimate_zero_with_every_estimator():
     # n = 1: P(N = 0) = exp(-1), so about 220 of the 600 pixels are empty.
-    samples = sppp_samples(101, 1.0, 600, smooth)
+    samples, values = sppp_samples(101, 1.0, 600, smooth)
     empty = counts_of(samples) == 0
     assert empty.sum() > 150
-    for name, result in estimate_all(ALL, samples).items():
+    for name, result in estimate_all(ALL, samples, values).items():
         assert not result.needs_redraw[empty].any(), name
         assert (result.estimates[empty] == 0.0).all(), name
         assert result.stats.empty_pixels == empty.sum(), name
 
 
-def fixed_count_samples(seed: int, count: int, pixels: int) -> PixelSamples:
-    """Pixels of exactly `count` uniform nuclei with SPPP aux nuclei drawn for n = count;
-    value columns: smooth, then 1."""
+def fixed_count_samples(seed: int, count: int, pixels: int) -> tuple[SampleSets, np.ndarray]:
+    """Pixels of exactly `count` uniform nuclei with SPPP aux nuclei drawn for n = count, and
+    their values; value columns: smooth, then 1."""
     rng = np.random.default_rng(seed)
     batch = draw_sppp(rng, count, pixels)
     positions = rng.random((pixels * count, 2)) - 0.5
     values = np.column_stack([smooth(positions), np.ones(len(positions))])
     offsets = np.arange(pixels + 1, dtype=np.int64) * count
-    return PixelSamples(
-        positions, values, offsets, float(count), batch.aux, batch.aux_offsets, batch.eps
-    )
+    samples = SampleSets(positions, offsets, float(count), batch.aux, batch.aux_offsets, batch.eps)
+    return samples, values
 
 
 @pytest.mark.parametrize("count", [1, 2, 3])
 def test_near_empty_pixels_give_finite_defined_estimates(count):
     pixels = 300
-    samples = fixed_count_samples(200 + count, count, pixels)
-    f = samples.values[:, 0]
+    samples, values = fixed_count_samples(200 + count, count, pixels)
+    f = values[:, 0]
     lo = np.minimum.reduceat(f, samples.offsets[:-1])
     hi = np.maximum.reduceat(f, samples.offsets[:-1])
-    results = estimate_all(ALL, samples)
+    results = estimate_all(ALL, samples, values)
     for name, result in results.items():
         redraw = result.needs_redraw
         # Only the aux-nuclei estimators may reject; at the paper's eps the bound is 1e-3, so
@@ -107,8 +108,8 @@ def test_near_empty_pixels_give_finite_defined_estimates(count):
 
 def rejection_frequency(seed: int, n: int, alpha: float, pixels: int) -> tuple[float, float]:
     eps = sppp_eps(n, alpha)
-    samples = sppp_samples(seed, n, pixels, lambda p: np.ones(len(p)), eps=eps)
-    return estimate("vor", samples).needs_redraw.mean(), rejection_bound(n, eps)
+    samples, values = sppp_samples(seed, n, pixels, lambda p: np.ones(len(p)), eps=eps)
+    return estimate("vor", samples, values).needs_redraw.mean(), rejection_bound(n, eps)
 
 
 def test_rejection_frequency_at_n16_is_below_the_paper_bound():
@@ -131,8 +132,7 @@ def test_rejected_pixels_are_those_with_a_w_nucleus_on_the_hull():
     # of the convex hull of W + aux nuclei. n = 4 at the eps of bound 0.9: about 5 % rejected.
     n, pixels = 4, 400
     batch = draw_sppp(np.random.default_rng(304), n, pixels, eps=sppp_eps(n, 0.9))
-    samples = PixelSamples.from_sppp(batch, np.ones(len(batch.traced)), n)
-    rejected = estimate("vor", samples).needs_redraw
+    rejected = estimate("vor", batch, np.ones(len(batch.traced))).needs_redraw
     on_hull = np.zeros(pixels, bool)
     for p in range(pixels):  # reference loop over pixels (test only)
         traced = batch.traced[batch.offsets[p] : batch.offsets[p + 1]]
@@ -156,11 +156,10 @@ def storm(seed: int, pixels: int, names, **driver):
 
     def draw(pixel_ids, eps):
         accept_eps[pixel_ids] = eps
-        return draw_sppp(rng, STORM_N, len(pixel_ids), eps=eps)
+        samples = draw_sppp(rng, STORM_N, len(pixel_ids), eps=eps)
+        return samples, holder_1(samples.traced)
 
-    outcome = estimate_with_redraw(
-        names, draw, lambda b, ids: holder_1(b.traced), pixels, STORM_N, eps=STORM_EPS, **driver
-    )
+    outcome = estimate_with_redraw(names, draw, pixels, STORM_N, eps=STORM_EPS, **driver)
     return outcome, accept_eps
 
 
@@ -181,10 +180,12 @@ def test_storm_with_the_default_driver_recovers_at_the_papers_eps():
 def unrecoverable_storm(seed: int, pixels: int, names, **driver):
     """A sampler that ignores the driver's eps: it never draws an auxiliary nucleus."""
     rng = np.random.default_rng(seed)
-    draw = lambda pixel_ids, eps: draw_sppp(rng, STORM_N, len(pixel_ids), eps=STORM_EPS)  # noqa: E731
-    return estimate_with_redraw(
-        names, draw, lambda b, ids: holder_1(b.traced), pixels, STORM_N, eps=STORM_EPS, **driver
-    )
+
+    def draw(pixel_ids, eps):
+        samples = draw_sppp(rng, STORM_N, len(pixel_ids), eps=STORM_EPS)
+        return samples, holder_1(samples.traced)
+
+    return estimate_with_redraw(names, draw, pixels, STORM_N, eps=STORM_EPS, **driver)
 
 
 def test_an_unrecoverable_storm_stops_after_max_rounds_and_falls_back_to_mc():
@@ -239,9 +240,9 @@ def test_storm_recovery_is_unbiased(recovered_storm):
 
 @pytest.mark.parametrize("n", [2, 16])
 def test_flat_pixel_is_exact_for_weights_that_sum_to_one(n):
-    samples = sppp_samples(500 + n, n, 600, lambda p: np.ones(len(p)))
+    samples, values = sppp_samples(500 + n, n, 600, lambda p: np.ones(len(p)))
     nonempty = counts_of(samples) >= 1
-    for name, result in estimate_all(NORMALISED, samples).items():
+    for name, result in estimate_all(NORMALISED, samples, values).items():
         ok = nonempty & ~result.needs_redraw
         assert ok.sum() >= 0.8 * 600, name  # P(N = 0) = exp(-2) = 0.14 at n = 2
         assert np.abs(result.estimates[ok] - 1.0).max() <= 1e-12, name
@@ -252,8 +253,8 @@ def test_flat_pixel_mc_and_literal_vor_add_noise():
     # (one SE), 15 % allowed. E_V = sum of the W cells' areas: unbiased for 1, but the cells
     # overhang W and strip cells cover parts of W, so the sum is not 1 (std ~0.11 at n = 16).
     n = 16
-    samples = sppp_samples(510, n, 600, lambda p: np.ones(len(p)))
-    results = estimate_all(["mc", "vor"], samples)
+    samples, values = sppp_samples(510, n, 600, lambda p: np.ones(len(p)))
+    results = estimate_all(["mc", "vor"], samples, values)
     mc = results["mc"].estimates
     assert mc.std(ddof=1) == pytest.approx(n**-0.5, rel=0.15)
     vor = results["vor"].estimates[~results["vor"].needs_redraw]
@@ -278,8 +279,7 @@ def fireflies():
     first = np.zeros(len(f), bool)
     first[batch.offsets[:-1][np.diff(batch.offsets) > 0]] = True
     columns = [f, first.astype(float), *[np.where(first, gain * f, f) for gain in GAINS]]
-    samples = PixelSamples.from_sppp(batch, np.column_stack(columns), n)
-    return samples, f[batch.offsets[:-1]], estimate_all(ALL, samples)
+    return batch, f[batch.offsets[:-1]], estimate_all(ALL, batch, np.column_stack(columns))
 
 
 def test_firefly_moves_each_estimate_by_value_times_its_weight(fireflies):
@@ -304,7 +304,7 @@ def test_firefly_error_is_bounded_by_the_largest_weight(fireflies):
     # mc_n and 1 for the other normalised estimators (convex weights); vor's weight is the
     # firefly's cell area, finite and positive.
     samples, f_k, results = fireflies
-    n, counts = samples.intensity, counts_of(samples)
+    n, counts = samples.n, counts_of(samples)
     exact = (
         0.5
         + 0.4
