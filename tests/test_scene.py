@@ -10,16 +10,13 @@ import pytest
 from scene_texts import MINIMAL_SCENE
 
 from clrender.errors import ClrenderError
-from clrender.scene import (
+from clrender.scene import SceneError, SceneWarning, list_scenes, load_scene
+from clrender.scene_device import (
     CAMERA_DTYPE,
     EMITTER_DTYPE,
     MATERIAL_DTYPE,
     QUAD_DTYPE,
     SPHERE_DTYPE,
-    SceneError,
-    SceneWarning,
-    list_scenes,
-    load_scene,
     quad_block_dtype,
 )
 
