@@ -7,7 +7,7 @@ __kernel void philox_blocks(uint count, __global const uint4 *counters,
     uint i = get_global_id(0);
     if (i >= count)
         return;
-    out[i] = philox4x32_10(counters[i], keys[i]);
+    out[i] = Rng_Philox4x32(counters[i], keys[i]);
 }
 
 __kernel void uniform_slots(uint count, uint seed, __global const uint4 *slots,
@@ -18,5 +18,5 @@ __kernel void uniform_slots(uint count, uint seed, __global const uint4 *slots,
         return;
     // slots[i] = (pixel, sample, dim, redraw)
     uint4 s = slots[i];
-    out[i] = rng_uniform4(seed, s.x, s.y, s.z, s.w);
+    out[i] = Rng_Uniform4(seed, s.x, s.y, s.z, s.w);
 }
