@@ -51,7 +51,7 @@ def test_load_by_path_and_by_name_agree():
 def test_struct_layouts_match_the_kernel(runtime):
     sizes = np.zeros(6, np.uint32)
     buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=sizes.nbytes)
-    runtime.kernel("bsdf_test.cl", "struct_sizes")(runtime.queue, (1,), None, buf)
+    runtime.kernel("scene_types_test.cl", "struct_sizes")(runtime.queue, (1,), None, buf)
     cl.enqueue_copy(runtime.queue, sizes, buf)
     dtypes = [
         QUAD_DTYPE,
