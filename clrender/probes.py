@@ -27,7 +27,8 @@ from clrender.errors import ParameterError
 from clrender.runtime import Runtime
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, generate_sample_sets
-from clrender.scene import MATERIAL_TYPES, Scene
+from clrender.scene import Scene
+from clrender.scene_device import MATERIAL_TYPES
 from clrender.trace import PathTracer
 
 NO_HIT = -1

@@ -43,14 +43,14 @@ def philox4x32_10(counters: np.ndarray, keys: np.ndarray) -> np.ndarray:
 
 
 def to_unit(bits: np.ndarray) -> np.ndarray:
-    """32 random bits -> float32 strictly inside (0, 1), exactly as rng_to_unit."""
+    """32 random bits -> float32 strictly inside (0, 1), exactly as Rng_ToUnit."""
     return (
         ((bits >> np.uint32(9)).astype(np.float32) + np.float32(0.5)) * np.float32(2.0**-23)
     ).astype(np.float32)
 
 
 def to_centered(bits: np.ndarray) -> np.ndarray:
-    """32 random bits -> float32 strictly inside (-1/2, 1/2), exactly as rng_to_centered."""
+    """32 random bits -> float32 strictly inside (-1/2, 1/2), exactly as Rng_ToCentered."""
     k = (bits >> np.uint32(8)).astype(np.int64) - 0x800000
     return ((k.astype(np.float32) + np.float32(0.5)) * np.float32(2.0**-24)).astype(np.float32)
 
@@ -68,10 +68,10 @@ def bits4(seed: int, pixel, sample, dim, redraw=0) -> np.ndarray:
 
 
 def uniform4(seed: int, pixel, sample, dim, redraw=0) -> np.ndarray:
-    """Four uniforms in (0, 1) per slot, as rng_uniform4."""
+    """Four uniforms in (0, 1) per slot, as Rng_Uniform4."""
     return to_unit(bits4(seed, pixel, sample, dim, redraw))
 
 
 def centered2(seed: int, pixel, sample, dim, redraw=0) -> np.ndarray:
-    """Two coordinates in (-1/2, 1/2) per slot, as rng_centered2."""
+    """Two coordinates in (-1/2, 1/2) per slot, as Rng_Centered2."""
     return to_centered(bits4(seed, pixel, sample, dim, redraw)[..., :2])

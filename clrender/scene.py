@@ -1,4 +1,4 @@
-"""Scene files: TOML in, packed arrays ready for the device out.
+"""Scene files: reading and validating them; the device records come from scene_device.
 
 A scene file has three parts: ``[camera]``, named ``[materials.NAME]`` tables and a
 ``[[shapes]]`` array. Unknown keys, missing fields, wrong types and non-finite numbers are
@@ -71,6 +71,11 @@ black), or the camera inside a solid shape. That check is cheap and deliberately
 ``look_from`` strictly inside a sphere, or strictly inside a box (in the box's own frame,
 before its rotation and translation). Quads are never solids, so a camera inside a room of
 quads (the Cornell box, the furnace) is not flagged.
+
+This module is the reading side of the scene: files, their validation, errors and warnings, and
+the loaded `Scene`. The byte layout the kernels read (the NumPy twins of kernels/scene_types.h
+and the packing into them) is clrender/scene_device.py, which this module imports and which
+imports nothing back.
 """
 
 from __future__ import annotations
@@ -87,6 +92,17 @@ import numpy as np
 
 from clrender.errors import ClrenderError
 from clrender.package_data import shipped_dir
+from clrender.scene_device import (
+    MATERIAL_NONE,
+    QUAD_BLOCK_WIDTH,
+    pack_camera,
+    pack_emitters,
+    pack_materials,
+    pack_quads,
+    pack_scene_quad_blocks,
+    pack_spheres,
+    scene_bounds,
+)
 
 
 class SceneError(ClrenderError, ValueError):
@@ -97,76 +113,10 @@ class SceneWarning(UserWarning):
     """A scene loads but will not render what one expects (e.g. it has no emitter)."""
 
 
-# Material type tags, shared with kernels/scene_types.h.
-MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
-MATERIAL_NONE = -1  # a pure emitter: absorbs everything that reaches it
-
-# Device structs (kernels/scene_types.h): only 4-byte fields, so no padding on any device.
-QUAD_DTYPE = np.dtype(
-    [
-        ("corner", "<f4", 3),
-        ("edge1", "<f4", 3),
-        ("edge2", "<f4", 3),
-        ("normal", "<f4", 3),
-        ("u_dual", "<f4", 3),
-        ("v_dual", "<f4", 3),
-        ("plane_d", "<f4"),
-        ("material", "<i4"),
-        ("emitter", "<i4"),
-    ]
-)
-QUAD_BLOCK_WIDTH = 8  # fixed in kernels/scene_types.h
-
-
-def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:
-    """QuadBlock: the quads' intersection data as structure of arrays, `width` quads each."""
-    return np.dtype(
-        [
-            ("corner", "<f4", (3, width)),
-            ("normal", "<f4", (3, width)),
-            ("u_dual", "<f4", (3, width)),
-            ("v_dual", "<f4", (3, width)),
-            ("plane_d", "<f4", width),
-            ("quad", "<i4", width),
-            ("lower", "<f4", 4),
-            ("upper", "<f4", 4),
-        ]
-    )
-
-
-SPHERE_DTYPE = np.dtype([("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4")])
-MATERIAL_DTYPE = np.dtype(
-    [
-        ("type", "<i4"),
-        ("two_sided", "<i4"),
-        ("albedo", "<f4", 3),
-        ("eta", "<f4", 3),
-        ("k", "<f4", 3),
-        ("alpha", "<f4"),
-    ]
-)
-EMITTER_DTYPE = np.dtype(
-    [
-        ("quad", "<i4"),
-        ("radiance", "<f4", 3),
-        ("area", "<f4"),
-        ("pick_pdf", "<f4"),
-        ("pick_cdf", "<f4"),
-    ]
-)
-CAMERA_DTYPE = np.dtype(
-    [("origin", "<f4", 3), ("forward", "<f4", 3), ("right", "<f4", 3), ("up", "<f4", 3)]
-)
-
 ALUMINIUM_ETA = (1.657, 0.880, 0.521)
 ALUMINIUM_K = (9.224, 6.270, 4.837)
 # Secondary rays start this fraction of the scene's bounding-box diagonal off their surface.
 RAY_EPSILON_SCALE = 1e-5
-# Quad blocks' bounding boxes are padded outwards by this fraction of the scene's diagonal (far
-# above float rounding in the slab test, so a box never rejects a ray that hits one of its quads).
-BLOCK_BOUNDS_PADDING = 1e-4
-# A block whose box fills this fraction of the volume of all blocks' boxes is always tested.
-BLOCK_BOUNDS_SKIP_FILL = 0.9
 # Relative tolerance of the parallelogram check of quad vertices.
 PARALLELOGRAM_TOLERANCE = 1e-5
 
@@ -182,25 +132,14 @@ class Camera:
     resolution: tuple[int, int]  # (width, height)
 
     def basis(self, width: int, height: int) -> np.ndarray:
-        """CAMERA_DTYPE record: origin, unit forward, and right/up scaled so that the ray
-        through normalised image coordinates (sx, sy) in [-1, 1]^2 (sx right, sy up) is
-        forward + sx * right + sy * up."""
-        origin = np.array(self.look_from, np.float64)
-        forward = _unit(np.array(self.look_at, np.float64) - origin)
-        right = _unit(np.cross(forward, np.array(self.up, np.float64)))
-        up = np.cross(right, forward)
-        half_height = math.tan(math.radians(self.fov) / 2.0)
-        record = np.zeros((), CAMERA_DTYPE)
-        record["origin"] = origin
-        record["forward"] = forward
-        record["right"] = right * half_height * (width / height)
-        record["up"] = up * half_height
-        return record
+        """The kernel's CAMERA_DTYPE record for a width x height image (see
+        scene_device.pack_camera): ray direction forward + sx * right + sy * up."""
+        return pack_camera(self.look_from, self.look_at, self.up, self.fov, width, height)
 
 
 @dataclass
 class Scene:
-    """A loaded scene: camera plus device-ready structured arrays (see the dtypes above).
+    """A loaded scene: camera plus device-ready structured arrays (scene_device's dtypes).
 
     quads: every quad, boxes expanded (6 each); spheres; materials (indexed by the shapes'
     `material`, -1 for a pure emitter); emitters (one per emitting quad, with the light
@@ -226,12 +165,10 @@ class Scene:
         return self.camera.resolution
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return _bounds(self.quads, self.spheres)
+        return scene_bounds(self.quads, self.spheres)
 
     def quad_blocks(self, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
-        low, high = self.bounds()
-        padding = BLOCK_BOUNDS_PADDING * max(float(np.linalg.norm(high - low)), 1e-30)
-        return pack_quad_blocks(self.quads, width, quad_groups(self.quad_names), padding)
+        return pack_scene_quad_blocks(self.quads, self.spheres, self.quad_names, width)
 
 
 # --------------------------------------------------------------------------- locating files
@@ -285,10 +222,6 @@ def load_scene(path_or_name: str | Path) -> Scene:
 def _did_you_mean(word: str, choices: list[str] | tuple[str, ...]) -> str:
     close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
 
 
 class _Table:
@@ -396,7 +329,7 @@ class SceneBuilder:
     def __init__(self, path: Path):
         self.path = path
         self.material_index: dict[str, int] = {}
-        self.materials: list[np.ndarray] = []
+        self.materials: list[dict] = []  # scene_device.pack_materials' input
         self.quads: list[dict] = []
         self.quad_names: list[str] = []
         self.spheres: list[dict] = []
@@ -461,12 +394,10 @@ class SceneBuilder:
                 f"unknown material type {kind!r}{hint}; accepted: {', '.join(MATERIAL_FIELDS)}",
             )
         table.check_keys(MATERIAL_FIELDS[kind])
-        record = np.zeros((), MATERIAL_DTYPE)
-        record["type"] = MATERIAL_TYPES[kind]
-        record["two_sided"] = 1
+        record: dict = {"type": kind, "two_sided": True}
         if kind == "diffuse":
             record["albedo"] = table.rgb("albedo", _REQUIRED, high=1.0)
-            record["two_sided"] = int(table.boolean("two_sided", True))
+            record["two_sided"] = table.boolean("two_sided", True)
         elif kind == "dielectric":
             ior = table.number("ior", 1.5, what=" > 0")
             if ior <= 0.0:
@@ -479,7 +410,7 @@ class SceneBuilder:
                 table.fail("eta", f"expected 3 numbers > 0, got {list(eta)}")
             record["eta"] = eta
             record["k"] = table.rgb("k", list(ALUMINIUM_K))
-            record["two_sided"] = int(table.boolean("two_sided", True))
+            record["two_sided"] = table.boolean("two_sided", True)
         self.material_index[name] = len(self.materials)
         self.materials.append(record)
 
@@ -619,16 +550,12 @@ class SceneBuilder:
     # -- packing
     def finish(self, camera: Camera, description: str) -> Scene:
         quads = pack_quads(self.quads)
-        spheres = np.zeros(len(self.spheres), SPHERE_DTYPE)
-        for record, sphere in zip(spheres, self.spheres, strict=True):
-            record["center"] = sphere["center"]
-            record["radius"] = sphere["radius"]
-            record["material"] = sphere["material"]
+        spheres = pack_spheres(self.spheres)
         emitters = pack_emitters(self.quads, quads)
-        materials = np.array(self.materials, MATERIAL_DTYPE).reshape(-1)
+        materials = pack_materials(self.materials)
         if len(quads) + len(spheres) == 0:
             raise SceneError(f"{self.path}: shapes: the scene has no shapes")
-        low, high = _bounds(quads, spheres)
+        low, high = scene_bounds(quads, spheres)
         diagonal = float(np.linalg.norm(high.astype(np.float64) - low))
         notes = []
         if len(emitters) == 0:
@@ -678,139 +605,3 @@ def box_faces(low: np.ndarray, high: np.ndarray) -> list[tuple[np.ndarray, ...]]
         (low.copy(), dx, dz),  # y = min, normal -y
         (low + dy, dz, dx),  # y = max, normal +y
     ]
-
-
-QUAD_FRAME = ("corner", "edge1", "edge2")
-
-
-def pack_quads(quads: list[dict]) -> np.ndarray:
-    """QUAD_DTYPE records; dual vectors give the parallelogram coordinates of a point q:
-    a = dot(q - corner, u_dual), b = dot(q - corner, v_dual), inside iff both in [0, 1]."""
-    packed = np.zeros(len(quads), QUAD_DTYPE)
-    for record, quad in zip(packed, quads, strict=True):
-        corner, edge1, edge2 = (np.asarray(quad[k], np.float64) for k in QUAD_FRAME)
-        n = np.cross(edge1, edge2)
-        w = n / np.dot(n, n)
-        normal = _unit(n)
-        record["corner"] = corner
-        record["edge1"] = edge1
-        record["edge2"] = edge2
-        record["normal"] = normal
-        record["u_dual"] = np.cross(edge2, w)
-        record["v_dual"] = np.cross(w, edge1)
-        record["plane_d"] = np.dot(normal, corner)
-        record["material"] = quad["material"]
-        record["emitter"] = -1
-    return packed
-
-
-def quad_groups(names: list[str]) -> list[int]:
-    """Group number of each quad: consecutive quads named "object/part" (a box's faces) share
-    one; every other quad is a group of its own."""
-    groups: list[int] = []
-    previous = None
-    for name in names:
-        prefix = name.rsplit("/", 1)[0] if "/" in name else None
-        if groups and prefix is not None and prefix == previous:
-            groups.append(groups[-1])
-        else:
-            groups.append(groups[-1] + 1 if groups else 0)
-        previous = prefix
-    return groups
-
-
-def plan_quad_blocks(groups: list[int], width: int = QUAD_BLOCK_WIDTH) -> list[list[int]]:
-    """Quad indices of each block, in scene order: a group that does not fit in the current
-    block's free lanes starts a new block (a group wider than a block fills whole blocks)."""
-    blocks: list[list[int]] = []
-    start = 0
-    while start < len(groups):
-        end = start
-        while end < len(groups) and groups[end] == groups[start]:
-            end += 1
-        members = list(range(start, end))
-        if not blocks or (len(blocks[-1]) + len(members) > width and len(members) <= width):
-            blocks.append([])
-        for index in members:
-            if len(blocks[-1]) == width:
-                blocks.append([])
-            blocks[-1].append(index)
-        start = end
-    return blocks
-
-
-def pack_quad_blocks(
-    quads: np.ndarray,
-    width: int = QUAD_BLOCK_WIDTH,
-    groups: list[int] | None = None,
-    padding: float = 0.0,
-) -> np.ndarray:
-    """The quads in blocks of `width` lanes (structure of arrays), grouped as
-    plan_quad_blocks says (default: in order, each quad its own group); unused lanes never
-    hit (zero normal, plane_d = -1, so t = -inf; quad -1). Each block carries the bounding box
-    of its quads, padded by `padding` and rounded outwards to float32; lower[3] = 1 flags a
-    block whose box fills most (BLOCK_BOUNDS_SKIP_FILL) of the volume of all blocks' boxes
-    (the enclosing walls): the kernel skips its box test, which nearly every ray passes."""
-    if groups is None:
-        groups = list(range(len(quads)))
-    plan = plan_quad_blocks(groups, width)
-    blocks = np.zeros(len(plan), quad_block_dtype(width))
-    for block, members in zip(blocks, plan, strict=True):
-        block["quad"][:] = -1
-        block["plane_d"][len(members) :] = -1.0
-        corners = []
-        for lane, i in enumerate(members):
-            quad = quads[i]
-            for key in ("corner", "normal", "u_dual", "v_dual"):
-                block[key][:, lane] = quad[key]
-            block["plane_d"][lane] = quad["plane_d"]
-            block["quad"][lane] = i
-            c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
-            corners += [c, c + e1, c + e2, c + e1 + e2]
-        stacked = np.array(corners)
-        lower = (stacked.min(axis=0) - padding).astype(np.float32)
-        upper = (stacked.max(axis=0) + padding).astype(np.float32)
-        block["lower"][:3] = np.nextafter(lower, np.float32(-np.inf))
-        block["upper"][:3] = np.nextafter(upper, np.float32(np.inf))
-    if len(blocks):
-        lower = blocks["lower"][:, :3].astype(np.float64)
-        upper = blocks["upper"][:, :3].astype(np.float64)
-        volumes = np.prod(upper - lower, axis=1)
-        whole = np.prod(upper.max(axis=0) - lower.min(axis=0))
-        blocks["lower"][:, 3] = volumes >= BLOCK_BOUNDS_SKIP_FILL * whole
-    return blocks
-
-
-def pack_emitters(quads: list[dict], packed: np.ndarray) -> np.ndarray:
-    """One EMITTER_DTYPE record per emitting quad; selection pdf proportional to power."""
-    indices = [i for i, quad in enumerate(quads) if quad["emission"] is not None]
-    emitters = np.zeros(len(indices), EMITTER_DTYPE)
-    powers = []
-    for slot, i in enumerate(indices):
-        area = float(np.linalg.norm(np.cross(quads[i]["edge1"], quads[i]["edge2"])))
-        emitters[slot]["quad"] = i
-        emitters[slot]["radiance"] = quads[i]["emission"]
-        emitters[slot]["area"] = area
-        powers.append(area * float(np.mean(quads[i]["emission"])))
-        packed[i]["emitter"] = slot
-    if indices:
-        pdf = np.array(powers) / np.sum(powers)
-        emitters["pick_pdf"] = pdf
-        cdf = np.cumsum(pdf)
-        cdf[-1] = 1.0
-        emitters["pick_cdf"] = cdf
-    return emitters
-
-
-def _bounds(quads: np.ndarray, spheres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    points = []
-    for quad in quads:
-        c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
-        points += [c, c + e1, c + e2, c + e1 + e2]
-    for sphere in spheres:
-        r = float(sphere["radius"])
-        points += [sphere["center"] - r, sphere["center"] + r]
-    if not points:
-        return np.zeros(3), np.zeros(3)
-    stacked = np.array(points, np.float64)
-    return stacked.min(axis=0), stacked.max(axis=0)

@@ -1,4 +1,9 @@
-"""Device self-check: the Philox known-answer vectors computed by the selected device."""
+"""Device self-check: the Philox known-answer vectors computed by the selected device.
+
+`python -m clrender` (and `python -m clrender devices`) builds kernels/selfcheck.cl, the
+product's one self-check kernel: raw Philox4x32-10 blocks of kernels/rng.h, the generator every
+sample position and path depends on, compared with Random123's known answers.
+"""
 
 from __future__ import annotations
 
@@ -34,7 +39,7 @@ def device_philox(runtime: Runtime, counters: np.ndarray, keys: np.ndarray) -> n
     out = np.empty_like(counters)
     ctr_buf, key_buf = runtime.upload(counters), runtime.upload(keys)
     out_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=out.nbytes)
-    kernel = runtime.kernel("rng_test.cl", "philox_blocks")
+    kernel = runtime.kernel("selfcheck.cl", "philox_blocks")
     kernel(
         runtime.queue,
         (padded_global_size(len(out)),),
@@ -49,7 +54,7 @@ def device_philox(runtime: Runtime, counters: np.ndarray, keys: np.ndarray) -> n
 
 
 def run_self_check(runtime: Runtime) -> tuple[bool, str]:
-    """Build the RNG kernel and compare it with the Random123 vectors."""
+    """Build the self-check kernel and compare its Philox blocks with the Random123 vectors."""
     counters = np.array([kat[0] for kat in PHILOX_KAT], np.uint32)
     keys = np.array([kat[1] for kat in PHILOX_KAT], np.uint32)
     expected = np.array([kat[2] for kat in PHILOX_KAT], np.uint32)

@@ -24,7 +24,8 @@ import pyopencl as cl
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
 from clrender.sampling import DeviceSampleSets, check_seed
-from clrender.scene import QUAD_BLOCK_WIDTH, Scene
+from clrender.scene import Scene
+from clrender.scene_device import QUAD_BLOCK_WIDTH
 
 # Dimensions 1 + 2d and 2 + 2d of a 32-bit counter: any sane depth fits; this keeps a typo
 # (max_depth=10**9) from running for ever.

@@ -39,26 +39,6 @@ CL_INLINE float3 Frame_ToWorld(Frame frame, float3 v)
     return v.x * frame.s + v.y * frame.t + v.z * frame.n;
 }
 
-// sin(2 pi u), and cos(2 pi u) in *cos_out, for u in [0, 1] (azimuth sampling): u is reduced
-// exactly to a quadrant and r in [-1/2, 1/2], then minimax polynomials (Cephes sinf/cosf) of
-// x = r pi/2 in [-pi/4, pi/4]; error below 2e-7. Replaces sincos(2 pi u), whose general
-// argument reduction was 13 % of the path tracer's time (PoCL's SLEEF sincos, never inlined).
-CL_INLINE float SinCos2Pi(float u, float *cos_out)
-{
-    float v = 4.0f * u;
-    float k = __builtin_rintf(v);
-    int quadrant = (int)k & 3;
-    float x = (v - k) * M_PI_2_F;
-    float z = x * x;
-    float s = x + x * z * (-1.6666654611e-1f + z * (8.3321608736e-3f + z * -1.9515295891e-4f));
-    float c = 1.0f - 0.5f * z +
-              z * z * (4.1666645683e-2f + z * (-1.3887316255e-3f + z * 2.4433157118e-5f));
-    float sin_q = (quadrant & 1) ? c : s;
-    float cos_q = (quadrant & 1) ? s : c;
-    *cos_out = (quadrant == 1 || quadrant == 2) ? -cos_q : cos_q;
-    return (quadrant & 2) ? -sin_q : sin_q;
-}
-
 // ----------------------------------------------------------------------------- Fresnel
 
 // Unpolarised Fresnel reflectance of a smooth dielectric interface; eta = eta_inside /

@@ -16,21 +16,6 @@ typedef struct {
     int emitter;
 } Surface;
 
-// Smallest of the 8 lanes (no lane is NaN).
-CL_INLINE float Lanes_Min(float8 v)
-{
-    float4 v4 = v.lo < v.hi ? v.lo : v.hi;
-    float2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
-    return v2.x < v2.y ? v2.x : v2.y;
-}
-
-CL_INLINE int Lanes_MinInt(int8 v)
-{
-    int4 v4 = v.lo < v.hi ? v.lo : v.hi;
-    int2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
-    return v2.x < v2.y ? v2.x : v2.y;
-}
-
 // Whether the ray o + t d (inv_d = 1 / d) can meet the block's bounding box for some t in
 // [0, tmax] (slab test). Always true for a block flagged as enclosing the scene (lower[3] = 1:
 // every ray meets it). A NaN (zero direction on a slab's plane) never rejects.

@@ -26,7 +26,7 @@
 #define COUNTER_NONFINITE 0
 #define COUNTER_RAYS 1
 
-CL_INLINE float PowerHeuristic(float pdf_a, float pdf_b)
+CL_INLINE float Integrator_PowerHeuristic(float pdf_a, float pdf_b)
 {
     float a2 = pdf_a * pdf_a;
     return a2 / (a2 + pdf_b * pdf_b);
@@ -34,9 +34,9 @@ CL_INLINE float PowerHeuristic(float pdf_a, float pdf_b)
 
 // Next event estimation at a non-specular vertex: one emitter point, a shadow ray, and the
 // power-heuristic weight against the BSDF's pdf for the same direction.
-CL_INLINE float3 SampleDirect(const SceneData *scene, Surface *surface, Frame frame,
-                              __global const Material *material, float3 wo_local, float3 u,
-                              uint *rays)
+CL_INLINE float3 Integrator_SampleDirect(const SceneData *scene, Surface *surface, Frame frame,
+                                         __global const Material *material, float3 wo_local,
+                                         float3 u, uint *rays)
 {
     float3 wi;
     float dist, light_pdfW;
@@ -53,15 +53,16 @@ CL_INLINE float3 SampleDirect(const SceneData *scene, Surface *surface, Frame fr
     if (Scene_Occluded(scene, origin, wi, dist - 2.0f * scene->ray_eps))
         return (float3)(0.0f);
 #endif
-    float weight = PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
+    float weight =
+        Integrator_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
     return f * Le * (weight / light_pdfW);
 }
 
 // Radiance along one camera ray (pbrt-v4's PathIntegrator::Li, emitters as the only lights).
 // With nee = 0 paths find emitters by BSDF sampling only, and emission takes full weight.
-CL_INLINE float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_depth, int nee,
-                    int russian_roulette, uint seed, uint pixel, uint sample, uint redraw,
-                    uint *rays)
+CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir, int max_depth,
+                               int nee, int russian_roulette, uint seed, uint pixel, uint sample,
+                               uint redraw, uint *rays)
 {
     float3 L = (float3)(0.0f);
     float3 beta = (float3)(1.0f);
@@ -86,7 +87,7 @@ CL_INLINE float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_d
                 L += beta * Le;
             } else {
                 float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
-                L += beta * Le * PowerHeuristic(prev_pdfW, light_pdfW);
+                L += beta * Le * Integrator_PowerHeuristic(prev_pdfW, light_pdfW);
             }
         }
 
@@ -104,13 +105,13 @@ CL_INLINE float3 Li(const SceneData *scene, float3 origin, float3 dir, int max_d
         }
         Frame frame = Frame_FromNormal(n);
         float3 wo_local = Frame_ToLocal(frame, wo);
-        float4 u_light = rng_uniform4(seed, pixel, sample, 1u + 2u * (uint)depth, redraw);
-        float4 u_bsdf = rng_uniform4(seed, pixel, sample, 2u + 2u * (uint)depth, redraw);
+        float4 u_light = Rng_Uniform4(seed, pixel, sample, 1u + 2u * (uint)depth, redraw);
+        float4 u_bsdf = Rng_Uniform4(seed, pixel, sample, 2u + 2u * (uint)depth, redraw);
 
         // Sample direct illumination from the emitters (skipped at specular vertices)
         if (nee && !BSDF_IsSpecular(material) && scene->emitter_count > 0u)
-            L += beta * SampleDirect(scene, &surface, frame, material, wo_local, u_light.xyz,
-                                     rays);
+            L += beta * Integrator_SampleDirect(scene, &surface, frame, material, wo_local,
+                                                u_light.xyz, rays);
 
         // Sample the BSDF to get the new path direction
         float3 wi_local;
@@ -167,8 +168,8 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     // Trace the camera ray's path
     uint rays = 0u;
     float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
-    float3 L = Li(&scene, Load3(camera->origin), dir, max_depth, nee, russian_roulette,
-                  seed, pixel, sample, redraws[slot], &rays);
+    float3 L = Integrator_Li(&scene, Load3(camera->origin), dir, max_depth, nee,
+                             russian_roulette, seed, pixel, sample, redraws[slot], &rays);
 
     // Store the radiance; a non-finite value is counted and stored as 0 (as pbrt does)
     if (!all(isfinite(L))) {

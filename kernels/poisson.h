@@ -16,7 +16,7 @@
 #define POISSON_MAX_PROPOSALS 4096u
 
 // log(mean^k e^-mean / k!), accurate when k and mean are large and close.
-inline float poisson_log_pmf(uint k, float mean)
+inline float Poisson_LogPmf(uint k, float mean)
 {
     if (k < 10u)
         return (float)k * log(mean) - mean - lgamma((float)k + 1.0f);
@@ -28,13 +28,13 @@ inline float poisson_log_pmf(uint k, float mean)
     return kf * (log1p(d) - d) - 0.5f * log(2.0f * M_PI_F * kf) - stirling;
 }
 
-inline uint poisson_knuth(float mean, uint seed, uint pixel, uint redraw)
+inline uint Poisson_Knuth(float mean, uint seed, uint pixel, uint redraw)
 {
     float limit = exp(-mean);
     float product = 1.0f;
     uint k = 0u;
     for (uint block = 0u; block < POISSON_MAX_PROPOSALS; ++block) {
-        float4 u = rng_uniform4(seed, pixel, RNG_PIXEL_STREAM, block, redraw);
+        float4 u = Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, block, redraw);
         float us[4] = {u.x, u.y, u.z, u.w};
         for (int j = 0; j < 4; ++j) {
             product *= us[j];
@@ -46,7 +46,7 @@ inline uint poisson_knuth(float mean, uint seed, uint pixel, uint redraw)
     return k;
 }
 
-inline uint poisson_ptrs(float mean, uint seed, uint pixel, uint redraw)
+inline uint Poisson_Ptrs(float mean, uint seed, uint pixel, uint redraw)
 {
     // Constants of the transformed-rejection hat (Hoermann 1993, algorithm PTRS).
     float smu = sqrt(mean);
@@ -55,7 +55,7 @@ inline uint poisson_ptrs(float mean, uint seed, uint pixel, uint redraw)
     float log_inv_alpha = log(1.1239f + 1.1328f / (b - 3.4f));
     float vr = 0.9277f - 3.6224f / (b - 2.0f);
     for (uint block = 0u; block < POISSON_MAX_PROPOSALS; ++block) {
-        float4 r = rng_uniform4(seed, pixel, RNG_PIXEL_STREAM, block, redraw);
+        float4 r = Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, block, redraw);
         // Two proposals (U, V) per Philox block.
         for (int pair = 0; pair < 2; ++pair) {
             float u = (pair == 0 ? r.x : r.z) - 0.5f;
@@ -67,17 +67,17 @@ inline uint poisson_ptrs(float mean, uint seed, uint pixel, uint redraw)
             if (kf < 0.0f || (us < 0.013f && v > us))
                 continue;
             float log_hat = log(v) + log_inv_alpha - log(a / (us * us) + b);
-            if (log_hat <= poisson_log_pmf((uint)kf, mean))
+            if (log_hat <= Poisson_LogPmf((uint)kf, mean))
                 return (uint)kf;
         }
     }
     return (uint)floor(mean);
 }
 
-inline uint poisson_sample(float mean, uint seed, uint pixel, uint redraw)
+inline uint Poisson_Sample(float mean, uint seed, uint pixel, uint redraw)
 {
-    return mean < POISSON_PTRS_MIN_MEAN ? poisson_knuth(mean, seed, pixel, redraw)
-                                        : poisson_ptrs(mean, seed, pixel, redraw);
+    return mean < POISSON_PTRS_MIN_MEAN ? Poisson_Knuth(mean, seed, pixel, redraw)
+                                        : Poisson_Ptrs(mean, seed, pixel, redraw);
 }
 
 #endif

@@ -19,10 +19,11 @@
 #define RNG_AUX_BASE 0x40000000u
 #define RNG_PIXEL_STREAM 0xFFFFFFFFu
 
-// Ten Philox rounds, each two 32x32->64 multiplies and a Feistel-like mix with the key, with the
-// Weyl key schedule between rounds. The products are taken as 64-bit integers: PoCL vectorises
-// that across work-items, where mul_hi stays scalar (measured: 6x faster, identical bits).
-inline uint4 philox4x32_10(uint4 ctr, uint2 key)
+// Philox4x32-10: ten rounds, each two 32x32->64 multiplies and a Feistel-like mix with the key,
+// with the Weyl key schedule between rounds. The products are taken as 64-bit integers: PoCL
+// vectorises that across work-items, where mul_hi stays scalar (measured: 6x faster, identical
+// bits).
+inline uint4 Rng_Philox4x32(uint4 ctr, uint2 key)
 {
 #pragma unroll
     for (int round = 0; round < 10; ++round) {
@@ -37,34 +38,34 @@ inline uint4 philox4x32_10(uint4 ctr, uint2 key)
 
 // 32 random bits to a float strictly inside (0, 1): the top 23 bits plus half a step, so
 // every value (k + 1/2) 2^-23 is exact in float (24 bits would round the largest up to 1).
-inline float rng_to_unit(uint bits)
+inline float Rng_ToUnit(uint bits)
 {
     return ((float)(bits >> 9) + 0.5f) * 0x1p-23f;
 }
 
 // 32 random bits to a float strictly inside (-1/2, 1/2) with 2^-24 resolution, exactly.
-inline float rng_to_centered(uint bits)
+inline float Rng_ToCentered(uint bits)
 {
     return ((float)((int)(bits >> 8) - 0x800000) + 0.5f) * 0x1p-24f;
 }
 
-inline uint4 rng_bits4(uint seed, uint pixel, uint sample, uint dim, uint redraw)
+inline uint4 Rng_Bits4(uint seed, uint pixel, uint sample, uint dim, uint redraw)
 {
-    return philox4x32_10((uint4)(sample, dim, redraw, 0u), (uint2)(seed, pixel));
+    return Rng_Philox4x32((uint4)(sample, dim, redraw, 0u), (uint2)(seed, pixel));
 }
 
 // Four independent uniforms in (0, 1) for one (sample, dimension) slot of a pixel.
-inline float4 rng_uniform4(uint seed, uint pixel, uint sample, uint dim, uint redraw)
+inline float4 Rng_Uniform4(uint seed, uint pixel, uint sample, uint dim, uint redraw)
 {
-    uint4 b = rng_bits4(seed, pixel, sample, dim, redraw);
-    return (float4)(rng_to_unit(b.x), rng_to_unit(b.y), rng_to_unit(b.z), rng_to_unit(b.w));
+    uint4 b = Rng_Bits4(seed, pixel, sample, dim, redraw);
+    return (float4)(Rng_ToUnit(b.x), Rng_ToUnit(b.y), Rng_ToUnit(b.z), Rng_ToUnit(b.w));
 }
 
 // Two coordinates strictly inside the pixel W = (-1/2, 1/2)^2 for one (sample, dimension).
-inline float2 rng_centered2(uint seed, uint pixel, uint sample, uint dim, uint redraw)
+inline float2 Rng_Centered2(uint seed, uint pixel, uint sample, uint dim, uint redraw)
 {
-    uint4 b = rng_bits4(seed, pixel, sample, dim, redraw);
-    return (float2)(rng_to_centered(b.x), rng_to_centered(b.y));
+    uint4 b = Rng_Bits4(seed, pixel, sample, dim, redraw);
+    return (float2)(Rng_ToCentered(b.x), Rng_ToCentered(b.y));
 }
 
 #endif

@@ -1,15 +1,9 @@
-// Test entry points for rng.h: raw Philox blocks and unit floats, one slot per work-item.
+// Test kernel (built only by tests/test_rng.py): rng.h's uniforms, one slot per work-item, for
+// a bit-for-bit comparison with the NumPy twin clrender/rng.py. The raw Philox blocks are the
+// product's self-check kernel, kernels/selfcheck.cl.
 #include "rng.h"
 
-__kernel void philox_blocks(uint count, __global const uint4 *counters,
-                            __global const uint2 *keys, __global uint4 *out)
-{
-    uint i = get_global_id(0);
-    if (i >= count)
-        return;
-    out[i] = philox4x32_10(counters[i], keys[i]);
-}
-
+// Four uniforms of slot i = (pixel, sample, dim, redraw) under the seed.
 __kernel void uniform_slots(uint count, uint seed, __global const uint4 *slots,
                             __global float4 *out)
 {
@@ -18,5 +12,5 @@ __kernel void uniform_slots(uint count, uint seed, __global const uint4 *slots,
         return;
     // slots[i] = (pixel, sample, dim, redraw)
     uint4 s = slots[i];
-    out[i] = rng_uniform4(seed, s.x, s.y, s.z, s.w);
+    out[i] = Rng_Uniform4(seed, s.x, s.y, s.z, s.w);
 }

@@ -26,11 +26,11 @@ __kernel void count_samples(uint pixel_count, uint seed, int sampler, uint n, fl
     uint p = get_global_id(0);
     if (p >= pixel_count)
         return;
-    counts[p] = sampler == SAMPLER_SPPP ? poisson_sample(mean, seed, pixels[p], redraws[p]) : n;
+    counts[p] = sampler == SAMPLER_SPPP ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
 }
 
 // Jittered strata: sample s falls in stratum (s mod m, s div m) of an m x m grid.
-inline float2 stratified_position(uint s, uint strata, float2 jitter)
+inline float2 Sampling_StratifiedPosition(uint s, uint strata, float2 jitter)
 {
     float2 cell = (float2)((float)(s % strata), (float)(s / strata));
     // Rounding may land on the edge: keep the point strictly inside W like the other samplers.
@@ -40,7 +40,7 @@ inline float2 stratified_position(uint s, uint strata, float2 jitter)
 // A point uniform by area over the strip W' \ W: top and bottom rectangles (1 + 2 eps) x eps
 // hold the corners, left and right rectangles are 1 x eps; one is picked in proportion to area.
 // Written with selects, not branches: PoCL vectorises it across work-items (3x faster).
-inline float2 strip_position(float eps, float4 u)
+inline float2 Sampling_StripPosition(float eps, float4 u)
 {
     float long_side = 1.0f + 2.0f * eps;
     float area_tb = long_side * eps;
@@ -54,8 +54,8 @@ inline float2 strip_position(float eps, float4 u)
 }
 
 // Traced sample s of pixel p: dimension 0 of its stream is its position.
-__kernel void fill_traced(uint pixel_count, uint seed, int sampler,
-                          uint fixed_count, uint strata, uint traced_total, __global const uint *pixels,
+__kernel void fill_traced(uint pixel_count, uint seed, int sampler, uint fixed_count,
+                          uint strata, uint traced_total, __global const uint *pixels,
                           __global const uint *redraws, __global const uint *traced_offsets,
                           __global float2 *positions)
 {
@@ -66,11 +66,12 @@ __kernel void fill_traced(uint pixel_count, uint seed, int sampler,
     uint p = sampler == SAMPLER_SPPP ? Launch_OwnerPixel(traced_offsets, pixel_count, i)
                                      : i / fixed_count;
     uint s = i - traced_offsets[p];
+    // Its position: a jittered stratum, else uniform in W
     if (sampler == SAMPLER_STRATIFIED) {
-        float4 u = rng_uniform4(seed, pixels[p], s, 0u, redraws[p]);
-        positions[i] = stratified_position(s, strata, u.xy);
+        float4 u = Rng_Uniform4(seed, pixels[p], s, 0u, redraws[p]);
+        positions[i] = Sampling_StratifiedPosition(s, strata, u.xy);
     } else {
-        positions[i] = rng_centered2(seed, pixels[p], s, 0u, redraws[p]);
+        positions[i] = Rng_Centered2(seed, pixels[p], s, 0u, redraws[p]);
     }
 }
 
@@ -85,6 +86,7 @@ __kernel void fill_auxiliary(uint pixel_count, uint seed, float eps, uint n_aux,
         return;
     uint p = i / n_aux;
     uint j = i - p * n_aux;
-    float4 u = rng_uniform4(seed, pixels[p], RNG_AUX_BASE + j, 0u, redraws[p]);
-    positions[traced_total + i] = strip_position(eps, u);
+    // Uniform by area over the strip, from dimension 0 of the nucleus's own sample index
+    float4 u = Rng_Uniform4(seed, pixels[p], RNG_AUX_BASE + j, 0u, redraws[p]);
+    positions[traced_total + i] = Sampling_StripPosition(eps, u);
 }

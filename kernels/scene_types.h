@@ -1,10 +1,11 @@
-// Scene records shared with the host (clrender/scene.py builds them as NumPy structured arrays).
+// Scene records shared with the host: clrender/scene_device.py mirrors each struct field by field
+// as a NumPy dtype and packs the records. Change both files together.
 // Only 4-byte members and float[3] (never float3, which takes 16 bytes): the layout is the same
-// on the host and on every device. Read vectors with vload3(0, record->member).
+// on the host and on every device. Read vectors with Load3(record->member) (kernels/vecmath.h).
 #ifndef CLRENDER_SCENE_TYPES_H
 #define CLRENDER_SCENE_TYPES_H
 
-// Material type tags (scene.MATERIAL_TYPES); MATERIAL_NONE marks a pure emitter.
+// Material type tags (scene_device.MATERIAL_TYPES); MATERIAL_NONE marks a pure emitter.
 #define MATERIAL_NONE -1
 #define MATERIAL_DIFFUSE 0
 #define MATERIAL_DIELECTRIC 1

@@ -1,17 +1,23 @@
-// Inline replacements for the OpenCL builtins the path tracer calls per ray, bit for bit equal.
+// Math helpers every kernel may share: CL_INLINE, inline replacements for the OpenCL builtins
+// the path tracer calls per ray (bit for bit equal), lane reductions of 8-wide vectors, and
+// SinCos2Pi (a faster sincos(2 pi u), not bit-equal).
 //
-// Why: pip's PoCL 3.0 builds its builtin library for another CPU target than the kernels it
-// compiles (target-cpu "skylake-avx512" for the library, the host's "znver3" for kernels), so
-// LLVM refuses to inline builtins ("conflicting attributes"): every dot, vload3, sqrt or fmax
-// becomes a real call, and each call spills all live vector registers to the stack. The
-// functions here mirror PoCL's own definitions (read from the LLVM IR it links): the same
+// Why replacements: pip's PoCL 3.0 builds its builtin library for another CPU target than the
+// kernels it compiles (target-cpu "skylake-avx512" for the library, the host's "znver3" for
+// kernels), so LLVM refuses to inline builtins ("conflicting attributes"): every dot, vload3,
+// sqrt or fmax becomes a real call, and each call spills all live vector registers to the stack.
+// The functions here mirror PoCL's own definitions (read from the LLVM IR it links): the same
 // operations in the same order. Products are taken in a separate statement from the sums that
 // use them, because OpenCL C contracts a * b + c into an fma only within one expression.
 // Rare cases (zero, tiny or huge vectors in Length3/Normalize3) fall back to the builtin.
+//
+// Names: a replacement is named after the builtin it replaces, capitalised, with the vector
+// width (Dot3 for dot on float3, Fmax, Load3 for vload3): the one exception to the kernels'
+// Module_Function names (like LuxCore's Dot and Cross). The other helpers are Module_Function.
 #ifndef CLRENDER_VECMATH_H
 #define CLRENDER_VECMATH_H
 
-// Device functions of the path tracer are always inlined: a call spills the vector registers.
+// Device functions are always inlined: a call spills the vector registers.
 #define CL_INLINE inline __attribute__((always_inline))
 
 // 8 floats from a 4-byte aligned address (vload8 without the call).
@@ -100,6 +106,46 @@ CL_INLINE float3 Cross3(float3 a, float3 b)
 CL_INLINE bool AnyPositive3(float3 v)
 {
     return v.x > 0.0f || v.y > 0.0f || v.z > 0.0f;
+}
+
+// ----------------------------------------------------------------------------- lane reductions
+
+// Smallest of the 8 lanes (no lane is NaN).
+CL_INLINE float Lanes_Min(float8 v)
+{
+    float4 v4 = v.lo < v.hi ? v.lo : v.hi;
+    float2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
+    return v2.x < v2.y ? v2.x : v2.y;
+}
+
+// Smallest of the 8 integer lanes.
+CL_INLINE int Lanes_MinInt(int8 v)
+{
+    int4 v4 = v.lo < v.hi ? v.lo : v.hi;
+    int2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
+    return v2.x < v2.y ? v2.x : v2.y;
+}
+
+// ----------------------------------------------------------------------------- approximations
+
+// sin(2 pi u), and cos(2 pi u) in *cos_out, for u in [0, 1] (azimuth sampling): u is reduced
+// exactly to a quadrant and r in [-1/2, 1/2], then minimax polynomials (Cephes sinf/cosf) of
+// x = r pi/2 in [-pi/4, pi/4]; error below 2e-7. Replaces sincos(2 pi u), whose general
+// argument reduction was 13 % of the path tracer's time (PoCL's SLEEF sincos, never inlined).
+CL_INLINE float SinCos2Pi(float u, float *cos_out)
+{
+    float v = 4.0f * u;
+    float k = __builtin_rintf(v);
+    int quadrant = (int)k & 3;
+    float x = (v - k) * M_PI_2_F;
+    float z = x * x;
+    float s = x + x * z * (-1.6666654611e-1f + z * (8.3321608736e-3f + z * -1.9515295891e-4f));
+    float c = 1.0f - 0.5f * z +
+              z * z * (4.1666645683e-2f + z * (-1.3887316255e-3f + z * 2.4433157118e-5f));
+    float sin_q = (quadrant & 1) ? c : s;
+    float cos_q = (quadrant & 1) ? s : c;
+    *cos_out = (quadrant == 1 || quadrant == 2) ? -cos_q : cos_q;
+    return (quadrant & 2) ? -sin_q : sin_q;
 }
 
 #endif

@@ -17,12 +17,7 @@
 //     nuclei clip the polygon. Where the walk cannot decide (a cell unbounded within the
 //     block, a full buffer, a rounding-degenerate loop), the cell is clipped from a box by the
 //     block's nuclei and then searched the same way ("meshless Voronoi").
-// All geometry is relative to the nucleus. Each polygon edge remembers the neighbour whose
-// bisector carries it, and the final vertices are recomputed as intersections of two bisectors
-// from the input coordinates, so the area does not inherit the rounding of the clipping
-// history. Precision: float clipping with the final vertices in float (~1e-5 relative on the
-// worst cells), or in double with -DVORONOI_AREA_DOUBLE (~1e-14); -DVORONOI_DOUBLE runs all
-// of it in double.
+// The polygons, their clipping and their areas are in kernels/voronoi_polygon.h.
 //
 // A clipped polygon that still has an edge of the start box after the search is either
 // unbounded (the nucleus lies on the convex hull of its pixel's nuclei) or larger than the box;
@@ -34,23 +29,7 @@
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
 // Coincident nuclei share their cell equally, as in the host reference.
 
-#include "voronoi_common.h"
-
-// real: the clipping arithmetic; area_real (voronoi_common.h): final vertices, areas and the
-// inside test
-#ifdef VORONOI_DOUBLE
-typedef double real;
-typedef double2 real2;
-#define REAL2(v) convert_double2(v)
-#else
-typedef float real;
-typedef float2 real2;
-#define REAL2(v) (v)
-#endif
-
-#ifndef VORONOI_MAX_VERTICES
-#define VORONOI_MAX_VERTICES 32
-#endif
+#include "voronoi_polygon.h"
 
 #ifndef VORONOI_BLOCK_CAPACITY
 #define VORONOI_BLOCK_CAPACITY 64
@@ -63,42 +42,21 @@ typedef float2 real2;
 #define VORONOI_FIRST_BOX_SPACINGS 2.5f
 #endif
 
-// pip's PoCL cannot inline its builtins into these kernels (its builtin library targets another
-// CPU, see kernels/vecmath.h): the builtins (floor, clamp, min, max, fabs, fmax, sqrt) are
-// replaced by these inline equivalents, and the helpers are forced inline.
-#define VORONOI_INLINE inline __attribute__((always_inline))
-#define VORONOI_MIN(a, b) ((a) < (b) ? (a) : (b))
-#define VORONOI_MAX(a, b) ((a) > (b) ? (a) : (b))
-#define VORONOI_ABS(a) ((a) < 0 ? -(a) : (a))
-
 // Stop and skip tests keep a relative safety margin for rounding (they only cost extra clips).
 #define VORONOI_RADIUS_SLACK 1.0001f
-
-// A convex polygon around the nucleus x (vertices relative to x). Edge k runs from vertex k to
-// vertex k + 1 and lies on the bisector of x and the neighbour at absolute position e[k] (the
-// input coordinates, exact); e[k] = x marks an edge of the start box (a nucleus coincident
-// with x never cuts).
-typedef struct {
-    real vx[VORONOI_MAX_VERTICES];
-    real vy[VORONOI_MAX_VERTICES];
-    float ex[VORONOI_MAX_VERTICES];
-    float ey[VORONOI_MAX_VERTICES];
-    int count;
-    real radius2;  // squared distance of the farthest vertex
-} VoronoiPolygon;
 
 // ---------------------------------------------------------------------------------------------
 // Pixels and grid
 
 // Grid column (or row) of coordinate x; points outside the grid go to the border cells, which
 // keeps the ring search's distance bound valid (they lie beyond those cells).
-VORONOI_INLINE int VoronoiGrid_Index(float x, float half_extent, float inv_cell, int grid_side)
+CL_INLINE int VoronoiGrid_Index(float x, float half_extent, float inv_cell, int grid_side)
 {
     int c = (int)__builtin_floorf((x + half_extent) * inv_cell);
     return VORONOI_MIN(VORONOI_MAX(c, 0), grid_side - 1);
 }
 
-VORONOI_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, int grid_side)
+CL_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, int grid_side)
 {
     return VoronoiGrid_Index(x.y, half_extent, inv_cell, grid_side) * grid_side
            + VoronoiGrid_Index(x.x, half_extent, inv_cell, grid_side);
@@ -159,209 +117,12 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
 }
 
 // ---------------------------------------------------------------------------------------------
-// Polygon clipping
-
-// The box [lo, hi] (relative to the nucleus), counter-clockwise, edges marked as box edges.
-VORONOI_INLINE void VoronoiPolygon_InitBox(VoronoiPolygon *poly, float2 x, real2 lo, real2 hi)
-{
-    poly->vx[0] = lo.x; poly->vy[0] = lo.y;
-    poly->vx[1] = hi.x; poly->vy[1] = lo.y;
-    poly->vx[2] = hi.x; poly->vy[2] = hi.y;
-    poly->vx[3] = lo.x; poly->vy[3] = hi.y;
-    real fx = VORONOI_MAX(VORONOI_ABS(lo.x), VORONOI_ABS(hi.x));
-    real fy = VORONOI_MAX(VORONOI_ABS(lo.y), VORONOI_ABS(hi.y));
-    poly->radius2 = fx * fx + fy * fy;
-    for (int k = 0; k < 4; ++k) {
-        poly->ex[k] = x.x;
-        poly->ey[k] = x.y;
-    }
-    poly->count = 4;
-}
-
-// Replace the polygon by the clipped vertices and edges, and update the farthest vertex distance.
-VORONOI_INLINE void VoronoiPolygon_Store(VoronoiPolygon *poly, const real *nx, const real *ny,
-                                         const float *nex, const float *ney, int count)
-{
-    real radius2 = 0;
-    for (int k = 0; k < count; ++k) {
-        poly->vx[k] = nx[k]; poly->vy[k] = ny[k];
-        poly->ex[k] = nex[k]; poly->ey[k] = ney[k];
-        real r2 = nx[k] * nx[k] + ny[k] * ny[k];
-        radius2 = r2 > radius2 ? r2 : radius2;
-    }
-    poly->count = count;
-    poly->radius2 = radius2;
-}
-
-// Keep the half-plane closer to the origin than to v = neighbour - x: v.p <= |v|^2 / 2.
-// Returns false on vertex overflow (the polygon is then unusable).
-// The general case of VoronoiPolygon_Clip (Sutherland-Hodgman), for rounding-degenerate
-// polygons whose outside vertices do not form one run.
-__attribute__((noinline)) bool VoronoiPolygon_ClipGeneral(VoronoiPolygon *poly, real2 v, float2 neighbour)
-{
-    int m = poly->count;
-    real level = 0.5f * (v.x * v.x + v.y * v.y);
-    real d[VORONOI_MAX_VERTICES];
-    bool any_out = false;
-    for (int k = 0; k < m; ++k) {
-        d[k] = v.x * poly->vx[k] + v.y * poly->vy[k] - level;
-        any_out |= d[k] > 0;
-    }
-    if (!any_out)
-        return true;
-
-    // Sutherland-Hodgman: walk the edges, keeping inside vertices and the two crossings
-    real nx[VORONOI_MAX_VERTICES], ny[VORONOI_MAX_VERTICES];
-    float nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
-    int out = 0;
-    for (int k = 0; k < m; ++k) {
-        int k1 = k + 1 == m ? 0 : k + 1;
-        bool in_a = d[k] <= 0, in_b = d[k1] <= 0;
-        if (in_a) {
-            if (out >= VORONOI_MAX_VERTICES)
-                return false;
-            nx[out] = poly->vx[k]; ny[out] = poly->vy[k];
-            nex[out] = poly->ex[k]; ney[out] = poly->ey[k];
-            ++out;
-        }
-        if (in_a != in_b) {
-            if (out >= VORONOI_MAX_VERTICES)
-                return false;
-            real t = d[k] / (d[k] - d[k1]);
-            nx[out] = poly->vx[k] + t * (poly->vx[k1] - poly->vx[k]);
-            ny[out] = poly->vy[k] + t * (poly->vy[k1] - poly->vy[k]);
-            // Leaving: the new edge runs along the bisector; entering: along edge k
-            nex[out] = in_a ? neighbour.x : poly->ex[k];
-            ney[out] = in_a ? neighbour.y : poly->ey[k];
-            ++out;
-        }
-    }
-
-    VoronoiPolygon_Store(poly, nx, ny, nex, ney, out);
-    return true;
-}
-
-// Bit k set: vertex k lies beyond the bisector of the origin and v = neighbour - x, i.e. is
-// closer to the neighbour (v.p > |v|^2 / 2); 0 when the bisector does not cut the polygon.
-VORONOI_INLINE uint VoronoiPolygon_OutsideMask(const VoronoiPolygon *poly, real2 v)
-{
-    real level = 0.5f * (v.x * v.x + v.y * v.y);
-    uint out_mask = 0u;
-    for (int k = 0; k < poly->count; ++k) {
-        real d = v.x * poly->vx[k] + v.y * poly->vy[k] - level;
-        out_mask |= (uint)(d > 0) << k;
-    }
-    return out_mask;
-}
-
-// Keep the half-plane closer to the origin than to v = neighbour - x, given the polygon's
-// (non-zero) outside mask. Returns false on vertex overflow (the polygon is then unusable). The
-// outside vertices of a convex polygon form one cyclic run s..e: found branch-free from the
-// mask, replaced by the two crossings (the same arithmetic as Sutherland-Hodgman, which
-// handles any other case). Not inlined: its scratch arrays then live in its own frame (inlined
-// copies at each call site measured slower on PoCL).
-__attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v,
-                                                   float2 neighbour, uint out_mask)
-{
-    int m = poly->count;
-    real level = 0.5f * (v.x * v.x + v.y * v.y);
-    uint full = m >= 32 ? 0xffffffffu : (1u << m) - 1u;
-    uint prev_out = ((out_mask << 1) | (out_mask >> (m - 1))) & full;  // bit k: vertex k - 1
-    uint next_out = ((out_mask >> 1) | (out_mask << (m - 1))) & full;  // bit k: vertex k + 1
-    uint starts = out_mask & ~prev_out, ends = out_mask & ~next_out;
-    if (out_mask == full || (starts & (starts - 1u)) != 0u)
-        return VoronoiPolygon_ClipGeneral(poly, v, neighbour);
-    int s = __builtin_ctz(starts), e = __builtin_ctz(ends);
-    int a = s == 0 ? m - 1 : s - 1, b = e + 1 == m ? 0 : e + 1;
-    int outside = e >= s ? e - s + 1 : e + m - s + 1;
-    int inside = m - outside;
-    if (inside + 2 > VORONOI_MAX_VERTICES)
-        return false;
-    real da = v.x * poly->vx[a] + v.y * poly->vy[a] - level;
-    real ds = v.x * poly->vx[s] + v.y * poly->vy[s] - level;
-    real de = v.x * poly->vx[e] + v.y * poly->vy[e] - level;
-    real db = v.x * poly->vx[b] + v.y * poly->vy[b] - level;
-    real ta = da / (da - ds), tb = de / (de - db);
-    real pax = poly->vx[a] + ta * (poly->vx[s] - poly->vx[a]);
-    real pay = poly->vy[a] + ta * (poly->vy[s] - poly->vy[a]);
-    real pbx = poly->vx[e] + tb * (poly->vx[b] - poly->vx[e]);
-    real pby = poly->vy[e] + tb * (poly->vy[b] - poly->vy[e]);
-    float pbex = poly->ex[e], pbey = poly->ey[e];
-
-    // New polygon: the inside run b..a, then the leaving crossing (its edge on the new
-    // bisector) and the entering one (on edge e)
-    real nx[VORONOI_MAX_VERTICES], ny[VORONOI_MAX_VERTICES];
-    float nex[VORONOI_MAX_VERTICES], ney[VORONOI_MAX_VERTICES];
-    for (int j = 0, k = b; j < inside; ++j) {
-        nx[j] = poly->vx[k]; ny[j] = poly->vy[k];
-        nex[j] = poly->ex[k]; ney[j] = poly->ey[k];
-        k = k + 1 == m ? 0 : k + 1;
-    }
-    nx[inside] = pax; ny[inside] = pay; nex[inside] = neighbour.x; ney[inside] = neighbour.y;
-    nx[inside + 1] = pbx; ny[inside + 1] = pby; nex[inside + 1] = pbex; ney[inside + 1] = pbey;
-    VoronoiPolygon_Store(poly, nx, ny, nex, ney, inside + 2);
-    return true;
-}
-
-VORONOI_INLINE bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
-{
-    bool touches = false;
-    for (int k = 0; k < poly->count; ++k)
-        touches |= poly->ex[k] == x.x && poly->ey[k] == x.y;
-    return touches;
-}
-
-// Vertex k (relative to x) recomputed from the bisectors of edges k - 1 and k, in area_real
-// from the input coordinates. False when the two bisectors are parallel: the edges are then
-// collinear (the same neighbour twice, or a coincident one), and the vertex, lying on a
-// straight side, is not a corner of the cell.
-VORONOI_INLINE bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, int k,
-                                  area_real2 *vertex)
-{
-    int prev = k == 0 ? poly->count - 1 : k - 1;
-    area_real2 a = (area_real2)(poly->ex[prev], poly->ey[prev]) - x;
-    area_real2 b = (area_real2)(poly->ex[k], poly->ey[k]) - x;
-    area_real ca = 0.5f * (a.x * a.x + a.y * a.y), cb = 0.5f * (b.x * b.x + b.y * b.y);
-    area_real det = a.x * b.y - a.y * b.x;
-    if (det == 0)
-        return false;
-    *vertex = (area_real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
-    return true;
-}
-
-// Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
-// [-inside_box, inside_box]^2.
-VORONOI_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
-                                     area_real inside_box, bool *inside)
-{
-    area_real2 x = AREA_REAL2(nucleus);
-    area_real twice_area = 0;
-    bool in_box = true, have_first = false;
-    area_real2 first = (area_real2)(0, 0), prev = first, cur;
-    for (int k = 0; k < poly->count; ++k) {
-        if (!VoronoiPolygon_Vertex(poly, x, k, &cur))
-            continue;
-        if (have_first)
-            twice_area += prev.x * cur.y - prev.y * cur.x;
-        else
-            first = cur;
-        have_first = true;
-        area_real2 absolute = x + cur;
-        in_box &= VORONOI_ABS(absolute.x) <= inside_box && VORONOI_ABS(absolute.y) <= inside_box;
-        prev = cur;
-    }
-    twice_area += prev.x * first.y - prev.y * first.x;
-    *inside = in_box;
-    return 0.5f * twice_area;
-}
-
-// ---------------------------------------------------------------------------------------------
 // Neighbour search
 
 // Clip by the nuclei in sorted slots [s0, s1) that are close enough to cut, counting those that
 // coincide with the nucleus (itself included). Returns false on vertex overflow.
-VORONOI_INLINE bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s1,
-                                  __global const float2 *sorted_points, int *coincident)
+CL_INLINE bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0, uint s1,
+                                     __global const float2 *sorted_points, int *coincident)
 {
     for (uint s = s0; s < s1; ++s) {
         float2 neighbour = sorted_points[s];
@@ -383,9 +144,9 @@ VORONOI_INLINE bool VoronoiCell_ClipRange(VoronoiPolygon *poly, real2 x, uint s0
 
 // Clip by the grid cells of ring k (Chebyshev distance k from cell (cx, cy)): full rows at the
 // ring's top and bottom (contiguous slots), two cells on each row in between.
-VORONOI_INLINE bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, int cy, int k,
-                                 int grid_side, __global const uint *start, uint base,
-                                 __global const float2 *sorted_points, int *coincident)
+CL_INLINE bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, int cy, int k,
+                                    int grid_side, __global const uint *start, uint base,
+                                    __global const float2 *sorted_points, int *coincident)
 {
     int y0 = VORONOI_MAX(cy - k, 0), y1 = VORONOI_MIN(cy + k, grid_side - 1);
     int x0 = VORONOI_MAX(cx - k, 0), x1 = VORONOI_MIN(cx + k, grid_side - 1);
@@ -411,12 +172,12 @@ VORONOI_INLINE bool VoronoiCell_ClipRing(VoronoiPolygon *poly, real2 x, int cx, 
 
 // Clip by the grid cells of rows y0..y1 and columns x0..x1 (indices clamped to the grid) that
 // lie outside the block of columns bx0..bx1 on rows by0..by1 (already visited).
-VORONOI_INLINE bool VoronoiCell_ClipBoxOutside(VoronoiPolygon *poly, real2 x, int x0, int x1,
-                                               int y0, int y1, int bx0, int bx1, int by0,
-                                               int by1, int grid_side,
-                                               __global const uint *start, uint base,
-                                               __global const float2 *sorted_points,
-                                               int *coincident)
+CL_INLINE bool VoronoiCell_ClipBoxOutside(VoronoiPolygon *poly, real2 x, int x0, int x1,
+                                          int y0, int y1, int bx0, int bx1, int by0,
+                                          int by1, int grid_side,
+                                          __global const uint *start, uint base,
+                                          __global const float2 *sorted_points,
+                                          int *coincident)
 {
     bool ok = true;
     for (int y = y0; y <= y1 && ok; ++y) {
@@ -438,38 +199,21 @@ VORONOI_INLINE bool VoronoiCell_ClipBoxOutside(VoronoiPolygon *poly, real2 x, in
 }
 
 // Grid column and row of the nucleus.
-VORONOI_INLINE int2 VoronoiCell_GridCell(real2 x, int grid_side, real half_extent)
+CL_INLINE int2 VoronoiCell_GridCell(real2 x, int grid_side, real half_extent)
 {
     float inv_cell = (float)grid_side / (2.0f * (float)half_extent);
     return (int2)(VoronoiGrid_Index((float)x.x, (float)half_extent, inv_cell, grid_side),
                   VoronoiGrid_Index((float)x.y, (float)half_extent, inv_cell, grid_side));
 }
 
-// The bounding box (relative to the nucleus) of the region where a nucleus can still cut the
-// polygon: the union of the discs centred on its vertices p through the nucleus (a nucleus cuts
-// iff it is closer than the nucleus to some vertex). The region only shrinks as clips go on.
-VORONOI_INLINE float4 VoronoiPolygon_CutBox(const VoronoiPolygon *poly)
-{
-    float4 box = (float4)(INFINITY, INFINITY, -INFINITY, -INFINITY);  // (lo.x, lo.y, hi.x, hi.y)
-    for (int k = 0; k < poly->count; ++k) {
-        float px = (float)poly->vx[k], py = (float)poly->vy[k];
-        float r = __builtin_sqrtf(px * px + py * py);
-        box.x = VORONOI_MIN(box.x, px - r);
-        box.y = VORONOI_MIN(box.y, py - r);
-        box.z = VORONOI_MAX(box.z, px + r);
-        box.w = VORONOI_MAX(box.w, py + r);
-    }
-    return box;
-}
-
 // Clip by the nuclei of the grid cells that meet the polygon's cut box, outside the 3 x 3 block
 // around the nucleus's grid cell g (which the polygon already accounts for): no other nucleus
 // can cut, so the polygon is then the exact cell.
-VORONOI_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, int2 g,
-                                                int grid_side, real half_extent,
-                                                __global const uint *start, uint base,
-                                                __global const float2 *sorted_points,
-                                                int *coincident)
+CL_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, int2 g,
+                                           int grid_side, real half_extent,
+                                           __global const uint *start, uint base,
+                                           __global const float2 *sorted_points,
+                                           int *coincident)
 {
     float extent = (float)half_extent;
     float inv_cell = (float)grid_side / (2.0f * extent);
@@ -491,9 +235,9 @@ VORONOI_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, i
 
 // The clipping search: the 3 x 3 block of grid cells around the nucleus (its own cell first),
 // then the cells beyond it within 2 R. Returns false on vertex overflow.
-VORONOI_INLINE bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, real half_extent,
-                               __global const uint *start, uint base,
-                               __global const float2 *sorted_points, int *coincident)
+CL_INLINE bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, real half_extent,
+                                  __global const uint *start, uint base,
+                                  __global const float2 *sorted_points, int *coincident)
 {
     int2 g = VoronoiCell_GridCell(x, grid_side, half_extent);
     *coincident = 0;
@@ -533,24 +277,24 @@ typedef struct {
 #ifdef VORONOI_DOUBLE
 typedef long real_bits;
 #define VORONOI_KEY_INFINITY 0x7ff0000000000000L
-VORONOI_INLINE real_bits VoronoiKey_FromReal(real t)
+CL_INLINE real_bits VoronoiKey_FromReal(real t)
 {
     long bits = as_long(t);
     return bits ^ ((bits >> 63) & 0x7fffffffffffffffL);
 }
-VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
+CL_INLINE real VoronoiKey_ToReal(real_bits key)
 {
     return as_double(key ^ ((key >> 63) & 0x7fffffffffffffffL));
 }
 #else
 typedef int real_bits;
 #define VORONOI_KEY_INFINITY 0x7f800000
-VORONOI_INLINE real_bits VoronoiKey_FromReal(real t)
+CL_INLINE real_bits VoronoiKey_FromReal(real t)
 {
     int bits = as_int(t);
     return bits ^ ((bits >> 31) & 0x7fffffff);
 }
-VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
+CL_INLINE real VoronoiKey_ToReal(real_bits key)
 {
     return as_float(key ^ ((key >> 31) & 0x7fffffff));
 }
@@ -558,9 +302,9 @@ VORONOI_INLINE real VoronoiKey_ToReal(real_bits key)
 
 // Copy the nuclei of the 3 x 3 block of grid cells around g (one contiguous slot range per
 // grid row); false when they are more than the buffer holds.
-VORONOI_INLINE bool VoronoiNeighbourhood_Gather(VoronoiNeighbourhood *hood, int2 g,
-                                                int grid_side, __global const uint *start,
-                                                uint base, __global const float2 *sorted_points)
+CL_INLINE bool VoronoiNeighbourhood_Gather(VoronoiNeighbourhood *hood, int2 g,
+                                           int grid_side, __global const uint *start,
+                                           uint base, __global const float2 *sorted_points)
 {
     int y0 = VORONOI_MAX(g.y - 1, 0), y1 = VORONOI_MIN(g.y + 1, grid_side - 1);
     int x0 = VORONOI_MAX(g.x - 1, 0), x1 = VORONOI_MIN(g.x + 1, grid_side - 1);
@@ -588,8 +332,8 @@ VORONOI_INLINE bool VoronoiNeighbourhood_Gather(VoronoiNeighbourhood *hood, int2
 // The neighbourhood relative to x: distances, coincident count and nearest nucleus, over
 // whole groups of 8 (the compiler vectorises it; a branch per nucleus would mispredict).
 // Padding entries are copies of x: they count as coincident and never bound an edge.
-VORONOI_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbourhood *hood,
-                                          real2 x, int *coincident)
+CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbourhood *hood,
+                                     real2 x, int *coincident)
 {
     int count = hood->count, padded = (count + 7) & ~7;
     int same = 0;
@@ -625,9 +369,9 @@ VORONOI_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeig
 // is the next neighbour. The walk ends back at the nearest nucleus. Returns false when it
 // cannot decide (a cell unbounded within the block, more than VORONOI_MAX_VERTICES edges from
 // a rounding-degenerate configuration): the clipping search then does the cell.
-VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block,
-                                      const VoronoiNeighbourhood *hood, VoronoiPolygon *poly,
-                                      __global const float2 *sorted_points)
+CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block,
+                                 const VoronoiNeighbourhood *hood, VoronoiPolygon *poly,
+                                 __global const float2 *sorted_points)
 {
     // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
 #pragma OPENCL FP_CONTRACT OFF
@@ -692,8 +436,8 @@ VORONOI_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block,
 // directions form an arc [lo, hi] (counter-clockwise, at most a half-turn), cut by one
 // half-circle per neighbour. Returns 1 unbounded, 0 bounded, -1 degenerate (collinear: left
 // to the host).
-VORONOI_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
-                                 __global const float2 *sorted_points)
+CL_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
+                                    __global const float2 *sorted_points)
 {
     bool full = true;
     real2 lo = (real2)(0, 0), hi = (real2)(0, 0);
@@ -727,13 +471,13 @@ VORONOI_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
 
 // The cell of traced nucleus i (position x in the pixel's grid cell g): the walk when the
 // neighbourhood was gathered, else the clipping search; writes areas[i] and status[i].
-VORONOI_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
-                                        const VoronoiNeighbourhood *hood, bool have_hood,
-                                        uint count, int grid_side, float half_extent,
-                                        float start_box, float inside_box,
-                                        __global const uint *start, uint base,
-                                        __global const float2 *sorted_points,
-                                        __global area_real *areas, __global uchar *status)
+CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
+                                   const VoronoiNeighbourhood *hood, bool have_hood,
+                                   uint count, int grid_side, float half_extent,
+                                   float start_box, float inside_box,
+                                   __global const uint *start, uint base,
+                                   __global const float2 *sorted_points,
+                                   __global area_real *areas, __global uchar *status)
 {
     real2 x = REAL2(nucleus);
     // The walk around the cell among the block's nuclei, then the nuclei beyond the block
@@ -752,7 +496,7 @@ VORONOI_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     } else {
         // The clipping search, from a box of a few mean spacings around the nucleus (it keeps
         // the radius test tight); a cell that reaches its border is redone from the full box
-        real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / __builtin_sqrtf((float)count);
+        real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / Sqrt((float)count);
         bool small_box = reach < start_box;
         if (small_box)
             VoronoiPolygon_InitBox(&poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
@@ -797,6 +541,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
                                  __global const uint *sorted_index, __global area_real *areas,
                                  __global uchar *status)
 {
+    // This work-item's pixel p and grid cell c, and where the pixel's nuclei and grid are
     uint cells = (uint)(grid_side * grid_side);
     uint id = get_global_id(0);
     if (id >= pixel_count * cells)
@@ -809,6 +554,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
     __global const uint *start = cell_start + (size_t)p * (cells + 1);
     int2 g = (int2)((int)(c % (uint)grid_side), (int)(c / (uint)grid_side));
 
+    // The cell of each traced nucleus of c, gathering the 3 x 3 block on the first one
     VoronoiNeighbourhood hood;
     bool gathered = false, have_hood = false;
     for (uint s = base + start[c]; s < base + start[c + 1]; ++s) {

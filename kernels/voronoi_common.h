@@ -1,6 +1,6 @@
-// What kernels/voronoi_cells.cl and kernels/voronoi_sums.cl share: the precision of areas
-// (-DVORONOI_AREA_DOUBLE or -DVORONOI_DOUBLE: float64) and the status byte of each traced
-// nucleus (the bits are documented in voronoi_cells.cl's header).
+// What kernels/voronoi_cells.cl (with voronoi_polygon.h) and kernels/voronoi_sums.cl share: the
+// precision of areas (-DVORONOI_AREA_DOUBLE or -DVORONOI_DOUBLE: float64) and the status byte of
+// each traced nucleus (the bits are documented in voronoi_cells.cl's header).
 #ifndef CLRENDER_VORONOI_COMMON_H
 #define CLRENDER_VORONOI_COMMON_H
 

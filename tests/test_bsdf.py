@@ -16,7 +16,8 @@ import pytest
 from scipy import stats
 
 from clrender.runtime import padded_global_size
-from clrender.scene import ALUMINIUM_ETA, ALUMINIUM_K, MATERIAL_DTYPE, MATERIAL_TYPES
+from clrender.scene import ALUMINIUM_ETA, ALUMINIUM_K
+from clrender.scene_device import MATERIAL_DTYPE, MATERIAL_TYPES
 
 THETA_BINS, PHI_BINS, SUB = 10, 20, 64
 SAMPLES = 200_000

@@ -57,7 +57,7 @@ def device_intersect(runtime, scene, origins, directions):
     blocks = scene.quad_blocks()
     t_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
     id_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
-    kernel = runtime.kernel("bsdf_test.cl", "intersect_rays")
+    kernel = runtime.kernel("geometry_test.cl", "intersect_rays")
     kernel(
         queue,
         (padded_global_size(count),),

@@ -10,16 +10,13 @@ import pytest
 from scene_texts import MINIMAL_SCENE
 
 from clrender.errors import ClrenderError
-from clrender.scene import (
+from clrender.scene import SceneError, SceneWarning, list_scenes, load_scene
+from clrender.scene_device import (
     CAMERA_DTYPE,
     EMITTER_DTYPE,
     MATERIAL_DTYPE,
     QUAD_DTYPE,
     SPHERE_DTYPE,
-    SceneError,
-    SceneWarning,
-    list_scenes,
-    load_scene,
     quad_block_dtype,
 )
 
@@ -54,7 +51,7 @@ def test_load_by_path_and_by_name_agree():
 def test_struct_layouts_match_the_kernel(runtime):
     sizes = np.zeros(6, np.uint32)
     buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=sizes.nbytes)
-    runtime.kernel("bsdf_test.cl", "struct_sizes")(runtime.queue, (1,), None, buf)
+    runtime.kernel("scene_types_test.cl", "struct_sizes")(runtime.queue, (1,), None, buf)
     cl.enqueue_copy(runtime.queue, sizes, buf)
     dtypes = [
         QUAD_DTYPE,

@@ -1,0 +1,292 @@
+"""The scene as the device reads it: NumPy twins of kernels/scene_types.h and their packing.
+
+This module mirrors kernels/scene_types.h field by field: every dtype below is one struct
+there, with its members in the same order and of the same types (only 4-byte members and
+``float[3]``, so there is no padding on any device; tests/test_scene.py checks each size against
+``sizeof`` on the device). Change both files together.
+
+=================  ===================  ====================================================
+dtype              struct               one record per
+=================  ===================  ====================================================
+QUAD_DTYPE         Quad                 quad (a box is 6), with its dual vectors
+quad_block_dtype   QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
+SPHERE_DTYPE       Sphere               sphere
+MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
+EMITTER_DTYPE      Emitter              emitting quad, with its light-selection pdf and cdf
+CAMERA_DTYPE       Camera               camera at one image size
+=================  ===================  ====================================================
+
+The packing functions take validated plain values (what clrender/scene.py reads from a scene
+file) and return these records. Dependencies run one way: scene.py imports this module, this
+module imports nothing of clrender's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+# Material type tags: MATERIAL_DIFFUSE, ... in kernels/scene_types.h.
+MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
+MATERIAL_NONE = -1  # a pure emitter: absorbs everything that reaches it
+
+QUAD_DTYPE = np.dtype(
+    [
+        ("corner", "<f4", 3),
+        ("edge1", "<f4", 3),
+        ("edge2", "<f4", 3),
+        ("normal", "<f4", 3),
+        ("u_dual", "<f4", 3),
+        ("v_dual", "<f4", 3),
+        ("plane_d", "<f4"),
+        ("material", "<i4"),
+        ("emitter", "<i4"),
+    ]
+)
+QUAD_BLOCK_WIDTH = 8  # fixed in kernels/scene_types.h
+
+
+def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:
+    """QuadBlock: the quads' intersection data as structure of arrays, `width` quads each."""
+    return np.dtype(
+        [
+            ("corner", "<f4", (3, width)),
+            ("normal", "<f4", (3, width)),
+            ("u_dual", "<f4", (3, width)),
+            ("v_dual", "<f4", (3, width)),
+            ("plane_d", "<f4", width),
+            ("quad", "<i4", width),
+            ("lower", "<f4", 4),
+            ("upper", "<f4", 4),
+        ]
+    )
+
+
+SPHERE_DTYPE = np.dtype([("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4")])
+MATERIAL_DTYPE = np.dtype(
+    [
+        ("type", "<i4"),
+        ("two_sided", "<i4"),
+        ("albedo", "<f4", 3),
+        ("eta", "<f4", 3),
+        ("k", "<f4", 3),
+        ("alpha", "<f4"),
+    ]
+)
+EMITTER_DTYPE = np.dtype(
+    [
+        ("quad", "<i4"),
+        ("radiance", "<f4", 3),
+        ("area", "<f4"),
+        ("pick_pdf", "<f4"),
+        ("pick_cdf", "<f4"),
+    ]
+)
+CAMERA_DTYPE = np.dtype(
+    [("origin", "<f4", 3), ("forward", "<f4", 3), ("right", "<f4", 3), ("up", "<f4", 3)]
+)
+
+# Quad blocks' bounding boxes are padded outwards by this fraction of the scene's diagonal (far
+# above float rounding in the slab test, so a box never rejects a ray that hits one of its quads).
+BLOCK_BOUNDS_PADDING = 1e-4
+# A block whose box fills this fraction of the volume of all blocks' boxes is always tested.
+BLOCK_BOUNDS_SKIP_FILL = 0.9
+
+QUAD_FRAME = ("corner", "edge1", "edge2")
+# Members of a material read from a scene file, besides its type and two_sided.
+MATERIAL_VALUES = ("albedo", "eta", "k", "alpha")
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def pack_camera(look_from, look_at, up, fov: float, width: int, height: int) -> np.ndarray:
+    """CAMERA_DTYPE record of a pinhole camera (fov: vertical, degrees) for a width x height
+    image: origin, unit forward, and right/up scaled so that the ray through normalised image
+    coordinates (sx, sy) in [-1, 1]^2 (sx right, sy up) is forward + sx * right + sy * up."""
+    origin = np.array(look_from, np.float64)
+    forward = _unit(np.array(look_at, np.float64) - origin)
+    right = _unit(np.cross(forward, np.array(up, np.float64)))
+    true_up = np.cross(right, forward)
+    half_height = math.tan(math.radians(fov) / 2.0)
+    record = np.zeros((), CAMERA_DTYPE)
+    record["origin"] = origin
+    record["forward"] = forward
+    record["right"] = right * half_height * (width / height)
+    record["up"] = true_up * half_height
+    return record
+
+
+def pack_materials(materials: list[dict]) -> np.ndarray:
+    """MATERIAL_DTYPE records of materials given as dicts: "type" (a MATERIAL_TYPES name),
+    "two_sided" (bool) and the MATERIAL_VALUES members their type uses (the rest stay 0)."""
+    packed = np.zeros(len(materials), MATERIAL_DTYPE)
+    for record, material in zip(packed, materials, strict=True):
+        record["type"] = MATERIAL_TYPES[material["type"]]
+        record["two_sided"] = int(material["two_sided"])
+        for key in MATERIAL_VALUES:
+            if key in material:
+                record[key] = material[key]
+    return packed
+
+
+def pack_quads(quads: list[dict]) -> np.ndarray:
+    """QUAD_DTYPE records (emitter -1: pack_emitters sets it); dual vectors give the
+    parallelogram coordinates of a point q: a = dot(q - corner, u_dual),
+    b = dot(q - corner, v_dual), inside iff both in [0, 1]."""
+    packed = np.zeros(len(quads), QUAD_DTYPE)
+    for record, quad in zip(packed, quads, strict=True):
+        corner, edge1, edge2 = (np.asarray(quad[k], np.float64) for k in QUAD_FRAME)
+        n = np.cross(edge1, edge2)
+        w = n / np.dot(n, n)
+        normal = _unit(n)
+        record["corner"] = corner
+        record["edge1"] = edge1
+        record["edge2"] = edge2
+        record["normal"] = normal
+        record["u_dual"] = np.cross(edge2, w)
+        record["v_dual"] = np.cross(w, edge1)
+        record["plane_d"] = np.dot(normal, corner)
+        record["material"] = quad["material"]
+        record["emitter"] = -1
+    return packed
+
+
+def pack_spheres(spheres: list[dict]) -> np.ndarray:
+    """SPHERE_DTYPE records of spheres given as dicts (center, radius, material)."""
+    packed = np.zeros(len(spheres), SPHERE_DTYPE)
+    for record, sphere in zip(packed, spheres, strict=True):
+        record["center"] = sphere["center"]
+        record["radius"] = sphere["radius"]
+        record["material"] = sphere["material"]
+    return packed
+
+
+def pack_emitters(quads: list[dict], packed: np.ndarray) -> np.ndarray:
+    """One EMITTER_DTYPE record per emitting quad (a quad dict whose "emission" is not None),
+    selection pdf proportional to power = area * mean radiance; sets the packed quads'
+    emitter index."""
+    indices = [i for i, quad in enumerate(quads) if quad["emission"] is not None]
+    emitters = np.zeros(len(indices), EMITTER_DTYPE)
+    powers = []
+    for slot, i in enumerate(indices):
+        area = float(np.linalg.norm(np.cross(quads[i]["edge1"], quads[i]["edge2"])))
+        emitters[slot]["quad"] = i
+        emitters[slot]["radiance"] = quads[i]["emission"]
+        emitters[slot]["area"] = area
+        powers.append(area * float(np.mean(quads[i]["emission"])))
+        packed[i]["emitter"] = slot
+    if indices:
+        pdf = np.array(powers) / np.sum(powers)
+        emitters["pick_pdf"] = pdf
+        cdf = np.cumsum(pdf)
+        cdf[-1] = 1.0
+        emitters["pick_cdf"] = cdf
+    return emitters
+
+
+def scene_bounds(quads: np.ndarray, spheres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box (low, high, float64) of packed quads and spheres; zeros when empty."""
+    points = []
+    for quad in quads:
+        c, e1, e2 = (quad[k].astype(np.float64) for k in QUAD_FRAME)
+        points += [c, c + e1, c + e2, c + e1 + e2]
+    for sphere in spheres:
+        r = float(sphere["radius"])
+        points += [sphere["center"] - r, sphere["center"] + r]
+    if not points:
+        return np.zeros(3), np.zeros(3)
+    stacked = np.array(points, np.float64)
+    return stacked.min(axis=0), stacked.max(axis=0)
+
+
+# --------------------------------------------------------------------------- quad blocks
+
+
+def quad_groups(names: list[str]) -> list[int]:
+    """Group number of each quad: consecutive quads named "object/part" (a box's faces) share
+    one; every other quad is a group of its own."""
+    groups: list[int] = []
+    previous = None
+    for name in names:
+        prefix = name.rsplit("/", 1)[0] if "/" in name else None
+        if groups and prefix is not None and prefix == previous:
+            groups.append(groups[-1])
+        else:
+            groups.append(groups[-1] + 1 if groups else 0)
+        previous = prefix
+    return groups
+
+
+def plan_quad_blocks(groups: list[int], width: int = QUAD_BLOCK_WIDTH) -> list[list[int]]:
+    """Quad indices of each block, in scene order: a group that does not fit in the current
+    block's free lanes starts a new block (a group wider than a block fills whole blocks)."""
+    blocks: list[list[int]] = []
+    start = 0
+    while start < len(groups):
+        end = start
+        while end < len(groups) and groups[end] == groups[start]:
+            end += 1
+        members = list(range(start, end))
+        if not blocks or (len(blocks[-1]) + len(members) > width and len(members) <= width):
+            blocks.append([])
+        for index in members:
+            if len(blocks[-1]) == width:
+                blocks.append([])
+            blocks[-1].append(index)
+        start = end
+    return blocks
+
+
+def pack_quad_blocks(
+    quads: np.ndarray,
+    width: int = QUAD_BLOCK_WIDTH,
+    groups: list[int] | None = None,
+    padding: float = 0.0,
+) -> np.ndarray:
+    """The quads in blocks of `width` lanes (structure of arrays), grouped as
+    plan_quad_blocks says (default: in order, each quad its own group); unused lanes never
+    hit (zero normal, plane_d = -1, so t = -inf; quad -1). Each block carries the bounding box
+    of its quads, padded by `padding` and rounded outwards to float32; lower[3] = 1 flags a
+    block whose box fills most (BLOCK_BOUNDS_SKIP_FILL) of the volume of all blocks' boxes
+    (the enclosing walls): the kernel skips its box test, which nearly every ray passes."""
+    if groups is None:
+        groups = list(range(len(quads)))
+    plan = plan_quad_blocks(groups, width)
+    blocks = np.zeros(len(plan), quad_block_dtype(width))
+    for block, members in zip(blocks, plan, strict=True):
+        block["quad"][:] = -1
+        block["plane_d"][len(members) :] = -1.0
+        corners = []
+        for lane, i in enumerate(members):
+            quad = quads[i]
+            for key in ("corner", "normal", "u_dual", "v_dual"):
+                block[key][:, lane] = quad[key]
+            block["plane_d"][lane] = quad["plane_d"]
+            block["quad"][lane] = i
+            c, e1, e2 = (quad[k].astype(np.float64) for k in QUAD_FRAME)
+            corners += [c, c + e1, c + e2, c + e1 + e2]
+        stacked = np.array(corners)
+        lower = (stacked.min(axis=0) - padding).astype(np.float32)
+        upper = (stacked.max(axis=0) + padding).astype(np.float32)
+        block["lower"][:3] = np.nextafter(lower, np.float32(-np.inf))
+        block["upper"][:3] = np.nextafter(upper, np.float32(np.inf))
+    if len(blocks):
+        lower = blocks["lower"][:, :3].astype(np.float64)
+        upper = blocks["upper"][:, :3].astype(np.float64)
+        volumes = np.prod(upper - lower, axis=1)
+        whole = np.prod(upper.max(axis=0) - lower.min(axis=0))
+        blocks["lower"][:, 3] = volumes >= BLOCK_BOUNDS_SKIP_FILL * whole
+    return blocks
+
+
+def pack_scene_quad_blocks(
+    quads: np.ndarray, spheres: np.ndarray, quad_names: list[str], width: int = QUAD_BLOCK_WIDTH
+) -> np.ndarray:
+    """A scene's QuadBlock array: each box's faces in one block (quad_groups of the names),
+    boxes padded by BLOCK_BOUNDS_PADDING of the scene's diagonal."""
+    low, high = scene_bounds(quads, spheres)
+    padding = BLOCK_BOUNDS_PADDING * max(float(np.linalg.norm(high - low)), 1e-30)
+    return pack_quad_blocks(quads, width, quad_groups(quad_names), padding)
