@@ -3,8 +3,9 @@
     python bench/analytic_study.py [--quick] [--out DIR] [--runs R] [--sweep-runs R2]
 
 Integrates the six functions of the paper's Table 1 over W = [-1/2, 1/2]^2 (exact integrals
-from NOTES.md) with every estimator of clrender.estimators, from SPPP sample sets drawn by the
-NumPy reference generator; rejected pixels are redrawn by clrender.voronoi.estimate_with_redraw.
+from NOTES.md) with every per-pixel estimator of clrender.estimators, from SPPP sample sets drawn
+by the NumPy reference generator; rejected pixels are redrawn by
+clrender.estimators.estimate_with_redraw.
 All six functions are value columns of the same draws, so each tessellation serves all six.
 
 Outputs (default bench/results/analytic/): results.json (every number), report.md (tables),
@@ -32,13 +33,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from clrender.estimators import ESTIMATORS, PixelSamples, estimate  # noqa: E402
+from clrender.estimators import ESTIMATORS, estimate, estimate_with_redraw  # noqa: E402
 from clrender.sppp import draw_sppp  # noqa: E402
-from clrender.voronoi import estimate_with_redraw  # noqa: E402
 
-ESTIMATOR_NAMES = list(ESTIMATORS)
+# The per-pixel estimators (the image-level ones tessellate whole images, not lone pixels).
+ESTIMATOR_NAMES = [name for name, entry in ESTIMATORS.items() if not entry.image_level]
 
 
 def _holder(a):
@@ -108,17 +107,15 @@ def run_estimates(
     """(runs, 6) estimates per estimator at intensity n, runs independent pixels."""
 
     def draw(pixel_ids, eps):
-        return draw_sppp(rng, n, len(pixel_ids), eps=eps)
-
-    def values(batch, pixel_ids):
-        return evaluate_all(batch.traced)
+        samples = draw_sppp(rng, n, len(pixel_ids), eps=eps)
+        return samples, evaluate_all(samples.traced)
 
     per_batch = max(1, max_points_per_batch // (4 * n))
     parts: dict[str, list[np.ndarray]] = {name: [] for name in ESTIMATOR_NAMES}
     stats = {"redraws": 0, "eps_enlargements": 0, "empty_filtered": 0, "recomputed_pixels": 0}
     for start in range(0, runs, per_batch):
         count = min(per_batch, runs - start)
-        outcome = estimate_with_redraw(ESTIMATOR_NAMES, draw, values, count, n)
+        outcome = estimate_with_redraw(ESTIMATOR_NAMES, draw, count, n)
         for name in ESTIMATOR_NAMES:
             parts[name].append(outcome.estimates[name])
         for key in stats:
@@ -128,14 +125,14 @@ def run_estimates(
 
 def time_estimators(n: int, pixels: int, rng: np.random.Generator, repeats: int = 3) -> dict:
     """Median ms per estimate of each estimator alone (holder_1 values, SPPP draws)."""
-    batch = draw_sppp(rng, n, pixels)
-    samples = PixelSamples.from_sppp(batch, np.abs(batch.traced[:, 0] * batch.traced[:, 1]), n)
+    samples = draw_sppp(rng, n, pixels)
+    values = np.abs(samples.traced[:, 0] * samples.traced[:, 1])
     times = {}
     for name in ESTIMATOR_NAMES:
         runs = []
         for _ in range(repeats):
             start = time.perf_counter()
-            estimate(name, samples)
+            estimate(name, samples, values)
             runs.append(time.perf_counter() - start)
         times[name] = 1e3 * float(np.median(runs)) / pixels
     return times
@@ -166,10 +163,11 @@ def fit_slope(ns: list[int], stds: list[float], n_min: int) -> float:
 
 
 def predicted_slope(function: str, estimator: str) -> float | None:
-    if estimator in ("mc", "mc_n"):
+    entry = ESTIMATORS[estimator]
+    if entry.cells == "none":  # mc, mc_n
         return -0.5
     a = HOLDER_EXPONENT.get(function)
-    if a is None or estimator == "cvor":
+    if a is None or entry.cells == "clipped":  # cvor: biased
         return None
     return -(0.5 + a / 2.0)
 

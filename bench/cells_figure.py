@@ -16,12 +16,9 @@ Outputs (default bench/results/cells_figure/): cells_<pixel>_n<n>.png, cells.png
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -31,7 +28,7 @@ from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 from scipy.spatial import Voronoi  # noqa: E402
 
-from clrender.estimators import PixelSamples, estimate_all  # noqa: E402
+from clrender.estimators import estimate_all  # noqa: E402
 from clrender.imageio import srgb_encode  # noqa: E402
 from clrender.probes import (  # noqa: E402
     clip_to_box,
@@ -41,6 +38,7 @@ from clrender.probes import (  # noqa: E402
     trace_pixel_runs,
 )
 from clrender.runtime import create_runtime  # noqa: E402
+from clrender.samples import SampleSets  # noqa: E402
 from clrender.sampling import make_sampler  # noqa: E402
 
 MAX_REDRAWS = 20
@@ -69,16 +67,15 @@ def draw_accepted(runtime, tracer, n: int, pixel: int, size: int, seed: int):
     for redraw in range(MAX_REDRAWS):
         runs = trace_pixel_runs(runtime, tracer, sampler, seed, pixel, 1, size, size, redraw)
         sets = runs.sets
-        samples = PixelSamples(
+        samples = SampleSets(
             sets.traced.astype(np.float64),
-            runs.radiance.mean(axis=1),
             sets.offsets,
             float(n),
             sets.aux.astype(np.float64),
             sets.aux_offsets,
             sampler.eps,
         )
-        result = estimate_all(["mc", "vor_sn"], samples)
+        result = estimate_all(["mc", "vor_sn"], samples, runs.radiance.mean(axis=1))
         if not result["vor_sn"].needs_redraw[0]:
             return runs, sampler, {k: float(r.estimates[0]) for k, r in result.items()}
     raise RuntimeError(f"pixel {pixel}: every one of {MAX_REDRAWS} draws was rejected")

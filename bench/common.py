@@ -20,15 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from clrender.imageio import read_exr, srgb_encode, write_exr  # noqa: E402
-from clrender.radiance import PathTracerSource  # noqa: E402
-from clrender.render import RenderResult, RenderSettings, render  # noqa: E402
-from clrender.runtime import Runtime  # noqa: E402
-from clrender.sampling import make_sampler  # noqa: E402
-from clrender.scene import load_scene  # noqa: E402
-from clrender.trace import PathTracer  # noqa: E402
+from clrender.imageio import read_exr, srgb_encode, write_exr
+from clrender.radiance import PathTracerSource
+from clrender.render import RenderResult, RenderSettings, render
+from clrender.runtime import Runtime
+from clrender.sampling import make_sampler
+from clrender.scene import load_scene
+from clrender.trace import PathTracer
 
 RESULTS = Path(__file__).resolve().parent / "results"
 REFERENCE_DIR = RESULTS / "references"
@@ -128,7 +126,7 @@ def timed_render(
 
 def cell_backend(settings: RenderSettings) -> str:
     """Where the render's Voronoi cells came from: "device", "qhull" (host) or "none" (mc)."""
-    if settings.estimator in ("mc", "mc_n"):
+    if settings.estimator.cells == "none":
         return "none"
     return "device" if getattr(settings, "device_cells", False) else "qhull"
 

@@ -1,4 +1,4 @@
-"""Device Voronoi cell areas (clrender.device_voronoi) against the host Qhull stage.
+"""Device Voronoi cell areas (clrender.estimators.device_cells) against the host Qhull stage.
 
     python bench/device_voronoi_speed.py [--quick] [--repeats K] [--precision P] [--out FILE]
 
@@ -6,7 +6,7 @@ For n = 64, 256, 1024, 4096 the SPPP sample sets of a batch of pixels are drawn 
 (clrender.sampling, as in a render tile); then, on the same points, it times
   device: device_sppp_cells(runtime, sets, box)  (positions already on the device; grid build,
           cell kernel, read-back of areas and flags, host fallbacks)
-  host:   voronoi_cells.sppp_cells on the host copy (what the render's estimator stage runs).
+  host:   qhull_cells.sppp_cells on the host copy (what the render's estimator stage runs).
 Reported per traced nucleus, as medians over K repeats after a warm-up run: wall time and
 process CPU time (all threads: PoCL's workers for the device, Qhull's one thread for the host),
 plus the largest relative area difference between the two and the host-fallback pixel count.
@@ -17,18 +17,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from clrender.device_voronoi import device_sppp_cells, resolve_precision  # noqa: E402
-from clrender.runtime import create_runtime  # noqa: E402
-from clrender.sampling import generate_sample_sets, make_sampler  # noqa: E402
-from clrender.voronoi_cells import sppp_cells  # noqa: E402
+from clrender.estimators.device_cells import device_sppp_cells, resolve_precision
+from clrender.estimators.qhull_cells import sppp_cells
+from clrender.runtime import create_runtime
+from clrender.sampling import generate_sample_sets, make_sampler
 
 # (n, pixels): about 260 000 traced nuclei each.
 CASES = [(64, 4096), (256, 1024), (1024, 256), (4096, 64)]

@@ -25,15 +25,12 @@ import argparse
 import json
 import os
 import statistics
-import sys
 import time
 from pathlib import Path
 
 # As python -m clrender does: one BLAS thread, so idle OpenBLAS workers do not spin on the
 # cores the OpenCL device renders on (before NumPy loads).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import matplotlib  # noqa: E402
 
@@ -55,13 +52,15 @@ from common import (  # noqa: E402
     write_json,
 )
 
+from clrender.estimators import ESTIMATORS, estimator_info  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 
 SCENES = ["cornell-box", "cornell-box-glossy"]
 DEFAULT_PERF_ESTIMATOR = "vor_sn"
 # The perf-ratio candidates: the estimators of SPPP cells (W + auxiliary nuclei), the ones the
-# device cell-area backend computes; cvor is left out as biased (the paper drops it too).
-PERF_CANDIDATES = ("vor", "vor_sn", "fvor")
+# device cell-area backend computes (vor, vor_sn, fvor); cvor is left out as biased (the paper
+# drops it too).
+PERF_CANDIDATES = tuple(name for name, entry in ESTIMATORS.items() if entry.device_sums)
 MARKERS = "osD^vP*Xh<>"
 
 
@@ -145,7 +144,7 @@ def plot_scene(ax, scene: str, entry: dict) -> None:
             for r in entry["rows"]
             if (r["estimator"], r["sampler"]) == (estimator, sampler)
         )
-        style = "--" if estimator.startswith("mc") else "-"
+        style = "--" if ESTIMATORS[estimator].cells == "none" else "-"  # mc, mc_n
         ax.loglog(
             [p[1] for p in pts],
             [p[2] for p in pts],
@@ -278,7 +277,9 @@ def run_perf_ratio(runtime, args) -> None:
     )
     spp = args.spp[0]
     source = make_source(runtime, "cornell-box", args.size, args.size)
-    sampler = "uniform" if estimator in ("cvor", "pvor") else "sppp"
+    # The Voronoi estimators that need no SPPP draw (cvor, pvor) run on uniform samples.
+    entry = estimator_info(estimator)
+    sampler = "uniform" if entry.cells != "none" and not entry.needs_sppp else "sppp"
     pairs = [("mc", "uniform"), (estimator, sampler)]
     timed_render(runtime, source, pairs[1][0], pairs[1][1], 1, 0, args.backend)  # warm-up
     runs = {pair_label(*p): [] for p in pairs}

@@ -6,9 +6,9 @@ An S x S image with four analytic functions as value columns (clrender.analytic'
 and disc laid out for the image, plus a linear ramp), exact pixel integrals. For each n in
 64, 256, 1024 and each of R runs:
 - image level: one Poisson(n) realisation on the image grown by a frame of ceil(2 eps(n))
-  pixels, estimated by clrender.image_voronoi.estimate_image (ivor and ivor_sn share it);
+  pixels, estimated by clrender.estimators.image.estimate_image (ivor and ivor_sn share it);
 - per pixel: independent SPPP sample sets per pixel (NumPy reference generator), estimated by
-  mc, vor, vor_sn, fvor, pvor with the paper's redraws (clrender.voronoi.estimate_with_redraw).
+  mc, vor, vor_sn, fvor, pvor with the paper's redraws (clrender.estimators.estimate_with_redraw).
 Per (n, function, estimator): bias = mean error over pixels and runs, with its standard error
 from the spread of per-run image means; std = per-pixel std over runs, averaged over pixels
 (RMS); rmse likewise. Time: microseconds per pixel estimate, one core, estimator alone
@@ -25,7 +25,6 @@ import argparse
 import json
 import math
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -38,16 +37,17 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 from clrender.analytic import analytic_functions  # noqa: E402
-from clrender.estimators import PixelSamples, estimate  # noqa: E402
-from clrender.image_voronoi import draw_plane_poisson, estimate_image, guard_distance  # noqa: E402
+from clrender.estimators import ESTIMATORS, estimate, estimate_with_redraw  # noqa: E402
+from clrender.estimators.image import (  # noqa: E402
+    draw_plane_poisson,
+    estimate_image,
+    guard_distance,
+)
 from clrender.sppp import draw_sppp  # noqa: E402
-from clrender.voronoi import estimate_with_redraw  # noqa: E402
 
 FUNCTIONS = ("edge", "smooth", "disc", "ramp")
-IMAGE_ESTIMATORS = ("ivor", "ivor_sn")
+IMAGE_ESTIMATORS = tuple(name for name, entry in ESTIMATORS.items() if entry.image_level)
 PIXEL_ESTIMATORS = ("mc", "vor", "vor_sn", "fvor", "pvor")
 NS = (64, 256, 1024)
 
@@ -88,24 +88,28 @@ def pixel_level_run(image: AnalyticColumns, n: int, rng) -> tuple[dict, dict, in
     size = image.size
     pixels = size * size
 
-    def positions(batch, ids):
-        owner = np.repeat(np.asarray(ids), np.diff(batch.offsets))
-        return (owner % size + 0.5 + batch.traced[:, 0], owner // size + 0.5 + batch.traced[:, 1])
+    def positions(samples, ids):
+        owner = np.repeat(np.asarray(ids), samples.counts)
+        return (
+            owner % size + 0.5 + samples.traced[:, 0],
+            owner // size + 0.5 + samples.traced[:, 1],
+        )
+
+    def values(samples, ids):
+        return image.values(*positions(samples, ids))
 
     def draw(ids, eps):
-        return draw_sppp(rng, n, len(ids), eps=eps)
+        samples = draw_sppp(rng, n, len(ids), eps=eps)
+        return samples, values(samples, ids)
 
-    def values(batch, ids):
-        return image.values(*positions(batch, ids))
-
-    outcome = estimate_with_redraw(PIXEL_ESTIMATORS, draw, values, pixels, n)
+    outcome = estimate_with_redraw(PIXEL_ESTIMATORS, draw, pixels, n)
     estimates = {k: v.reshape(size, size, -1) for k, v in outcome.estimates.items()}
-    batch = draw_sppp(rng, n, pixels)
-    samples = PixelSamples.from_sppp(batch, values(batch, np.arange(pixels)), n)
+    samples = draw_sppp(rng, n, pixels)
+    sample_values = values(samples, np.arange(pixels))
     seconds = {}
     for name in PIXEL_ESTIMATORS:
         start = time.perf_counter()
-        estimate(name, samples)
+        estimate(name, samples, sample_values)
         seconds[name] = time.perf_counter() - start
     return estimates, seconds, outcome.stats.redraws
 

@@ -24,13 +24,10 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import matplotlib  # noqa: E402
+import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -44,8 +41,8 @@ from common import (  # noqa: E402
     write_json,
 )
 
-from clrender.device_voronoi import device_sppp_cells_from_arrays  # noqa: E402
-from clrender.estimators import PixelSamples, estimate, estimate_all  # noqa: E402
+from clrender.estimators import ESTIMATORS, estimate, estimate_all  # noqa: E402
+from clrender.estimators.device_cells import device_sppp_cells_from_arrays  # noqa: E402
 from clrender.probes import (  # noqa: E402
     PixelRuns,
     diffuse_wall_pixel,
@@ -54,6 +51,7 @@ from clrender.probes import (  # noqa: E402
     trace_pixel_runs,
 )
 from clrender.runtime import create_runtime  # noqa: E402
+from clrender.samples import SampleSets  # noqa: E402
 from clrender.sampling import make_sampler  # noqa: E402
 
 # sampler -> estimators computed on its runs; labels are "estimator/sampler".
@@ -63,7 +61,9 @@ GROUPS = {
     "sppp": ["mc_n", "vor", "vor_sn", "fvor"],
 }
 BASELINE = "mc/uniform"
-REJECTING = ("vor", "vor_sn", "fvor")
+# The estimators of SPPP cells (vor, vor_sn, fvor): they reject runs with an unbounded W cell,
+# and the device kernel can compute their cells.
+REJECTING = tuple(name for name, entry in ESTIMATORS.items() if entry.cells == "sppp")
 SAMPLER_SEEDS = {"uniform": 11, "stratified": 12, "sppp": 13}
 
 
@@ -140,14 +140,15 @@ def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
     """{name: (estimates (R,), needs_redraw (R,), seconds per run)}: values from one
     estimate_all on every run (shared tessellations), times from each estimator alone on the
     first timing_runs runs."""
-    samples = pixel_samples(runs, sampler)
-    results = estimate_all(names, samples)
-    timing = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
+    samples, values = pixel_samples(runs, sampler)
+    results = estimate_all(names, samples, values)
+    timing, timing_values = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
     return {
         name: (
             results[name].estimates,
             results[name].needs_redraw,
-            min_seconds(lambda name=name: estimate(name, timing)) / timing.pixel_count,
+            min_seconds(lambda name=name: estimate(name, timing, timing_values))
+            / timing.pixel_count,
         )
         for name in names
     }
@@ -155,15 +156,15 @@ def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
 
 def device_times(runtime, runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
     """{name: seconds per run} of the SPPP-cell estimators (vor, vor_sn, fvor) with their cells
-    from the device kernel (clrender.device_voronoi, upload included) instead of Qhull."""
-    timing = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
+    from the device kernel (clrender.estimators.device_cells, upload included) instead of Qhull."""
+    timing, timing_values = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
 
     def run(name):
-        box = 0.5 + sampler.eps if name == "fvor" else None
+        box = 0.5 + sampler.eps if ESTIMATORS[name].kept_cells else None  # fvor
         cells = device_sppp_cells_from_arrays(
-            runtime, timing.positions, timing.offsets, timing.aux, timing.aux_offsets, box
+            runtime, timing.traced, timing.offsets, timing.aux, timing.aux_offsets, box
         )
-        estimate(name, timing, {"sppp": cells})
+        estimate(name, timing, timing_values, {"sppp": cells})
 
     return {
         name: min_seconds(lambda name=name: run(name)) / timing.pixel_count
@@ -183,20 +184,23 @@ def min_seconds(call, min_calls: int = 3, budget: float = 0.1) -> float:
     return min(times)
 
 
-def pixel_samples(runs: PixelRuns, sampler, first: int | None = None) -> PixelSamples:
-    """The runs as a batch of pixels (the first `first` runs only if given); value = RGB mean."""
+def pixel_samples(
+    runs: PixelRuns, sampler, first: int | None = None
+) -> tuple[SampleSets, np.ndarray]:
+    """The runs as a batch of pixels (the first `first` runs only if given) and the values of
+    their traced samples; value = RGB mean."""
     sets = runs.sets
     p = runs.runs if first is None else first
     traced, aux = sets.offsets[p], sets.aux_offsets[p]
-    return PixelSamples(
+    samples = SampleSets(
         sets.traced[:traced].astype(np.float64),
-        runs.radiance[:traced].mean(axis=1),
         sets.offsets[: p + 1],
         float(sampler.n),
         sets.aux[:aux].astype(np.float64),
         sets.aux_offsets[: p + 1],
         sampler.eps,
     )
+    return samples, runs.radiance[:traced].mean(axis=1)
 
 
 def summarise(entry: dict) -> dict:
@@ -437,7 +441,7 @@ def report(results: dict, args, argv) -> str:
             ),
             "",
             "ms per estimate of the SPPP-cell estimators with device cells "
-            "(clrender.device_voronoi, upload included) / efficiency with them:",
+            "(clrender.estimators.device_cells, upload included) / efficiency with them:",
             "",
             markdown_table(
                 [

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from clrender.runtime import create_runtime
-from clrender.sampling import generate_sample_sets, make_sampler, tile_pixels
+from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
@@ -55,7 +55,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     runtime = create_runtime()
     units = runtime.device.max_compute_units
-    pixels = tile_pixels(args.size, 0, 0, args.size, args.size)
+    pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
     sets = generate_sample_sets(runtime, make_sampler("uniform", args.spp), 1, pixels)
     rows = []
     with tempfile.TemporaryDirectory() as folder:

@@ -16,12 +16,9 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from common import (  # noqa: E402
+from common import (
     RENDER_PAIRS,
     RESULTS,
     image_errors,
@@ -31,7 +28,7 @@ from common import (  # noqa: E402
     write_json,
 )
 
-from clrender.runtime import create_runtime  # noqa: E402
+from clrender.runtime import create_runtime
 
 PAIRS = [*RENDER_PAIRS, ("cvor", "stratified")]
 DEFAULT_OUTPUT = RESULTS / "render_estimators.json"

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from clrender.runtime import create_runtime
-from clrender.sampling import generate_sample_sets, make_sampler, tile_pixels
+from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 
 
 def parse_args() -> argparse.Namespace:
@@ -42,7 +42,7 @@ def draw_image(runtime, config, res: int, rows: int, seed: int) -> tuple[int, in
     """Draw every pixel's set, tile by tile; returns (traced, auxiliary) sample counts."""
     traced = aux = 0
     for y0 in range(0, res, rows):
-        pixels = tile_pixels(res, 0, y0, res, min(rows, res - y0))
+        pixels = rectangle_pixels(res, 0, y0, res, min(rows, res - y0))
         sets = generate_sample_sets(runtime, config, seed, pixels)
         runtime.queue.finish()
         traced += sets.traced_total

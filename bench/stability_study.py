@@ -9,7 +9,7 @@ rejection storm (eps far too small), the infinite-variance discontinuity functio
 (one sample multiplied by a large gain) and flat pixels (f == 1).
 
 Sample sets: the SPPP estimators (mc, mc_n, vor, vor_sn, fvor) use the NumPy SPPP generator
-(clrender.sppp.draw_sppp; rejected pixels redrawn by clrender.voronoi.estimate_with_redraw);
+(clrender.sppp.draw_sppp; rejected pixels redrawn by clrender.estimators.estimate_with_redraw);
 cvor and pvor use N = n uniform points, and so does the baseline "mc" of the atlas: the
 standard Monte Carlo mean of n uniform samples. All test functions are value columns of the
 same draws, so each tessellation serves all of them.
@@ -38,19 +38,15 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from scipy.stats import beta  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 from analytic_study import FUNCTIONS  # noqa: E402
+from scipy.stats import beta  # noqa: E402
 
 from clrender.analytic import SmoothSines, StepEdge  # noqa: E402
 from clrender.errors import ClrenderError  # noqa: E402
-from clrender.estimators import PixelSamples, estimate, estimate_all  # noqa: E402
+from clrender.estimators import estimate, estimate_all, estimate_with_redraw  # noqa: E402
+from clrender.estimators.qhull_cells import sppp_cells  # noqa: E402
+from clrender.samples import SampleSets  # noqa: E402
 from clrender.sppp import auxiliary_count, draw_sppp, rejection_bound, sppp_eps  # noqa: E402
-from clrender.voronoi import estimate_with_redraw  # noqa: E402
-from clrender.voronoi_cells import sppp_cells  # noqa: E402
 
 SPPP_NAMES = ["mc", "mc_n", "vor", "vor_sn", "fvor"]
 UNIFORM_NAMES = ["cvor", "pvor"]
@@ -151,19 +147,18 @@ def add_redraw_stats(total: dict, stats) -> None:
     total["final_eps"] = max(total.get("final_eps", 0.0), stats.final_eps)
 
 
-def sppp_callbacks(rng, n: float, start: int, counts: np.ndarray, accept_eps: np.ndarray):
-    """draw_fn and values_fn for the driver; they record N and eps of each pixel's last draw,
-    which is its accepted one (rejected pixels are drawn again, accepted ones never)."""
+def sppp_draw(rng, n: float, start: int, counts: np.ndarray, accept_eps: np.ndarray):
+    """The draw for the driver (sample sets and their values); it records N and eps of each
+    pixel's last draw, which is its accepted one (rejected pixels are drawn again, accepted
+    ones never)."""
 
     def draw(pixel_ids, eps):
         accept_eps[start + pixel_ids] = eps
-        return draw_sppp(rng, n, len(pixel_ids), eps=eps)
+        samples = draw_sppp(rng, n, len(pixel_ids), eps=eps)
+        counts[start + pixel_ids] = samples.counts
+        return samples, evaluate_columns(samples.traced, samples.offsets)
 
-    def values(batch, pixel_ids):
-        counts[start + pixel_ids] = np.diff(batch.offsets)
-        return evaluate_columns(batch.traced, batch.offsets)
-
-    return draw, values
+    return draw
 
 
 def run_sppp(
@@ -177,8 +172,8 @@ def run_sppp(
     stats: dict = {}
     for start in range(0, runs, per_call):
         count = min(per_call, runs - start)
-        draw, values = sppp_callbacks(rng, n, start, counts, accept_eps)
-        outcome = estimate_with_redraw(names, draw, values, count, n, eps=eps, **driver)
+        draw = sppp_draw(rng, n, start, counts, accept_eps)
+        outcome = estimate_with_redraw(names, draw, count, n, eps=eps, **driver)
         for name in names:
             parts[name].append(outcome.estimates[name])
         add_redraw_stats(stats, outcome.stats)
@@ -193,8 +188,10 @@ def run_uniform(n: int, runs: int, rng) -> dict[str, np.ndarray]:
         count = min(per_call, runs - start)
         positions = rng.random((count * n, 2)) - 0.5
         offsets = np.arange(count + 1, dtype=np.int64) * n
-        samples = PixelSamples(positions, evaluate_columns(positions, offsets), offsets, float(n))
-        results = estimate_all(["mc", *UNIFORM_NAMES], samples)
+        samples = SampleSets(positions, offsets, float(n))
+        results = estimate_all(
+            ["mc", *UNIFORM_NAMES], samples, evaluate_columns(positions, offsets)
+        )
         parts["baseline"].append(results["mc"].estimates)
         for name in UNIFORM_NAMES:
             parts[name].append(results[name].estimates)
@@ -343,11 +340,11 @@ def fvor_empty_section(ns, pixels: int, rng) -> list[dict]:
     for n in ns:
         batch = draw_sppp(rng, n, pixels)
         values = evaluate_columns(batch.traced, batch.offsets)[:, c]
-        results = estimate_all(["vor_sn", "fvor"], PixelSamples.from_sppp(batch, values, n))
+        results = estimate_all(["vor_sn", "fvor"], batch, values)
         cells = sppp_cells(
             batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5 + batch.eps
         )
-        counts = np.diff(batch.offsets)
+        counts = batch.counts
         pixel = np.repeat(np.arange(pixels), counts)
         kept = np.bincount(pixel, cells.inside_box & cells.bounded, pixels)
         valid = ~results["fvor"].needs_redraw & (counts > 0)
@@ -380,8 +377,7 @@ def rejection_frequency(n: int, alpha: float, pixels: int, rng) -> dict:
     rejected = 0
     for start in range(0, pixels, per_call):
         batch = draw_sppp(rng, n, min(per_call, pixels - start), eps=eps)
-        samples = PixelSamples.from_sppp(batch, np.ones(len(batch.traced)), n)
-        rejected += int(estimate("vor", samples).needs_redraw.sum())
+        rejected += int(estimate("vor", batch, np.ones(len(batch.traced))).needs_redraw.sum())
     return {
         "n": n,
         "alpha": alpha,

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from clrender.runtime import create_runtime
-from clrender.sampling import generate_sample_sets, make_sampler, tile_pixels
+from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
@@ -85,7 +85,7 @@ def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defi
         next_event_estimation=(not args.no_nee) if nee is None else nee,
         profile_defines=defines,
     )
-    pixels = tile_pixels(args.size, 0, 0, args.size, args.size)
+    pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
     sets = generate_sample_sets(runtime, make_sampler(sampler, args.spp), args.seed, pixels)
     runs = time_traces(tracer, sets, args.seed, args.size, args.repeats)
     wall = statistics.median(r[0] for r in runs)

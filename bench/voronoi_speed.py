@@ -17,12 +17,12 @@ the ratios. Rows: one 4096-sample pixel, n = 64 ... 4096 over ~0.2 M samples eac
 of 4096 pixels at n = 256. One thread (Qhull is single-threaded).
 
 Then the same one-pixel estimate with the cells from the OpenCL cell kernel
-(clrender.device_voronoi, the render's default backend) on one core: child processes pinned to
-one CPU core (sched_setaffinity) run it with POCL_MAX_PTHREAD_COUNT=1 (PoCL's CPU device then
-has one worker thread), timing the whole
-call (float32 upload, grid and cell kernels, read-back, host fallbacks, the estimate) in wall
-and CPU seconds; the figure is the median over 5 processes of each one's median; areas are
-checked against Qhull's. Skipped with --no-device.
+(clrender.estimators.device_cells, the render's default backend) on one core: child processes
+pinned to one CPU core (sched_setaffinity) run it with POCL_MAX_PTHREAD_COUNT=1 (PoCL's CPU
+device then has one worker thread), timing the whole call (float32 upload, grid and cell
+kernels, read-back, host fallbacks, the estimate) in wall and CPU seconds; the figure is the
+median over 5 processes of each one's median; areas are checked against Qhull's. Skipped with
+--no-device.
 """
 
 from __future__ import annotations
@@ -41,15 +41,13 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 from scipy.spatial import Delaunay  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from clrender.estimators import PixelSamples, estimate  # noqa: E402
-from clrender.sppp import draw_sppp  # noqa: E402
-from clrender.voronoi_cells import (  # noqa: E402
+from clrender.estimators import estimate  # noqa: E402
+from clrender.estimators.delaunay import QHULL_OPTIONS  # noqa: E402
+from clrender.estimators.qhull_cells import (  # noqa: E402
     POINTS_PER_QHULL_CALL,
-    QHULL_OPTIONS,
     qhull_point_arrays,
 )
+from clrender.sppp import draw_sppp  # noqa: E402
 
 TARGET_RATIO = 1.3
 TARGET_ONE_PIXEL_MS = 2.0
@@ -75,7 +73,7 @@ def interleaved_times(fns: dict, repeats: int) -> dict[str, list[float]]:
 
 def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict:
     batch = draw_sppp(rng, n, pixels)
-    samples = PixelSamples.from_sppp(batch, np.abs(batch.traced[:, 0] * batch.traced[:, 1]), n)
+    values = np.abs(batch.traced[:, 0] * batch.traced[:, 1])
     arrays = qhull_point_arrays(batch.traced, batch.offsets, batch.aux, batch.aux_offsets)
     per_pixel = [
         np.concatenate(
@@ -88,7 +86,7 @@ def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict
     ]
 
     def stage():
-        result = estimate("vor", samples)
+        result = estimate("vor", batch, values)
         stage.tessellation = result.stats.tessellation
 
     def bare_same_calls():
@@ -126,19 +124,19 @@ def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict
 
 def device_one_pixel(repeats: int, seed: int) -> dict:
     """One 4096-sample pixel's vor estimate with device cells, timed in this process."""
-    from clrender.device_voronoi import device_sppp_cells_from_arrays
+    from clrender.estimators.device_cells import device_sppp_cells_from_arrays
+    from clrender.estimators.qhull_cells import sppp_cells
     from clrender.runtime import create_runtime
-    from clrender.voronoi_cells import sppp_cells
 
     runtime = create_runtime(None)
     batch = draw_sppp(np.random.default_rng(seed), 4096, 1)
-    samples = PixelSamples.from_sppp(batch, np.abs(batch.traced[:, 0] * batch.traced[:, 1]), 4096)
+    values = np.abs(batch.traced[:, 0] * batch.traced[:, 1])
 
     def run():
         cells = device_sppp_cells_from_arrays(
             runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets
         )
-        return estimate("vor", samples, {"sppp": cells}), cells
+        return estimate("vor", batch, values, {"sppp": cells}), cells
 
     result, cells = run()  # warm-up: kernel build, first launch
     walls, cpus = [], []
