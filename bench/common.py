@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from clrender.imageio import read_exr, srgb_encode, write_exr
+from clrender.pipeline import RenderResult, RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.render import RenderResult, RenderSettings, render
 from clrender.runtime import Runtime
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene

@@ -4,7 +4,7 @@
 
 A reference (bench/common.py: the mean of 4 stratified mc renders of reference-spp / 4 samples
 each, cached as EXR under bench/results/references/ with its measured noise), then one render
-per (estimator, sampler) pair at --spp through the full pipeline (clrender.render), and for
+per (estimator, sampler) pair at --spp through the full pipeline (clrender.pipeline), and for
 each: whole-image errors against the reference (bench/common.image_errors: MSE = mean over
 pixels and RGB channels of the squared difference of linear radiance; also less the
 reference's own noise, clamped to [0, 1], and on sRGB-encoded values), an error map (|render -

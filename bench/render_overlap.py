@@ -21,8 +21,8 @@ import statistics
 import time
 from pathlib import Path
 
+from clrender.pipeline import RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.render import RenderSettings, render
 from clrender.runtime import create_runtime
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene

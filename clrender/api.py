@@ -15,17 +15,17 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+from clrender import pipeline
 from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource, is_analytic_scene
 from clrender.errors import ParameterError
 from clrender.estimators import Estimator, check_compatible
-from clrender.radiance import PathTracerSource, RadianceSource
-from clrender.render import (
+from clrender.pipeline import (
     DEFAULT_TILE_SAMPLES,
     ProgressCallback,
     RenderResult,
     RenderSettings,
 )
-from clrender.render import render as render_source
+from clrender.radiance import PathTracerSource, RadianceSource
 from clrender.runtime import Runtime, create_runtime
 from clrender.sampling import SAMPLERS, make_sampler
 from clrender.scene import Scene
@@ -91,7 +91,7 @@ def render(
         overlap,
         voronoi_backend,
     )
-    return render_source(runtime, source, settings, progress)
+    return pipeline.render(runtime, source, settings, progress)
 
 
 def sampler_config(sampler: str, spp: int):

@@ -239,7 +239,7 @@ def scene_label(scene: str) -> str:
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
     from clrender.api import DEFAULT_ESTIMATOR
     from clrender.estimators import check_compatible
-    from clrender.render import DEFAULT_TILE_SAMPLES, RenderSettings
+    from clrender.pipeline import DEFAULT_TILE_SAMPLES, RenderSettings
     from clrender.sampling import SAMPLERS, make_sampler
 
     if args.spp <= 0:
@@ -325,8 +325,8 @@ def write_outputs(result, labels, paths: OutputPaths) -> None:
 
 
 def command_render(args: argparse.Namespace) -> int:
+    from clrender.pipeline import render
     from clrender.progress import ProgressBar
-    from clrender.render import render
     from clrender.report import RenderLabels, summary_lines
 
     check_render_args(args)

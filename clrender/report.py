@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from clrender import __version__
+from clrender.pipeline import RenderResult
 from clrender.progress import format_seconds
-from clrender.render import RenderResult
 
 
 @dataclass(frozen=True)

@@ -32,14 +32,14 @@ def test_render_returns_the_image_as_float32_array():
 
 def test_render_equals_the_pipeline_with_the_same_settings(runtime):
     from clrender.analytic import AnalyticSource
-    from clrender.render import RenderSettings
-    from clrender.render import render as render_source
+    from clrender.pipeline import RenderSettings
+    from clrender.pipeline import render as render_pipeline
     from clrender.sampling import make_sampler
 
     front = clrender.render("analytic:mix", spp=16, estimator="fvor", resolution=(12, 8), seed=5)
     source = AnalyticSource.for_scene("analytic:mix", runtime.queue, 12, 8)
     settings = RenderSettings(12, 8, make_sampler("sppp", 16), "fvor", seed=5)
-    direct = render_source(runtime, source, settings)
+    direct = render_pipeline(runtime, source, settings)
     assert np.array_equal(front.image, direct.image)
 
 

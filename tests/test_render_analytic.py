@@ -20,7 +20,7 @@ from clrender.analytic import (
     analytic_functions,
     analytic_image,
 )
-from clrender.render import RenderSettings, render
+from clrender.pipeline import RenderSettings, render
 from clrender.sampling import make_sampler
 
 WIDTH, HEIGHT, SPP = 48, 48, 16

@@ -6,7 +6,7 @@ import pytest
 
 from clrender.analytic import AnalyticSource
 from clrender.errors import ParameterError
-from clrender.render import RenderSettings, render
+from clrender.pipeline import RenderSettings, render
 from clrender.sampling import make_sampler
 
 WIDTH, HEIGHT = 24, 16

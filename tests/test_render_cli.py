@@ -15,8 +15,8 @@ from clrender.errors import ParameterError
 from clrender.estimators import ESTIMATORS
 from clrender.film import Film
 from clrender.imageio import decode_png, read_exr, srgb8
+from clrender.pipeline import RenderResult, RenderStats
 from clrender.progress import ProgressBar
-from clrender.render import RenderResult, RenderStats
 from clrender.sampling import make_sampler
 
 

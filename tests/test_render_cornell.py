@@ -5,8 +5,8 @@ import pytest
 
 from clrender import cli
 from clrender.imageio import read_exr
+from clrender.pipeline import RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.render import RenderSettings, render
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
 from clrender.trace import PathTracer

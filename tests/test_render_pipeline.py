@@ -9,8 +9,8 @@ import pytest
 from clrender.analytic import AnalyticSource, sample_image_positions
 from clrender.errors import ParameterError
 from clrender.estimators import check_compatible
+from clrender.pipeline import RenderSettings, plan_tiles, render, tile_pixels
 from clrender.radiance import DeviceRadiance, SampleRadiance
-from clrender.render import RenderSettings, plan_tiles, render, tile_pixels
 from clrender.sampling import make_sampler
 
 WIDTH, HEIGHT = 40, 24
