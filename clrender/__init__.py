@@ -10,10 +10,23 @@ clrender.ESTIMATORS lists every pixel estimator (clrender.estimators.registry); 
 can fix are clrender.ClrenderError with a one-line message.
 """
 
+from clrender.errors import ClrenderError, ParameterError
+
 __version__ = "0.1.0"
-
-from clrender.api import load_scene, render  # noqa: E402
-from clrender.errors import ClrenderError, ParameterError  # noqa: E402
-from clrender.estimators import ESTIMATORS  # noqa: E402
-
 __all__ = ["ESTIMATORS", "ClrenderError", "ParameterError", "__version__", "load_scene", "render"]
+
+# The front door is imported on first use, so that `python -m clrender` can set up the process
+# (one BLAS thread, clrender/__main__.py) before NumPy loads.
+_LAZY = {
+    "load_scene": "clrender.api",
+    "render": "clrender.api",
+    "ESTIMATORS": "clrender.estimators",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'clrender' has no attribute {name!r}")

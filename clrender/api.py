@@ -74,9 +74,12 @@ def render(
     PYOPENCL_CTX, else the first device); progress(done_pixels, total_pixels) is called after
     each tile. Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB, `.stats`,
     `.settings`. Bad arguments raise ParameterError (a ClrenderError) with a one-line message.
+    One render at a time per process and device: renders share the device's runtime (its
+    compiled programs), so calls from several threads must be serialised by the caller.
     """
-    config = sampler_config(sampler, spp)
+    check_sampler_name(sampler, spp)
     entry = check_compatible(estimator or DEFAULT_ESTIMATOR[sampler], sampler)
+    config = make_sampler(sampler, spp)
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
     runtime = runtime_for(device)
@@ -94,18 +97,18 @@ def render(
     return pipeline.render(runtime, source, settings, progress)
 
 
-def sampler_config(sampler: str, spp: int):
-    """The validated sampler (clrender.sampling.SamplerConfig) for a name and spp."""
+def check_sampler_name(sampler: str, spp: int) -> None:
+    """spp and the sampler's name (checked before the estimator, as on the command line)."""
     if isinstance(spp, bool) or not isinstance(spp, int) or spp <= 0:
         raise ParameterError(f"spp must be a positive integer, got {spp!r}")
     if sampler not in SAMPLERS:
         raise ParameterError(f"unknown sampler {sampler!r}; accepted: {', '.join(SAMPLERS)}")
-    return make_sampler(sampler, spp)
 
 
 @functools.cache
 def runtime_for(device: str | None) -> Runtime:
-    """One OpenCL runtime per device request and process (its programs are built once)."""
+    """One OpenCL runtime per device request and process (its programs are built once; not
+    for concurrent use from several threads)."""
     return create_runtime(device)
 
 

@@ -67,6 +67,7 @@ from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, generate_sample_sets, make_sampler
+from clrender.sppp import auxiliary_count
 
 DEFAULT_TILE_SAMPLES = 4_000_000
 # Where the SPPP Voronoi cells of vor, vor_sn and fvor are computed: the device kernel
@@ -99,9 +100,12 @@ class RenderSettings:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "estimator", check_compatible(self.estimator, self.sampler.name))
-        if not self.estimator.needs_aux and self.sampler.n_aux:
-            # Auxiliary nuclei shape only the SPPP cells: they would be drawn for nothing.
-            object.__setattr__(self, "sampler", replace(self.sampler, n_aux=0))
+        # Auxiliary nuclei shape only the SPPP cells: drawn for the estimators that use them (a
+        # settings object made by dataclasses.replace from another gets them back if needed).
+        wanted = auxiliary_count(self.sampler.n, self.sampler.eps) if self.sampler.eps else 0
+        n_aux = wanted if self.estimator.needs_aux else 0
+        if n_aux != self.sampler.n_aux:
+            object.__setattr__(self, "sampler", replace(self.sampler, n_aux=n_aux))
         if self.voronoi_backend not in VORONOI_BACKENDS:
             raise ParameterError(
                 f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "

@@ -1,6 +1,6 @@
 // Per-pixel sums of Voronoi-weighted radiance, one work-item per pixel: what the estimators
-// vor, vor_sn and fvor need (clrender.estimators.SpppSums), computed where the radiance and
-// the cell areas already are, so that no per-sample array leaves the device.
+// vor, vor_sn and fvor need (clrender.estimators.registry.PixelSums), computed where the
+// radiance and the cell areas already are, so that no per-sample array leaves the device.
 //
 // Inputs: each traced sample's RGB radiance (float), its cell area and status byte from
 // voronoi_cell_areas (kernels/voronoi_cells.cl; same -D precision options, and area_real and

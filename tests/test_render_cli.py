@@ -258,3 +258,16 @@ def test_progress_bar_is_quiet_unless_stderr_is_a_terminal():
     assert "  0.0%" in lines[1] and "ETA ?" in lines[1]
     assert lines[2].startswith("cornell [" + "#" * 15 + "." * 15 + "]  50.0%")
     assert shown.getvalue().endswith("\n")
+
+
+@pytest.mark.parametrize("estimator, drawn", [("vor_sn", True), ("mc", False), ("ivor", False)])
+def test_auxiliary_nuclei_are_drawn_only_for_estimators_that_use_them(
+    capsys, tmp_path, estimator, drawn
+):
+    out = tmp_path / "aux.exr"
+    argv = ["render", "analytic", "--res", "8", "--spp", "16", "--estimator", estimator]
+    status, _, err = run_cli(capsys, *argv, "-o", str(out))
+    assert status == 0, err
+    metadata = read_exr(out)[1]
+    assert (metadata["sppp_aux"] > 0) == drawn
+    assert metadata["sppp_eps"] > 0

@@ -405,8 +405,8 @@ def estimate_tile_image(
     delta: float | None = None,
 ) -> RunEstimate:
     """ivor and ivor_sn of a render tile (a scanline run of global pixel indices, each drawn
-    with redraw number 0 by an SPPP sampler config); traced/offsets/values as in
-    SampleSets and the tile's radiance. Returns estimates in tile order."""
+    with redraw number 0 by an SPPP sampler config); traced/offsets/values as in SampleSets
+    and the tile's radiance. Returns the run's sums and estimates in tile order."""
     pixels = np.asarray(pixels, np.int64)
     if config.name != "sppp":
         raise ParameterError(

@@ -25,6 +25,7 @@ from clrender.estimators.qhull_cells import (
     sppp_cells,
 )
 from clrender.estimators.registry import (
+    ESTIMATORS,
     Estimator,
     PixelSums,
     estimator_info,
@@ -84,8 +85,8 @@ def estimate_all(
     given = dict(cells or {})
     tessellations = {**_tessellations(samples, entries, skip=set(given)), **given}
     kept = any(entry.kept_cells for entry in entries)
-    sums = {kind: cell_sums(samples, values, tessellations.get(kind), kept) for kind in
-            {entry.cells for entry in entries}}  # fmt: skip
+    kinds = {entry.cells for entry in entries}
+    sums = {kind: cell_sums(samples, values, tessellations.get(kind), kept) for kind in kinds}
     return {
         entry.name: _result(entry, samples, sums[entry.cells], tessellations.get(entry.cells))
         for entry in entries
@@ -101,7 +102,7 @@ def cell_sums(
     if cells is None:
         sums.value = _pixel_sums(samples, values)
         return sums
-    products = values * _per_sample(cells.areas, values)
+    products = values * per_pixel(cells.areas, values)
     sums.area = _pixel_sums(samples, cells.areas)
     sums.weighted = _pixel_sums(samples, products)
     if not kept or cells.inside_box is None:
@@ -111,7 +112,7 @@ def cell_sums(
         # where, not a product with 0: a dropped nucleus's value is ignored even if infinite
         sums.kept_area = _pixel_sums(samples, np.where(cells.inside_box, cells.areas, 0.0))
         sums.kept_weighted = _pixel_sums(
-            samples, np.where(_per_sample(cells.inside_box, products), products, 0.0)
+            samples, np.where(per_pixel(cells.inside_box, products), products, 0.0)
         )
     return sums
 
@@ -143,7 +144,7 @@ def _check_samples(samples: SampleSets, values: np.ndarray, entries: list[Estima
         if entry.needs_aux and not samples.has_aux:
             raise ParameterError(
                 f"estimator {entry.name!r} needs SPPP auxiliary nuclei (aux, aux_offsets and "
-                "eps, e.g. from the sppp sampler); use mc, cvor or pvor with other samplers"
+                f"eps, e.g. from the sppp sampler); use {_without_aux()} with other samplers"
             )
     if samples.has_aux and any(entry.needs_aux for entry in entries):
         aux = samples.aux
@@ -154,6 +155,11 @@ def _check_samples(samples: SampleSets, values: np.ndarray, entries: list[Estima
             raise ParameterError("aux_offsets and offsets must describe the same pixels")
         if not (np.isfinite(samples.eps) and samples.eps >= 0):
             raise ParameterError(f"eps must be >= 0, got {samples.eps!r}")
+
+
+def _without_aux() -> str:
+    names = [e.name for e in ESTIMATORS.values() if not e.needs_sppp]
+    return ", ".join(names[:-1]) + " or " + names[-1]
 
 
 def _check_offsets(name: str, offsets: np.ndarray, total: int) -> None:
@@ -195,11 +201,6 @@ def _pixel_sums(samples: SampleSets, weights: np.ndarray) -> np.ndarray:
     if occupied.any():
         sums[occupied] = np.add.reduceat(weights, samples.offsets[:-1][occupied], axis=0)
     return sums
-
-
-def _per_sample(column: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """A (T,) column broadcast against (T,) or (T, C) values."""
-    return column if values.ndim == 1 else column[:, None]
 
 
 def _result(
