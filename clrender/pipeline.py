@@ -300,8 +300,7 @@ def image_estimates(
         settings.width,
         settings.height,
         tile.pixels,
-        tile.sets.traced,
-        tile.sets.offsets,
+        tile.sets,
         values,
     )
     return settings.estimator.formula(run.sums), np.zeros(len(tile.pixels), bool)

@@ -22,6 +22,7 @@ from clrender.estimators.image import (
     guard_distance,
 )
 from clrender.estimators.image_plane import PixelRect, frame_keys, periodic_keys
+from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 
 
@@ -121,7 +122,7 @@ def render_tiles(runtime, width, height, n, seed, step, border="frame", image="a
         x, y = sample_image_positions(pixels, sets.offsets, sets.traced, width)
         values = scene.radiance(x, y).astype(np.float64)
         run = estimate_tile_image(
-            runtime, config, seed, width, height, pixels, sets.traced, sets.offsets, values, border
+            runtime, config, seed, width, height, pixels, sets, values, border
         )
         for name in out:
             out[name][pixels] = run.estimates[name]
@@ -168,7 +169,10 @@ def test_periodic_border_tiles_the_torus_and_matches_frame_inside(runtime):
 
 def test_renderer_adapter_errors(runtime):
     config = make_sampler("sppp", 16)
-    empty = np.zeros((0, 2))
+
+    def no_samples(pixels):
+        return SampleSets(np.zeros((0, 2)), np.zeros(pixels + 1, np.int64), 16.0)
+
     with pytest.raises(ParameterError, match="sppp sampler"):
         estimate_tile_image(
             runtime,
@@ -177,14 +181,11 @@ def test_renderer_adapter_errors(runtime):
             4,
             4,
             np.arange(4),
-            empty,
-            np.zeros(5, np.int64),
+            no_samples(4),
             np.zeros(0),
         )
     with pytest.raises(ParameterError, match="scanline run"):
-        estimate_tile_image(
-            runtime, config, 0, 4, 4, np.array([0, 2]), empty, np.zeros(3, np.int64), np.zeros(0)
-        )
+        estimate_tile_image(runtime, config, 0, 4, 4, np.array([0, 2]), no_samples(2), np.zeros(0))
     with pytest.raises(ParameterError, match="border"):
         estimate_tile_image(
             runtime,
@@ -193,8 +194,7 @@ def test_renderer_adapter_errors(runtime):
             4,
             4,
             np.arange(2),
-            empty,
-            np.zeros(3, np.int64),
+            no_samples(2),
             np.zeros(0),
             border="mirror",
         )

@@ -70,6 +70,7 @@ from clrender.estimators.image_plane import (
     tile_point_source,
 )
 from clrender.estimators.registry import ESTIMATORS, PixelSums
+from clrender.samples import SampleSets
 from clrender.sppp import DEFAULT_ALPHA, sppp_eps
 
 BLOCK_POINTS = 6000  # nuclei per Qhull call (block pixels only, guard excluded)
@@ -398,15 +399,14 @@ def estimate_tile_image(
     width: int,
     height: int,
     pixels: np.ndarray,
-    traced: np.ndarray,
-    offsets: np.ndarray,
+    samples: SampleSets,
     values: np.ndarray,
     border: str = DEFAULT_BORDER,
     delta: float | None = None,
 ) -> RunEstimate:
     """ivor and ivor_sn of a render tile (a scanline run of global pixel indices, each drawn
-    with redraw number 0 by an SPPP sampler config); traced/offsets/values as in SampleSets
-    and the tile's radiance. Returns the run's sums and estimates in tile order."""
+    with redraw number 0 by an SPPP sampler config): the tile's sample sets and the values of
+    their traced samples. Returns the run's sums and estimates in tile order."""
     pixels = np.asarray(pixels, np.int64)
     if config.name != "sppp":
         raise ParameterError(
@@ -419,16 +419,6 @@ def estimate_tile_image(
     check_border(border)
     delta = guard_distance(config.n, config.alpha) if delta is None else float(delta)
     source = tile_point_source(
-        runtime,
-        config,
-        seed,
-        width,
-        height,
-        pixels,
-        traced,
-        offsets,
-        values,
-        math.ceil(delta),
-        border,
+        runtime, config, seed, width, height, pixels, samples, values, math.ceil(delta), border
     )
     return estimate_run(source, width, start, start + len(pixels), config.n, delta)

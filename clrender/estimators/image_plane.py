@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from clrender.errors import ParameterError
+from clrender.samples import SampleSets
 
 BORDERS = ("frame", "periodic")
 DEFAULT_BORDER = "frame"
@@ -192,14 +193,13 @@ def tile_point_source(
     width: int,
     height: int,
     pixels: np.ndarray,
-    traced: np.ndarray,
-    offsets: np.ndarray,
+    samples: SampleSets,
     values: np.ndarray,
     ring: int,
     border: str = DEFAULT_BORDER,
 ) -> PointSource:
-    """A PointSource for a render tile: the tile's traced samples (pixel-local positions,
-    offsets per tile pixel, values) plus the nuclei of every plane pixel within `ring` pixels
+    """A PointSource for a render tile: the tile's traced samples (its sample sets, one
+    value per traced sample) plus the nuclei of every plane pixel within `ring` pixels
     of it, drawn with generate_sample_sets under the border's keys (positions only, no
     auxiliary nuclei). Pixels beyond that ring are generated on demand (guard fallback)."""
     from clrender.sampling import generate_sample_sets
@@ -216,7 +216,7 @@ def tile_point_source(
             sets.traced.astype(np.float64) + shift, counts, point_ids(xs, ys, counts), zeros
         )
 
-    grid = _tile_grid(pixels, traced, offsets, values, width, ring, generate)
+    grid = _tile_grid(pixels, samples, values, width, ring, generate)
 
     def source(xs: np.ndarray, ys: np.ndarray) -> PixelPoints:
         if grid.rect.contains(xs, ys).all():
@@ -226,7 +226,7 @@ def tile_point_source(
     return source
 
 
-def _tile_grid(pixels, traced, offsets, values, width, ring, generate) -> PointGrid:
+def _tile_grid(pixels, samples: SampleSets, values, width, ring, generate) -> PointGrid:
     """The tile's rows grown by `ring`: traced samples of the tile, generated guard nuclei."""
     ty, tx = np.divmod(np.asarray(pixels, np.int64), width)
     rect = PixelRect(int(tx.min()), int(ty.min()), int(tx.max()) + 1, int(ty.max()) + 1).grown(ring)
@@ -234,8 +234,10 @@ def _tile_grid(pixels, traced, offsets, values, width, ring, generate) -> PointG
     in_tile = np.zeros(rect.count, bool)
     in_tile[(ty - rect.y0) * rect.width + tx - rect.x0] = True
     guard = generate(xs[~in_tile], ys[~in_tile])
-    counts = np.diff(offsets).astype(np.int64)
-    own = traced.astype(np.float64) + np.repeat(np.column_stack([tx, ty]) + 0.5, counts, axis=0)
+    counts = samples.counts.astype(np.int64)
+    own = samples.traced.astype(np.float64) + np.repeat(
+        np.column_stack([tx, ty]) + 0.5, counts, axis=0
+    )
     positions = np.concatenate([own, guard.positions])
     cell = np.concatenate(
         [
