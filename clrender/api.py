@@ -27,15 +27,19 @@ from clrender.pipeline import (
 )
 from clrender.radiance import PathTracerSource, RadianceSource
 from clrender.runtime import Runtime, create_runtime
-from clrender.sampling import SAMPLERS, make_sampler
+from clrender.sampling import make_sampler, sampler_kind
 from clrender.scene import Scene
 from clrender.scene import load_scene as load_scene_file
 from clrender.trace import PathTracer
 
 DEFAULT_MAX_DEPTH = 8
-# The estimator each sampler gets when none is named: vor_sn over SPPP samples (the paper's
-# method, self-normalised), mc over the others.
-DEFAULT_ESTIMATOR = {"sppp": "vor_sn", "uniform": "mc", "stratified": "mc"}
+
+
+def default_estimator(sampler: str) -> str:
+    """The estimator a sampler gets when none is named: vor_sn over the SPPP samplers (the
+    paper's method, self-normalised), mc over every other."""
+    return "vor_sn" if sampler_kind(sampler).is_sppp else "mc"
+
 
 Resolution = int | tuple[int, int] | None
 
@@ -67,7 +71,7 @@ def render(
 ) -> RenderResult:
     """Render a scene (a loaded Scene, a scene name or file, or `analytic[:KIND]`).
 
-    spp: samples per pixel (the SPPP intensity n); sampler: uniform, stratified or sppp;
+    spp: samples per pixel (the SPPP intensity n); sampler: a name of clrender.sampling.SAMPLERS;
     estimator: a name of clrender.estimators.ESTIMATORS (default vor_sn with sppp, mc
     otherwise); resolution: None for the scene's own size, a width N (the scene's aspect
     ratio) or (width, height); device: an index or name substring of an OpenCL device (default
@@ -78,7 +82,7 @@ def render(
     compiled programs), so calls from several threads must be serialised by the caller.
     """
     check_sampler_name(sampler, spp)
-    entry = check_compatible(estimator or DEFAULT_ESTIMATOR[sampler], sampler)
+    entry = check_compatible(estimator or default_estimator(sampler), sampler)
     config = make_sampler(sampler, spp)
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
@@ -101,8 +105,7 @@ def check_sampler_name(sampler: str, spp: int) -> None:
     """spp and the sampler's name (checked before the estimator, as on the command line)."""
     if isinstance(spp, bool) or not isinstance(spp, int) or spp <= 0:
         raise ParameterError(f"spp must be a positive integer, got {spp!r}")
-    if sampler not in SAMPLERS:
-        raise ParameterError(f"unknown sampler {sampler!r}; accepted: {', '.join(SAMPLERS)}")
+    sampler_kind(sampler)
 
 
 @functools.cache

@@ -36,8 +36,11 @@ DEFAULT_SAMPLER = "sppp"
 RENDER_EPILOG = """\
 defaults: the authors' Cornell box at 128x128, 64 spp, the sppp sampler with the vor_sn
 estimator: the paper's Voronoi weights, self-normalised (the README's "What the measurements
-say" compares the estimators and samplers; mc over --sampler stratified often does better).
---estimator defaults to vor_sn with sppp and mc with uniform or stratified samples.
+say" compares the estimators and samplers).
+--estimator defaults to vor_sn with the SPPP samplers and mc with the others.
+
+samplers (spp each takes):
+{samplers}
 
 estimators:
 {estimators}
@@ -77,14 +80,23 @@ def render_epilog() -> str:
     import textwrap
 
     from clrender.estimators import ESTIMATORS
+    from clrender.sampling import SAMPLERS
 
+    samplers = [
+        textwrap.fill(
+            f"  {name:16s} {kind.description} (spp: {kind.counts})", 92, subsequent_indent=" " * 19
+        )
+        for name, kind in SAMPLERS.items()
+    ]
     lines = []
     for name, entry in ESTIMATORS.items():
         mark = "*" if entry.needs_sppp else " "
         text = f"{mark} {name:8s} {entry.description}"
         lines.append(textwrap.fill(text, 92, subsequent_indent=" " * 11))
-    lines.append("  * needs --sampler sppp (auxiliary nuclei or Poisson counts)")
-    return RENDER_EPILOG.format(estimators="\n".join(lines))
+    lines.append(
+        "  * needs an SPPP sampler: sppp or sppp-sobol (auxiliary nuclei or Poisson counts)"
+    )
+    return RENDER_EPILOG.format(samplers="\n".join(samplers), estimators="\n".join(lines))
 
 
 def add_device_option(parser: argparse.ArgumentParser) -> None:
@@ -130,7 +142,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "--sampler",
         default=DEFAULT_SAMPLER,
         metavar="NAME",
-        help=f"uniform, stratified (spp a perfect square) or sppp (default: {DEFAULT_SAMPLER})",
+        help=f"sample positions and path dimensions, listed below (default: {DEFAULT_SAMPLER})",
     )
     add(
         "--estimator",
@@ -237,16 +249,15 @@ def scene_label(scene: str) -> str:
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
-    from clrender.api import DEFAULT_ESTIMATOR
+    from clrender.api import default_estimator
     from clrender.estimators import check_compatible
     from clrender.pipeline import DEFAULT_TILE_SAMPLES, RenderSettings
-    from clrender.sampling import SAMPLERS, make_sampler
+    from clrender.sampling import make_sampler, sampler_kind
 
     if args.spp <= 0:
         raise ParameterError(f"--spp must be a positive integer, got {args.spp}")
-    if args.sampler not in SAMPLERS:
-        raise ParameterError(f"unknown sampler {args.sampler!r}; accepted: {', '.join(SAMPLERS)}")
-    estimator = check_compatible(args.estimator or DEFAULT_ESTIMATOR[args.sampler], args.sampler)
+    sampler_kind(args.sampler)
+    estimator = check_compatible(args.estimator or default_estimator(args.sampler), args.sampler)
     tile_samples = DEFAULT_TILE_SAMPLES if args.tile_samples is None else args.tile_samples
     if tile_samples <= 0:
         raise ParameterError(f"--tile-samples must be a positive integer, got {tile_samples}")

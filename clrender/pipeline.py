@@ -100,6 +100,10 @@ class RenderSettings:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "estimator", check_compatible(self.estimator, self.sampler.name))
+        # pvor over stratified or Sobol points is unbiased only under a random toroidal shift
+        # of each pixel's set (torus cell areas are shift-invariant): turned on for it
+        if self.estimator.cells == "periodic" and self.sampler.kind.low_discrepancy_positions:
+            object.__setattr__(self, "sampler", replace(self.sampler, toroidal_shift=True))
         # Auxiliary nuclei shape only the SPPP cells: drawn for the estimators that use them (a
         # settings object made by dataclasses.replace from another gets them back if needed).
         wanted = auxiliary_count(self.sampler.n, self.sampler.eps) if self.sampler.eps else 0
@@ -219,7 +223,9 @@ def trace_tile(
     the sums come back (if the kernel left pixels undecided, the samples come back too and
     the host settles those pixels with Qhull); otherwise the sample sets and radiance are
     brought to the host."""
-    device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
+    device_sets = generate_sample_sets(
+        runtime, sampler, seed, pixels, redraws, (source.width, source.height)
+    )
     pending = source.trace(device_sets, seed)
     if device_cells:
         radiance = pending.to_device(runtime)

@@ -42,7 +42,7 @@ def render_metadata(result: RenderResult, labels: RenderLabels) -> dict[str, obj
         "nonfinite_samples": stats.nonfinite_samples,
         "flagged_pixels": film.flagged_count,
     }
-    if sampler.name == "sppp":
+    if sampler.is_sppp:
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth

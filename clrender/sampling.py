@@ -1,16 +1,34 @@
-"""Per-pixel sample sets drawn on the device (kernels/sampling.cl).
+"""Per-pixel sample sets drawn on the device (kernels/sampling.cl), and the sampler of every
+later path dimension (kernels/sampler.h).
 
-Samplers:
-  uniform     exactly n i.i.d. uniform points in W = [-1/2, 1/2]^2;
-  stratified  one jittered point in each cell of a sqrt(n) x sqrt(n) grid (n a perfect square);
-  sppp        the paper's stretched-window Poisson point process: N ~ Poisson(n) uniform nuclei
-              in W, traced, plus n' auxiliary nuclei uniform by area over the strip W' \\ W.
+Samplers (positions; path dimensions; the sample counts n each accepts):
+  independent       i.i.d. uniform points in W = [-1/2, 1/2]^2; Philox paths; any n.
+  stratified        every dimension stratified: a jittered sqrt(n) x sqrt(n) grid per dimension
+                    pair, n jittered strata per 1D dimension, each with its own random
+                    permutation of the strata over the samples; n a perfect square.
+  stratified-pixel  the pixel position alone stratified (the grid in order); Philox paths; n a
+                    perfect square. (Named "stratified" before every dimension was.)
+  sobol             padded Owen-scrambled Sobol in every dimension; any n (a power of two makes
+                    each pixel's points and each later pair a (0, m, 2)-net).
+  zsobol            one Owen-scrambled Sobol sequence over the image in Morton order of the
+                    pixels (blue-noise error across pixels); n a power of two, and
+                    2 log2(padded resolution) + log2(n) <= 32.
+  sppp              the paper's stretched-window Poisson point process: N ~ Poisson(n) uniform
+                    nuclei in W, traced, plus n' auxiliary nuclei uniform by area over the strip
+                    W' \\ W; Philox paths; any n.
+  sppp-sobol        SPPP positions as sppp; the path dimensions of the N traced samples from the
+                    padded sobol sequence (sample index 0 .. N-1); any n.
+A sampler never changes n: a count it cannot use is a ParameterError naming the nearest ones.
 Positions are pixel-local; pixel (x, y) covers image coordinates [x, x+1] x [y, y+1], so a
 sample at local (u, v) sits at image position (x + 1/2 + u, y + 1/2 + v).
 
+toroidal_shift: shift each pixel's whole point set by one random vector on the torus W (a
+Cranley-Patterson rotation). The render settings turn it on for pvor over stratified, sobol and
+zsobol points: torus Voronoi areas are shift-invariant, which makes pvor unbiased over them.
+
 A launch takes a list of global pixel indices (y * width + x) and their redraw numbers, so a
 tile and a set of rejected pixels to redraw use the same path, and every number depends on
-(seed, pixel, sample, dimension, redraw) only.
+(seed, pixel, sample, dimension, redraw) only (and, for zsobol, on the image size).
 """
 
 from __future__ import annotations
@@ -26,9 +44,74 @@ from clrender.runtime import Runtime, padded_global_size
 from clrender.samples import SampleSets
 from clrender.sppp import DEFAULT_ALPHA, auxiliary_count, check_alpha, check_intensity, sppp_eps
 
-SAMPLERS = {"uniform": 0, "stratified": 1, "sppp": 2}
+# Position kinds (kernels/sampling.cl) and path kinds (kernels/sampler.h).
+POSITIONS_INDEPENDENT, POSITIONS_STRATIFIED_IN_ORDER, POSITIONS_SPPP, POSITIONS_FROM_SAMPLER = (
+    range(4)
+)
+PATHS_INDEPENDENT, PATHS_STRATIFIED, PATHS_SOBOL, PATHS_ZSOBOL = range(4)
+
+
+@dataclass(frozen=True)
+class SamplerKind:
+    """What a sampler name means: how it places positions, how it samples path dimensions, and
+    which counts n it takes ("any", "square" or "power of two")."""
+
+    positions: int
+    paths: int
+    counts: str
+    description: str
+
+    @property
+    def is_sppp(self) -> bool:
+        return self.positions == POSITIONS_SPPP
+
+    @property
+    def low_discrepancy_positions(self) -> bool:
+        """Positions that are not i.i.d. uniform or Poisson (a toroidal shift makes pvor
+        unbiased over them)."""
+        return self.positions in (POSITIONS_STRATIFIED_IN_ORDER, POSITIONS_FROM_SAMPLER)
+
+
+SAMPLERS: dict[str, SamplerKind] = {
+    "independent": SamplerKind(
+        POSITIONS_INDEPENDENT, PATHS_INDEPENDENT, "any", "i.i.d. uniform, every dimension"
+    ),
+    "stratified": SamplerKind(
+        POSITIONS_FROM_SAMPLER,
+        PATHS_STRATIFIED,
+        "square",
+        "jittered strata in every dimension, randomly permuted per dimension",
+    ),
+    "stratified-pixel": SamplerKind(
+        POSITIONS_STRATIFIED_IN_ORDER,
+        PATHS_INDEPENDENT,
+        "square",
+        "jittered strata for the pixel position only, i.i.d. path dimensions",
+    ),
+    "sobol": SamplerKind(
+        POSITIONS_FROM_SAMPLER, PATHS_SOBOL, "any", "padded Owen-scrambled Sobol, every dimension"
+    ),
+    "zsobol": SamplerKind(
+        POSITIONS_FROM_SAMPLER,
+        PATHS_ZSOBOL,
+        "power of two",
+        "one Owen-scrambled Sobol sequence in Morton order of the pixels (blue-noise error)",
+    ),
+    "sppp": SamplerKind(
+        POSITIONS_SPPP, PATHS_INDEPENDENT, "any", "stretched-window Poisson, i.i.d. paths"
+    ),
+    "sppp-sobol": SamplerKind(
+        POSITIONS_SPPP,
+        PATHS_SOBOL,
+        "any",
+        "stretched-window Poisson positions, padded Owen-scrambled Sobol paths",
+    ),
+}
+RENAMED_SAMPLERS = {"uniform": "independent"}
 # Traced sample indices share the 32-bit counter with auxiliary nuclei (see kernels/rng.h).
 MAX_SAMPLES_PER_PIXEL = 0x40000000
+# zsobol's image-wide index: Morton bits of the padded resolution, then log2(n) sample bits.
+ZSOBOL_INDEX_BITS = 32
 
 
 @dataclass(frozen=True)
@@ -40,23 +123,80 @@ class SamplerConfig:
     alpha: float = DEFAULT_ALPHA
     eps: float = 0.0
     n_aux: int = 0
+    toroidal_shift: bool = False
+
+    @property
+    def kind(self) -> SamplerKind:
+        return SAMPLERS[self.name]
+
+    @property
+    def is_sppp(self) -> bool:
+        return self.kind.is_sppp
 
     @property
     def strata(self) -> int:
-        return math.isqrt(self.n) if self.name == "stratified" else 0
+        return math.isqrt(self.n) if self.kind.counts == "square" else 0
 
     @property
     def has_auxiliary(self) -> bool:
         return self.n_aux > 0
 
+    def path_arguments(self, image_size: tuple[int, int] | None) -> tuple:
+        """The kernels' path-sampler arguments: kind, n, strata, and zsobol's log2(n) and index
+        bits (zsobol needs the image size; the others ignore it)."""
+        log2_count = bits = 0
+        if self.kind.paths == PATHS_ZSOBOL:
+            if image_size is None:
+                raise ParameterError("the zsobol sampler needs the image size of the launch")
+            log2_count, bits = zsobol_layout(self.n, *image_size)
+        return (
+            np.int32(self.kind.paths),
+            np.uint32(self.n),
+            np.uint32(self.strata),
+            np.uint32(log2_count),
+            np.uint32(bits),
+        )
+
+
+def zsobol_layout(n: int, width: int, height: int) -> tuple[int, int]:
+    """(log2 n, bits of the image-wide index): the Morton code of the resolution padded to a
+    power of two, then the sample; ParameterError if it does not fit 32 bits."""
+    resolution_bits = max(0, (max(width, height) - 1).bit_length())
+    log2_count = n.bit_length() - 1
+    bits = 2 * resolution_bits + log2_count
+    if bits > ZSOBOL_INDEX_BITS:
+        most = 1 << (ZSOBOL_INDEX_BITS - 2 * resolution_bits)
+        raise ParameterError(
+            f"the zsobol sampler indexes pixels x samples in {ZSOBOL_INDEX_BITS} bits: a "
+            f"{width} x {height} image (padded to {1 << resolution_bits} square) takes "
+            f"{2 * resolution_bits} bits, leaving at most {most} samples per pixel, got {n}; "
+            "use --sampler sobol"
+        )
+    return log2_count, bits
+
+
+def sampler_kind(name: str) -> SamplerKind:
+    """The sampler's entry, or a one-line error listing the names."""
+    if name in RENAMED_SAMPLERS:
+        raise ParameterError(
+            f"the {name!r} sampler is now called {RENAMED_SAMPLERS[name]!r}; accepted: "
+            f"{', '.join(SAMPLERS)}"
+        )
+    if name not in SAMPLERS:
+        raise ParameterError(f"unknown sampler {name!r}; accepted: {', '.join(SAMPLERS)}")
+    return SAMPLERS[name]
+
 
 def make_sampler(
-    name: str, n: int, alpha: float = DEFAULT_ALPHA, eps: float | None = None
+    name: str,
+    n: int,
+    alpha: float = DEFAULT_ALPHA,
+    eps: float | None = None,
+    toroidal_shift: bool = False,
 ) -> SamplerConfig:
     """Check the parameters and derive eps and n' for SPPP (eps may be forced, e.g. enlarged
     after repeated rejections)."""
-    if name not in SAMPLERS:
-        raise ParameterError(f"unknown sampler {name!r}; accepted: {', '.join(SAMPLERS)}")
+    kind = sampler_kind(name)
     if isinstance(n, bool) or not isinstance(n, int | np.integer):
         raise ParameterError(f"n (samples per pixel) must be a positive integer, got {n!r}")
     check_intensity(n)
@@ -65,18 +205,25 @@ def make_sampler(
             f"n (samples per pixel) must be below {MAX_SAMPLES_PER_PIXEL // 2}, got {n}"
         )
     check_alpha(alpha)
-    if name == "stratified" and math.isqrt(n) ** 2 != n:
+    n = int(n)
+    if kind.counts == "square" and math.isqrt(n) ** 2 != n:
         root = math.isqrt(n)
         raise ParameterError(
-            f"the stratified sampler needs n to be a perfect square, got {n} "
+            f"the {name} sampler needs n to be a perfect square, got {n} "
             f"(nearest: {root * root} or {(root + 1) ** 2})"
         )
-    if name != "sppp":
-        return SamplerConfig(name, int(n), alpha)
+    if kind.counts == "power of two" and n & (n - 1):
+        below = 1 << (n.bit_length() - 1)
+        raise ParameterError(
+            f"the {name} sampler needs n to be a power of two, got {n} "
+            f"(nearest: {below} or {2 * below})"
+        )
+    if not kind.is_sppp:
+        return SamplerConfig(name, n, alpha, toroidal_shift=bool(toroidal_shift))
     eps = sppp_eps(n, alpha) if eps is None else float(eps)
     if not (math.isfinite(eps) and eps > 0.0):
         raise ParameterError(f"eps (strip width) must be a positive finite number, got {eps!r}")
-    return SamplerConfig(name, int(n), alpha, eps, auxiliary_count(n, eps))
+    return SamplerConfig(name, n, alpha, eps, auxiliary_count(n, eps), bool(toroidal_shift))
 
 
 def rectangle_pixels(width: int, x0: int, y0: int, rect_width: int, rect_height: int) -> np.ndarray:
@@ -101,6 +248,7 @@ class DeviceSampleSets:
     offsets_buffer: cl.Buffer  # traced_offsets as uint32, on the device
     pixels_buffer: cl.Buffer  # pixels as uint32, on the device
     redraws_buffer: cl.Buffer  # redraws as uint32, on the device
+    image_size: tuple[int, int] | None = None  # (width, height) if the launch was given it
 
     @property
     def pixel_count(self) -> int:
@@ -126,7 +274,7 @@ class DeviceSampleSets:
             self.config.n,
             flat[self.traced_total :],
             aux_offsets,
-            self.config.eps if self.config.name == "sppp" else None,
+            self.config.eps if self.config.is_sppp else None,
             self.redraws,
         )
 
@@ -137,9 +285,17 @@ def generate_sample_sets(
     seed: int,
     pixels: np.ndarray,
     redraws: np.ndarray | None = None,
+    image_size: tuple[int, int] | None = None,
 ) -> DeviceSampleSets:
-    """Draw the sample sets of the given pixels on the device (count, prefix sum, fill)."""
+    """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
+    image_size (width, height): needed by zsobol, whose sequence spans the image."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
+    path_arguments = config.path_arguments(image_size)
+    image_width = 1 if image_size is None else int(image_size[0])
+    if image_size is not None and len(pixels) and int(pixels.max()) >= image_width * image_size[1]:
+        raise ParameterError(
+            f"pixel index {int(pixels.max())} outside the {image_width} x {image_size[1]} image"
+        )
     pixels_buf, redraws_buf = runtime.upload(pixels), runtime.upload(redraws)
     counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
@@ -158,9 +314,19 @@ def generate_sample_sets(
         positions,
         len(pixels),
         int(offsets[-1]),
+        path_arguments,
+        image_width,
     )
     return DeviceSampleSets(
-        config, pixels, redraws, offsets, positions, offsets_buf, pixels_buf, redraws_buf
+        config,
+        pixels,
+        redraws,
+        offsets,
+        positions,
+        offsets_buf,
+        pixels_buf,
+        redraws_buf,
+        None if image_size is None else (int(image_size[0]), int(image_size[1])),
     )
 
 
@@ -174,6 +340,8 @@ def _launch_fill(
     positions: cl.Buffer,
     pixel_count: int,
     traced_total: int,
+    path_arguments: tuple,
+    image_width: int,
 ) -> None:
     queue, local = runtime.queue, (runtime.local_size,)
     if traced_total:
@@ -184,9 +352,11 @@ def _launch_fill(
             local,
             np.uint32(pixel_count),
             np.uint32(seed),
-            np.int32(SAMPLERS[config.name]),
-            np.uint32(config.n),
-            np.uint32(config.strata),
+            np.int32(config.kind.positions),
+            *path_arguments[:3],
+            np.uint32(image_width),
+            *path_arguments[3:],
+            np.int32(config.toroidal_shift),
             np.uint32(traced_total),
             pixels_buf,
             redraws_buf,
@@ -240,7 +410,7 @@ def _launch_count(
         (runtime.local_size,),
         np.uint32(pixel_count),
         np.uint32(seed),
-        np.int32(SAMPLERS[config.name]),
+        np.int32(config.kind.positions),
         np.uint32(config.n),
         np.float32(config.n),
         pixels_buf,

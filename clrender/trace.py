@@ -23,7 +23,7 @@ import pyopencl as cl
 
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
-from clrender.sampling import DeviceSampleSets, check_seed
+from clrender.sampling import PATHS_ZSOBOL, DeviceSampleSets, check_seed
 from clrender.scene import Scene
 from clrender.scene_device import QUAD_BLOCK_WIDTH
 
@@ -148,6 +148,12 @@ class PathTracer:
             raise ParameterError(
                 f"pixel index {int(pixels.max())} outside the {width} x {height} image"
             )
+        drawn_for = sample_sets.image_size
+        if sample_sets.config.kind.paths == PATHS_ZSOBOL and drawn_for != (width, height):
+            raise ParameterError(
+                f"zsobol sample sets drawn for a {drawn_for} image cannot be traced at "
+                f"{width} x {height}: draw them with image_size=({width}, {height})"
+            )
         runtime = self.runtime
         queue = runtime.queue
         count = sample_sets.traced_total
@@ -171,6 +177,7 @@ class PathTracer:
             np.int32(self.next_event_estimation),
             np.int32(self.russian_roulette),
             np.float32(scene.ray_epsilon),
+            *sample_sets.config.path_arguments((width, height)),
             sample_sets.positions,
             sample_sets.offsets_buffer,
             sample_sets.pixels_buffer,

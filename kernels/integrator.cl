@@ -4,15 +4,16 @@
 // One work-item per traced sample. Sample i belongs to the pixel whose traced_offsets range
 // holds it; its position (pixel-local, in W = [-1/2, 1/2]^2) comes from the sample-set buffer
 // (auxiliary nuclei, stored after the traced samples, are never read). Random numbers: the
-// Philox stream of (seed, pixel, sample, redraw); dimension 0 is the sample's position, the
-// path at depth d uses dimension 1 + 2d (light pick, light point, Russian roulette) and
-// 2 + 2d (BSDF direction, lobe choice).
+// launch's path sampler (kernels/sampler.h: independent, stratified, sobol or zsobol), a pure
+// function of (seed, pixel, sample, dimension, redraw). Dimensions 0 and 1 are the sample's
+// position (drawn by sampling.cl); bounce d draws dimensions 2 + 7d ... 8 + 7d: emitter choice,
+// emitter point (2), BSDF lobe choice, BSDF direction (2), Russian roulette.
 //
 // max_depth counts scattering vertices (pbrt's maxdepth; Mitsuba's max_depth minus 1):
 // 0 shows emitters only, 1 adds direct lighting, ... Specular vertices count too.
 // Philox inlined at its call sites (a call spills the path state held in vector registers)
 #pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
-#include "rng.h"
+#include "sampler.h"
 #pragma clang attribute pop
 #include "launch.h"
 #include "scene_types.h"
@@ -61,8 +62,8 @@ CL_INLINE float3 Integrator_SampleDirect(const SceneData *scene, Surface *surfac
 // Radiance along one camera ray (pbrt-v4's PathIntegrator::Li, emitters as the only lights).
 // With nee = 0 paths find emitters by BSDF sampling only, and emission takes full weight.
 CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir, int max_depth,
-                               int nee, int russian_roulette, uint seed, uint pixel, uint sample,
-                               uint redraw, uint *rays)
+                               int nee, int russian_roulette, const Sampler *sampler,
+                               uint *rays)
 {
     float3 L = (float3)(0.0f);
     float3 beta = (float3)(1.0f);
@@ -105,18 +106,19 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
         }
         Frame frame = Frame_FromNormal(n);
         float3 wo_local = Frame_ToLocal(frame, wo);
-        float4 u_light = Rng_Uniform4(seed, pixel, sample, 1u + 2u * (uint)depth, redraw);
-        float4 u_bsdf = Rng_Uniform4(seed, pixel, sample, 2u + 2u * (uint)depth, redraw);
+        BounceSamples u = Sampler_Bounce(sampler, (uint)depth);
 
         // Sample direct illumination from the emitters (skipped at specular vertices)
         if (nee && !BSDF_IsSpecular(material) && scene->emitter_count > 0u)
             L += beta * Integrator_SampleDirect(scene, &surface, frame, material, wo_local,
-                                                u_light.xyz, rays);
+                                                (float3)(u.emitter_choice, u.emitter_point),
+                                                rays);
 
         // Sample the BSDF to get the new path direction
         float3 wi_local;
         float pdfW;
-        float3 weight = BSDF_Sample(material, wo_local, u_bsdf.xyz, &wi_local, &pdfW);
+        float3 weight = BSDF_Sample(material, wo_local, (float3)(u.direction, u.lobe),
+                                     &wi_local, &pdfW);
         if (!AnyPositive3(weight))
             break;
         beta *= weight;
@@ -129,7 +131,7 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
         float beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
         if (russian_roulette && depth >= 1 && beta_max < 1.0f) {
             float q = Fmax(0.0f, 1.0f - beta_max);
-            if (u_light.w < q)
+            if (u.roulette < q)
                 break;
             beta /= 1.0f - q;
         }
@@ -140,7 +142,8 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
 // One work-item per traced sample: radiance (RGB float) to radiance[3 i .. 3 i + 2].
 __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
                           uint image_height, int max_depth, int nee, int russian_roulette,
-                          float ray_eps, __global const float2 *positions,
+                          float ray_eps, int paths_kind, uint fixed_count, uint strata,
+                          uint zsobol_log2_count, uint zsobol_bits, __global const float2 *positions,
                           __global const uint *traced_offsets, __global const uint *pixels,
                           __global const uint *redraws, __global const Camera *camera,
                           __global const Quad *quads,
@@ -168,8 +171,10 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     // Trace the camera ray's path
     uint rays = 0u;
     float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
+    Sampler sampler = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot], fixed_count,
+                                   strata, image_width, zsobol_log2_count, zsobol_bits);
     float3 L = Integrator_Li(&scene, Load3(camera->origin), dir, max_depth, nee,
-                             russian_roulette, seed, pixel, sample, redraws[slot], &rays);
+                             russian_roulette, &sampler, &rays);
 
     // Store the radiance; a non-finite value is counted and stored as 0 (as pbrt does)
     if (!all(isfinite(L))) {

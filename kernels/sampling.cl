@@ -8,25 +8,30 @@
 // Output layout, one contiguous float2 buffer: all traced samples, pixel by pixel
 // (traced_offsets), then all auxiliary nuclei, pixel by pixel (n_aux each). Auxiliary nuclei are
 // never traced; they only shape Voronoi cells.
+// Positions: i.i.d. (independent), the stratified-pixel grid in order, SPPP, or dimensions 0 and
+// 1 of a path sampler (stratified, sobol, zsobol; kernels/sampler.h), optionally shifted on the
+// torus W as a whole (a Cranley-Patterson rotation, per pixel and redraw, for pvor).
 // Random numbers and Poisson draws are inlined: pip PoCL cannot inline calls across its
 // builtin library's CPU target (see vecmath.h), and a call spills every vector register.
 #pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
 #include "poisson.h"
+#include "sampler.h"
 #pragma clang attribute pop
 #include "launch.h"
 
-#define SAMPLER_UNIFORM 0
-#define SAMPLER_STRATIFIED 1
-#define SAMPLER_SPPP 2
+#define POSITIONS_INDEPENDENT 0
+#define POSITIONS_STRATIFIED_IN_ORDER 1
+#define POSITIONS_SPPP 2
+#define POSITIONS_FROM_SAMPLER 3
 
-__kernel void count_samples(uint pixel_count, uint seed, int sampler, uint n, float mean,
+__kernel void count_samples(uint pixel_count, uint seed, int positions_kind, uint n, float mean,
                             __global const uint *pixels, __global const uint *redraws,
                             __global uint *counts)
 {
     uint p = get_global_id(0);
     if (p >= pixel_count)
         return;
-    counts[p] = sampler == SAMPLER_SPPP ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
+    counts[p] = positions_kind == POSITIONS_SPPP ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
 }
 
 // Jittered strata: sample s falls in stratum (s mod m, s div m) of an m x m grid.
@@ -53,9 +58,11 @@ inline float2 Sampling_StripPosition(float eps, float4 u)
     return top_or_bottom ? on_top_or_bottom : on_left_or_right;
 }
 
-// Traced sample s of pixel p: dimension 0 of its stream is its position.
-__kernel void fill_traced(uint pixel_count, uint seed, int sampler, uint fixed_count,
-                          uint strata, uint traced_total, __global const uint *pixels,
+// Traced sample s of pixel p: its position (dimensions 0 and 1 of its sample).
+__kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, int paths_kind,
+                          uint fixed_count, uint strata, uint image_width,
+                          uint zsobol_log2_count, uint zsobol_bits, int toroidal_shift,
+                          uint traced_total, __global const uint *pixels,
                           __global const uint *redraws, __global const uint *traced_offsets,
                           __global float2 *positions)
 {
@@ -63,16 +70,25 @@ __kernel void fill_traced(uint pixel_count, uint seed, int sampler, uint fixed_c
     if (i >= traced_total)
         return;
     // Fixed-count samplers find the pixel by a division, SPPP by searching the offsets.
-    uint p = sampler == SAMPLER_SPPP ? Launch_OwnerPixel(traced_offsets, pixel_count, i)
-                                     : i / fixed_count;
+    uint p = positions_kind == POSITIONS_SPPP ? Launch_OwnerPixel(traced_offsets, pixel_count, i)
+                                              : i / fixed_count;
     uint s = i - traced_offsets[p];
-    // Its position: a jittered stratum, else uniform in W
-    if (sampler == SAMPLER_STRATIFIED) {
-        float4 u = Rng_Uniform4(seed, pixels[p], s, 0u, redraws[p]);
-        positions[i] = Sampling_StratifiedPosition(s, strata, u.xy);
+    uint pixel = pixels[p], redraw = redraws[p];
+    float2 position;
+    // Its position: the path sampler's, a jittered stratum in order, else uniform in W
+    if (positions_kind == POSITIONS_FROM_SAMPLER) {
+        Sampler sampler = Sampler_Make(paths_kind, seed, pixel, s, redraw, fixed_count, strata,
+                                       image_width, zsobol_log2_count, zsobol_bits);
+        position = Sampler_Position(&sampler);
+    } else if (positions_kind == POSITIONS_STRATIFIED_IN_ORDER) {
+        float4 u = Rng_Uniform4(seed, pixel, s, 0u, redraw);
+        position = Sampling_StratifiedPosition(s, strata, u.xy);
     } else {
-        positions[i] = Rng_Centered2(seed, pixels[p], s, 0u, redraws[p]);
+        position = Rng_Centered2(seed, pixel, s, 0u, redraw);
     }
+    // The pixel's toroidal shift, if asked for
+    positions[i] = toroidal_shift ? Sampler_ToroidalShift(seed, pixel, redraw, position)
+                                  : position;
 }
 
 // Auxiliary nucleus j of pixel p, written after all traced samples; its sample index range is

@@ -408,10 +408,10 @@ def estimate_tile_image(
     with redraw number 0 by an SPPP sampler config): the tile's sample sets and the values of
     their traced samples. Returns the run's sums and estimates in tile order."""
     pixels = np.asarray(pixels, np.int64)
-    if config.name != "sppp":
+    if not config.is_sppp:
         raise ParameterError(
-            "image-level Voronoi estimators need Poisson counts: use the "
-            f"sppp sampler, got {config.name!r}"
+            "image-level Voronoi estimators need Poisson counts: use an "
+            f"SPPP sampler (sppp, sppp-sobol), got {config.name!r}"
         )
     start = int(pixels[0]) if len(pixels) else 0
     if len(pixels) and not np.array_equal(pixels, np.arange(start, start + len(pixels))):

@@ -49,7 +49,6 @@ from clrender.errors import ParameterError
 # clipped to W, cells on the torus W, or one tessellation of the whole image plane.
 CELL_KINDS = ("none", "sppp", "clipped", "periodic", "image")
 # The sampler that draws auxiliary nuclei and Poisson counts.
-SPPP_SAMPLER = "sppp"
 
 
 @dataclass
@@ -229,14 +228,18 @@ def estimator_info(estimator: str | Estimator) -> Estimator:
 
 
 def check_compatible(estimator: str | Estimator, sampler: str) -> Estimator:
-    """The entry, or a one-line error if it needs what only the sppp sampler draws."""
+    """The entry, or a one-line error if it needs what only the SPPP samplers draw (an unknown
+    sampler name is a one-line error too)."""
+    from clrender.sampling import SAMPLERS, sampler_kind
+
     entry = estimator_info(estimator)
-    if entry.needs_sppp and sampler != SPPP_SAMPLER:
+    if entry.needs_sppp and not sampler_kind(sampler).is_sppp:
         what = "auxiliary nuclei" if entry.needs_aux else "Poisson sample counts"
         anywhere = ", ".join(name for name, other in ESTIMATORS.items() if not other.needs_sppp)
+        sppp_samplers = " or ".join(name for name, kind in SAMPLERS.items() if kind.is_sppp)
         raise ParameterError(
-            f"estimator {entry.name!r} needs the {what} of the {SPPP_SAMPLER} sampler, and the "
-            f"{sampler!r} sampler draws none: use --sampler {SPPP_SAMPLER}, or an estimator "
+            f"estimator {entry.name!r} needs the {what} of an SPPP sampler, and the "
+            f"{sampler!r} sampler draws none: use --sampler {sppp_samplers}, or an estimator "
             f"that works with any sampler ({anywhere})"
         )
     return entry
