@@ -36,14 +36,14 @@ REFERENCE_SEED = 1000
 # (estimator, sampler) pairs of the image benches: the paper's rnd/mc, the stratified baseline,
 # then the SPPP family, the any-sampler Voronoi variants, and the image-level ones.
 RENDER_PAIRS = [
-    ("mc", "uniform"),
+    ("mc", "independent"),
     ("mc", "stratified"),
     ("mc_n", "sppp"),
     ("vor", "sppp"),
     ("vor_sn", "sppp"),
     ("fvor", "sppp"),
-    ("cvor", "uniform"),
-    ("pvor", "uniform"),
+    ("cvor", "independent"),
+    ("pvor", "independent"),
     ("ivor", "sppp"),
     ("ivor_sn", "sppp"),
 ]

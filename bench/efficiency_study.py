@@ -119,7 +119,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 def study_scene(runtime, scene: str, args) -> dict:
     ref, ref_var, ref_info = reference(runtime, scene, (args.size, args.size), args.reference_spp)
     source = make_source(runtime, scene, args.size, args.size)
-    timed_render(runtime, source, "mc", "uniform", 1, 0)  # warm-up: kernel builds
+    timed_render(runtime, source, "mc", "independent", 1, 0)  # warm-up: kernel builds
     rows = []
     for spp in args.spp:
         for estimator, sampler in RENDER_PAIRS:
@@ -279,8 +279,8 @@ def run_perf_ratio(runtime, args) -> None:
     source = make_source(runtime, "cornell-box", args.size, args.size)
     # The Voronoi estimators that need no SPPP draw (cvor, pvor) run on uniform samples.
     entry = estimator_info(estimator)
-    sampler = "uniform" if entry.cells != "none" and not entry.needs_sppp else "sppp"
-    pairs = [("mc", "uniform"), (estimator, sampler)]
+    sampler = "independent" if entry.cells != "none" and not entry.needs_sppp else "sppp"
+    pairs = [("mc", "independent"), (estimator, sampler)]
     timed_render(runtime, source, pairs[1][0], pairs[1][1], 1, 0, args.backend)  # warm-up
     runs = {pair_label(*p): [] for p in pairs}
     for _ in range(args.repeats):

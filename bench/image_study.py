@@ -85,7 +85,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def run_pairs(runtime, args, ref, ref_var) -> tuple[list[dict], dict]:
     source = make_source(runtime, args.scene, args.size, args.size)
-    timed_render(runtime, source, "mc", "uniform", 1, 0)  # warm-up: kernel builds
+    timed_render(runtime, source, "mc", "independent", 1, 0)  # warm-up: kernel builds
     rows, images = [], {}
     for estimator, sampler in RENDER_PAIRS:
         image, row = timed_render(

@@ -56,7 +56,7 @@ from clrender.sampling import make_sampler  # noqa: E402
 
 # sampler -> estimators computed on its runs; labels are "estimator/sampler".
 GROUPS = {
-    "uniform": ["mc", "cvor", "pvor"],
+    "independent": ["mc", "cvor", "pvor"],
     "stratified": ["mc"],
     "sppp": ["mc_n", "vor", "vor_sn", "fvor"],
 }
@@ -64,7 +64,7 @@ BASELINE = "mc/uniform"
 # The estimators of SPPP cells (vor, vor_sn, fvor): they reject runs with an unbounded W cell,
 # and the device kernel can compute their cells.
 REJECTING = tuple(name for name, entry in ESTIMATORS.items() if entry.cells == "sppp")
-SAMPLER_SEEDS = {"uniform": 11, "stratified": 12, "sppp": 13}
+SAMPLER_SEEDS = {"independent": 11, "stratified": 12, "sppp": 13}
 
 
 class Study:

@@ -56,7 +56,7 @@ def main(argv=None):
     runtime = create_runtime()
     units = runtime.device.max_compute_units
     pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
-    sets = generate_sample_sets(runtime, make_sampler("uniform", args.spp), 1, pixels)
+    sets = generate_sample_sets(runtime, make_sampler("independent", args.spp), 1, pixels)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for count in args.counts:

@@ -26,7 +26,7 @@ def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--res", type=int, default=256, help="image width = height (pixels)")
     parser.add_argument("--n", type=int, nargs="+", default=[64, 256, 1024, 4096])
-    parser.add_argument("--samplers", nargs="+", default=["uniform", "stratified", "sppp"])
+    parser.add_argument("--samplers", nargs="+", default=["independent", "stratified", "sppp"])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--tile-samples", type=int, default=1 << 22)
     parser.add_argument("--device", default=None)

@@ -35,7 +35,7 @@ from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
 SCENES = ("cornell-box", "cornell-box-glossy", "mitsuba-cbox")
-SAMPLERS = ("uniform", "stratified", "sppp")
+SAMPLERS = ("independent", "stratified", "sppp")
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "trace_throughput.json"
 
 

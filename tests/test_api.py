@@ -23,7 +23,7 @@ def test_readme_python_example_runs(capsys):
 
 
 def test_render_returns_the_image_as_float32_array():
-    result = clrender.render("analytic:edge", spp=4, sampler="uniform", resolution=(8, 6))
+    result = clrender.render("analytic:edge", spp=4, sampler="independent", resolution=(8, 6))
     assert result.image.shape == (6, 8, 3)
     assert result.image.dtype == np.float32
     assert result.settings.estimator.name == "mc"
@@ -49,7 +49,7 @@ def test_render_equals_the_pipeline_with_the_same_settings(runtime):
         ({"spp": 0}, "spp must be a positive integer"),
         ({"sampler": "halton"}, "unknown sampler"),
         ({"estimator": "voronoi"}, "unknown estimator"),
-        ({"sampler": "uniform", "estimator": "vor_sn"}, "needs the auxiliary nuclei"),
+        ({"sampler": "independent", "estimator": "vor_sn"}, "needs the auxiliary nuclei"),
         ({"resolution": (8, 0)}, "resolution must be"),
         ({"resolution": "big"}, "resolution must be"),
     ],
@@ -91,4 +91,4 @@ def test_a_new_estimator_is_one_registry_entry(monkeypatch):
         old = clrender.render("analytic:mix", estimator="vor_sn", **options)
         assert np.array_equal(new.image, 0.5 * old.image)
     with pytest.raises(clrender.ClrenderError, match="half_vor_sn.*auxiliary nuclei"):
-        clrender.render("analytic:mix", sampler="uniform", estimator="half_vor_sn", spp=4)
+        clrender.render("analytic:mix", sampler="independent", estimator="half_vor_sn", spp=4)

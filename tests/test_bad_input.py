@@ -33,7 +33,7 @@ translate = [0.0, 0.0, 5.5]
 material = "white"
 """
 
-FAST = ["--res", "4", "--spp", "1", "--sampler", "uniform", "--max-depth", "1"]
+FAST = ["--res", "4", "--spp", "1", "--sampler", "independent", "--max-depth", "1"]
 
 
 def run_cli(capsys, *argv):
@@ -320,7 +320,7 @@ def peak_rss_mb(tmp_path: Path, width: int, tile_samples: int) -> float:
         "--spp",
         "4",
         "--sampler",
-        "uniform",
+        "independent",
         "--tile-samples",
         str(tile_samples),
         "-o",

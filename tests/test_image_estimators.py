@@ -173,10 +173,10 @@ def test_renderer_adapter_errors(runtime):
     def no_samples(pixels):
         return SampleSets(np.zeros((0, 2)), np.zeros(pixels + 1, np.int64), 16.0)
 
-    with pytest.raises(ParameterError, match="sppp sampler"):
+    with pytest.raises(ParameterError, match="SPPP sampler"):
         estimate_tile_image(
             runtime,
-            make_sampler("uniform", 16),
+            make_sampler("independent", 16),
             0,
             4,
             4,

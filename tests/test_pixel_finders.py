@@ -22,7 +22,7 @@ def depth0_pixel_mean(runtime, scene, pixel: int, runs: int = 4, n: int = 4096) 
     """Mean RGB radiance of a pixel seen with max depth 0 (emission only), R x n samples."""
     tracer = PathTracer(runtime, scene, max_depth=0)
     traced = probes.trace_pixel_runs(
-        runtime, tracer, make_sampler("uniform", n), 3, pixel, runs, SIZE, SIZE
+        runtime, tracer, make_sampler("independent", n), 3, pixel, runs, SIZE, SIZE
     )
     return traced.radiance.mean(axis=0)
 

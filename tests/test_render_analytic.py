@@ -103,11 +103,11 @@ def test_pixel_estimates_land_on_the_right_pixels(runtime):
 @pytest.mark.parametrize(
     "estimator, sampler",
     [
-        ("mc", "uniform"),
+        ("mc", "independent"),
         ("mc", "stratified"),
         ("mc", "sppp"),
         ("vor", "sppp"),
-        ("pvor", "uniform"),
+        ("pvor", "independent"),
         ("pvor", "sppp"),
         ("ivor", "sppp"),
     ],
@@ -129,7 +129,7 @@ def check_errors(runtime):
             ("vor_sn", "sppp"),
             ("fvor", "sppp"),
             ("ivor_sn", "sppp"),
-            ("mc", "uniform"),
+            ("mc", "independent"),
             ("mc_n", "sppp"),
         ]
     }
@@ -160,7 +160,7 @@ def test_clipped_voronoi_is_biased_on_a_pixel_periodic_bowl(runtime):
     # nucleus value is taken inside: a systematic underestimate (measured -12 %, z ~ -40),
     # which the periodic estimator on the same samples does not have.
     image = AnalyticImage("bowl", (PixelBowl(),) * 3)
-    clipped = render_errors(runtime, image, "cvor", "uniform")[:, 0]
-    periodic = render_errors(runtime, image, "pvor", "uniform")[:, 0]
+    clipped = render_errors(runtime, image, "cvor", "independent")[:, 0]
+    periodic = render_errors(runtime, image, "pvor", "independent")[:, 0]
     assert clipped.mean() < -0.05 / 6 and z_scores(clipped[:, None])[0] < -10
     assert abs(z_scores(periodic[:, None])[0]) < 4

@@ -88,7 +88,7 @@ def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
     assert read_exr(out)[1]["estimator"] == estimator
 
 
-@pytest.mark.parametrize("sampler", ["uniform", "stratified"])
+@pytest.mark.parametrize("sampler", ["independent", "stratified"])
 def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
     out = tmp_path / "s.exr"
     status, _, _ = run_cli(
@@ -113,12 +113,14 @@ def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
     [
         (["--spp", "0"], "--spp must be a positive integer, got 0"),
         (["--spp", "-3"], "--spp must be a positive integer"),
-        (["--sampler", "halton"], "unknown sampler 'halton'; accepted: uniform, stratified, sppp"),
+        (["--sampler", "halton"], "unknown sampler 'halton'; accepted: independent, stratified"),
+        (["--sampler", "uniform"], "the 'uniform' sampler is now called 'independent'"),
+        (["--sampler", "zsobol", "--spp", "12"], "power of two"),
         (["--estimator", "median"], "unknown estimator 'median'; accepted: mc, mc_n, vor"),
         (
-            ["--sampler", "uniform", "--estimator", "vor"],
-            "estimator 'vor' needs the auxiliary nuclei of the sppp sampler, and the 'uniform' "
-            "sampler draws none: use --sampler sppp",
+            ["--sampler", "independent", "--estimator", "vor"],
+            "estimator 'vor' needs the auxiliary nuclei of an SPPP sampler, and the 'independent' "
+            "sampler draws none: use --sampler sppp or sppp-sobol",
         ),
         (["--sampler", "stratified", "--estimator", "fvor"], "'fvor' needs the auxiliary"),
         (["--sampler", "stratified", "--spp", "10"], "perfect square"),

@@ -81,7 +81,7 @@ def test_rejected_pixels_are_redrawn_deterministically_and_stay_accurate(runtime
 
 def test_sampler_without_auxiliary_nuclei_is_rejected_with_advice():
     with pytest.raises(ParameterError, match="'vor'.*sppp.*mc, mc_n, cvor, pvor"):
-        check_compatible("vor", "uniform")
+        check_compatible("vor", "independent")
     with pytest.raises(ParameterError, match="'ivor_sn' needs the Poisson sample counts"):
         check_compatible("ivor_sn", "stratified")
     with pytest.raises(ParameterError, match="unknown estimator 'vr'; accepted: mc, "):

@@ -23,8 +23,10 @@ from clrender.sppp import auxiliary_count, rejection_bound, sppp_eps
 P_MIN = 1e-3  # smallest accepted chi-square / KS p-value (fixed seeds: deterministic outcomes)
 
 
-def host_sets(runtime, config, seed, pixels, redraws=None):
-    return generate_sample_sets(runtime, config, seed, pixels, redraws).to_host(runtime.queue)
+def host_sets(runtime, config, seed, pixels, redraws=None, image_size=(1024, 1024)):
+    """The sets drawn for pixels of an image (its size matters to zsobol alone)."""
+    sets = generate_sample_sets(runtime, config, seed, pixels, redraws, image_size)
+    return sets.to_host(runtime.queue)
 
 
 def poisson_chi_square(counts, mean):
@@ -78,7 +80,9 @@ def test_poisson_counts_at_a_large_mean(runtime):
     assert abs(counts.mean() - n) < 4 * math.sqrt(n / len(counts))
 
 
-@pytest.mark.parametrize("sampler", ["uniform", "stratified"])
+@pytest.mark.parametrize(
+    "sampler", ["independent", "stratified", "stratified-pixel", "sobol", "zsobol"]
+)
 def test_fixed_count_samplers_draw_exactly_n(runtime, sampler):
     sets = host_sets(runtime, make_sampler(sampler, 16), 3, np.arange(500))
     assert np.all(sets.counts == 16)
@@ -87,16 +91,16 @@ def test_fixed_count_samplers_draw_exactly_n(runtime, sampler):
 
 def test_uniform_positions_equal_the_numpy_reference(runtime):
     pixels = np.array([0, 7, 1000, 65535], np.uint32)
-    sets = host_sets(runtime, make_sampler("uniform", 64), 99, pixels, np.array([0, 1, 2, 3]))
+    sets = host_sets(runtime, make_sampler("independent", 64), 99, pixels, np.array([0, 1, 2, 3]))
     pixel_of = np.repeat(pixels, 64)
     redraw_of = np.repeat([0, 1, 2, 3], 64)
     sample = np.tile(np.arange(64), 4)
     np.testing.assert_array_equal(sets.traced, rng.centered2(99, pixel_of, sample, 0, redraw_of))
 
 
-def test_stratified_positions_match_the_numpy_reference_one_per_stratum(runtime):
+def test_stratified_pixel_positions_match_the_numpy_reference_one_per_stratum(runtime):
     m = 8
-    sets = host_sets(runtime, make_sampler("stratified", m * m), 4, np.arange(50))
+    sets = host_sets(runtime, make_sampler("stratified-pixel", m * m), 4, np.arange(50))
     u = rng.uniform4(4, np.repeat(np.arange(50), m * m), np.tile(np.arange(m * m), 50), 0)
     s = np.tile(np.arange(m * m), 50)
     cell = np.column_stack([s % m, s // m]).astype(np.float32)
@@ -106,7 +110,17 @@ def test_stratified_positions_match_the_numpy_reference_one_per_stratum(runtime)
     np.testing.assert_array_equal(strata[:, 0] + m * strata[:, 1], s)
 
 
-@pytest.mark.parametrize("sampler, n", [("uniform", 64), ("sppp", 64), ("stratified", 64)])
+@pytest.mark.parametrize(
+    "sampler, n",
+    [
+        ("independent", 64),
+        ("sppp", 64),
+        ("stratified", 64),
+        ("stratified-pixel", 64),
+        ("sobol", 64),
+        ("zsobol", 64),
+    ],
+)
 def test_positions_are_uniform_in_the_pixel(runtime, sampler, n):
     sets = host_sets(runtime, make_sampler(sampler, n), 21, np.arange(2048))
     xy = sets.traced.astype(np.float64)
@@ -172,19 +186,30 @@ def test_eps_follows_alpha():
 
 
 @pytest.mark.parametrize(
-    "sampler, n", [("uniform", 9), ("stratified", 9), ("sppp", 9), ("sppp", 300)]
+    "sampler, n",
+    [
+        ("independent", 9),
+        ("stratified", 9),
+        ("stratified-pixel", 9),
+        ("sobol", 9),
+        ("zsobol", 8),
+        ("sppp", 9),
+        ("sppp", 300),
+        ("sppp-sobol", 9),
+    ],
 )
 def test_sample_sets_do_not_depend_on_the_tiling(runtime, sampler, n):
     width, height = 13, 10
     config = make_sampler(sampler, n)
-    whole = host_sets(runtime, config, 5, rectangle_pixels(width, 0, 0, width, height))
+    size = (width, height)
+    whole = host_sets(runtime, config, 5, rectangle_pixels(width, 0, 0, width, height), None, size)
     by_pixel = split_by_pixel(whole, rectangle_pixels(width, 0, 0, width, height))
     for tile_w, tile_h in [(4, 3), (1, 1), (13, 1), (6, 10)]:
         for y0 in range(0, height, tile_h):
             for x0 in range(0, width, tile_w):
                 tw, th = min(tile_w, width - x0), min(tile_h, height - y0)
                 pixels = rectangle_pixels(width, x0, y0, tw, th)
-                tile = split_by_pixel(host_sets(runtime, config, 5, pixels), pixels)
+                tile = split_by_pixel(host_sets(runtime, config, 5, pixels, None, size), pixels)
                 for pixel, (traced, aux) in tile.items():
                     np.testing.assert_array_equal(traced, by_pixel[pixel][0])
                     np.testing.assert_array_equal(aux, by_pixel[pixel][1])
@@ -211,7 +236,7 @@ def test_a_redraw_changes_only_the_redrawn_pixel(runtime):
 
 
 def test_different_seeds_give_different_sets(runtime):
-    config = make_sampler("uniform", 16)
+    config = make_sampler("independent", 16)
     a = host_sets(runtime, config, 1, np.arange(4))
     b = host_sets(runtime, config, 2, np.arange(4))
     assert not np.array_equal(a.traced, b.traced)
@@ -220,10 +245,13 @@ def test_different_seeds_give_different_sets(runtime):
 @pytest.mark.parametrize(
     "kwargs, names",
     [
-        (dict(name="sobol", n=16), ["sampler", "uniform, stratified, sppp"]),
-        (dict(name="uniform", n=0), ["n (samples per pixel)", "positive"]),
+        (dict(name="halton", n=16), ["sampler", "independent, stratified, stratified-pixel"]),
+        (dict(name="uniform", n=16), ["now called 'independent'"]),
+        (dict(name="zsobol", n=12), ["power of two", "8 or 16"]),
+        (dict(name="stratified-pixel", n=10), ["perfect square", "9 or 16"]),
+        (dict(name="independent", n=0), ["n (samples per pixel)", "positive"]),
         (dict(name="sppp", n=-4), ["n (samples per pixel)"]),
-        (dict(name="uniform", n=2.5), ["n (samples per pixel)", "integer"]),
+        (dict(name="independent", n=2.5), ["n (samples per pixel)", "integer"]),
         (dict(name="stratified", n=10), ["perfect square", "9 or 16"]),
         (dict(name="sppp", n=64, alpha=0.0), ["alpha", "(0, 1)"]),
         (dict(name="sppp", n=64, alpha=1.5), ["alpha", "(0, 1)"]),
@@ -240,7 +268,7 @@ def test_bad_sampler_parameters_name_the_parameter(kwargs, names):
 @pytest.mark.parametrize("seed", [-1, 2**32, 1.5, "7"])
 def test_bad_seed_is_rejected(runtime, seed):
     with pytest.raises(ParameterError, match="seed"):
-        generate_sample_sets(runtime, make_sampler("uniform", 4), seed, np.arange(2))
+        generate_sample_sets(runtime, make_sampler("independent", 4), seed, np.arange(2))
 
 
 def test_an_empty_pixel_list_gives_empty_sets(runtime):

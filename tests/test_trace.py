@@ -42,7 +42,7 @@ def test_white_furnace(runtime, furnace, depth):
     """Inside a closed cube of albedo a emitting Le = 1 everywhere, L = sum_{k<=D} a^k.
     Bound: 5 standard errors (depth 0 is exact)."""
     tracer = PathTracer(runtime, furnace, max_depth=depth)
-    radiance, result, _ = render(tracer, "uniform", 16, 5, 16, 16)
+    radiance, result, _ = render(tracer, "independent", 16, 5, 16, 16)
     expected = (1.0 - FURNACE_ALBEDO ** (depth + 1)) / (1.0 - FURNACE_ALBEDO)
     mean, se = mean_and_se(radiance)
     assert result.nonfinite == 0
@@ -65,7 +65,7 @@ def test_glass_is_invisible_in_the_furnace(runtime, furnace, tmp_path):
     path = tmp_path / "furnace-glass.toml"
     path.write_text(text)
     tracer = PathTracer(runtime, load_scene(path), max_depth=64)
-    radiance, result, _ = render(tracer, "uniform", 16, 6, 16, 16)
+    radiance, result, _ = render(tracer, "independent", 16, 6, 16, 16)
     mean, se = mean_and_se(radiance)
     assert np.all(np.abs(mean - 1.0 / (1.0 - FURNACE_ALBEDO)) <= 5 * se), (mean, se)
 
@@ -75,9 +75,9 @@ def test_nonfinite_radiance_is_counted_and_zeroed(runtime, furnace, tmp_path):
     path = tmp_path / "hot.toml"
     path.write_text(furnace.path.read_text().replace("emission = [1.0,", "emission = [3e38,"))
     hot = load_scene(path)
-    _, result0, _ = render(PathTracer(runtime, hot, max_depth=0), "uniform", 4, 1, 8, 8)
+    _, result0, _ = render(PathTracer(runtime, hot, max_depth=0), "independent", 4, 1, 8, 8)
     assert result0.nonfinite == 0
-    radiance, result, _ = render(PathTracer(runtime, hot, max_depth=1), "uniform", 4, 1, 8, 8)
+    radiance, result, _ = render(PathTracer(runtime, hot, max_depth=1), "independent", 4, 1, 8, 8)
     assert result.nonfinite > 0
     assert np.all(np.isfinite(radiance))
     assert np.sum(np.all(radiance == 0, axis=1)) >= result.nonfinite
@@ -116,7 +116,7 @@ def test_pixel_seeing_only_the_light_equals_its_radiance(runtime, name, depth):
             assert min(xs) < cx < max(xs) and min(ys) < cy < max(ys)
     tracer = PathTracer(runtime, scene, max_depth=depth)
     pixel = np.array([y * width + x], np.uint32)
-    radiance, _, _ = render(tracer, "uniform", 64, 9, width, height, pixel)
+    radiance, _, _ = render(tracer, "independent", 64, 9, width, height, pixel)
     expected = np.tile(scene.emitters["radiance"][0], (64, 1))
     np.testing.assert_allclose(radiance, expected, rtol=1e-5)
 
@@ -128,7 +128,7 @@ def explicit_sample_sets(runtime, positions):
     flags = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
     zero = np.zeros(1, np.uint32)
     return DeviceSampleSets(
-        make_sampler("uniform", len(positions)),
+        make_sampler("independent", len(positions)),
         zero,
         zero,
         offsets,
@@ -169,7 +169,7 @@ def test_same_seed_gives_bit_identical_radiance(cornell_tracer):
     assert not np.array_equal(first[: len(other)], other[: len(first)])
 
 
-@pytest.mark.parametrize("sampler", ["uniform", "sppp"])
+@pytest.mark.parametrize("sampler", ["independent", "sppp"])
 def test_tiling_does_not_change_per_sample_radiance(cornell_tracer, sampler):
     """The same pixels launched whole, in 4 tiles, or shuffled give bit-identical radiance."""
     width = height = 16
@@ -193,8 +193,8 @@ def test_cornell_mean_matches_a_longer_render(runtime, name):
     """Image mean at 32 x 32: 16 spp against 256 spp with another seed. Bound: 4.5 combined
     standard errors per channel (samples are independent with the uniform sampler)."""
     tracer = PathTracer(runtime, load_scene(name), max_depth=8)
-    short, result, _ = render(tracer, "uniform", 16, 101, 32, 32)
-    long, _, _ = render(tracer, "uniform", 256, 202, 32, 32)
+    short, result, _ = render(tracer, "independent", 16, 101, 32, 32)
+    long, _, _ = render(tracer, "independent", 256, 202, 32, 32)
     mean_s, se_s = mean_and_se(short)
     mean_l, se_l = mean_and_se(long)
     assert result.nonfinite == 0 and np.all(mean_l > 0.03)
@@ -206,7 +206,7 @@ def test_parameters_are_checked(runtime, furnace):
     with pytest.raises(ParameterError, match="max_depth"):
         PathTracer(runtime, furnace, max_depth=-1)
     tracer = PathTracer(runtime, furnace, max_depth=1)
-    sets = generate_sample_sets(runtime, make_sampler("uniform", 1), 1, np.array([100]))
+    sets = generate_sample_sets(runtime, make_sampler("independent", 1), 1, np.array([100]))
     with pytest.raises(ParameterError, match="outside the 8 x 8 image"):
         tracer.trace(sets, 1, 8, 8)
     assert tracer.image_size(64, None) == (64, 64)
@@ -219,8 +219,8 @@ def test_nee_and_bsdf_sampling_alone_agree(runtime, name):
     scene = load_scene(name)
     with_nee = PathTracer(runtime, scene, max_depth=3)
     without = PathTracer(runtime, scene, max_depth=3, next_event_estimation=False)
-    a, _, _ = render(with_nee, "uniform", 16, 301, 32, 32)
-    b, _, _ = render(without, "uniform", 64, 302, 32, 32)
+    a, _, _ = render(with_nee, "independent", 16, 301, 32, 32)
+    b, _, _ = render(without, "independent", 64, 302, 32, 32)
     (mean_a, se_a), (mean_b, se_b) = mean_and_se(a), mean_and_se(b)
     z = (mean_a - mean_b) / np.hypot(se_a, se_b)
     assert np.all(np.abs(z) < 4.5), (mean_a, mean_b, z)
@@ -231,9 +231,9 @@ def test_nee_and_bsdf_sampling_alone_agree(runtime, name):
 def test_russian_roulette_is_unbiased(runtime, furnace):
     """Furnace at depth 8 with Russian roulette: same answer. Bound: 5 standard errors."""
     tracer = PathTracer(runtime, furnace, max_depth=8, russian_roulette=True)
-    radiance, result, _ = render(tracer, "uniform", 16, 8, 16, 16)
+    radiance, result, _ = render(tracer, "independent", 16, 8, 16, 16)
     plain = PathTracer(runtime, furnace, max_depth=8)
-    _, plain_result, _ = render(plain, "uniform", 16, 8, 16, 16)
+    _, plain_result, _ = render(plain, "independent", 16, 8, 16, 16)
     mean, se = mean_and_se(radiance)
     expected = (1.0 - FURNACE_ALBEDO**9) / (1.0 - FURNACE_ALBEDO)
     assert np.all(np.abs(mean - expected) <= 5 * se), (mean, se)
