@@ -334,7 +334,7 @@ def trace_pixel_runs(
     pixels = np.full(runs, pixel, np.uint32)
     redraws = np.arange(first_redraw, first_redraw + runs, dtype=np.uint32)
     start = time.perf_counter()
-    device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws)
+    device_sets = generate_sample_sets(runtime, sampler, seed, pixels, redraws, (width, height))
     result = tracer.trace(device_sets, seed, width, height)
     radiance = result.to_host()
     sets = device_sets.to_host(runtime.queue)

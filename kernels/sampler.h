@@ -37,7 +37,7 @@
 #define SAMPLER_BOUNCE_DIMENSIONS 7u
 #define SAMPLER_KEY_DIMENSION 0x80000000u
 #define SAMPLER_SHIFT_DIMENSION 0x7FFFFFFFu
-// zsobol's keys belong to the whole image, not to a pixel.
+// zsobol's keys belong to the whole image, not to a pixel (pixel indices stay below this).
 #define SAMPLER_IMAGE_PIXEL 0xFFFFFFFFu
 // The largest float below 1 and below 1/2: values stay strictly inside their ranges.
 #define SAMPLER_BELOW_ONE 0x1.fffffep-1f
@@ -87,11 +87,11 @@ inline uint Sampler_Hash(uint x)
 }
 
 // Four keys of one dimension (pair): permutation or shuffle key, rotation, two Owen seeds.
+// zsobol's belong to the image (and the redraw: redraw r of every pixel is one sequence).
 inline uint4 Sampler_Keys(const Sampler *s, uint dim)
 {
-    bool image_wide = s->kind == PATHS_ZSOBOL;
-    return Rng_Bits4(s->seed, image_wide ? SAMPLER_IMAGE_PIXEL : s->pixel, RNG_PIXEL_STREAM,
-                     SAMPLER_KEY_DIMENSION + dim, image_wide ? 0u : s->redraw);
+    uint owner = s->kind == PATHS_ZSOBOL ? SAMPLER_IMAGE_PIXEL : s->pixel;
+    return Rng_Bits4(s->seed, owner, RNG_PIXEL_STREAM, SAMPLER_KEY_DIMENSION + dim, s->redraw);
 }
 
 // The sample's index into the dimension's Sobol sequence. sobol: a nested shuffle of the
