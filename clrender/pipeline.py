@@ -104,6 +104,7 @@ class RenderSettings:
         # of each pixel's set (torus cell areas are shift-invariant): turned on for it
         if self.estimator.cells == "periodic" and self.sampler.kind.low_discrepancy_positions:
             object.__setattr__(self, "sampler", replace(self.sampler, toroidal_shift=True))
+        self.sampler.path_arguments((self.width, self.height))  # zsobol: does the image fit?
         # Auxiliary nuclei shape only the SPPP cells: drawn for the estimators that use them (a
         # settings object made by dataclasses.replace from another gets them back if needed).
         wanted = auxiliary_count(self.sampler.n, self.sampler.eps) if self.sampler.eps else 0

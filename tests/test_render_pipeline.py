@@ -32,7 +32,15 @@ def settings(sampler="sppp", estimator="vor_sn", spp=16, eps=None, **options):
 
 @pytest.mark.parametrize(
     "sampler, estimator",
-    [("sppp", "vor_sn"), ("sppp", "fvor"), ("stratified", "pvor"), ("sppp", "ivor_sn")],
+    [
+        ("sppp", "vor_sn"),
+        ("sppp", "fvor"),
+        ("stratified", "pvor"),
+        ("sppp", "ivor_sn"),
+        ("sobol", "pvor"),
+        ("zsobol", "mc"),
+        ("sppp-sobol", "vor_sn"),
+    ],
 )
 def test_image_is_bit_identical_whatever_the_tiling_and_overlap(runtime, sampler, estimator):
     source = analytic_source(runtime)

@@ -12,17 +12,26 @@ import pyopencl as cl
 import pytest
 
 from clrender.errors import ParameterError
-from clrender.sampling import DeviceSampleSets, generate_sample_sets, make_sampler, rectangle_pixels
+from clrender.sampling import (
+    SAMPLERS,
+    DeviceSampleSets,
+    generate_sample_sets,
+    make_sampler,
+    rectangle_pixels,
+)
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
 FURNACE_ALBEDO = 0.5
+# Every sampler, at counts all of them take (16: a square and a power of two).
+EVERY_SAMPLER = list(SAMPLERS)
 
 
 def render(tracer, sampler, n, seed, width, height, pixels=None):
     if pixels is None:
         pixels = rectangle_pixels(width, 0, 0, width, height)
-    sets = generate_sample_sets(tracer.runtime, make_sampler(sampler, n), seed, pixels)
+    config = make_sampler(sampler, n)
+    sets = generate_sample_sets(tracer.runtime, config, seed, pixels, None, (width, height))
     result = tracer.trace(sets, seed, width, height)
     return result.to_host(), result, sets
 
@@ -30,6 +39,14 @@ def render(tracer, sampler, n, seed, width, height, pixels=None):
 def mean_and_se(values):
     values = np.asarray(values, np.float64)
     return values.mean(axis=0), values.std(axis=0) / math.sqrt(len(values))
+
+
+def pixel_means(radiance, sets):
+    """(P, 3) per-pixel mean radiance: with low-discrepancy samplers a pixel's samples are not
+    independent, its pixels are (or, for zsobol, negatively correlated), so standard errors are
+    taken over pixel means."""
+    sums = np.add.reduceat(radiance.astype(np.float64), sets.traced_offsets[:-1], axis=0)
+    return sums / np.diff(sets.traced_offsets)[:, None]
 
 
 @pytest.fixture(scope="module")
@@ -116,9 +133,10 @@ def test_pixel_seeing_only_the_light_equals_its_radiance(runtime, name, depth):
             assert min(xs) < cx < max(xs) and min(ys) < cy < max(ys)
     tracer = PathTracer(runtime, scene, max_depth=depth)
     pixel = np.array([y * width + x], np.uint32)
-    radiance, _, _ = render(tracer, "independent", 64, 9, width, height, pixel)
-    expected = np.tile(scene.emitters["radiance"][0], (64, 1))
-    np.testing.assert_allclose(radiance, expected, rtol=1e-5)
+    for sampler in EVERY_SAMPLER:
+        radiance, _, _ = render(tracer, sampler, 64, 9, width, height, pixel)
+        expected = np.tile(scene.emitters["radiance"][0], (len(radiance), 1))
+        np.testing.assert_allclose(radiance, expected, rtol=1e-5, err_msg=sampler)
 
 
 def explicit_sample_sets(runtime, positions):
@@ -169,7 +187,7 @@ def test_same_seed_gives_bit_identical_radiance(cornell_tracer):
     assert not np.array_equal(first[: len(other)], other[: len(first)])
 
 
-@pytest.mark.parametrize("sampler", ["independent", "sppp"])
+@pytest.mark.parametrize("sampler", EVERY_SAMPLER)
 def test_tiling_does_not_change_per_sample_radiance(cornell_tracer, sampler):
     """The same pixels launched whole, in 4 tiles, or shuffled give bit-identical radiance."""
     width = height = 16
@@ -209,6 +227,15 @@ def test_parameters_are_checked(runtime, furnace):
     sets = generate_sample_sets(runtime, make_sampler("independent", 1), 1, np.array([100]))
     with pytest.raises(ParameterError, match="outside the 8 x 8 image"):
         tracer.trace(sets, 1, 8, 8)
+    with pytest.raises(ParameterError, match="outside the 8 x 8 image"):
+        generate_sample_sets(runtime, make_sampler("sobol", 1), 1, np.array([100]), None, (8, 8))
+    with pytest.raises(ParameterError, match="zsobol sampler needs the image size"):
+        generate_sample_sets(runtime, make_sampler("zsobol", 4), 1, np.array([0]))
+    zsobol = generate_sample_sets(runtime, make_sampler("zsobol", 4), 1, np.arange(4), None, (8, 8))
+    with pytest.raises(ParameterError, match="cannot be traced at 16 x 16"):
+        tracer.trace(zsobol, 1, 16, 16)
+    with pytest.raises(ParameterError, match="at most 16 samples per pixel"):
+        make_sampler("zsobol", 32).path_arguments((16384, 1000))
     assert tracer.image_size(64, None) == (64, 64)
 
 
@@ -226,6 +253,33 @@ def test_nee_and_bsdf_sampling_alone_agree(runtime, name):
     assert np.all(np.abs(z) < 4.5), (mean_a, mean_b, z)
     # NEE is the better estimator for a small light: lower per-sample deviation
     assert np.all(a.std(axis=0) < b.std(axis=0))
+
+
+@pytest.mark.parametrize("sampler", EVERY_SAMPLER)
+def test_every_sampler_agrees_with_a_longer_independent_render(runtime, cornell_tracer, sampler):
+    """Image mean of the authors' Cornell box at 24 x 24: 16 spp of the sampler against 256
+    independent spp with another seed (every path dimension is drawn by the sampler: a wrong
+    dimension, stratum or scramble biases this). Bound: 4.5 combined standard errors per
+    channel, over pixel means."""
+    short, result, sets = render(cornell_tracer, sampler, 16, 111, 24, 24)
+    long, _, long_sets = render(cornell_tracer, "independent", 256, 212, 24, 24)
+    mean_s, se_s = mean_and_se(pixel_means(short, sets))
+    mean_l, se_l = mean_and_se(pixel_means(long, long_sets))
+    assert result.nonfinite == 0
+    z = (mean_s - mean_l) / np.hypot(se_s, se_l)
+    assert np.all(np.abs(z) < 4.5), (mean_s, mean_l, z)
+
+
+@pytest.mark.parametrize("sampler", EVERY_SAMPLER)
+def test_white_furnace_with_every_sampler(runtime, furnace, sampler):
+    """The furnace at depth 8, with Russian roulette (its own dimension): sum_{k<=8} a^k.
+    Bound: 5 standard errors over pixel means."""
+    tracer = PathTracer(runtime, furnace, max_depth=8, russian_roulette=True)
+    radiance, result, sets = render(tracer, sampler, 16, 5, 16, 16)
+    mean, se = mean_and_se(pixel_means(radiance, sets))
+    expected = (1.0 - FURNACE_ALBEDO**9) / (1.0 - FURNACE_ALBEDO)
+    assert result.nonfinite == 0
+    assert np.all(np.abs(mean - expected) <= 5 * se + 1e-6), (mean, se)
 
 
 def test_russian_roulette_is_unbiased(runtime, furnace):
