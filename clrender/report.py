@@ -42,6 +42,8 @@ def render_metadata(result: RenderResult, labels: RenderLabels) -> dict[str, obj
         "nonfinite_samples": stats.nonfinite_samples,
         "flagged_pixels": film.flagged_count,
     }
+    if sampler.toroidal_shift:
+        metadata["toroidal_shift"] = 1
     if sampler.is_sppp:
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
     if labels.max_depth is not None:
@@ -65,7 +67,8 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
     overlap = "on" if settings.overlap else "off"
     return [
         f"{labels.scene}: {settings.width}x{settings.height}, {sampler.n} spp, "
-        f"{sampler.name} + {settings.estimator.name}, seed {settings.seed} on {labels.device}",
+        f"{sampler.name}{' (toroidal shift)' if sampler.toroidal_shift else ''} + "
+        f"{settings.estimator.name}, seed {settings.seed} on {labels.device}",
         f"{status}: {film.rendered_count}/{film.pixel_count} pixels in "
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
         f"host Voronoi {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "

@@ -273,3 +273,15 @@ def test_auxiliary_nuclei_are_drawn_only_for_estimators_that_use_them(
     metadata = read_exr(out)[1]
     assert (metadata["sppp_aux"] > 0) == drawn
     assert metadata["sppp_eps"] > 0
+
+
+@pytest.mark.parametrize(
+    "sampler, estimator, shifted", [("sobol", "pvor", True), ("sobol", "mc", False)]
+)
+def test_toroidal_shift_is_recorded_when_applied(capsys, tmp_path, sampler, estimator, shifted):
+    out = tmp_path / "shift.exr"
+    argv = ["render", "analytic", "--res", "8", "--spp", "16", "--sampler", sampler]
+    status, summary, err = run_cli(capsys, *argv, "--estimator", estimator, "-o", str(out))
+    assert status == 0, err
+    assert ("toroidal_shift" in read_exr(out)[1]) == shifted
+    assert ("(toroidal shift)" in summary) == shifted
