@@ -101,9 +101,10 @@ class RenderSettings:
     def __post_init__(self) -> None:
         object.__setattr__(self, "estimator", check_compatible(self.estimator, self.sampler.name))
         # pvor over stratified or Sobol points is unbiased only under a random toroidal shift
-        # of each pixel's set (torus cell areas are shift-invariant): turned on for it
-        if self.estimator.cells == "periodic" and self.sampler.kind.low_discrepancy_positions:
-            object.__setattr__(self, "sampler", replace(self.sampler, toroidal_shift=True))
+        # of each pixel's set (torus cell areas are shift-invariant): on for it, off otherwise
+        shift = self.estimator.cells == "periodic" and self.sampler.kind.low_discrepancy_positions
+        if shift != self.sampler.toroidal_shift:
+            object.__setattr__(self, "sampler", replace(self.sampler, toroidal_shift=shift))
         self.sampler.path_arguments((self.width, self.height))  # zsobol: does the image fit?
         # Auxiliary nuclei shape only the SPPP cells: drawn for the estimators that use them (a
         # settings object made by dataclasses.replace from another gets them back if needed).
@@ -448,7 +449,7 @@ class PixelRedraws:
     def draw(self, ids: np.ndarray, eps: float) -> tuple[SampleSets, np.ndarray]:
         self.redraws[ids] += 1
         config = self.pipeline.settings.sampler
-        sampler = make_sampler(config.name, config.n, config.alpha, eps)
+        sampler = make_sampler(config.name, config.n, config.alpha, eps, config.toroidal_shift)
         tile = self.pipeline.trace(self.pixels[ids], self.redraws[ids], sampler)
         self.pipeline.stats.nonfinite_samples += tile.source_nonfinite + int(
             np.count_nonzero(~np.isfinite(tile.radiance).all(axis=1))

@@ -110,6 +110,8 @@ SAMPLERS: dict[str, SamplerKind] = {
 RENAMED_SAMPLERS = {"uniform": "independent"}
 # Traced sample indices share the 32-bit counter with auxiliary nuclei (see kernels/rng.h).
 MAX_SAMPLES_PER_PIXEL = 0x40000000
+# Strata of float32 jitter stay distinct well below 2^24 of them.
+MAX_STRATIFIED_SAMPLES = 1 << 20
 # zsobol's image-wide index: Morton bits of the padded resolution, then log2(n) sample bits.
 ZSOBOL_INDEX_BITS = 32
 
@@ -164,13 +166,18 @@ def zsobol_layout(n: int, width: int, height: int) -> tuple[int, int]:
     resolution_bits = max(0, (max(width, height) - 1).bit_length())
     log2_count = n.bit_length() - 1
     bits = 2 * resolution_bits + log2_count
+    if 2 * resolution_bits > ZSOBOL_INDEX_BITS:
+        raise ParameterError(
+            f"the zsobol sampler indexes pixels in {ZSOBOL_INDEX_BITS} bits: a {width} x "
+            f"{height} image is too large (largest side 65536); use the sobol sampler"
+        )
     if bits > ZSOBOL_INDEX_BITS:
         most = 1 << (ZSOBOL_INDEX_BITS - 2 * resolution_bits)
         raise ParameterError(
             f"the zsobol sampler indexes pixels x samples in {ZSOBOL_INDEX_BITS} bits: a "
             f"{width} x {height} image (padded to {1 << resolution_bits} square) takes "
             f"{2 * resolution_bits} bits, leaving at most {most} samples per pixel, got {n}; "
-            "use --sampler sobol"
+            "use the sobol sampler"
         )
     return log2_count, bits
 
@@ -211,6 +218,11 @@ def make_sampler(
         raise ParameterError(
             f"the {name} sampler needs n to be a perfect square, got {n} "
             f"(nearest: {root * root} or {(root + 1) ** 2})"
+        )
+    if kind.counts == "square" and n > MAX_STRATIFIED_SAMPLES:
+        raise ParameterError(
+            f"the {name} sampler takes at most {MAX_STRATIFIED_SAMPLES} samples per pixel (its "
+            f"strata are jittered in float32), got {n}; use the sobol sampler"
         )
     if kind.counts == "power of two" and n & (n - 1):
         below = 1 << (n.bit_length() - 1)

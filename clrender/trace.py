@@ -150,9 +150,10 @@ class PathTracer:
             )
         drawn_for = sample_sets.image_size
         if sample_sets.config.kind.paths == PATHS_ZSOBOL and drawn_for != (width, height):
+            drawn = "no image size" if drawn_for is None else f"{drawn_for[0]} x {drawn_for[1]}"
             raise ParameterError(
-                f"zsobol sample sets drawn for a {drawn_for} image cannot be traced at "
-                f"{width} x {height}: draw them with image_size=({width}, {height})"
+                f"zsobol sample sets drawn for {drawn} cannot be traced at {width} x {height}: "
+                f"draw them with image_size=({width}, {height})"
             )
         runtime = self.runtime
         queue = runtime.queue

@@ -71,10 +71,12 @@ inline uint LD_OwenScramble(uint value, uint seed)
 // Element i of a pseudo-random permutation of [0, n), chosen by key: a bijection of the smallest
 // power-of-two range holding n (xor, odd multiplies, xorshifts, all modulo that range), iterated
 // until it lands below n (cycle walking ends: the cycle through i holds i itself), then rotated
-// by `rotation` mod n. With a uniform rotation every i lands on every element with probability
-// 1/n exactly, whatever the bijection's quality.
+// by `rotation` mod n. With a uniform 32-bit rotation every i lands on every element with
+// probability 1/n (to within n 2^-32), whatever the bijection's quality. n > 0; an i >= n is
+// taken mod n first (the walk must start inside [0, n) to end).
 inline uint LD_PermutationElement(uint i, uint n, uint key, uint rotation)
 {
+    i = i < n ? i : i % n;
     uint mask = n - 1u;
     mask |= mask >> 1;
     mask |= mask >> 2;

@@ -6,7 +6,9 @@
 // so any number is a pure function of (seed, pixel, sample, dimension, redraw): the same seed
 // gives the same image whatever the tile size or launch order.
 // Reserved sample indices: traced samples use 0 .. RNG_AUX_BASE-1, auxiliary nuclei
-// RNG_AUX_BASE + j, and per-pixel draws (the Poisson count) use RNG_PIXEL_STREAM.
+// RNG_AUX_BASE + j, and per-pixel draws use RNG_PIXEL_STREAM: the Poisson count its dimensions
+// below 4096 (poisson.h), the samplers' keys dimension 0x80000000 and the toroidal shift
+// 0x7FFFFFFF (sampler.h; zsobol's image-wide keys use pixel 0xFFFFFFFF).
 // Dimension 0 of a traced sample is its position in the pixel; the integrator uses 1 and up.
 #ifndef CLRENDER_RNG_H
 #define CLRENDER_RNG_H

@@ -31,7 +31,8 @@ __kernel void count_samples(uint pixel_count, uint seed, int positions_kind, uin
     uint p = get_global_id(0);
     if (p >= pixel_count)
         return;
-    counts[p] = positions_kind == POSITIONS_SPPP ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
+    bool poisson = positions_kind == POSITIONS_SPPP;
+    counts[p] = poisson ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
 }
 
 // Jittered strata: sample s falls in stratum (s mod m, s div m) of an m x m grid.

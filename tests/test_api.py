@@ -54,6 +54,8 @@ def test_render_equals_the_pipeline_with_the_same_settings(runtime):
         ({"sampler": "zsobol", "spp": 12}, "power of two"),
         ({"sampler": "stratified", "spp": 12}, "perfect square"),
         ({"sampler": "zsobol", "spp": 2**20, "resolution": 4096}, "at most 256 samples"),
+        ({"sampler": "zsobol", "spp": 1, "resolution": (70000, 1)}, "largest side 65536"),
+        ({"sampler": "stratified", "spp": 2**22}, "at most 1048576 samples"),
         ({"resolution": (8, 0)}, "resolution must be"),
         ({"resolution": "big"}, "resolution must be"),
     ],

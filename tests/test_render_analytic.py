@@ -186,6 +186,7 @@ def test_clipped_voronoi_is_biased_on_a_pixel_periodic_bowl(runtime):
 def test_pvor_settings_shift_low_discrepancy_points_and_only_those():
     shifted = RenderSettings(8, 8, make_sampler("sobol", 16), "pvor")
     assert shifted.sampler.toroidal_shift
+    assert not replace(shifted, estimator="mc").sampler.toroidal_shift  # follows the estimator
     for sampler, estimator in [("sobol", "mc"), ("independent", "pvor"), ("sppp", "pvor")]:
         settings = RenderSettings(8, 8, make_sampler(sampler, 16), estimator)
         assert not settings.sampler.toroidal_shift, (sampler, estimator)

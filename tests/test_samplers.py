@@ -136,7 +136,7 @@ def test_owen_scrambling_is_a_nested_bijection_uniform_over_seeds(runtime):
 
 
 @pytest.mark.parametrize("sampler", ["sobol", "zsobol"])
-@pytest.mark.parametrize("m", [4, 6, 8])
+@pytest.mark.parametrize("m", [3, 4, 5, 6, 8])
 def test_scrambled_points_are_nets_in_every_dimension_pair(runtime, sampler, m):
     """(0, m, 2)-nets: the pixel pair, the emitter point and BSDF direction of bounces 0 and
     3, and the 1D dimensions one point per 1 / 2^m stratum."""

@@ -209,7 +209,7 @@ def test_tiling_does_not_change_per_sample_radiance(cornell_tracer, sampler):
 @pytest.mark.parametrize("name", ["cornell-box", "cornell-box-glossy", "mitsuba-cbox"])
 def test_cornell_mean_matches_a_longer_render(runtime, name):
     """Image mean at 32 x 32: 16 spp against 256 spp with another seed. Bound: 4.5 combined
-    standard errors per channel (samples are independent with the uniform sampler)."""
+    standard errors per channel (samples are independent with the independent sampler)."""
     tracer = PathTracer(runtime, load_scene(name), max_depth=8)
     short, result, _ = render(tracer, "independent", 16, 101, 32, 32)
     long, _, _ = render(tracer, "independent", 256, 202, 32, 32)

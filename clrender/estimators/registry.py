@@ -48,7 +48,6 @@ from clrender.errors import ParameterError
 # .image compute them): none, the SPPP cells of W + auxiliary nuclei, the W nuclei's cells
 # clipped to W, cells on the torus W, or one tessellation of the whole image plane.
 CELL_KINDS = ("none", "sppp", "clipped", "periodic", "image")
-# The sampler that draws auxiliary nuclei and Poisson counts.
 
 
 @dataclass
