@@ -60,7 +60,7 @@ GROUPS = {
     "stratified": ["mc"],
     "sppp": ["mc_n", "vor", "vor_sn", "fvor"],
 }
-BASELINE = "mc/uniform"
+BASELINE = "mc/independent"
 # The estimators of SPPP cells (vor, vor_sn, fvor): they reject runs with an unbounded W cell,
 # and the device kernel can compute their cells.
 REJECTING = tuple(name for name, entry in ESTIMATORS.items() if entry.cells == "sppp")
@@ -247,7 +247,7 @@ def study_pixel(study: Study, pixel) -> dict:
 
 
 def variance_ratios(table: dict) -> dict:
-    """{spp: {label: var(mc/uniform) / var(label)}}."""
+    """{spp: {label: var(mc/independent) / var(label)}}."""
     return {
         spp: {label: row[BASELINE]["var"] / max(s["var"], 1e-300) for label, s in row.items()}
         for spp, row in table.items()
@@ -265,7 +265,7 @@ def device_efficiency(row: dict, label: str) -> float:
 
 
 def efficiency_ratios(table: dict) -> dict:
-    """{spp: {label: (var x ms)(mc/uniform) / (var x ms)(label)}}, ms = tracing + estimator:
+    """{spp: {label: (var x ms)(mc/independent) / (var x ms)(label)}}, ms = tracing + estimator:
     above 1, the estimator reaches a given variance sooner than mc over uniform samples."""
 
     def cost(s):
@@ -343,7 +343,7 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
                 label=f"{label}, device cells",
             )
     spp, trace = series(table, BASELINE, "trace_ms")
-    ax_t.loglog(spp, trace, "k--", label="tracing (mc/uniform runs)")
+    ax_t.loglog(spp, trace, "k--", label="tracing (mc/independent runs)")
     ax_t.set(
         xlabel="spp (samples per pixel)",
         ylabel="ms per estimate",
@@ -462,7 +462,7 @@ def report(results: dict, args, argv) -> str:
             "ms per estimate, estimator only (tracing in the last column):",
             "",
             markdown_table(
-                ["spp", *labels, "trace (mc/uniform)"],
+                ["spp", *labels, "trace (mc/independent)"],
                 [
                     [
                         spp,
