@@ -26,14 +26,23 @@ inline uint Sobol_Dimension0(uint index)
     return LD_ReverseBits(index);
 }
 
-// Sobol dimension 1 (primitive polynomial x + 1): its generator matrix is Pascal's triangle mod
-// 2, column j+1 = column j xor (column j >> 1), starting from the first binary digit.
+// Sobol dimension 1 (primitive polynomial x + 1), bit-reversed: its generator matrix is Pascal's
+// triangle mod 2, so binary digit j + 1 of the value is the xor of the index bits i with
+// C(i, j) odd, that is with j's bits a subset of i's (Lucas). That superset xor is five
+// butterfly steps, one per bit of the bit position, instead of a loop over the index bits.
+inline uint Sobol_Dimension1Reversed(uint index)
+{
+    index ^= (index >> 1) & 0x55555555u;
+    index ^= (index >> 2) & 0x33333333u;
+    index ^= (index >> 4) & 0x0F0F0F0Fu;
+    index ^= (index >> 8) & 0x00FF00FFu;
+    index ^= (index >> 16) & 0x0000FFFFu;
+    return index;
+}
+
 inline uint Sobol_Dimension1(uint index)
 {
-    uint value = 0u;
-    for (uint column = 0x80000000u; index != 0u; index >>= 1, column ^= column >> 1)
-        value ^= (index & 1u) ? column : 0u;
-    return value;
+    return LD_ReverseBits(Sobol_Dimension1Reversed(index));
 }
 
 // A hash in which output bit j depends only on input bits 0..j (and the seed): an addition and
@@ -99,22 +108,17 @@ inline uint LD_Morton2(uint x, uint y)
     return v.x | (v.y << 1);
 }
 
-// Permutation `which` (0 .. 23) of the digits {0, 1, 2, 3}, applied to `digit`: `which` in the
-// factorial number system picks the image of 0 among four, of 1 among the three left, and so on.
-inline uint LD_PermuteDigit4(uint which, uint digit)
+// The 24 permutations of the digits {0, 1, 2, 3}, in lexicographic order: the image of digit d
+// under permutation p is (LD_DIGIT_PERMUTATIONS[p] >> 2d) & 3.
+__constant uchar LD_DIGIT_PERMUTATIONS[24] = {
+    0xe4, 0xb4, 0xd8, 0x78, 0x9c, 0x6c, 0xe1, 0xb1, 0xc9, 0x39, 0x8d, 0x2d,
+    0xd2, 0x72, 0xc6, 0x36, 0x4e, 0x1e, 0x93, 0x63, 0x87, 0x27, 0x4b, 0x1b};
+
+// Digit (0 .. 3) under the permutation a 32-bit hash picks (multiply-high: 24 h / 2^32).
+inline uint LD_PermuteDigit4(uint hash, uint digit)
 {
-    uint free_digits = 0x3210u; // the digits not yet taken, 4 bits each, lowest first
-    uint radix = 4u;
-    uint image = 0u;
-    for (uint d = 0u; d <= digit; ++d, --radix) {
-        uint pick = which % radix;
-        which /= radix;
-        image = (free_digits >> (4u * pick)) & 0xFu;
-        // Remove the taken digit: the digits above it move down one place
-        uint below = free_digits & ((1u << (4u * pick)) - 1u);
-        free_digits = below | ((free_digits >> (4u * pick + 4u)) << (4u * pick));
-    }
-    return image;
+    uint which = (uint)(((ulong)hash * 24u) >> 32);
+    return (LD_DIGIT_PERMUTATIONS[which] >> (2u * digit)) & 3u;
 }
 
 #endif

@@ -21,8 +21,9 @@
 // The Philox slots (independent values, the stratified sampler's jitter): dimension 0 the pixel
 // position, 1 + 2 d (emitter choice, emitter point u, v, roulette), 2 + 2 d (direction u, v,
 // lobe), as before the low-discrepancy samplers existed: the independent sampler's images are
-// unchanged. Keys of a (pixel, dimension): sample RNG_PIXEL_STREAM, dimension
-// SAMPLER_KEY_DIMENSION + dimension (Poisson draws use the low dimensions of that stream).
+// unchanged. Keys: one Philox block of (seed, pixel, redraw) at sample RNG_PIXEL_STREAM,
+// dimension SAMPLER_KEY_DIMENSION (Poisson draws use the low dimensions of that stream), hashed
+// with each dimension.
 #ifndef CLRENDER_SAMPLER_H
 #define CLRENDER_SAMPLER_H
 
@@ -50,6 +51,7 @@ typedef struct {
     uint strata;       // stratified: sqrt(n), the side of a pair's grid
     uint zsobol_index; // zsobol: the pixel's Morton code, then log2(n) bits of the sample index
     uint zsobol_bits;  // zsobol: significant bits of zsobol_index
+    uint2 key;         // Philox bits of (seed, pixel or image, redraw): the dimensions' keys
 } Sampler;
 
 // The random numbers of one bounce (see the dimension layout above).
@@ -66,7 +68,12 @@ inline Sampler Sampler_Make(int kind, uint seed, uint pixel, uint sample, uint r
                             uint count, uint strata, uint image_width, uint zsobol_log2_count,
                             uint zsobol_bits)
 {
-    Sampler s = {kind, seed, pixel, sample, redraw, count, strata, 0u, 0u};
+    Sampler s = {kind, seed, pixel, sample, redraw, count, strata, 0u, 0u, (uint2)(0u)};
+    // One Philox block per sample for the keys of all its dimensions (zsobol's: the image's)
+    if (kind != PATHS_INDEPENDENT) {
+        uint owner = kind == PATHS_ZSOBOL ? SAMPLER_IMAGE_PIXEL : pixel;
+        s.key = Rng_Bits4(seed, owner, RNG_PIXEL_STREAM, SAMPLER_KEY_DIMENSION, redraw).xy;
+    }
     if (kind == PATHS_ZSOBOL) {
         uint morton = LD_Morton2(pixel % image_width, pixel / image_width);
         s.zsobol_index = (morton << zsobol_log2_count) | sample;
@@ -86,12 +93,14 @@ inline uint Sampler_Hash(uint x)
     return x;
 }
 
-// Four keys of one dimension (pair): permutation or shuffle key, rotation, two Owen seeds.
+// Four keys of one dimension (pair): permutation or shuffle key, rotation, two Owen seeds;
+// hashes of the sample's Philox key and the dimension (cheaper than a Philox block each).
 // zsobol's belong to the image (and the redraw: redraw r of every pixel is one sequence).
 inline uint4 Sampler_Keys(const Sampler *s, uint dim)
 {
-    uint owner = s->kind == PATHS_ZSOBOL ? SAMPLER_IMAGE_PIXEL : s->pixel;
-    return Rng_Bits4(s->seed, owner, RNG_PIXEL_STREAM, SAMPLER_KEY_DIMENSION + dim, s->redraw);
+    uint h = Sampler_Hash(s->key.x ^ Sampler_Hash(dim + s->key.y));
+    return (uint4)(h, Sampler_Hash(h ^ 0x68e31da4u), Sampler_Hash(h ^ 0xb5297a4du),
+                   Sampler_Hash(h ^ 0x1b56c4e9u));
 }
 
 // The sample's index into the dimension's Sobol sequence. sobol: a nested shuffle of the
@@ -107,13 +116,14 @@ inline uint Sampler_SobolIndex(const Sampler *s, uint key)
     uint permuted = 0u;
     int shift = (int)s->zsobol_bits - 2;
     for (; shift >= 0; shift -= 2) {
+        // The digits above, tagged with their count so that levels do not share hashes
         uint higher = shift >= 30 ? 0u : index >> (uint)(shift + 2);
-        uint which = Sampler_Hash(higher ^ Sampler_Hash(key + (uint)shift)) % 24u;
-        permuted |= LD_PermuteDigit4(which, (index >> (uint)shift) & 3u) << (uint)shift;
+        uint hash = Sampler_Hash((higher ^ key) + (uint)shift * 0x9E3779B9u);
+        permuted |= LD_PermuteDigit4(hash, (index >> (uint)shift) & 3u) << (uint)shift;
     }
     // An odd bit count leaves the last binary digit, flipped by a hash of the rest
     if (shift == -1)
-        permuted |= (index ^ Sampler_Hash((index >> 1) ^ Sampler_Hash(key + 0xFFFFu))) & 1u;
+        permuted |= (index ^ Sampler_Hash(((index >> 1) ^ key) + 0xFFFFFFFFu * 0x9E3779B9u)) & 1u;
     return permuted;
 }
 
@@ -131,7 +141,7 @@ inline uint2 Sampler_Sobol2(const Sampler *s, uint dim)
     uint4 keys = Sampler_Keys(s, dim);
     uint index = Sampler_SobolIndex(s, keys.x);
     return (uint2)(LD_ReverseBits(LD_NestedHash(index, keys.z)),
-                   LD_OwenScramble(Sobol_Dimension1(index), keys.w));
+                   LD_ReverseBits(LD_NestedHash(Sobol_Dimension1Reversed(index), keys.w)));
 }
 
 // Stratum of the sample among n for a 1D dimension, jittered by u in (0, 1).

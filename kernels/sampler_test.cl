@@ -30,15 +30,16 @@ __kernel void permutation_elements(uint n, uint key, uint rotation, __global uin
     out[i] = LD_PermutationElement(i, n, key, rotation);
 }
 
-// out[i] = (Morton code, digit permuted by `which`) for x = y = i's halves, digit = i % 4.
+// out[i] = (Morton code of xy[i], digit hash_digit[i].y under the permutation hash_digit[i].x
+// picks).
 __kernel void morton_and_digits(uint count, __global const uint2 *xy,
-                                __global const uint2 *which_digit, __global uint2 *out)
+                                __global const uint2 *hash_digit, __global uint2 *out)
 {
     uint i = get_global_id(0);
     if (i >= count)
         return;
     out[i] = (uint2)(LD_Morton2(xy[i].x, xy[i].y),
-                     LD_PermuteDigit4(which_digit[i].x, which_digit[i].y));
+                     LD_PermuteDigit4(hash_digit[i].x, hash_digit[i].y));
 }
 
 // Every dimension a path of `depths` bounces would draw, for item i = (pixel, sample, redraw):
