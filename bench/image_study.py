@@ -2,7 +2,7 @@
 
     python bench/image_study.py [--quick] [--size N] [--spp 256] [--reference-spp 4096]
 
-A reference (bench/common.py: the mean of 4 stratified mc renders of reference-spp / 4 samples
+A reference (bench/common.py: the mean of 4 sobol mc renders of reference-spp / 4 samples
 each, cached as EXR under bench/results/references/ with its measured noise), then one render
 per (estimator, sampler) pair at --spp through the full pipeline (clrender.pipeline), and for
 each: whole-image errors against the reference (bench/common.image_errors: MSE = mean over
@@ -185,7 +185,7 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
         f"vor (literal E_V) = {mc['mse'] / vor['mse']:.2f}. The paper's 'vor' is what the "
         "authors' renderer computes, i.e. the self-normalised vor_sn (NOTES.md section 1).",
         f"- Reference noise: the reference ({ref_info['spp']} spp as {ref_info['parts']} "
-        f"stratified parts) has a measured variance of {noise:.2e} per pixel channel, "
+        f"{ref_info['sampler']} parts) has a measured variance of {noise:.2e} per pixel channel, "
         f"{100 * noise / sn['mse']:.1f} % of vor_sn's MSE and {100 * noise / mc['mse']:.1f} % of "
         "mc's; 'MSE - ref noise' removes it (the render and reference are independent).",
         f"- Where the error sits: the pixels brighter than display white (reference RGB mean "
@@ -195,7 +195,8 @@ def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
         f"hold {100 * mc['top_share']:.0f} % and {100 * sn['top_share']:.0f} %. So the linear "
         "MSE mostly measures the light's outline, where Voronoi weighting helps most (see "
         "bench/pixel_study.py). Clamped to [0, 1] (the display range, which removes that "
-        f"outline), mc/independent : vor_sn = {mc['mse_clamped'] / sn['mse_clamped']:.2f}: on noise-"
+        "outline), mc/independent : vor_sn = "
+        f"{mc['mse_clamped'] / sn['mse_clamped']:.2f}: on noise-"
         "dominated pixels the random cell areas add variance (a Poisson-Voronoi cell's area "
         "has a variance of about 0.28 / n^2, so sum f v has about 1.28x the variance of the "
         "plain mean when the values are uncorrelated noise). The paper does not say which "
@@ -254,7 +255,8 @@ def report(results: dict, args, argv) -> str:
             "",
             f"{args.scene}, {args.size} x {args.size}, {args.spp} spp, seed {args.seed}, max depth "
             f"8, Voronoi cells per pair in the table (device kernel or host Qhull). Reference: "
-            f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: "
+            f"mean of {ref['parts']} {ref['sampler']} mc renders, {ref['spp']} spp in all "
+            f"({origin}: "
             f"{Path(ref['path']).name}). "
             "MSE = mean over pixels and RGB channels of (render - reference)^2 in linear "
             "radiance. Machine: "
