@@ -273,6 +273,13 @@ def scene_section(scene: str, entry: dict) -> list[str]:
         ),
         "",
     ]
+    for skip in entry.get("skipped", []):
+        lines.append(
+            f"- Not rendered at {skip['spp']} spp and above: {skip['config']} (predicted "
+            f"{skip['predicted_s']:.3g} s per render from its {skip['from']}, over --max-seconds)"
+        )
+    if entry.get("skipped"):
+        lines.append("")
     if "targets" in entry:
         lines += target_lines(entry["targets"])
     lines += [f"![{scene}](efficiency_{scene}.png)", ""]

@@ -23,6 +23,10 @@ Default mode, per scene (mitsuba-cbox, cornell-box, cornell-box-glossy):
   warm-up per sampler and spp, scored against Mitsuba's own 4096-spp reference (ldsampler,
   4 parts, variance measured) so that systematic differences between the renderers do not
   count as error; the MSE between the two references is reported beside.
+- a time budget: a configuration whose render at the next spp is predicted (its median wall
+  time at the last spp x the spp ratio) to take more than --max-seconds (default 60) is not
+  rendered there or above, and the report lists it (the host-side tessellations of pvor and
+  ivor_sn at 256 x 256 take tens of seconds at 16 spp on two cores).
 MSE of a render = mean over pixels and RGB of (render - reference)^2 less the reference's mean
 variance; per point mean +- standard error over seeds, median wall time of the whole call and
 median CPU time (time.process_time: PoCL's and Dr.Jit's threads run in this process).
@@ -122,6 +126,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--configs", nargs="+", default=None, help="only these estimator/sampler labels"
     )
     parser.add_argument(
+        "--max-seconds",
+        type=float,
+        default=60.0,
+        help="a configuration whose predicted render time at the next spp exceeds this is not "
+        "rendered there (nor above); default 60",
+    )
+    parser.add_argument(
         "--peer",
         choices=("auto", "off"),
         default="auto",
@@ -211,14 +222,16 @@ def study_scene(runtime, scene: str, args, argv) -> dict:
         )
     for estimator, sampler in chosen:  # warm-up: kernel builds and first-call costs
         timed_render(runtime, source, estimator, sampler, args.spp[0], WARMUP_SEED, args.backend)
-    rows = []
+    rows: list[dict] = []
+    entry["skipped"] = []
     for spp in args.spp:
         if use_peer:
             for sampler in MITSUBA_SAMPLERS:
                 peer.render(sampler, spp, WARMUP_SEED)
+        now = within_budget(chosen, rows, spp, args.max_seconds, entry["skipped"])
         for k in range(args.seeds):
             seed = args.seed + k
-            items = [("clrender", c) for c in chosen]
+            items = [("clrender", c) for c in now]
             if use_peer:  # Mitsuba's samplers spread evenly among clrender's configurations
                 step = max(1, len(items) // len(MITSUBA_SAMPLERS))
                 for i, sampler in enumerate(MITSUBA_SAMPLERS):
@@ -233,6 +246,44 @@ def study_scene(runtime, scene: str, args, argv) -> dict:
     if use_peer:
         entry["targets"] = efficiency_report.targets(entry)
     return entry
+
+
+def within_budget(chosen, rows, spp, max_seconds, skipped) -> list[tuple[str, str]]:
+    """The configurations to render at spp: those whose predicted time (median wall at the
+    highest spp rendered so far, scaled by the spp ratio) is within max_seconds. The others
+    are recorded in skipped and, having no row at this spp, are not rendered above it either."""
+    keep = []
+    previous = max((r["spp"] for r in rows), default=None)
+    for config in chosen:
+        if previous is None:
+            keep.append(config)
+            continue
+        walls = [
+            r["call_s"]
+            for r in rows
+            if (r["estimator"], r["sampler"]) == config and r["spp"] == previous
+        ]
+        if not walls:  # skipped before
+            continue
+        wall = statistics.median(walls)
+        predicted = wall * spp / previous
+        if predicted <= max_seconds:
+            keep.append(config)
+            continue
+        skipped.append(
+            {
+                "config": pair_label(*config),
+                "spp": spp,
+                "predicted_s": predicted,
+                "from": f"median {wall:.1f} s at {previous} spp",
+            }
+        )
+        print(
+            f"skip {pair_label(*config)} at {spp} spp and above: predicted {predicted:.0f} s per "
+            f"render > --max-seconds {max_seconds:g}",
+            flush=True,
+        )
+    return keep
 
 
 def one_render(runtime, source, peer, refs, who, what, spp, seed, args) -> dict:
