@@ -1,11 +1,13 @@
 """Helpers shared by the render benches: scene sources, timed renders, cached references,
 image error metrics, machine load and report writing.
 
-References: the mean of REFERENCE_PARTS independent renders (mc over stratified samples, seeds
-REFERENCE_SEED + k, spp / REFERENCE_PARTS samples each), so that the reference's own noise is
-measured rather than assumed: the per-pixel variance of the mean is the spread of the parts
-divided by their number. Both maps are cached as EXR under bench/results/references/ and
-reused when the scene, size, spp, depth and parts match (the file name and its metadata).
+References: the mean of REFERENCE_PARTS independent renders (mc over REFERENCE_SAMPLER samples:
+padded Owen-scrambled Sobol in every path dimension, the lowest-variance sampler that takes any
+count; seeds REFERENCE_SEED + k, so the parts are independent scrambles, spp / REFERENCE_PARTS
+samples each), so that the reference's own noise is measured rather than assumed: the per-pixel
+variance of the mean is the spread of the parts divided by their number. Both maps are cached
+as EXR under bench/results/references/ and reused when the scene, size, spp, depth, sampler and
+parts match (the file name and its metadata).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ REFERENCE_DIR = RESULTS / "references"
 MAX_DEPTH = 8
 REFERENCE_PARTS = 4
 REFERENCE_SEED = 1000
+REFERENCE_SAMPLER = "sobol"
 # (estimator, sampler) pairs of the image benches: the paper's rnd/mc, the stratified baseline,
 # then the SPPP family, the any-sampler Voronoi variants, and the image-level ones.
 RENDER_PAIRS = [
@@ -99,12 +102,17 @@ def timed_render(
     seed: int,
     backend: str | None = None,
 ) -> tuple[np.ndarray, dict]:
-    """(image (H, W, 3) float64, timings and counters of the render)."""
+    """(image (H, W, 3) float64, timings and counters of the render): wall_s is the render's
+    own wall time (RenderStats), call_s the whole call to the image in hand (as a peer renderer
+    is timed), cpu_s the process's CPU time over the call (PoCL's threads run in-process)."""
     settings = render_settings(
         (source.width, source.height), estimator, sampler, spp, seed, backend
     )
     cpu = time.process_time()
+    start = time.perf_counter()
     result: RenderResult = render(runtime, source, settings)
+    image = result.film.image().astype(np.float64)
+    call = time.perf_counter() - start
     stats = result.stats
     row = {
         "estimator": estimator,
@@ -112,6 +120,7 @@ def timed_render(
         "spp": spp,
         "seed": seed,
         "wall_s": stats.wall_seconds,
+        "call_s": call,
         "device_s": stats.device_seconds,
         "host_s": stats.host_seconds,
         "cpu_s": time.process_time() - cpu,
@@ -121,7 +130,7 @@ def timed_render(
         "flagged_pixels": result.film.flagged_count,
         "cells": cell_backend(settings),
     }
-    return result.film.image().astype(np.float64), row
+    return image, row
 
 
 def cell_backend(settings: RenderSettings) -> str:
@@ -136,7 +145,9 @@ def cell_backend(settings: RenderSettings) -> str:
 
 
 def reference_path(scene: str, size: tuple[int, int], spp: int) -> Path:
-    name = f"{scene}_{size[0]}x{size[1]}_{spp}spp_d{MAX_DEPTH}_p{REFERENCE_PARTS}"
+    name = (
+        f"{scene}_{size[0]}x{size[1]}_{spp}spp_d{MAX_DEPTH}_{REFERENCE_SAMPLER}_p{REFERENCE_PARTS}"
+    )
     return REFERENCE_DIR / f"{name}.exr"
 
 
@@ -146,7 +157,13 @@ def reference(
     """(mean image, per-pixel variance of that mean, info): cached, else rendered."""
     path = reference_path(scene, size, spp)
     var_path = path.with_name(path.stem + "_var.exr")
-    want = {"scene": scene, "spp": spp, "parts": REFERENCE_PARTS, "max_depth": MAX_DEPTH}
+    want = {
+        "scene": scene,
+        "spp": spp,
+        "parts": REFERENCE_PARTS,
+        "max_depth": MAX_DEPTH,
+        "sampler": REFERENCE_SAMPLER,
+    }
     if path.exists() and var_path.exists():
         image, meta = read_exr(path)
         if all(str(meta.get(k)) == str(v) for k, v in want.items()):
@@ -158,7 +175,7 @@ def reference(
             )
     image, variance, wall = render_reference(runtime, scene, size, spp, log)
     REFERENCE_DIR.mkdir(parents=True, exist_ok=True)
-    write_exr(path, image, {**want, "wall_s": wall, "sampler": "stratified", "estimator": "mc"})
+    write_exr(path, image, {**want, "wall_s": wall, "estimator": "mc"})
     write_exr(var_path, variance, want)
     return image, variance, {**want, "path": str(path), "cached": False, "wall_s": wall}
 
@@ -166,14 +183,14 @@ def reference(
 def render_reference(
     runtime: Runtime, scene: str, size: tuple[int, int], spp: int, log=print
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Mean of REFERENCE_PARTS stratified mc renders and the variance of that mean."""
+    """Mean of REFERENCE_PARTS mc renders over REFERENCE_SAMPLER and the variance of that mean."""
     part_spp = spp // REFERENCE_PARTS
     source = make_source(runtime, scene, *size)
     start = time.perf_counter()
     parts = []
     for k in range(REFERENCE_PARTS):
         parts.append(
-            timed_render(runtime, source, "mc", "stratified", part_spp, REFERENCE_SEED + k)[0]
+            timed_render(runtime, source, "mc", REFERENCE_SAMPLER, part_spp, REFERENCE_SEED + k)[0]
         )
         log(
             f"reference {scene} {size[0]}x{size[1]}: part {k + 1}/{REFERENCE_PARTS} "

@@ -1,18 +1,48 @@
-"""Accuracy against speed: whole-image MSE against wall time for every estimator, on both
-shipped Cornell boxes, at several spp; and the Voronoi-over-mc wall-time ratio.
+"""Accuracy against speed: whole-image MSE against wall and CPU time for every sampler x
+estimator configuration on the Cornell boxes, several seeds per point, with Mitsuba 3 as an
+optional peer on its own Cornell box; and the Voronoi-over-mc wall-time ratio.
 
-    python bench/efficiency_study.py [--quick] [--size N] [--spp 16 64 256]
+    python bench/efficiency_study.py [--quick] [--scenes mitsuba-cbox ...] [--size 256]
+        [--spp 16 64 256] [--seeds 3] [--reference-spp 4096] [--peer auto|off] [--out DIR]
     python bench/efficiency_study.py --perf-ratio [--perf-estimator NAME] [--repeats 3]
 
-Default mode: for each scene (cornell-box, cornell-box-glossy) a cached reference
-(bench/common.py: 4 stratified mc parts, 4096 spp in all, noise measured), then one render per
-(estimator, sampler) pair and spp through the full pipeline, and the image MSE (mean over
-pixels and RGB channels, linear radiance) against the render's wall time. One chart per scene
-(efficiency_<scene>.png) and both side by side (efficiency.png); results.json and report.md.
-Wall times come from one render each on a shared machine: the load average is recorded.
+Optional peer: `pip install mitsuba` and `apt-get install -y libllvm19` (bench/mitsuba_peer.py;
+not a clrender dependency). Without it the report says the peer was not run.
+
+Default mode, per scene (mitsuba-cbox, cornell-box, cornell-box-glossy):
+- a cached reference (bench/common.py: mc over padded Owen-scrambled Sobol samples, 4 parts of
+  reference-spp / 4 each, independent scrambles; its per-pixel variance measured from the
+  parts);
+- CONFIGS (below) at each spp with --seeds seeds (seed, seed + 1, ...): for each (spp, seed) a
+  round over every configuration, the order rotated by the seed, after one untimed warm-up
+  render of each configuration at the first spp (kernel builds are not timed);
+- on mitsuba-cbox with Mitsuba importable (--peer auto): Mitsuba's built-in Cornell box (the
+  scene mitsuba-cbox was generated from) at the same size and spp with its samplers
+  independent, stratified, multijitter and ldsampler, max_depth 9 (= clrender's depth 8), box
+  filter, the same seeds, interleaved with clrender's renders in each round, one untimed
+  warm-up per sampler and spp, scored against Mitsuba's own 4096-spp reference (ldsampler,
+  4 parts, variance measured) so that systematic differences between the renderers do not
+  count as error; the MSE between the two references is reported beside.
+- a time budget: a configuration whose render at the next spp is predicted (its median wall
+  time at the last spp x the spp ratio) to take more than --max-seconds (default 60) is not
+  rendered there or above, and the report lists it (the host-side tessellations of pvor and
+  ivor_sn at 256 x 256 take tens of seconds at 16 spp on two cores).
+MSE of a render = mean over pixels and RGB of (render - reference)^2 less the reference's mean
+variance; per point mean +- standard error over seeds, median wall time of the whole call and
+median CPU time (time.process_time: PoCL's and Dr.Jit's threads run in this process).
+Time to MSE 1e-4 and the targets: bench/efficiency_report.py. Outputs (default
+bench/results/efficiency_study/): results.json (every render's row and the summaries; a scene
+run again replaces its entry, other scenes are kept), efficiency_<scene>.png (MSE against wall
+and CPU time, log-log, error bars), report.md.
+
+Configurations: mc over every sampler; mc_n only over the SPPP samplers, because over a
+fixed-count sampler N = n and mc_n is mc exactly (same image); vor_sn and fvor over sppp and
+sppp-sobol (they need auxiliary nuclei); pvor over stratified and sobol (the render settings add
+a random toroidal shift per pixel, which makes it unbiased there); ivor_sn over sppp-sobol and
+sppp (it needs Poisson counts).
 
 --perf-ratio: the issue's performance figure. The authors' Cornell box at 256 x 256 and 256
-spp: mc over uniform samples against the best Voronoi estimator (by default the one of vor,
+spp: mc over independent samples against the best Voronoi estimator (by default the one of vor,
 vor_sn, fvor -- the SPPP-cell estimators the device backend computes -- with the lowest MSE at
 the highest spp of a previous default-mode run on cornell-box, else vor_sn), alternated after
 a warm-up, --repeats times each; medians of wall, device and host seconds and the ratio of
@@ -32,36 +62,43 @@ from pathlib import Path
 # cores the OpenCL device renders on (before NumPy loads).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import matplotlib  # noqa: E402
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import common  # noqa: E402
+import efficiency_report  # noqa: E402
 from common import (  # noqa: E402
-    RENDER_PAIRS,
     RESULTS,
     command_line,
     default_backend,
-    has_backend_setting,
     image_errors,
     machine,
     make_source,
-    markdown_table,
     pair_label,
     reference,
     timed_render,
     write_json,
 )
+from mitsuba_peer import SAMPLERS as MITSUBA_SAMPLERS  # noqa: E402
+from mitsuba_peer import MitsubaPeer  # noqa: E402
 
 from clrender.estimators import ESTIMATORS, estimator_info  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 
-SCENES = ["cornell-box", "cornell-box-glossy"]
+SCENES = ["mitsuba-cbox", "cornell-box", "cornell-box-glossy"]
+PEER_SCENE = "mitsuba-cbox"
+FIXED_COUNT = ["independent", "stratified", "sobol", "zsobol"]
+SPPP = ["sppp", "sppp-sobol"]
+CONFIGS = (
+    [("mc", s) for s in FIXED_COUNT + SPPP]
+    + [("mc_n", s) for s in SPPP]
+    + [(e, s) for e in ("vor_sn", "fvor") for s in SPPP]
+    + [("pvor", "stratified"), ("pvor", "sobol")]
+    + [("ivor_sn", "sppp-sobol"), ("ivor_sn", "sppp")]
+)
 DEFAULT_PERF_ESTIMATOR = "vor_sn"
 # The perf-ratio candidates: the estimators of SPPP cells (W + auxiliary nuclei), the ones the
 # device cell-area backend computes (vor, vor_sn, fvor); cvor is left out as biased (the paper
 # drops it too).
 PERF_CANDIDATES = tuple(name for name, entry in ESTIMATORS.items() if entry.device_sums)
-MARKERS = "osD^vP*Xh<>"
+WARMUP_SEED = 999
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -69,24 +106,38 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="smoke run: 24 x 24, spp 4 16, reference 64 (perf: 32 x 32)",
+        help="smoke run: 24 x 24, spp 4 16, 2 seeds, reference 64 (perf: 32 x 32)",
     )
     parser.add_argument("--scenes", nargs="+", default=SCENES)
     parser.add_argument(
-        "--size",
-        type=int,
-        default=None,
-        help="width = height (default 64, 128 with the device backend; --perf-ratio: 256)",
+        "--size", type=int, default=None, help="width = height (default 256; --quick 24)"
     )
     parser.add_argument(
         "--spp",
         type=int,
         nargs="+",
         default=None,
-        help="perfect squares (stratified); default 16 64 256",
+        help="perfect squares and powers of two (stratified, zsobol); default 16 64 256",
     )
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per point (default 3)")
+    parser.add_argument("--seed", type=int, default=1, help="the first seed")
     parser.add_argument("--reference-spp", type=int, default=None, help="default 4096")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--configs", nargs="+", default=None, help="only these estimator/sampler labels"
+    )
+    parser.add_argument(
+        "--max-seconds",
+        type=float,
+        default=60.0,
+        help="a configuration whose predicted render time at the next spp exceeds this is not "
+        "rendered there (nor above); default 60",
+    )
+    parser.add_argument(
+        "--peer",
+        choices=("auto", "off"),
+        default="auto",
+        help="Mitsuba 3 on mitsuba-cbox when it imports (auto, default) or never",
+    )
     parser.add_argument(
         "--backend",
         default=default_backend(),
@@ -101,154 +152,173 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=None, help="perf-ratio repeats (3)")
     parser.add_argument("--out", type=Path, default=RESULTS / "efficiency_study")
     args = parser.parse_args(argv)
-    big = 128 if has_backend_setting() else 64
     if args.perf_ratio:
         args.size = args.size or (32 if args.quick else 256)
         args.spp = args.spp or ([16] if args.quick else [256])
         args.repeats = args.repeats or (1 if args.quick else 3)
-    args.size = args.size or (24 if args.quick else big)
+    args.size = args.size or (24 if args.quick else 256)
     args.spp = args.spp or ([4, 16] if args.quick else [16, 64, 256])
+    args.seeds = args.seeds or (2 if args.quick else 3)
     args.reference_spp = args.reference_spp or (64 if args.quick else 4096)
     return args
+
+
+def configs(args) -> list[tuple[str, str]]:
+    chosen = CONFIGS
+    if args.configs:
+        chosen = [c for c in CONFIGS if pair_label(*c) in args.configs]
+        unknown = set(args.configs) - {pair_label(*c) for c in chosen}
+        if unknown:
+            raise SystemExit(f"unknown configurations {sorted(unknown)}; known: {CONFIGS}")
+    return chosen
 
 
 # ---------------------------------------------------------------------------------------------
 # MSE against time
 
 
-def study_scene(runtime, scene: str, args) -> dict:
-    ref, ref_var, ref_info = reference(runtime, scene, (args.size, args.size), args.reference_spp)
-    source = make_source(runtime, scene, args.size, args.size)
-    timed_render(runtime, source, "mc", "independent", 1, 0)  # warm-up: kernel builds
-    rows = []
+def start_peer(scene: str, args) -> MitsubaPeer | None:
+    if scene != PEER_SCENE or args.peer == "off":
+        return None
+    peer = MitsubaPeer(args.size, args.size)
+    print(f"mitsuba peer: {peer.status()}", flush=True)
+    return peer
+
+
+def study_scene(runtime, scene: str, args, argv) -> dict:
+    before = machine()
+    size = (args.size, args.size)
+    ref, ref_var, ref_info = reference(runtime, scene, size, args.reference_spp)
+    source = make_source(runtime, scene, *size)
+    chosen = configs(args)
+    peer = start_peer(scene, args)
+    use_peer = peer is not None and peer.available
+    entry = {
+        "settings": {
+            "size": args.size,
+            "spp": args.spp,
+            "seeds": args.seeds,
+            "first_seed": args.seed,
+            "reference_spp": args.reference_spp,
+            "command": command_line("efficiency_study.py", argv),
+        },
+        "reference": ref_info,
+        "reference_noise": float(ref_var.mean()),
+        "machine_before": before,
+    }
+    if peer is not None:
+        entry["peer"] = {"status": peer.status()}
+    refs = {"clrender": (ref, ref_var)}
+    if use_peer:
+        mref, mref_var, mref_info = peer.reference(args.reference_spp, common.REFERENCE_DIR)
+        refs["mitsuba"] = (mref, mref_var)
+        between = float(((mref - ref) ** 2).mean())
+        entry["peer"].update(
+            reference=mref_info,
+            reference_noise=float(mref_var.mean()),
+            reference_mse_between_raw=between,
+            reference_mse_between=between - float(mref_var.mean()) - float(ref_var.mean()),
+            reference_means={"clrender": float(ref.mean()), "mitsuba": float(mref.mean())},
+        )
+    for estimator, sampler in chosen:  # warm-up: kernel builds and first-call costs
+        timed_render(runtime, source, estimator, sampler, args.spp[0], WARMUP_SEED, args.backend)
+    rows: list[dict] = []
+    entry["skipped"] = []
     for spp in args.spp:
-        for estimator, sampler in RENDER_PAIRS:
-            image, row = timed_render(
-                runtime, source, estimator, sampler, spp, args.seed, args.backend
-            )
-            row.update(image_errors(image, ref, ref_var))
-            rows.append(row)
-            print(
-                f"{scene} {spp:4d} spp {pair_label(estimator, sampler):18s} MSE "
-                f"{row['mse']:.5f}  wall {row['wall_s']:6.2f} s (device {row['device_s']:.2f},"
-                f" host {row['host_s']:.2f})  load {row['load_1min']:.1f}",
-                flush=True,
-            )
-    return {"reference": ref_info, "rows": rows}
+        if use_peer:
+            for sampler in MITSUBA_SAMPLERS:
+                peer.render(sampler, spp, WARMUP_SEED)
+        now = within_budget(chosen, rows, spp, args.max_seconds, entry["skipped"])
+        for k in range(args.seeds):
+            seed = args.seed + k
+            items = [("clrender", c) for c in now]
+            if use_peer:  # Mitsuba's samplers spread evenly among clrender's configurations
+                step = max(1, len(items) // len(MITSUBA_SAMPLERS))
+                for i, sampler in enumerate(MITSUBA_SAMPLERS):
+                    items.insert(min(len(items), i * (step + 1) + step), ("mitsuba", sampler))
+            shift = k % len(items)
+            for who, what in items[shift:] + items[:shift]:
+                rows.append(one_render(runtime, source, peer, refs, who, what, spp, seed, args))
+    entry["rows"] = rows
+    entry["machine_after"] = machine()
+    entry["summary"] = efficiency_report.summarise(rows)
+    entry["time_to_target"] = efficiency_report.times_to_target(entry["summary"])
+    if use_peer:
+        entry["targets"] = efficiency_report.targets(entry)
+    return entry
 
 
-def plot_scene(ax, scene: str, entry: dict) -> None:
-    for i, (estimator, sampler) in enumerate(RENDER_PAIRS):
-        pts = sorted(
-            (r["spp"], r["wall_s"], r["mse"])
-            for r in entry["rows"]
-            if (r["estimator"], r["sampler"]) == (estimator, sampler)
-        )
-        style = "--" if ESTIMATORS[estimator].cells == "none" else "-"  # mc, mc_n
-        ax.loglog(
-            [p[1] for p in pts],
-            [p[2] for p in pts],
-            style,
-            marker=MARKERS[i % 11],
-            ms=4,
-            color=f"C{i % 10}",
-            label=pair_label(estimator, sampler),
-        )
-        spp, wall, mse = pts[-1]
-        ax.annotate(f"{spp}", (wall, mse), fontsize=6, xytext=(2, 2), textcoords="offset points")
-    noise = entry["rows"][0]["ref_noise"]
-    ax.axhline(noise, color="k", lw=0.7, ls=":", label="reference noise")
-    ax.set(
-        xlabel="wall time per render (s)",
-        ylabel="image MSE (linear, mean of RGB)",
-        title=f"{scene}: error against time",
-    )
-    ax.legend(fontsize=6, ncol=2)
-
-
-def plot_all(results: dict, args) -> None:
-    scenes = results["scenes"]
-    for scene, entry in scenes.items():
-        fig, ax = plt.subplots(figsize=(7, 5))
-        plot_scene(ax, scene, entry)
-        ax.set_title(f"{scene} {args.size}x{args.size}, spp {args.spp}: MSE against wall time")
-        fig.tight_layout()
-        fig.savefig(args.out / f"efficiency_{scene}.png", dpi=100)
-        plt.close(fig)
-    fig, axes = plt.subplots(1, len(scenes), figsize=(7 * len(scenes), 5), squeeze=False)
-    for ax, (scene, entry) in zip(axes.flat, scenes.items(), strict=True):
-        plot_scene(ax, scene, entry)
-    fig.suptitle(
-        f"Image MSE against wall time, {args.size}x{args.size}, spp {args.spp} "
-        "(labels: highest spp)"
-    )
-    fig.tight_layout()
-    fig.savefig(args.out / "efficiency.png", dpi=100)
-    plt.close(fig)
-
-
-def report(results: dict, args, argv) -> str:
-    lines = [
-        "# Efficiency study: image MSE against wall time",
-        "",
-        f"Command: `{command_line('efficiency_study.py', argv)}`",
-        "",
-        f"{args.size} x {args.size}, spp {args.spp}, seed {args.seed}, max depth 8, one "
-        f"render per point; reference {args.reference_spp} spp (4 stratified parts). MSE: "
-        "mean over pixels and RGB channels of the squared linear difference. Machine: "
-        f"{results['machine']['uptime']}",
-        "",
-    ]
-    header = [
-        "spp",
-        "pair",
-        "cells",
-        "MSE",
-        "MSE - ref noise",
-        "MSE sRGB",
-        "wall s",
-        "device s",
-        "host s",
-        "load",
-    ]
-    for scene, entry in results["scenes"].items():
-        table = [
-            [
-                r["spp"],
-                pair_label(r["estimator"], r["sampler"]),
-                r["cells"],
-                r["mse"],
-                r["mse_minus_ref_noise"],
-                r["mse_srgb"],
-                r["wall_s"],
-                r["device_s"],
-                r["host_s"],
-                r["load_1min"],
-            ]
-            for r in entry["rows"]
+def within_budget(chosen, rows, spp, max_seconds, skipped) -> list[tuple[str, str]]:
+    """The configurations to render at spp: those whose predicted time (median wall at the
+    highest spp rendered so far, scaled by the spp ratio) is within max_seconds. The others
+    are recorded in skipped and, having no row at this spp, are not rendered above it either."""
+    keep = []
+    previous = max((r["spp"] for r in rows), default=None)
+    for config in chosen:
+        if previous is None:
+            keep.append(config)
+            continue
+        walls = [
+            r["call_s"]
+            for r in rows
+            if (r["estimator"], r["sampler"]) == config and r["spp"] == previous
         ]
-        lines += [
-            f"## {scene}",
-            "",
-            markdown_table(header, table),
-            "",
-            f"![{scene}](efficiency_{scene}.png)",
-            "",
-        ]
-    return "\n".join(lines)
+        if not walls:  # skipped before
+            continue
+        wall = statistics.median(walls)
+        predicted = wall * spp / previous
+        if predicted <= max_seconds:
+            keep.append(config)
+            continue
+        skipped.append(
+            {
+                "config": pair_label(*config),
+                "spp": spp,
+                "predicted_s": predicted,
+                "from": f"median {wall:.1f} s at {previous} spp",
+            }
+        )
+        print(
+            f"skip {pair_label(*config)} at {spp} spp and above: predicted {predicted:.0f} s per "
+            f"render > --max-seconds {max_seconds:g}",
+            flush=True,
+        )
+    return keep
+
+
+def one_render(runtime, source, peer, refs, who, what, spp, seed, args) -> dict:
+    """One timed render (clrender configuration or Mitsuba sampler) and its errors against its
+    renderer's reference."""
+    if who == "mitsuba":
+        image, row = peer.render(what, spp, seed)
+        label = f"mitsuba/{what}"
+    else:
+        image, row = timed_render(runtime, source, *what, spp, seed, args.backend)
+        row["renderer"] = "clrender"
+        label = pair_label(*what)
+    row.update(image_errors(image, *refs[who]))
+    print(
+        f"{spp:4d} spp seed {seed} {label:22s} MSE-noise {row['mse_minus_ref_noise']:.3e}  "
+        f"wall {row['call_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s  load {row['load_1min']:.1f}",
+        flush=True,
+    )
+    return row
 
 
 def run_study(runtime, args, argv) -> None:
+    """Every scene of --scenes; results.json keeps the entries of scenes not run again."""
+    path = args.out / "results.json"
+    results = json.loads(path.read_text()) if path.exists() else {}
+    results.setdefault("scenes", {})
     start = time.perf_counter()
-    results = {"settings": {k: str(v) for k, v in vars(args).items()}, "scenes": {}}
     for scene in args.scenes:
-        results["scenes"][scene] = study_scene(runtime, scene, args)
-    results["machine"] = machine()
-    results["seconds"] = time.perf_counter() - start
-    write_json(args.out / "results.json", results)
-    plot_all(results, args)
-    (args.out / "report.md").write_text(report(results, args, argv) + "\n")
-    print(f"done in {results['seconds']:.0f} s; wrote {args.out}/")
+        results["scenes"][scene] = study_scene(runtime, scene, args, argv)
+        write_json(path, results)  # after each scene: a long run keeps what it has
+    results["seconds_last_run"] = time.perf_counter() - start
+    write_json(path, results)
+    efficiency_report.plot_all(results, args.out)
+    (args.out / "report.md").write_text(efficiency_report.report(results) + "\n")
+    print(f"done in {results['seconds_last_run']:.0f} s; wrote {args.out}/")
 
 
 # ---------------------------------------------------------------------------------------------

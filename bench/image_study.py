@@ -2,7 +2,7 @@
 
     python bench/image_study.py [--quick] [--size N] [--spp 256] [--reference-spp 4096]
 
-A reference (bench/common.py: the mean of 4 stratified mc renders of reference-spp / 4 samples
+A reference (bench/common.py: the mean of 4 sobol mc renders of reference-spp / 4 samples
 each, cached as EXR under bench/results/references/ with its measured noise), then one render
 per (estimator, sampler) pair at --spp through the full pipeline (clrender.pipeline), and for
 each: whole-image errors against the reference (bench/common.image_errors: MSE = mean over
@@ -51,7 +51,7 @@ from clrender.imageio import srgb8, write_exr, write_png  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 
 ERROR_COLOURMAP = "inferno"
-# The error maps share one scale: this percentile of mc/uniform's error map.
+# The error maps share one scale: this percentile of mc/independent's error map.
 ERROR_SCALE_PERCENTILE = 99.0
 
 
@@ -110,7 +110,7 @@ def error_map(image: np.ndarray, ref: np.ndarray) -> np.ndarray:
 
 def save_images(images: dict, ref: np.ndarray, out: Path) -> float:
     """Per-pair render and error-map PNGs (one colour scale); returns the scale's top."""
-    vmax = float(np.percentile(error_map(images["mc/uniform"], ref), ERROR_SCALE_PERCENTILE))
+    vmax = float(np.percentile(error_map(images["mc/independent"], ref), ERROR_SCALE_PERCENTILE))
     write_png(out / "reference.png", ref)
     for label, image in images.items():
         name = label.replace("/", "_")
@@ -174,28 +174,29 @@ def plot_grids(
 
 def explanation(rows: list[dict], ref_info: dict, args) -> list[str]:
     by = {pair_label(r["estimator"], r["sampler"]): r for r in rows}
-    mc, sn, vor = by["mc/uniform"], by["vor_sn/sppp"], by["vor/sppp"]
+    mc, sn, vor = by["mc/independent"], by["vor_sn/sppp"], by["vor/sppp"]
     noise = mc["ref_noise"]
     return [
         "## Beside the paper (MSE 0.030 MC, 0.015 vor, ratio 2.0)",
         "",
-        f"- Ratio mc/uniform : vor_sn = {mc['mse'] / sn['mse']:.2f} (linear MSE), "
+        f"- Ratio mc/independent : vor_sn = {mc['mse'] / sn['mse']:.2f} (linear MSE), "
         f"{mc['mse_minus_ref_noise'] / sn['mse_minus_ref_noise']:.2f} after removing the "
-        f"reference noise, {mc['mse_srgb'] / sn['mse_srgb']:.2f} on sRGB values; mc/uniform : "
+        f"reference noise, {mc['mse_srgb'] / sn['mse_srgb']:.2f} on sRGB values; mc/independent : "
         f"vor (literal E_V) = {mc['mse'] / vor['mse']:.2f}. The paper's 'vor' is what the "
         "authors' renderer computes, i.e. the self-normalised vor_sn (NOTES.md section 1).",
         f"- Reference noise: the reference ({ref_info['spp']} spp as {ref_info['parts']} "
-        f"stratified parts) has a measured variance of {noise:.2e} per pixel channel, "
+        f"{ref_info['sampler']} parts) has a measured variance of {noise:.2e} per pixel channel, "
         f"{100 * noise / sn['mse']:.1f} % of vor_sn's MSE and {100 * noise / mc['mse']:.1f} % of "
         "mc's; 'MSE - ref noise' removes it (the render and reference are independent).",
         f"- Where the error sits: the pixels brighter than display white (reference RGB mean "
         f"> 1: the light and the pixels its outline crosses, {100 * mc['bright_fraction']:.1f} "
-        f"% of the image) hold {100 * mc['bright_share']:.0f} % of mc/uniform's squared error "
+        f"% of the image) hold {100 * mc['bright_share']:.0f} % of mc/independent's squared error "
         f"and {100 * sn['bright_share']:.0f} % of vor_sn's; the worst 0.1 % of pixel channels "
         f"hold {100 * mc['top_share']:.0f} % and {100 * sn['top_share']:.0f} %. So the linear "
         "MSE mostly measures the light's outline, where Voronoi weighting helps most (see "
         "bench/pixel_study.py). Clamped to [0, 1] (the display range, which removes that "
-        f"outline), mc/uniform : vor_sn = {mc['mse_clamped'] / sn['mse_clamped']:.2f}: on noise-"
+        "outline), mc/independent : vor_sn = "
+        f"{mc['mse_clamped'] / sn['mse_clamped']:.2f}: on noise-"
         "dominated pixels the random cell areas add variance (a Poisson-Voronoi cell's area "
         "has a variance of about 0.28 / n^2, so sum f v has about 1.28x the variance of the "
         "plain mean when the values are uncorrelated noise). The paper does not say which "
@@ -226,7 +227,7 @@ def report(results: dict, args, argv) -> str:
         "device s",
         "host s",
     ]
-    paper = {"mc/uniform": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
+    paper = {"mc/independent": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
     table = [
         [
             pair_label(r["estimator"], r["sampler"]),
@@ -254,7 +255,8 @@ def report(results: dict, args, argv) -> str:
             "",
             f"{args.scene}, {args.size} x {args.size}, {args.spp} spp, seed {args.seed}, max depth "
             f"8, Voronoi cells per pair in the table (device kernel or host Qhull). Reference: "
-            f"mean of {ref['parts']} stratified mc renders, {ref['spp']} spp in all ({origin}: "
+            f"mean of {ref['parts']} {ref['sampler']} mc renders, {ref['spp']} spp in all "
+            f"({origin}: "
             f"{Path(ref['path']).name}). "
             "MSE = mean over pixels and RGB channels of (render - reference)^2 in linear "
             "radiance. Machine: "

@@ -1,23 +1,32 @@
-"""Single-pixel study on the authors' Cornell box: the paper's Figures 6 and 9.
+"""Single-pixel study on the authors' Cornell box: the paper's Figures 6 and 9, over every
+sampler.
 
     python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--out DIR]
 
 Three pixels found from the scene's geometry (clrender.probes, never hard-coded): one the
 light's outline crosses (light covering closest to half of it), one deep inside the lit part
 of the back wall, one seeing the glass ball's centre. For each pixel and spp, R independent
-estimates of every estimator: R sample sets of that pixel drawn and traced in one launch (run r
-is redraw number r, so runs are independent), then each estimator applied to all R runs as one
-batch (estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi
-estimator rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw
-does; all SPPP estimators use the same accepted runs.
+estimates of every (estimator, sampler) of GROUPS: mc, cvor and pvor over independent samples;
+mc over stratified, stratified-pixel, sobol and zsobol; pvor over stratified and sobol points
+with a random toroidal shift per run (as the render settings do for it); mc_n, vor, vor_sn and
+fvor over sppp and sppp-sobol. A sampler is skipped at a count it does not take (stratified:
+squares; zsobol: powers of two). R sample sets of a pixel are drawn and traced in one launch:
+run r is redraw number r, an independent randomisation (zsobol's key includes it too), then
+each estimator is applied to all R runs as one batch (estimate_all: estimators sharing a
+tessellation share it). SPPP runs a Voronoi estimator rejects (an unbounded W cell) are
+replaced by further draws, as the paper's redraw does; all SPPP estimators of a sampler use the
+same accepted runs.
 
-The value of a pixel is the mean of its RGB channels. Per (pixel, estimator, spp): mean, std
-and variance over the R runs; milliseconds per estimate of the estimator alone (each estimator
-run alone on the first --timing-runs runs, the fastest of >= 3 calls / runs; tessellation +
-sums, on the host) and of tracing (the launch's draw + trace + download time / runs);
-variance against their sum. mc over stratified samples only at square spp. Outputs (default
-bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std
-against spp), fig9_<pixel>.png (time against spp, variance against time).
+The value of a pixel is the mean of its RGB channels. Per (pixel, estimator/sampler, spp):
+mean, std and variance over the R runs; milliseconds per estimate of the estimator alone (each
+estimator run alone on the first --timing-runs runs, the fastest of >= 3 calls / runs;
+tessellation + sums, on the host) and of tracing (the launch's draw + trace + download time /
+runs); variance against their sum; ratios to mc/independent. And the Voronoi question: per
+pixel and spp, each Voronoi estimator over low-discrepancy samples (VORONOI_LD) against the
+best low-discrepancy mc (LD_MC, the lowest variance at that spp): var(best) / var(estimator)
+with a 95 % bootstrap interval, the efficiency ratio, and wins / loses / tie. Outputs (default
+bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std against
+spp), fig9_<pixel>.png (time against spp, variance against time).
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import matplotlib
@@ -52,19 +62,63 @@ from clrender.probes import (  # noqa: E402
 )
 from clrender.runtime import create_runtime  # noqa: E402
 from clrender.samples import SampleSets  # noqa: E402
-from clrender.sampling import make_sampler  # noqa: E402
+from clrender.sampling import SAMPLERS, make_sampler  # noqa: E402
 
-# sampler -> estimators computed on its runs; labels are "estimator/sampler".
-GROUPS = {
-    "independent": ["mc", "cvor", "pvor"],
-    "stratified": ["mc"],
-    "sppp": ["mc_n", "vor", "vor_sn", "fvor"],
-}
-BASELINE = "mc/uniform"
+
+@dataclass(frozen=True)
+class Group:
+    """Runs of one sampler (toroidally shifted per run for pvor over low-discrepancy points, as
+    the render settings do) and the estimators applied to them; labels "estimator/sampler"."""
+
+    sampler: str
+    estimators: tuple[str, ...]
+    shift: bool = False
+    seed: int = 0
+
+    @property
+    def key(self) -> str:
+        return f"{self.sampler}+shift" if self.shift else self.sampler
+
+
+GROUPS = [
+    Group("independent", ("mc", "cvor", "pvor"), seed=11),
+    Group("stratified", ("mc",), seed=12),
+    Group("stratified", ("pvor",), shift=True, seed=14),
+    Group("stratified-pixel", ("mc",), seed=15),
+    Group("sobol", ("mc",), seed=16),
+    Group("sobol", ("pvor",), shift=True, seed=17),
+    Group("zsobol", ("mc",), seed=18),
+    Group("sppp", ("mc_n", "vor", "vor_sn", "fvor"), seed=13),
+    Group("sppp-sobol", ("mc_n", "vor", "vor_sn", "fvor"), seed=19),
+]
+BASELINE = "mc/independent"
+# The reference of a pixel: this estimator's pooled mean at the highest spp.
+REFERENCE_LABEL = "mc/sobol"
+# Low-discrepancy Monte Carlo, and Voronoi weighting over low-discrepancy samples (pvor over
+# stratified or Sobol positions; the SPPP-cell estimators over Poisson positions with Sobol
+# paths): compared per pixel and spp in voronoi_vs_ld.
+LD_MC = ("mc/stratified", "mc/sobol", "mc/zsobol")
+VORONOI_LD = (
+    "pvor/stratified",
+    "pvor/sobol",
+    "vor/sppp-sobol",
+    "vor_sn/sppp-sobol",
+    "fvor/sppp-sobol",
+)
+BOOTSTRAP = 2000
 # The estimators of SPPP cells (vor, vor_sn, fvor): they reject runs with an unbounded W cell,
 # and the device kernel can compute their cells.
 REJECTING = tuple(name for name, entry in ESTIMATORS.items() if entry.cells == "sppp")
-SAMPLER_SEEDS = {"independent": 11, "stratified": 12, "sppp": 13}
+
+
+def usable(group: Group, spp: int) -> bool:
+    """Whether the group's sampler takes spp samples per pixel."""
+    counts = SAMPLERS[group.sampler].counts
+    if counts == "square":
+        return math.isqrt(spp) ** 2 == spp
+    if counts == "power of two":
+        return spp & (spp - 1) == 0
+    return True
 
 
 class Study:
@@ -74,9 +128,9 @@ class Study:
         self.tracer = make_tracer(self.runtime, args.scene)
         self.scene = self.tracer.scene
         self.size = args.size
-        for name in GROUPS:  # warm-up: kernel builds are not timed
+        for group in GROUPS:  # warm-up: kernel builds are not timed
             trace_pixel_runs(
-                self.runtime, self.tracer, make_sampler(name, 16), 0, 0, 2, self.size, self.size
+                self.runtime, self.tracer, self.sampler(group, 16), 0, 0, 2, self.size, self.size
             )
 
     def pixels(self) -> dict:
@@ -87,12 +141,16 @@ class Study:
             "glass_ball": sphere_pixel(*s),
         }
 
-    def runs(self, sampler, spp: int, pixel: int, count: int, first: int) -> PixelRuns:
+    @staticmethod
+    def sampler(group: Group, spp: int):
+        return replace(make_sampler(group.sampler, spp), toroidal_shift=group.shift)
+
+    def runs(self, group: Group, spp: int, pixel: int, count: int, first: int) -> PixelRuns:
         return trace_pixel_runs(
             self.runtime,
             self.tracer,
-            sampler,
-            self.args.seed + SAMPLER_SEEDS[sampler.name],
+            self.sampler(group, spp),
+            self.args.seed + group.seed,
             pixel,
             count,
             self.size,
@@ -100,18 +158,18 @@ class Study:
             first,
         )
 
-    def group(self, sampler_name: str, spp: int, pixel: int) -> dict:
+    def group(self, group: Group, spp: int, pixel: int) -> dict:
         """{label: {"values": (R,), "estimator_ms", "trace_ms"}} for one sampler's group."""
-        sampler = make_sampler(sampler_name, spp)
-        names = GROUPS[sampler_name]
+        sampler = self.sampler(group, spp)
+        names = list(group.estimators)
         R = self.args.runs
-        spare = 0 if sampler_name != "sppp" else max(4, R // 20)
+        spare = max(4, R // 20) if sampler.is_sppp else 0
         values = {name: [] for name in names}
         seconds = dict.fromkeys(names, 0.0)
         device_s = dict.fromkeys(names, 0.0)
         trace_s, drawn, accepted = 0.0, 0, 0
         while accepted < R:
-            runs = self.runs(sampler, spp, pixel, R - accepted + spare, drawn)
+            runs = self.runs(group, spp, pixel, R - accepted + spare, drawn)
             trace_s += runs.trace_seconds
             drawn += runs.runs
             batch = estimate_batch(runs, sampler, names, self.args.timing_runs)
@@ -125,7 +183,7 @@ class Study:
                 device_s[name] += device.get(name, 0.0) * runs.runs
             accepted += int(keep.sum())
         return {
-            f"{name}/{sampler_name}": {
+            f"{name}/{group.sampler}": {
                 "values": np.concatenate(values[name])[:R],
                 "estimator_ms": 1e3 * seconds[name] / drawn,
                 "trace_ms": 1e3 * trace_s / drawn,
@@ -228,26 +286,28 @@ def device_summary(entry: dict) -> dict:
 
 
 def study_pixel(study: Study, pixel) -> dict:
-    """{spp: {label: summary}} over the spp list."""
-    table = {}
+    """({spp: {label: summary}}, {spp: {label: values (R,)}}) over the spp list."""
+    table, values = {}, {}
     for spp in study.args.spp:
         row = {}
-        for sampler_name in GROUPS:
-            if sampler_name == "stratified" and math.isqrt(spp) ** 2 != spp:
+        values[spp] = {}
+        for group in GROUPS:
+            if not usable(group, spp):
                 continue
-            for label, entry in study.group(sampler_name, spp, pixel.pixel).items():
+            for label, entry in study.group(group, spp, pixel.pixel).items():
                 row[label] = summarise(entry)
+                values[spp][label] = entry["values"]
         table[spp] = row
         print(
             f"  {pixel.what} spp {spp}: "
             + ", ".join(f"{k} {v['std']:.3g}" for k, v in row.items()),
             flush=True,
         )
-    return table
+    return table, values
 
 
 def variance_ratios(table: dict) -> dict:
-    """{spp: {label: var(mc/uniform) / var(label)}}."""
+    """{spp: {label: var(mc/independent) / var(label)}}."""
     return {
         spp: {label: row[BASELINE]["var"] / max(s["var"], 1e-300) for label, s in row.items()}
         for spp, row in table.items()
@@ -265,7 +325,7 @@ def device_efficiency(row: dict, label: str) -> float:
 
 
 def efficiency_ratios(table: dict) -> dict:
-    """{spp: {label: (var x ms)(mc/uniform) / (var x ms)(label)}}, ms = tracing + estimator:
+    """{spp: {label: (var x ms)(mc/independent) / (var x ms)(label)}}, ms = tracing + estimator:
     above 1, the estimator reaches a given variance sooner than mc over uniform samples."""
 
     def cost(s):
@@ -275,6 +335,46 @@ def efficiency_ratios(table: dict) -> dict:
         spp: {label: cost(row[BASELINE]) / max(cost(s), 1e-300) for label, s in row.items()}
         for spp, row in table.items()
     }
+
+
+def bootstrap_ratio(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> tuple:
+    """var(a) / var(b) and its 95 % percentile bootstrap interval (runs resampled with
+    replacement, BOOTSTRAP times, a and b independently)."""
+    ia = rng.integers(0, len(a), (BOOTSTRAP, len(a)))
+    ib = rng.integers(0, len(b), (BOOTSTRAP, len(b)))
+    ratios = a[ia].var(axis=1, ddof=1) / np.maximum(b[ib].var(axis=1, ddof=1), 1e-300)
+    lo, hi = np.percentile(ratios, [2.5, 97.5])
+    return float(a.var(ddof=1) / max(b.var(ddof=1), 1e-300)), float(lo), float(hi)
+
+
+def voronoi_vs_ld(table: dict, values: dict, seed: int = 0) -> dict:
+    """{spp: {label: {...}}} for each Voronoi estimator over low-discrepancy samples
+    (VORONOI_LD): against the best low-discrepancy mc at that spp (LD_MC, lowest variance),
+    the variance ratio var(best LD mc) / var(label) with its bootstrap interval (above 1:
+    the Voronoi estimator has the lower variance), the efficiency ratio with the per-estimate
+    time of each (tracing + estimator on the host), and a verdict: "wins" or "loses" when the
+    interval excludes 1, else "tie"."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for spp, row in table.items():
+        mcs = [label for label in LD_MC if label in row]
+        if not mcs:
+            continue
+        best = min(mcs, key=lambda label: row[label]["var"])
+        out[spp] = {}
+        for label in VORONOI_LD:
+            if label not in row:
+                continue
+            ratio, lo, hi = bootstrap_ratio(values[spp][best], values[spp][label], rng)
+            cost = row[label]["var"] * row[label]["total_ms"]
+            out[spp][label] = {
+                "best_ld_mc": best,
+                "var_ratio": ratio,
+                "ci95": [lo, hi],
+                "efficiency_ratio": row[best]["var"] * row[best]["total_ms"] / max(cost, 1e-300),
+                "verdict": "wins" if lo > 1 else ("loses" if hi < 1 else "tie"),
+            }
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -343,7 +443,7 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
                 label=f"{label}, device cells",
             )
     spp, trace = series(table, BASELINE, "trace_ms")
-    ax_t.loglog(spp, trace, "k--", label="tracing (mc/uniform runs)")
+    ax_t.loglog(spp, trace, "k--", label="tracing (mc/independent runs)")
     ax_t.set(
         xlabel="spp (samples per pixel)",
         ylabel="ms per estimate",
@@ -387,6 +487,24 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
+def vs_ld_table(vs: dict) -> str:
+    labels = list(dict.fromkeys(label for row in vs.values() for label in row))
+    rows = []
+    for spp, row in vs.items():
+        best = next(iter(row.values()))["best_ld_mc"] if row else ""
+        cells = []
+        for label in labels:
+            e = row.get(label)
+            cells.append(
+                f"{e['var_ratio']:.2f} [{e['ci95'][0]:.2f}, {e['ci95'][1]:.2f}] "
+                f"eff {e['efficiency_ratio']:.2g} {e['verdict']}"
+                if e
+                else ""
+            )
+        rows.append([spp, best, *cells])
+    return markdown_table(["spp", "best LD mc", *labels], rows)
+
+
 def report(results: dict, args, argv) -> str:
     lines = [
         "# Pixel study (paper Figures 6 and 9)",
@@ -406,7 +524,7 @@ def report(results: dict, args, argv) -> str:
             "",
             f"Found as: {entry['pixel']}",
             "",
-            f"Reference (pooled mean of mc/stratified at {entry['reference_spp']} spp): "
+            f"Reference (mean of {REFERENCE_LABEL} at {entry['reference_spp']} spp): "
             f"{entry['reference']:.4f}",
             "",
             "std over the runs:",
@@ -462,7 +580,7 @@ def report(results: dict, args, argv) -> str:
             "ms per estimate, estimator only (tracing in the last column):",
             "",
             markdown_table(
-                ["spp", *labels, "trace (mc/uniform)"],
+                ["spp", *labels, "trace (mc/independent)"],
                 [
                     [
                         spp,
@@ -472,6 +590,13 @@ def report(results: dict, args, argv) -> str:
                     for spp, row in table.items()
                 ],
             ),
+            "",
+            "Voronoi weighting over low-discrepancy samples against the best low-discrepancy mc "
+            "(lowest variance of " + ", ".join(LD_MC) + " at that spp): variance ratio "
+            "var(best LD mc) / var(estimator) [95 % bootstrap interval], efficiency ratio "
+            "(variance x ms), verdict (wins / loses: the interval excludes 1):",
+            "",
+            vs_ld_table(entry["voronoi_vs_ld"]),
             "",
             f"![fig6](fig6_{name}.png) ![fig9](fig9_{name}.png)",
             "",
@@ -498,9 +623,9 @@ def main(argv=None) -> None:
     }
     for name, pixel in study.pixels().items():
         print(f"{name}: {pixel.as_dict()}", flush=True)
-        table = study_pixel(study, pixel)
-        top = max(spp for spp in table if "mc/stratified" in table[spp])
-        ref = table[top]["mc/stratified"]["mean"]
+        table, values = study_pixel(study, pixel)
+        top = max(spp for spp in table if REFERENCE_LABEL in table[spp])
+        ref = table[top][REFERENCE_LABEL]["mean"]
         results["pixels"][name] = {
             "pixel": pixel.as_dict(),
             "table": table,
@@ -508,6 +633,7 @@ def main(argv=None) -> None:
             "reference_spp": top,
             "variance_ratio": variance_ratios(table),
             "efficiency_ratio": efficiency_ratios(table),
+            "voronoi_vs_ld": voronoi_vs_ld(table, values, args.seed),
         }
         plot_fig6(table, name, pixel, ref, args.out)
         plot_fig9(table, name, pixel, args.out)

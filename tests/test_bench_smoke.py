@@ -73,11 +73,36 @@ def test_03_efficiency_study_and_perf_ratio(tmp_path):
         ]
     )
     assert (tmp_path / "efficiency_cornell-box.png").exists()
+    results = json.loads((tmp_path / "results.json").read_text())
+    entry = results["scenes"]["cornell-box"]
+    labels = {p["label"] for p in entry["summary"]}
+    assert labels == {common.pair_label(*c) for c in efficiency_study.CONFIGS}
+    assert all(p["seeds"] == 2 for p in entry["summary"])  # --quick: 2 seeds per point
     efficiency_study.main(
         ["--perf-ratio", "--quick", "--size", "8", "--spp", "4", "--out", str(tmp_path)]
     )
     ratio = json.loads((tmp_path / "perf_ratio.json").read_text())
     assert ratio["ratio_wall"] > 0 and ratio["repeats"] == 1
+
+
+def test_03b_efficiency_study_peer(tmp_path):
+    """mitsuba-cbox with the Mitsuba peer: rendered when mitsuba imports, else the report says
+    it was not run."""
+    import efficiency_study
+
+    efficiency_study.main(
+        ["--quick", "--size", "8", "--spp", "4", "--reference-spp", "16"]
+        + ["--scenes", "mitsuba-cbox", "--configs", "mc/sobol", "vor_sn/sppp", "--out"]
+        + [str(tmp_path)]
+    )
+    entry = json.loads((tmp_path / "results.json").read_text())["scenes"]["mitsuba-cbox"]
+    report = (tmp_path / "report.md").read_text()
+    if entry["peer"]["status"]["available"]:
+        labels = {p["label"] for p in entry["summary"]}
+        assert {"mitsuba/multijitter", "mitsuba/ldsampler"} <= labels
+        assert "time_to_mse_1e-4" in entry["targets"]
+    else:
+        assert "Mitsuba peer: not run" in report
 
 
 def test_04_cells_figure(tmp_path):

@@ -1,0 +1,354 @@
+"""Summaries, charts and report of the efficiency study (bench/efficiency_study.py writes the
+renders; this module only reads its rows).
+
+Per (configuration, spp): MSE as mean +- standard error over the seeds (the MSE of a render is
+the mean over pixels and RGB channels of the squared error against its renderer's reference,
+less that reference's own measured variance), median wall time of the call and median CPU time.
+Time to a target MSE: the (median wall, mean MSE) points of a configuration joined on log-log
+axes; where two consecutive spp bracket the target, the crossing of that segment
+(interpolated); else the line through the two points nearest it, extended (extrapolated, said
+so).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from common import markdown_table  # noqa: E402
+
+TARGET_MSE = 1e-4
+# The issue's table (an earlier run, quoted for comparison, never used as a result of this one):
+# mitsuba-cbox 256 x 256, MSE against a 4096-spp reference less its variance, box filter.
+ISSUE_TABLE = {
+    "mitsuba/multijitter": {64: 1.04e-4, 256: 2.02e-5},
+    "mitsuba/ldsampler": {64: 1.07e-4, 256: 2.49e-5},
+    "mc/independent (as mc/uniform)": {64: 5.70e-4, 256: 1.37e-4},
+    "vor_sn/sppp": {64: 4.11e-4, 256: 8.09e-5},
+}
+MARKERS = "osD^vP*Xh<>"
+
+
+def label_of(row: dict) -> str:
+    return f"{row['estimator']}/{row['sampler']}"
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """One point per (label, spp), in the order the rows first name them."""
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for row in rows:
+        groups.setdefault((label_of(row), row["spp"]), []).append(row)
+    points = []
+    for (label, spp), rs in groups.items():
+        mse = [r["mse_minus_ref_noise"] for r in rs]
+        k = len(mse)
+        se = statistics.stdev(mse) / math.sqrt(k) if k > 1 else float("nan")
+        points.append(
+            {
+                "label": label,
+                "renderer": rs[0].get("renderer", "clrender"),
+                "spp": spp,
+                "seeds": k,
+                "mse": statistics.fmean(mse),
+                "mse_se": se,
+                "mse_raw": statistics.fmean(r["mse"] for r in rs),
+                "wall_s": statistics.median(r["call_s"] for r in rs),
+                "cpu_s": statistics.median(r["cpu_s"] for r in rs),
+                "unresolved_pixels": sum(r.get("unresolved_pixels", 0) for r in rs),
+            }
+        )
+    return points
+
+
+def series(points: list[dict], label: str) -> list[dict]:
+    return sorted((p for p in points if p["label"] == label), key=lambda p: p["spp"])
+
+
+def labels(points: list[dict], renderer: str | None = None) -> list[str]:
+    return list(dict.fromkeys(p["label"] for p in points if renderer in (None, p["renderer"])))
+
+
+def time_to_mse(pts: list[dict], target: float = TARGET_MSE, key: str = "wall_s") -> dict:
+    """{"seconds", "how"}: log-log interpolation of (time, MSE) at the target (see module)."""
+    pts = [p for p in pts if p["mse"] > 0 and p[key] > 0]
+    if len(pts) < 2:
+        return {"seconds": None, "how": "fewer than two points"}
+    pairs = list(zip(pts, pts[1:], strict=False))
+    bracket = [(a, b) for a, b in pairs if (a["mse"] - target) * (b["mse"] - target) <= 0]
+    if bracket:
+        a, b = bracket[0]
+        how = f"interpolated {a['spp']}-{b['spp']} spp"
+    else:
+        a, b = pairs[-1] if pts[-1]["mse"] > target else pairs[0]
+        how = f"extrapolated from {a['spp']}-{b['spp']} spp"
+    la, lb = math.log(a["mse"]), math.log(b["mse"])
+    if la == lb:
+        return {"seconds": None, "how": "flat"}
+    f = (math.log(target) - la) / (lb - la)
+    seconds = math.exp(math.log(a[key]) + f * (math.log(b[key]) - math.log(a[key])))
+    return {"seconds": seconds, "how": how}
+
+
+def times_to_target(points: list[dict]) -> dict:
+    return {
+        label: {
+            "wall": time_to_mse(series(points, label), key="wall_s"),
+            "cpu": time_to_mse(series(points, label), key="cpu_s"),
+        }
+        for label in labels(points)
+    }
+
+
+def best(points: list[dict], spp: int, renderer: str) -> dict | None:
+    cands = [p for p in points if p["spp"] == spp and p["renderer"] == renderer]
+    return min(cands, key=lambda p: p["mse"]) if cands else None
+
+
+def fastest(ttt: dict, points: list[dict], renderer: str, clock: str = "wall") -> tuple:
+    """(label, entry) with the least time to the target MSE among a renderer's labels."""
+    cands = [
+        (label, t[clock])
+        for label, t in ttt.items()
+        if t[clock]["seconds"] and label in labels(points, renderer)
+    ]
+    return min(cands, key=lambda c: c[1]["seconds"]) if cands else (None, None)
+
+
+def targets(entry: dict) -> dict:
+    """The issue's targets on mitsuba-cbox, from this run's points."""
+    points, ttt = entry["summary"], entry["time_to_target"]
+    out = {}
+    for spp in (64, 256):
+        ours = best(points, spp, "clrender")
+        theirs = [p for p in points if p["label"] == "mitsuba/multijitter" and p["spp"] == spp]
+        if ours is None:
+            continue
+        row = {"best_clrender": ours["label"], "mse": ours["mse"], "mse_se": ours["mse_se"]}
+        if theirs:
+            row["mitsuba_multijitter"] = theirs[0]["mse"]
+            row["mitsuba_multijitter_se"] = theirs[0]["mse_se"]
+            row["met_vs_this_run"] = ours["mse"] <= theirs[0]["mse"]
+        issue = ISSUE_TABLE["mitsuba/multijitter"].get(spp)
+        row["issue_table_multijitter"] = issue
+        row["met_vs_issue_table"] = ours["mse"] <= issue
+        out[f"mse_{spp}spp"] = row
+    ours_label, ours_t = fastest(ttt, points, "clrender")
+    theirs_label, theirs_t = fastest(ttt, points, "mitsuba")
+    out["time_to_mse_1e-4"] = {
+        "clrender": ours_label,
+        "clrender_s": ours_t and ours_t["seconds"],
+        "clrender_how": ours_t and ours_t["how"],
+        "mitsuba": theirs_label,
+        "mitsuba_s": theirs_t and theirs_t["seconds"],
+        "mitsuba_how": theirs_t and theirs_t["how"],
+        "met": bool(ours_t and theirs_t and ours_t["seconds"] < theirs_t["seconds"]),
+    }
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Charts
+
+
+def plot_scene(axes, scene: str, entry: dict) -> None:
+    points = entry["summary"]
+    names = labels(points)
+    cmap = plt.get_cmap("tab20")
+    for ax, key, what in zip(axes, ("wall_s", "cpu_s"), ("wall", "CPU"), strict=True):
+        for i, label in enumerate(names):
+            pts = series(points, label)
+            mitsuba = pts[0]["renderer"] == "mitsuba"
+            y = [p["mse"] for p in pts]
+            se = [0.0 if math.isnan(p["mse_se"]) else p["mse_se"] for p in pts]
+            lower = [min(s, 0.999 * v) if v > 0 else 0 for s, v in zip(se, y, strict=True)]
+            ax.errorbar(
+                [p[key] for p in pts],
+                y,
+                yerr=[lower, se],
+                ls=":" if mitsuba else ("--" if label.startswith("mc") else "-"),
+                marker=MARKERS[i % len(MARKERS)],
+                ms=4,
+                lw=1.6 if mitsuba else 1.0,
+                capsize=2,
+                color=cmap(i % 20),
+                label=label,
+            )
+        ax.axhline(TARGET_MSE, color="0.5", lw=0.6, ls="-.")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set(
+            xlabel=f"{what} seconds per render (median over seeds)",
+            ylabel="MSE - reference variance (mean +- SE over seeds)",
+            title=f"{scene} {entry['settings']['size']}^2: MSE against {what} time",
+        )
+    axes[0].legend(fontsize=6, ncol=2)
+
+
+def plot_all(results: dict, out: Path) -> None:
+    for scene, entry in results["scenes"].items():
+        fig, axes = plt.subplots(1, 2, figsize=(14, 6))
+        plot_scene(axes, scene, entry)
+        fig.suptitle(
+            f"{scene}: spp {entry['settings']['spp']}, {entry['settings']['seeds']} seeds per "
+            "point (labels estimator/sampler; mitsuba/<sampler>: Mitsuba 3 against its own "
+            "reference)",
+            fontsize=9,
+        )
+        fig.tight_layout()
+        fig.savefig(out / f"efficiency_{scene}.png", dpi=100)
+        plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------
+# Report
+
+
+def fmt(v, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    return f"{v:.{digits}g}"
+
+
+def scene_table(entry: dict) -> str:
+    points = entry["summary"]
+    spps = sorted({p["spp"] for p in points})
+    header = ["config"]
+    for spp in spps:
+        header += [f"MSE {spp}", f"wall s {spp}", f"CPU s {spp}"]
+    header += ["t(1e-4) wall s", "how"]
+    rows = []
+    for label in labels(points):
+        by = {p["spp"]: p for p in series(points, label)}
+        row = [label]
+        for spp in spps:
+            p = by.get(spp)
+            row += (
+                [f"{fmt(p['mse'])} +- {fmt(p['mse_se'], 2)}", fmt(p["wall_s"]), fmt(p["cpu_s"])]
+                if p
+                else ["", "", ""]
+            )
+        t = entry["time_to_target"][label]["wall"]
+        row += [fmt(t["seconds"]), t["how"]]
+        rows.append(row)
+    return markdown_table(header, rows)
+
+
+def scene_section(scene: str, entry: dict) -> list[str]:
+    s, ref = entry["settings"], entry["reference"]
+    lines = [
+        f"## {scene}",
+        "",
+        f"Command: `{s['command']}`",
+        "",
+        f"{s['size']} x {s['size']}, spp {s['spp']}, seeds {s['seeds']} per point, clrender "
+        f"max depth 8. Reference: {ref['parts']} parts of mc/{ref['sampler']}, {ref['spp']} spp "
+        f"in all, measured variance {fmt(entry['reference_noise'])} per pixel channel "
+        "(subtracted from every MSE). Load average before/after: "
+        f"{entry['machine_before']['load_1_5_15'][0]:.2f} / "
+        f"{entry['machine_after']['load_1_5_15'][0]:.2f}.",
+        "",
+    ]
+    peer = entry.get("peer")
+    if peer is not None:
+        lines += peer_lines(peer)
+    lines += [
+        "MSE (mean +- standard error over seeds), median wall (whole call) and CPU seconds per "
+        "render; t(1e-4): time to MSE 1e-4 on log-log axes (efficiency_report.time_to_mse):",
+        "",
+        scene_table(entry),
+        "",
+    ]
+    ours = {spp: best(entry["summary"], spp, "clrender") for spp in s["spp"]}
+    lines += [
+        "Best clrender configuration per spp: "
+        + ", ".join(
+            f"{spp}: {p['label']} {fmt(p['mse'])} +- {fmt(p['mse_se'], 2)}"
+            for spp, p in ours.items()
+            if p
+        ),
+        "",
+    ]
+    for skip in entry.get("skipped", []):
+        lines.append(
+            f"- Not rendered at {skip['spp']} spp and above: {skip['config']} (predicted "
+            f"{skip['predicted_s']:.3g} s per render from its {skip['from']}, over --max-seconds)"
+        )
+    if entry.get("skipped"):
+        lines.append("")
+    if "targets" in entry:
+        lines += target_lines(entry["targets"])
+    lines += [f"![{scene}](efficiency_{scene}.png)", ""]
+    return lines
+
+
+def peer_lines(peer: dict) -> list[str]:
+    status = peer["status"]
+    if not status["available"]:
+        return [f"**Mitsuba peer: not run** -- {status['why']}.", ""]
+    lines = [
+        f"Mitsuba peer: Mitsuba {status['version']}, variant {status['variant']} "
+        f"(libLLVM: {status.get('libllvm')}), max_depth {status['max_depth']}, box filter, "
+        "alternated with clrender's renders, one untimed warm-up render per sampler and spp. "
+        f"Its reference: {peer['reference']['parts']} parts of {peer['reference']['sampler']}, "
+        f"{peer['reference']['spp']} spp in all, measured variance "
+        f"{fmt(peer['reference_noise'])}. MSE between the two renderers' references "
+        f"(less both variances): {fmt(peer['reference_mse_between'])} "
+        f"(raw {fmt(peer['reference_mse_between_raw'])}).",
+        "",
+    ]
+    if not status["comparable_timings"]:
+        lines += [
+            "**Mitsuba ran on its scalar variant (no LLVM): its timings are not comparable.**",
+            "",
+        ]
+    return lines
+
+
+def target_lines(t: dict) -> list[str]:
+    lines = ["Targets (issue 11):", ""]
+    for spp in (64, 256):
+        row = t.get(f"mse_{spp}spp")
+        if not row:
+            continue
+        lines.append(
+            f"- MSE at {spp} spp: best clrender {row['best_clrender']} {fmt(row['mse'])} +- "
+            f"{fmt(row['mse_se'], 2)}; Mitsuba multijitter in this run "
+            f"{fmt(row.get('mitsuba_multijitter'))} +- {fmt(row.get('mitsuba_multijitter_se'), 2)}"
+            f" -> {'met' if row.get('met_vs_this_run') else 'NOT met'}; issue table "
+            f"{fmt(row['issue_table_multijitter'])} -> "
+            f"{'met' if row['met_vs_issue_table'] else 'NOT met'}."
+        )
+    tt = t["time_to_mse_1e-4"]
+    lines += [
+        f"- Time to MSE 1e-4 (wall): clrender's fastest {tt['clrender']} {fmt(tt['clrender_s'])}"
+        f" s ({tt['clrender_how']}); Mitsuba's fastest {tt['mitsuba']} {fmt(tt['mitsuba_s'])} s "
+        f"({tt['mitsuba_how']}) -> {'met' if tt['met'] else 'NOT met'}.",
+        "",
+    ]
+    return lines
+
+
+def report(results: dict) -> str:
+    lines = [
+        "# Efficiency study: image MSE against time",
+        "",
+        "Every render is scored against its own renderer's reference (mean of parts, variance "
+        "measured from their spread), as MSE - reference variance: an unbiased estimate of the "
+        "error against the true image. Wall time: the whole render call to the image in hand; "
+        "CPU time: the process's (OpenCL's PoCL threads and Dr.Jit's run in-process).",
+        "",
+        "Issue table (an earlier run, for comparison only): "
+        + "; ".join(
+            f"{k} {', '.join(f'{s} spp {fmt(v)}' for s, v in d.items())}"
+            for k, d in ISSUE_TABLE.items()
+        ),
+        "",
+    ]
+    for scene, entry in results["scenes"].items():
+        lines += scene_section(scene, entry)
+    return "\n".join(lines)
