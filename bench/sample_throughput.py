@@ -19,14 +19,14 @@ import time
 from pathlib import Path
 
 from clrender.runtime import create_runtime
-from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
+from clrender.sampling import SAMPLERS, generate_sample_sets, make_sampler, rectangle_pixels
 
 
 def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--res", type=int, default=256, help="image width = height (pixels)")
     parser.add_argument("--n", type=int, nargs="+", default=[64, 256, 1024, 4096])
-    parser.add_argument("--samplers", nargs="+", default=["independent", "stratified", "sppp"])
+    parser.add_argument("--samplers", nargs="+", default=list(SAMPLERS))
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--tile-samples", type=int, default=1 << 22)
     parser.add_argument("--device", default=None)
@@ -43,7 +43,7 @@ def draw_image(runtime, config, res: int, rows: int, seed: int) -> tuple[int, in
     traced = aux = 0
     for y0 in range(0, res, rows):
         pixels = rectangle_pixels(res, 0, y0, res, min(rows, res - y0))
-        sets = generate_sample_sets(runtime, config, seed, pixels)
+        sets = generate_sample_sets(runtime, config, seed, pixels, None, (res, res))
         runtime.queue.finish()
         traced += sets.traced_total
         aux += sets.aux_total
@@ -87,8 +87,7 @@ def main() -> None:
     runtime = create_runtime(args.device)
     results = []
     for sampler in args.samplers:
-        side = 2 if sampler == "stratified" else 1
-        draw_image(runtime, make_sampler(sampler, 4 * side * side), 16, 16, seed=0)  # warm-up
+        draw_image(runtime, make_sampler(sampler, 16), 16, 16, seed=0)  # warm-up (16: any sampler)
         for n in args.n:
             row = measure(runtime, sampler, n, args)
             results.append(row)

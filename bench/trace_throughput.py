@@ -1,8 +1,8 @@
 """Tracing throughput: paths/s and rays/s on the shipped Cornell boxes.
 
     python bench/trace_throughput.py                       # 256 x 256, 64 spp, depth 8
-    python bench/trace_throughput.py --scenes mitsuba-cbox --samplers uniform --repeats 5
-    python bench/trace_throughput.py --profile --samplers uniform --spp 16   # where time goes
+    python bench/trace_throughput.py --scenes mitsuba-cbox --samplers independent --repeats 5
+    python bench/trace_throughput.py --profile --samplers independent --spp 16   # where time goes
 
 For every scene and sampler: draw the sample sets once, trace once to warm up (PoCL compiles
 a work-group function on the first launch), then time `repeats` traces and report medians.
@@ -35,7 +35,7 @@ from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
 SCENES = ("cornell-box", "cornell-box-glossy", "mitsuba-cbox")
-SAMPLERS = ("independent", "stratified", "sppp")
+SAMPLERS = ("independent", "stratified", "sobol", "zsobol", "sppp", "sppp-sobol")
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "trace_throughput.json"
 
 
@@ -86,7 +86,9 @@ def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defi
         profile_defines=defines,
     )
     pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
-    sets = generate_sample_sets(runtime, make_sampler(sampler, args.spp), args.seed, pixels)
+    size = (args.size, args.size)
+    config = make_sampler(sampler, args.spp)
+    sets = generate_sample_sets(runtime, config, args.seed, pixels, None, size)
     runs = time_traces(tracer, sets, args.seed, args.size, args.repeats)
     wall = statistics.median(r[0] for r in runs)
     cpu = statistics.median(r[1] for r in runs)
