@@ -420,17 +420,24 @@ def plot_fig6(table: dict, name: str, pixel, reference: float, out: Path) -> Non
 
 
 def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
-    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(15, 5.5))
+    cmap = plt.get_cmap("tab20")
     for i, label in enumerate(labels_of(table)):
         spp, ms = series(table, label, "estimator_ms")
-        ax_t.loglog(spp, ms, marker="o", ms=3, color=f"C{i}", label=label)
+        ax_t.loglog(spp, ms, marker="o", ms=3, color=cmap(i % 20), label=label)
         _, total = series(table, label, "total_ms")
         _, var = series(table, label, "var")
-        ax_v.loglog(total, var, marker="o", ms=3, color=f"C{i}", label=label)
+        ax_v.loglog(total, var, marker="o", ms=3, color=cmap(i % 20), label=label)
         if label.split("/")[0] in REJECTING:
             _, device = series(table, label, "device_cells_ms")
             ax_t.loglog(
-                spp, device, ":", marker="x", ms=3, color=f"C{i}", label=f"{label}, device cells"
+                spp,
+                device,
+                ":",
+                marker="x",
+                ms=3,
+                color=cmap(i % 20),
+                label=f"{label}, device cells",
             )
             _, device_total = series(table, label, "device_total_ms")
             ax_v.loglog(
@@ -439,7 +446,7 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
                 ":",
                 marker="x",
                 ms=3,
-                color=f"C{i}",
+                color=cmap(i % 20),
                 label=f"{label}, device cells",
             )
     spp, trace = series(table, BASELINE, "trace_ms")
@@ -454,8 +461,7 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
         ylabel="variance",
         title="(b) variance against time",
     )
-    ax_t.legend(fontsize=7)
-    ax_v.legend(fontsize=7)
+    ax_v.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
     fig.suptitle(f"Figure 9: pixel {name} ({pixel.x}, {pixel.y})")
     fig.tight_layout()
     fig.savefig(out / f"fig9_{name}.png", dpi=100)
