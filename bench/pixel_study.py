@@ -314,6 +314,13 @@ def variance_ratios(table: dict) -> dict:
     }
 
 
+def ratio_table(labels: list[str], ratios: dict) -> str:
+    """A Markdown table of {spp: {label: ratio}}, one row per spp, blank where a label is
+    missing."""
+    rows = [[spp, *[row.get(lab, "") for lab in labels]] for spp, row in ratios.items()]
+    return markdown_table(["spp", *labels], rows)
+
+
 def device_labels(labels: list[str]) -> list[str]:
     return [label for label in labels if label.split("/")[0] in REJECTING]
 
@@ -545,24 +552,12 @@ def report(results: dict, args, argv) -> str:
             "",
             f"variance ratio var({BASELINE}) / var(estimator):",
             "",
-            markdown_table(
-                ["spp", *labels],
-                [
-                    [spp, *[r.get(lab, "") for lab in labels]]
-                    for spp, r in entry["variance_ratio"].items()
-                ],
-            ),
+            ratio_table(labels, entry["variance_ratio"]),
             "",
             f"efficiency (var x ms)({BASELINE}) / (var x ms)(estimator), ms = "
             "tracing + estimator per estimate (above 1: better at equal time):",
             "",
-            markdown_table(
-                ["spp", *labels],
-                [
-                    [spp, *[r.get(lab, "") for lab in labels]]
-                    for spp, r in entry["efficiency_ratio"].items()
-                ],
-            ),
+            ratio_table(labels, entry["efficiency_ratio"]),
             "",
             "ms per estimate of the SPPP-cell estimators with device cells "
             "(clrender.estimators.device_cells, upload included) / efficiency with them:",
