@@ -23,9 +23,10 @@ falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
 Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
 Voronoi cells: with `voronoi_backend = "device"` (the default) the SPPP cells of vor, vor_sn
-and fvor are computed by a device kernel queued right after the tracing, and a second kernel
-forms each pixel's weighted sums (clrender.estimators.device_cells.device_sppp_sums): no per-sample
-array comes back, and the host stage only divides. A tile with a cell the kernel cannot
+and fvor, and pvor's cells on the torus, are computed by a device kernel queued right after the
+tracing, and a second kernel forms each pixel's weighted sums
+(clrender.estimators.device_cells.device_sppp_sums, device_periodic_sums): no per-sample array
+comes back, and the host stage only divides. A tile with a cell the kernel cannot
 certify has those pixels settled on the host (their samples read back, cells by Qhull). With
 "qhull" the host computes the cells with Qhull.
 
@@ -58,7 +59,12 @@ import pyopencl as cl
 
 from clrender.errors import ParameterError
 from clrender.estimators import image
-from clrender.estimators.device_cells import DeviceSums, device_sppp_sums, settle_undecided
+from clrender.estimators.device_cells import (
+    DeviceSums,
+    device_periodic_sums,
+    device_sppp_sums,
+    settle_undecided,
+)
 from clrender.estimators.pixel import estimate
 from clrender.estimators.redraw import estimate_with_redraw
 from clrender.estimators.registry import Estimator, check_compatible
@@ -120,7 +126,8 @@ class RenderSettings:
 
     @property
     def device_cells(self) -> bool:
-        """Whether the tiles' SPPP cells come from the device kernel (vor, vor_sn, fvor)."""
+        """Whether the tiles' cells come from the device kernel (the SPPP cells of vor, vor_sn,
+        fvor; pvor's torus cells)."""
         return self.voronoi_backend == "device" and self.estimator.device_sums
 
     @property
@@ -218,25 +225,30 @@ def trace_tile(
     seed: int,
     pixels: np.ndarray,
     redraws: np.ndarray,
-    device_cells: bool = False,
+    device_cells: str | None = None,
 ) -> TileSamples:
-    """Device stage: draw the pixels' sample sets and get their radiance. With device_cells,
-    the SPPP Voronoi cells and each pixel's weighted sums are queued after the tracing and only
-    the sums come back (if the kernel left pixels undecided, the samples come back too and
-    the host settles those pixels with Qhull); otherwise the sample sets and radiance are
-    brought to the host."""
+    """Device stage: draw the pixels' sample sets and get their radiance. With device_cells
+    ("sppp" or "periodic"), that kind of Voronoi cells and each pixel's weighted sums are
+    queued after the tracing and only the sums come back (if the kernel left pixels undecided,
+    the samples come back too and the host settles those pixels with Qhull); otherwise the
+    sample sets and radiance are brought to the host."""
     device_sets = generate_sample_sets(
         runtime, sampler, seed, pixels, redraws, (source.width, source.height)
     )
     pending = source.trace(device_sets, seed)
     if device_cells:
         radiance = pending.to_device(runtime)
-        box = 0.5 + sampler.eps
-        sums = device_sppp_sums(runtime, device_sets, radiance.buffer, box)
+        if device_cells == "periodic":
+            box = None
+            sums = device_periodic_sums(runtime, device_sets, radiance.buffer)
+        else:
+            box = 0.5 + sampler.eps
+            sums = device_sppp_sums(runtime, device_sets, radiance.buffer, box)
         if sums.fallback.any():
             values = pending.to_host().values.astype(np.float64)
             values[~np.isfinite(values).all(axis=1)] = 0.0  # as in the sums kernel
-            sums = settle_undecided(sums, device_sets.to_host(runtime.queue), values, box)
+            host_sets = device_sets.to_host(runtime.queue)
+            sums = settle_undecided(sums, host_sets, values, box, device_cells)
         return TileSamples(
             pixels, redraws, None, None, radiance.ray_count, radiance.device_nonfinite, sums=sums
         )
@@ -342,7 +354,8 @@ class TilePipeline:
     ) -> TileSamples:
         start = time.perf_counter()
         # Tiles use the device cells if configured; redraws go through Qhull in the driver.
-        device_cells = sampler is None and self.settings.device_cells
+        use_device = sampler is None and self.settings.device_cells
+        device_cells = self.settings.estimator.cells if use_device else None
         sampler = sampler or self.settings.sampler
         tile = trace_tile(
             self.runtime, self.source, sampler, self.settings.seed, pixels, redraws, device_cells

@@ -28,6 +28,10 @@
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
 // Coincident nuclei share their cell equally, as in the host reference.
+//
+// Torus cells (pvor) use the same two kernels: voronoi_periodic_copies first writes each traced
+// nucleus and its 8 translates as the pixel's "auxiliary" nuclei, among which a traced nucleus's
+// cell is exactly its cell on the torus W.
 
 #include "voronoi_polygon.h"
 
@@ -44,6 +48,32 @@
 
 // Stop and skip tests keep a relative safety margin for rounding (they only cost extra clips).
 #define VORONOI_RADIUS_SLACK 1.0001f
+
+// ---------------------------------------------------------------------------------------------
+// Torus copies
+
+// One work-item per traced nucleus j: the nucleus wrapped into [-1/2, 1/2)^2 (x = 1/2 is the
+// torus point x = -1/2) goes to slot j, its translates by (dx, dy) in {-1, 0, 1}^2 \ {0} to
+// slots traced_total + 8 j + k, so pixel p's translates start at 8 traced_offsets[p]. A torus
+// cell lies in x + [-1/2, 1/2]^2, where the nearest copy of every nucleus is one of these 9:
+// the cells among them are exact and bounded. Translates are rounded to float (about 6e-8).
+__kernel void voronoi_periodic_copies(uint traced_total, __global const float2 *positions,
+                                      __global float2 *nuclei)
+{
+    uint j = get_global_id(0);
+    if (j >= traced_total)
+        return;
+    float2 x = positions[j];
+    x.x = x.x >= 0.5f ? x.x - 1.0f : x.x;
+    x.y = x.y >= 0.5f ? x.y - 1.0f : x.y;
+    nuclei[j] = x;
+    __global float2 *copies = nuclei + traced_total + 8 * (size_t)j;
+    int k = 0;
+    for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx)
+            if (dx != 0 || dy != 0)
+                copies[k++] = x + (float2)((float)dx, (float)dy);
+}
 
 // ---------------------------------------------------------------------------------------------
 // Pixels and grid

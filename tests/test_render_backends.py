@@ -12,12 +12,12 @@ from clrender.sampling import make_sampler
 WIDTH, HEIGHT = 24, 16
 
 
-def render_image(runtime, estimator, backend, eps=None, **options):
+def render_image(runtime, estimator, backend, eps=None, sampler="sppp", **options):
     source = AnalyticSource.for_scene("analytic:mix", runtime.queue, WIDTH, HEIGHT)
     settings = RenderSettings(
         WIDTH,
         HEIGHT,
-        make_sampler("sppp", 32, eps=eps),
+        make_sampler(sampler, 32, eps=eps),
         estimator,
         seed=3,
         voronoi_backend=backend,
@@ -32,6 +32,14 @@ def test_device_and_qhull_cells_give_the_same_image(runtime, estimator):
     qhull = render_image(runtime, estimator, "qhull").film.image()
     # Both tessellations are exact; they differ only by float64 rounding (about 1e-14).
     np.testing.assert_allclose(device, qhull, rtol=1e-9, atol=1e-12)
+
+
+# pvor's torus cells: the device rounds each translate to float32 (up to 6e-8), Qhull does not
+@pytest.mark.parametrize("sampler", ["independent", "sobol", "sppp"])
+def test_device_and_qhull_torus_cells_give_the_same_image(runtime, sampler):
+    device = render_image(runtime, "pvor", "device", sampler=sampler).film.image()
+    qhull = render_image(runtime, "pvor", "qhull", sampler=sampler).film.image()
+    np.testing.assert_allclose(device, qhull, rtol=1e-6, atol=1e-7)
 
 
 def test_forced_rejections_agree_between_backends(runtime):
@@ -49,14 +57,14 @@ def test_qhull_backend_is_bit_identical_whatever_the_tiling(runtime):
     assert np.array_equal(tiled.film.image(), reference)
 
 
-def test_only_sppp_cell_estimators_use_the_device_cells():
+def test_only_sppp_and_torus_cell_estimators_use_the_device_cells():
     sampler = make_sampler("sppp", 16)
     for estimator, expected in [
         ("vor", True),
         ("vor_sn", True),
         ("fvor", True),
         ("mc", False),
-        ("pvor", False),
+        ("pvor", True),
         ("cvor", False),
         ("ivor", False),
     ]:
@@ -69,9 +77,12 @@ def test_unknown_backend_lists_the_accepted_ones():
         RenderSettings(4, 4, make_sampler("sppp", 16), "vor", voronoi_backend="gpu")
 
 
-def test_device_backend_is_bit_identical_whatever_the_tiling(runtime):
-    reference = render_image(runtime, "fvor", "device").film.image()
-    tiled = render_image(runtime, "fvor", "device", tile_samples=7 * 50, overlap=False)
+@pytest.mark.parametrize("estimator, sampler", [("fvor", "sppp"), ("pvor", "independent")])
+def test_device_backend_is_bit_identical_whatever_the_tiling(runtime, estimator, sampler):
+    reference = render_image(runtime, estimator, "device", sampler=sampler).film.image()
+    tiled = render_image(
+        runtime, estimator, "device", sampler=sampler, tile_samples=7 * 50, overlap=False
+    )
     assert np.array_equal(tiled.film.image(), reference)
 
 
@@ -84,3 +95,6 @@ def test_pixels_with_undecided_cells_are_settled_on_the_host(runtime, monkeypatc
     device = render_image(runtime, "vor_sn", "device").film.image()
     qhull = render_image(runtime, "vor_sn", "qhull").film.image()
     np.testing.assert_allclose(device, qhull, rtol=1e-9, atol=1e-12)
+    torus_device = render_image(runtime, "pvor", "device", sampler="sobol")
+    torus_qhull = render_image(runtime, "pvor", "qhull", sampler="sobol").film.image()
+    np.testing.assert_allclose(torus_device.film.image(), torus_qhull, rtol=1e-6, atol=1e-7)

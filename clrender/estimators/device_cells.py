@@ -1,4 +1,5 @@
-"""Voronoi cell areas of per-pixel SPPP sample sets on the OpenCL device.
+"""Voronoi cell areas of per-pixel SPPP sample sets, and of sample sets on the torus, on the
+OpenCL device.
 
 The device counterpart of clrender.estimators.qhull_cells.sppp_cells (SciPy Qhull on the host):
 the same cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas
@@ -20,6 +21,17 @@ Entry points:
                                                    the cells and then each pixel's sums of
                                                    vor, vor_sn and fvor (registry.PixelSums)
                                                    on the device: only the sums come back
+  device_periodic_cells_from_arrays(runtime, positions, offsets)
+  device_periodic_sums(runtime, sample_sets, radiance)
+                                                   the same for pvor's cells on the torus W
+                                                   (qhull_cells.periodic_cells on the host)
+
+Torus cells: a first kernel writes each traced nucleus (wrapped into [-1/2, 1/2)^2) and its 8
+translates by (i, j) in {-1, 0, 1}^2, and the translates play the auxiliary nuclei: a torus cell
+lies in x + [-1/2, 1/2]^2, where the nearest copy of every nucleus is one of the 9, so every
+traced cell is exact and bounded (no redraw). The translates are rounded to float32, which moves
+them by up to 6e-8: areas agree with Qhull's on the exact translates to about 1e-7 (relative),
+and a pixel's areas sum to 1 within that.
 
 Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
 bounded cell reaching beyond the start box, exactly collinear neighbours) flag their pixel;
@@ -47,7 +59,12 @@ import pyopencl as cl
 
 from clrender.errors import DeviceError, ParameterError
 from clrender.estimators.pixel import cell_sums
-from clrender.estimators.qhull_cells import CellAreas, TessellationStats, sppp_cells
+from clrender.estimators.qhull_cells import (
+    CellAreas,
+    TessellationStats,
+    periodic_cells,
+    sppp_cells,
+)
 from clrender.estimators.registry import PixelSums
 from clrender.runtime import Runtime, padded_global_size
 from clrender.samples import SampleSets, segments
@@ -71,6 +88,17 @@ PRECISIONS = ("auto", "single", "mixed", "double")
 
 # Reads some pixels' sample sets back to the host, for fallbacks.
 FetchPixels = Callable[[np.ndarray], SampleSets]
+# Torus cells: every traced nucleus has itself and 8 translates in the layout.
+TORUS_COPIES = 9
+# The tessellations the device computes, and their host reference for the pixels it leaves.
+CELL_KINDS = ("sppp", "periodic")
+
+
+def host_cells(kind: str, sets: SampleSets, box: float | None) -> CellAreas:
+    """Qhull's cells of a kind for some pixels' sample sets (the device's fallback)."""
+    if kind == "periodic":
+        return periodic_cells(sets.traced, sets.offsets)
+    return sppp_cells(sets.traced, sets.offsets, sets.aux, sets.aux_offsets, box)
 
 
 @dataclass(frozen=True)
@@ -82,6 +110,8 @@ class _Layout:
     aux_offsets: np.ndarray  # (P + 1,) int64, relative to the first auxiliary nucleus
     half_extent: float  # the grid covers [-half_extent, half_extent]^2
     grid_side: int  # cells per side of every pixel's grid
+    kind: str = "sppp"  # "periodic": the auxiliary nuclei are torus translates
+    intensity: float = 1.0  # the sampler's n (PixelSums.n)
 
     @property
     def pixel_count(self) -> int:
@@ -154,6 +184,27 @@ def sppp_cells_backend(runtime: Runtime, precision: str = "auto") -> Callable[..
     return cells
 
 
+def device_periodic_cells_from_arrays(
+    runtime: Runtime, positions: np.ndarray, offsets: np.ndarray, precision: str = "auto"
+) -> CellAreas:
+    """Cells on the torus W of each pixel's nuclei (qhull_cells.periodic_cells' arguments),
+    uploaded as float32; no inside-box flags."""
+    empty = np.zeros((0, 2))
+    traced32, _ = _check_arrays(positions, offsets, empty, np.zeros(len(np.asarray(offsets))))
+    offsets = np.asarray(offsets, np.int64)
+    buffer, upload = runtime.upload_async(traced32)
+    defines = _precision_setup(runtime, precision)[0]
+    mean_count = len(traced32) / max(len(offsets) - 1, 1)
+    layout = _periodic_layout(runtime, buffer, offsets, mean_count, defines)
+
+    def fetch(wanted: np.ndarray) -> SampleSets:
+        return SampleSets(traced32, offsets, 1.0).subset(wanted)
+
+    cells = _cells(runtime, layout, None, precision, fetch)
+    del upload
+    return cells
+
+
 @dataclass(frozen=True)
 class DeviceSums:
     """Per-pixel results of device_sppp_sums: the sums, the pixels that must be redrawn (an
@@ -178,7 +229,34 @@ def device_sppp_sums(
     """The PixelSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
     and radiance ((T, 3) float32 device buffer, traced-sample order) kept on the device: only
     SUMS_PER_PIXEL values and a flag byte per pixel come back. box = 1/2 + eps (W')."""
-    layout = _sample_set_layout(sample_sets)
+    return _device_sums(runtime, _sample_set_layout(sample_sets), radiance, box, precision)
+
+
+def device_periodic_sums(
+    runtime: Runtime, sample_sets: DeviceSampleSets, radiance, precision: str = "auto"
+) -> DeviceSums:
+    """The PixelSums of pvor (area and weighted; no kept sums: NaN, as on the host) for a
+    launch's sample sets, from their cells on the torus W, all on the device. No pixel is
+    redrawn: a cell the kernel leaves undecided or unbounded flags its pixel as fallback."""
+    defines = _precision_setup(runtime, precision)[0]
+    layout = _periodic_layout(
+        runtime,
+        sample_sets.positions,
+        np.asarray(sample_sets.traced_offsets, np.int64),
+        sample_sets.config.n,
+        defines,
+    )
+    device = _device_sums(runtime, layout, radiance, None, precision)
+    nan = np.full(layout.pixel_count, np.nan)
+    sums = replace(device.sums, kept_area=nan, kept_weighted=np.full((len(nan), 3), np.nan))
+    fallback = device.fallback | device.redraw
+    return replace(device, sums=sums, redraw=np.zeros_like(fallback), fallback=fallback)
+
+
+def _device_sums(
+    runtime: Runtime, layout: _Layout, radiance, box: float | None, precision: str
+) -> DeviceSums:
+    """Cells and per-pixel sums of a layout on the device (see device_sppp_sums)."""
     pixels = layout.pixel_count
     defines, real = _precision_setup(runtime, precision)
     sums = np.zeros((pixels, SUMS_PER_PIXEL), real)
@@ -213,7 +291,7 @@ def device_sppp_sums(
     sums = sums.astype(np.float64)
     pixel_sums = PixelSums(
         np.diff(layout.traced_offsets),
-        sample_sets.config.n,
+        layout.intensity,
         area=sums[:, 0],
         weighted=sums[:, 1:4],
         kept_area=sums[:, 4],
@@ -228,15 +306,19 @@ def device_sppp_sums(
 
 
 def settle_undecided(
-    device: DeviceSums, host_sets: SampleSets, values: np.ndarray, box: float
+    device: DeviceSums,
+    host_sets: SampleSets,
+    values: np.ndarray,
+    box: float | None,
+    kind: str = "sppp",
 ) -> DeviceSums:
     """device with the pixels it flagged as undecided (device.fallback) settled on the host:
-    their cells by Qhull from the host copy of the sample sets (float32 as on the device), their
-    sums from `values` ((T, C), the traced samples' radiance with non-finite rows zeroed), their
-    redraw flags from the cells."""
+    their cells (of the kind: "sppp" or "periodic") by Qhull from the host copy of the sample
+    sets (float32 as on the device), their sums from `values` ((T, C), the traced samples'
+    radiance with non-finite rows zeroed), their redraw flags from the cells."""
     pixels = np.flatnonzero(device.fallback)
     subset = host_sets.subset(pixels)
-    cells = sppp_cells(subset.traced, subset.offsets, subset.aux, subset.aux_offsets, box)
+    cells = host_cells(kind, subset, box)
     settled = cell_sums(subset, values[segments(host_sets.offsets, pixels)[0]], cells, kept=True)
     merged = replace(device.sums)
     for name in ("area", "weighted", "kept_area", "kept_weighted"):
@@ -297,6 +379,42 @@ def _sample_set_layout(sample_sets: DeviceSampleSets) -> _Layout:
         aux_offsets,
         0.5 + config.eps,
         grid_side(config.n + config.n_aux, 1),
+        intensity=config.n,
+    )
+
+
+def _periodic_layout(
+    runtime: Runtime,
+    positions: cl.Buffer,
+    traced_offsets: np.ndarray,
+    mean_count: float,
+    defines: dict[str, object],
+) -> _Layout:
+    """Queue the torus copies of a launch's traced nuclei (voronoi_periodic_copies); their
+    layout: the wrapped nuclei, then 8 translates each (pixel p's from 8 traced_offsets[p]).
+    mean_count (the sampler's n) sizes the grid, so a pixel's cells do not depend on the
+    launch."""
+    traced = int(traced_offsets[-1])
+    nuclei = runtime.allocate(8 * TORUS_COPIES * max(traced, 1))
+    if traced:
+        copies = runtime.kernel(KERNEL_FILE, "voronoi_periodic_copies", defines)
+        local = runtime.local_size
+        copies(
+            runtime.queue,
+            (padded_global_size(traced, local),),
+            (local,),
+            np.uint32(traced),
+            positions,
+            nuclei,
+        )
+    return _Layout(
+        nuclei,
+        traced_offsets,
+        (TORUS_COPIES - 1) * traced_offsets,
+        1.5,
+        grid_side(TORUS_COPIES * mean_count, 1),
+        kind="periodic",
+        intensity=mean_count,
     )
 
 
@@ -318,9 +436,12 @@ def _cells(
         (status & STATUS_INSIDE) != 0 if box is not None else None,
         TessellationStats(walked_cells=int(((status & STATUS_WALKED) != 0).sum())),
     )
-    fallback = _fallback_pixels(layout.traced_offsets, (status & STATUS_FALLBACK) != 0)
+    undecided = (status & STATUS_FALLBACK) != 0
+    if layout.kind == "periodic":
+        undecided |= ~bounded  # never expected: every torus cell is bounded
+    fallback = _fallback_pixels(layout.traced_offsets, undecided)
     if fallback.size:
-        _recompute_on_host(cells, layout.traced_offsets, fallback, fetch, box)
+        _recompute_on_host(cells, layout, fallback, fetch, box)
     return cells
 
 
@@ -412,16 +533,11 @@ def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndar
 
 
 def _recompute_on_host(
-    cells: CellAreas,
-    traced_offsets: np.ndarray,
-    pixels: np.ndarray,
-    fetch: FetchPixels,
-    box: float | None,
+    cells: CellAreas, layout: _Layout, pixels: np.ndarray, fetch: FetchPixels, box: float | None
 ) -> None:
     """Exact cells of the given pixels from Qhull, written over the device's."""
-    subset = fetch(pixels)
-    redo = sppp_cells(subset.traced, subset.offsets, subset.aux, subset.aux_offsets, box)
-    index = segments(traced_offsets, pixels)[0]
+    redo = host_cells(layout.kind, fetch(pixels), box)
+    index = segments(layout.traced_offsets, pixels)[0]
     cells.areas[index] = redo.areas
     cells.bounded[index] = redo.bounded
     if cells.inside_box is not None:

@@ -130,7 +130,8 @@ class Estimator:
     device_sums: bool = False  # the device can form its cells and sums (kernels/voronoi_*.cl)
 
     def __post_init__(self) -> None:
-        if self.cells not in CELL_KINDS or (self.device_sums and self.cells != "sppp"):
+        device_kinds = ("sppp", "periodic")  # clrender.estimators.device_cells.CELL_KINDS
+        if self.cells not in CELL_KINDS or (self.device_sums and self.cells not in device_kinds):
             raise ValueError(f"estimator {self.name!r}: cells {self.cells!r} / device_sums")
 
     @property
@@ -193,6 +194,7 @@ ESTIMATORS: dict[str, Estimator] = {
             "periodic Voronoi: cells on the torus W (unbiased, no auxiliary nuclei, no rejection)",
             weighted_sum,
             cells="periodic",
+            device_sums=True,
         ),
         Estimator(
             "ivor",
