@@ -60,6 +60,7 @@ import pyopencl as cl
 from clrender.errors import ParameterError
 from clrender.estimators import image
 from clrender.estimators.device_cells import (
+    TORUS_COPIES,
     DeviceSums,
     device_periodic_sums,
     device_sppp_sums,
@@ -194,8 +195,11 @@ class TileEstimate:
 
 
 def pixels_per_tile(settings: RenderSettings) -> int:
-    """Tile length in pixels: within the sample budget, and about TARGET_TILE_COUNT tiles."""
+    """Tile length in pixels: within the sample budget, and about TARGET_TILE_COUNT tiles. The
+    budget counts every nucleus a pixel's cells hold: auxiliary ones, torus translates."""
     per_pixel = settings.sampler.n + settings.sampler.n_aux
+    if settings.device_cells and settings.estimator.cells == "periodic":
+        per_pixel = settings.sampler.n * TORUS_COPIES
     budget = max(1, settings.tile_samples // per_pixel)
     spread = max(MIN_TILE_PIXELS, math.ceil(settings.pixel_count / TARGET_TILE_COUNT))
     return min(budget, spread)

@@ -9,7 +9,7 @@ import pytest
 from clrender.analytic import AnalyticSource, sample_image_positions
 from clrender.errors import ParameterError
 from clrender.estimators import check_compatible
-from clrender.pipeline import RenderSettings, plan_tiles, render, tile_pixels
+from clrender.pipeline import RenderSettings, pixels_per_tile, plan_tiles, render, tile_pixels
 from clrender.radiance import DeviceRadiance, SampleRadiance
 from clrender.sampling import make_sampler
 
@@ -60,6 +60,20 @@ def test_tiles_cover_the_image_in_order_within_the_sample_budget():
         per_pixel = config.sampler.n + config.sampler.n_aux
         assert all(len(t) == 1 or len(t) * per_pixel <= budget for t in tiles)
     assert len(plan_tiles(settings(tile_samples=10**9))) == 4  # 960 px, MIN_TILE_PIXELS 256
+
+
+def test_device_torus_cells_count_their_translates_in_the_sample_budget():
+    # pvor's device cells hold each traced nucleus and its 8 translates: 9 n nuclei a pixel
+    for backend, per_pixel in [("device", 9 * 16), ("qhull", 16)]:
+        config = RenderSettings(
+            WIDTH,
+            HEIGHT,
+            make_sampler("independent", 16),
+            "pvor",
+            tile_samples=5000,
+            voronoi_backend=backend,
+        )
+        assert pixels_per_tile(config) == 5000 // per_pixel
 
 
 def test_different_seeds_give_different_images(runtime):
