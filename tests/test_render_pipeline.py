@@ -70,10 +70,10 @@ def test_device_torus_cells_count_their_translates_in_the_sample_budget():
             HEIGHT,
             make_sampler("independent", 16),
             "pvor",
-            tile_samples=5000,
+            tile_samples=2000,
             voronoi_backend=backend,
         )
-        assert pixels_per_tile(config) == 5000 // per_pixel
+        assert pixels_per_tile(config) == 2000 // per_pixel
 
 
 def test_different_seeds_give_different_images(runtime):
