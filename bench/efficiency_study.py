@@ -25,8 +25,8 @@ Default mode, per scene (mitsuba-cbox, cornell-box, cornell-box-glossy):
   count as error; the MSE between the two references is reported beside.
 - a time budget: a configuration whose render at the next spp is predicted (its median wall
   time at the last spp x the spp ratio) to take more than --max-seconds (default 60) is not
-  rendered there or above, and the report lists it (the host-side tessellations of pvor and
-  ivor_sn at 256 x 256 take tens of seconds at 16 spp on two cores).
+  rendered there or above, and the report lists it (ivor_sn's host tessellation of the whole
+  image takes about 35 s at 64 spp, 256 x 256, on two cores).
 MSE of a render = mean over pixels and RGB of (render - reference)^2 less the reference's mean
 variance; per point mean +- standard error over seeds, median wall time of the whole call and
 median CPU time (time.process_time: PoCL's and Dr.Jit's threads run in this process).
@@ -43,7 +43,7 @@ sppp (it needs Poisson counts).
 
 --perf-ratio: the issue's performance figure. The authors' Cornell box at 256 x 256 and 256
 spp: mc over independent samples against the best Voronoi estimator (by default the one of vor,
-vor_sn, fvor -- the SPPP-cell estimators the device backend computes -- with the lowest MSE at
+vor_sn, fvor, pvor -- the Voronoi estimators the device backend computes -- with the lowest MSE at
 the highest spp of a previous default-mode run on cornell-box, else vor_sn), alternated after
 a warm-up, --repeats times each; medians of wall, device and host seconds and the ratio of
 median wall times (target <= 1.5). Output: perf_ratio.json.
@@ -94,9 +94,9 @@ CONFIGS = (
     + [("ivor_sn", "sppp-sobol"), ("ivor_sn", "sppp")]
 )
 DEFAULT_PERF_ESTIMATOR = "vor_sn"
-# The perf-ratio candidates: the estimators of SPPP cells (W + auxiliary nuclei), the ones the
-# device cell-area backend computes (vor, vor_sn, fvor); cvor is left out as biased (the paper
-# drops it too).
+# The perf-ratio candidates: the estimators whose cells the device backend computes (vor, vor_sn,
+# fvor over SPPP cells, pvor over torus cells); cvor is left out as biased (the paper drops it
+# too).
 PERF_CANDIDATES = tuple(name for name, entry in ESTIMATORS.items() if entry.device_sums)
 WARMUP_SEED = 999
 
