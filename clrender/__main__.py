@@ -1,11 +1,29 @@
+"""`python -m clrender` and the `clrender` command: set up the process, then run the CLI.
+
+The host does no large linear algebra: one BLAS thread, so that idle OpenBLAS workers do not
+spin on the cores the OpenCL CPU device works on (set before NumPy loads; the user's own
+setting wins). SIGTERM and SIGHUP end the command as Ctrl-C does (clrender.interrupts), from
+the first moment: an interrupt while the libraries load prints one line, not a traceback.
+"""
+
 import os
 import sys
 
-# The host does no large linear algebra: one BLAS thread, so that idle OpenBLAS workers do not
-# spin on the cores the OpenCL CPU device works on (set before NumPy loads; the user's own
-# setting wins).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from clrender.cli import main  # noqa: E402
+def run() -> int:
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from clrender import interrupts
 
-sys.exit(main())
+    with interrupts.ending_signals_interrupt():
+        try:
+            from clrender.cli import main
+
+            return main()
+        except KeyboardInterrupt as interrupt:  # before the command's own handling
+            signum = interrupts.signal_of(interrupt)
+            print(f"clrender: interrupted ({interrupts.signal_name(signum)})", file=sys.stderr)
+            return interrupts.exit_status(signum)
+
+
+if __name__ == "__main__":
+    sys.exit(run())

@@ -3,7 +3,8 @@
 With no command it lists the OpenCL platforms and devices and runs a self-check kernel on
 the selected device; `render` renders a scene to a linear EXR and an sRGB PNG preview. Errors
 the user can fix print as one line (no traceback unless --debug) and exit with status 2;
-an interrupted render writes what it has and exits with status 130. Warnings (a scene with
+an interrupted render (Ctrl-C, SIGTERM, SIGHUP) writes what it has and exits with status
+128 + the signal number (130, 143, 129). Warnings (a scene with
 no emitter, a camera inside a solid shape) print one line each on stderr and do not change
 the exit status.
 """
@@ -11,22 +12,19 @@ the exit status.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import signal
 import sys
 import warnings
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import pyopencl as cl
 
+from clrender import interrupts
 from clrender.errors import ClrenderError, ParameterError
 from clrender.runtime import create_runtime, describe_device, list_devices
 
 EXIT_USAGE = 2
 EXIT_STRICT = 3
-EXIT_INTERRUPTED = 130
 
 DEFAULT_SCENE = "cornell-box"
 DEFAULT_SPP = 64
@@ -47,8 +45,9 @@ estimators:
 
 SCENE is a shipped scene name, a .toml path, or analytic[:edge|smooth|disc|bowl|mix]
 (images with exact pixel integrals).
-exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 130 interrupted
-(Ctrl-C writes the pixels done so far, with partial=1 in the EXR metadata)."""
+exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 128 + signal when
+interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: the pixels done so far are written, with
+partial=1 in the EXR metadata)."""
 
 
 class OneLineErrorParser(argparse.ArgumentParser):
@@ -315,24 +314,20 @@ def make_source(args: argparse.Namespace, runtime, scene):
     return source, None if scene is None else args.max_depth
 
 
-@contextlib.contextmanager
-def sigint_deferred() -> Iterator[list[bool]]:
-    """Hold Ctrl-C while the images are written; the flag list tells if one came."""
-    received: list[bool] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: received.append(True))
-    try:
-        yield received
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def write_outputs(result, labels, paths: OutputPaths) -> None:
-    from clrender.imageio import write_exr, write_png
+    """Both images, each checked on disk before either replaces its old version."""
+    from clrender.imageio import (
+        exr_header,
+        exr_writer,
+        png_writer,
+        rgb_float32,
+        write_all_atomically,
+    )
     from clrender.report import render_metadata
 
-    image = result.film.image()
-    write_exr(paths.exr, image, render_metadata(result, labels))
-    write_png(paths.png, image)
+    image = rgb_float32(result.film.image())
+    header = exr_header(render_metadata(result, labels))
+    write_all_atomically([(paths.exr, exr_writer(image, header)), (paths.png, png_writer(image))])
 
 
 def command_render(args: argparse.Namespace) -> int:
@@ -353,21 +348,24 @@ def command_render(args: argparse.Namespace) -> int:
         result = render(runtime, source, settings, progress)
     finally:
         progress.close()
-    with sigint_deferred() as interrupted_while_writing:
+    with interrupts.signals_held() as held:
         write_outputs(result, labels, paths)
     print("\n".join(summary_lines(result, labels)))
     print(f"wrote {paths.exr} and {paths.png}")
-    return exit_status(args, result, bool(interrupted_while_writing))
+    return exit_status(args, result, held)
 
 
-def exit_status(args: argparse.Namespace, result, interrupted_while_writing: bool) -> int:
-    if result.stats.interrupted or interrupted_while_writing:
+def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> int:
+    """The command's status; held_signals: the signals that came while the images were
+    written (the render itself reports an interrupt in its stats)."""
+    if result.stats.interrupted or held_signals:
         print(
             f"clrender: interrupted: the image holds {result.film.rendered_count} of "
             f"{result.film.pixel_count} pixels (partial=1)",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED
+        signum = held_signals[-1] if held_signals else interrupts.last_signal()
+        return interrupts.exit_status(signum)
     if result.stats.nonfinite_samples or result.film.flagged_count:
         print(
             f"clrender: warning: {result.stats.nonfinite_samples} samples had NaN or "
@@ -394,8 +392,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"clrender: error: {err}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:
         if args.debug:
             raise
-        print("clrender: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        signum = interrupts.signal_of(interrupt)
+        print(f"clrender: interrupted ({interrupts.signal_name(signum)})", file=sys.stderr)
+        return interrupts.exit_status(signum)

@@ -1,9 +1,16 @@
 """Image output: linear float32 OpenEXR with render metadata, and an 8-bit sRGB PNG preview.
 
-Both writers are atomic: the bytes go to a temporary file in the destination's directory,
-which then replaces the requested name with os.replace, so a reader never sees a half-written
-file under that name (an interrupted or failed write leaves the old file, or none).
-`check_writable` validates an output path up front, before any rendering starts.
+Both writers are atomic and checked: the bytes go to a temporary file in the destination's
+directory (".<name>.<pid>.<random>.tmp"), which is read back (an EXR's pixels must come back
+bit for bit, a PNG's size must match: a full disk can leave a short file without any error from
+the OpenEXR library), flushed to disk (fsync), and only then replaces the requested name with
+os.replace, and the directory entry is flushed too. A reader never sees a half-written file
+under that name; a failed write leaves the old file and raises OutputPathError naming the path.
+`write_all_atomically` does this for several files at once: every file is written and checked
+before the first one replaces its old version (an image and its preview stay a pair). A writer
+killed before its rename leaves its temporary file; the next write to that name removes the
+ones whose process is gone. `check_writable` validates an output path up front, before any
+rendering starts.
 
 EXR attributes: the standard ones plus one per metadata entry. OpenEXR's int attribute is
 32-bit and its float attribute single precision, so integers outside the int32 range (seeds up
@@ -12,12 +19,12 @@ to 2^32, ray counts) are stored as decimal strings, and floats lose digits beyon
 
 from __future__ import annotations
 
-import contextlib
+import glob
 import os
 import struct
 import tempfile
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -79,32 +86,113 @@ def current_umask() -> int:
     return mask
 
 
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside `path`; on success it replaces `path`, on any error
-    (including KeyboardInterrupt) it is removed."""
-    path = Path(path)
-    fd, temp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+class IncompleteWrite(OSError):
+    """A file came back from disk other than it was written (a full disk, a failing device)."""
+
+
+# Writes the file at a temporary path (and raises OSError, or IncompleteWrite after reading it
+# back, if it is not all there).
+FileWriter = Callable[[Path], None]
+
+
+def temp_prefix(path: Path) -> str:
+    """Temporary files of `path` are named <prefix><random>.tmp; the prefix holds the writer's
+    process id, so that a stale one (its writer killed) can be told from one being written."""
+    return f".{path.name}.{os.getpid()}."
+
+
+def process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
+def remove_stale_temps(path: Path) -> list[Path]:
+    """Remove the temporary files of `path` whose writing process is gone; the removed ones."""
+    removed = []
+    for temp in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
+        owner = temp.name[len(path.name) + 2 :].split(".", 1)[0]
+        if owner.isdigit() and int(owner) > 0 and not process_alive(int(owner)):
+            temp.unlink(missing_ok=True)
+            removed.append(temp)
+    return removed
+
+
+def flush_to_disk(path: Path) -> None:
+    """fsync a file: its data must be on the device before it replaces the old file."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def flush_directory(directory: Path) -> None:
+    """fsync a directory (the renames in it), where the file system allows it."""
+    try:
+        fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems cannot fsync a directory: the rename still happened
+        pass
+    finally:
+        os.close(fd)
+
+
+def make_temp(path: Path) -> Path:
+    fd, temp_name = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path), suffix=".tmp")
     os.close(fd)
     temp = Path(temp_name)
     temp.chmod(0o666 & ~current_umask())  # mkstemp's 0600 would outlive the rename
+    return temp
+
+
+def write_all_atomically(jobs: Sequence[tuple[str | os.PathLike, FileWriter]]) -> list[Path]:
+    """For each (path, write): write(temp) to a temporary file beside path, each checked by its
+    writer and flushed to disk; then every temporary file replaces its path. On any error
+    (KeyboardInterrupt included) every temporary file is removed and every old file stays;
+    OutputPathError names the path whose write failed."""
+    paths = [check_writable(path) for path, _ in jobs]
+    temps: list[Path] = []
     try:
-        yield temp
-        os.replace(temp, path)
+        for path, (_, write) in zip(paths, jobs, strict=True):
+            remove_stale_temps(path)
+            temp = None
+            try:
+                temp = make_temp(path)
+                temps.append(temp)
+                write(temp)
+                flush_to_disk(temp)
+            except (OSError, RuntimeError) as err:  # RuntimeError: the OpenEXR library's
+                reason = getattr(err, "strerror", None) or str(err) or type(err).__name__
+                reason = reason.replace(f'"{temp}"', "its temporary file")
+                raise OutputPathError(f"cannot write {path}: {reason}") from err
+        for path, temp in zip(paths, temps, strict=True):
+            os.replace(temp, path)
     except BaseException:
-        temp.unlink(missing_ok=True)
+        for temp in temps:
+            temp.unlink(missing_ok=True)
         raise
+    for directory in {path.parent for path in paths}:
+        flush_directory(directory)
+    return paths
 
 
-def write_atomically(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
-    """Run write(temp_path), then move the result onto `path`; errors name the path."""
-    path = check_writable(path)
-    try:
-        with atomic_path(path) as temp:
-            write(temp)
-    except OSError as err:
-        raise OutputPathError(f"cannot write {path}: {err.strerror or err}") from err
-    return path
+def write_atomically(path: str | os.PathLike, write: FileWriter) -> Path:
+    """write_all_atomically of one file."""
+    return write_all_atomically([(path, write)])[0]
+
+
+def incomplete(temp: Path, detail: str) -> IncompleteWrite:
+    free = os.statvfs(temp.parent).f_bavail if hasattr(os, "statvfs") else None
+    hint = "; the disk is full" if free == 0 else " (a full disk?)"
+    return IncompleteWrite(0, f"the written file is incomplete: {detail}{hint}")
 
 
 # --- OpenEXR ---------------------------------------------------------------------------------
@@ -133,17 +221,35 @@ def rgb_float32(image: np.ndarray) -> np.ndarray:
 def write_exr(path: str | os.PathLike, image: np.ndarray, metadata: dict | None = None) -> Path:
     """Write a linear RGB float32 EXR (ZIP compression) with metadata attributes."""
     pixels = rgb_float32(image)
+    header = exr_header(metadata)
+    return write_atomically(path, exr_writer(pixels, header))
+
+
+def exr_header(metadata: dict | None) -> dict:
+    """The EXR header of an RGB float32 image with these metadata attributes."""
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (metadata or {}).items():
         if key in STANDARD_EXR_ATTRIBUTES:
             raise ValueError(f"metadata key {key!r} clashes with a standard EXR attribute")
         header[key] = exr_attribute(value)
+    return header
+
+
+def exr_writer(pixels: np.ndarray, header: dict) -> FileWriter:
+    """Writes the EXR, then reads it back: the pixels must come back bit for bit (the library
+    can leave a short file on a full disk without an error)."""
 
     def write(temp: Path) -> None:
         with OpenEXR.File(header, {"RGB": pixels}) as exr:
             exr.write(str(temp))
+        try:
+            back, _ = read_exr(temp)
+        except RuntimeError as err:
+            raise incomplete(temp, f"{temp.stat().st_size} bytes that do not read back") from err
+        if back.shape != pixels.shape or back.tobytes() != pixels.tobytes():
+            raise incomplete(temp, "its pixels read back differently")
 
-    return write_atomically(path, write)
+    return write
 
 
 def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
@@ -206,8 +312,20 @@ def encode_png(rgb8: np.ndarray) -> bytes:
 
 def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write the sRGB-encoded, clamped 8-bit preview of a linear RGB image."""
+    return write_atomically(path, png_writer(image))
+
+
+def png_writer(image: np.ndarray) -> FileWriter:
+    """Writes the preview PNG of a linear RGB image and checks its size on disk."""
     data = encode_png(srgb8(rgb_float32(image)))
-    return write_atomically(path, lambda temp: temp.write_bytes(data))
+
+    def write(temp: Path) -> None:
+        temp.write_bytes(data)
+        size = temp.stat().st_size
+        if size != len(data):
+            raise incomplete(temp, f"{size} of {len(data)} bytes")
+
+    return write
 
 
 def png_chunks(data: bytes) -> Iterator[tuple[bytes, bytes]]:

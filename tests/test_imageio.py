@@ -7,8 +7,12 @@ from clrender.imageio import (
     OutputPathError,
     check_writable,
     decode_png,
+    exr_header,
+    exr_writer,
     read_exr,
+    rgb_float32,
     srgb8,
+    write_all_atomically,
     write_atomically,
     write_exr,
     write_png,
@@ -106,3 +110,102 @@ def test_unwritable_paths_fail_with_the_path_named(tmp_path, relative):
 
 def test_writable_path_in_an_existing_directory(tmp_path):
     assert check_writable(tmp_path / "new.exr") == tmp_path / "new.exr"
+
+
+# --- a full disk, a killed writer (issue: no data lost) ---------------------------------------
+
+
+def test_a_short_exr_never_replaces_the_previous_one(tmp_path, monkeypatch):
+    # A full disk: the OpenEXR library writes a short file without raising (seen on tmpfs)
+    import OpenEXR
+
+    target = tmp_path / "out.exr"
+    write_exr(target, np.ones((4, 4, 3)))
+
+    def write_short(self, name):
+        with open(name, "wb") as f:
+            f.write(b"\x76\x2f\x31\x01")  # the EXR magic number, then nothing
+
+    monkeypatch.setattr(OpenEXR.File, "write", write_short)
+    with pytest.raises(OutputPathError, match=r"cannot write .*out.exr: the written file is"):
+        write_exr(target, np.zeros((4, 4, 3)))
+    assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
+    assert np.array_equal(read_exr(target)[0], np.ones((4, 4, 3), np.float32))
+
+
+def test_an_exr_library_error_is_one_line_naming_the_file(tmp_path, monkeypatch):
+    import OpenEXR
+
+    def fail(self, name):
+        raise RuntimeError("Cannot write image file: No space left on device")
+
+    monkeypatch.setattr(OpenEXR.File, "write", fail)
+    with pytest.raises(OutputPathError, match="cannot write .*a.exr: Cannot write image file"):
+        write_exr(tmp_path / "a.exr", np.zeros((2, 2, 3)))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_pair_is_replaced_only_when_both_files_are_written(tmp_path):
+    exr, png = tmp_path / "out.exr", tmp_path / "out.png"
+    write_exr(exr, np.ones((2, 2, 3)))
+    write_png(png, np.ones((2, 2, 3)))
+    old_png = png.read_bytes()
+
+    def no_space(temp):
+        raise OSError(28, "No space left on device")
+
+    writers = [(exr, exr_writer(rgb_float32(np.zeros((2, 2, 3))), exr_header({}))), (png, no_space)]
+    with pytest.raises(OutputPathError, match="out.png: No space left on device"):
+        write_all_atomically(writers)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.exr", "out.png"]
+    assert np.array_equal(read_exr(exr)[0], np.ones((2, 2, 3), np.float32))
+    assert png.read_bytes() == old_png
+
+
+def test_temp_files_of_a_killed_writer_are_removed_by_the_next_write(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    gone = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    stale = tmp_path / f".out.exr.{int(gone.stdout)}.k9x2a7.tmp"
+    live = tmp_path / f".out.exr.{os.getppid()}.b3c4d5.tmp"  # a running process's
+    other = tmp_path / f".other.exr.{int(gone.stdout)}.k9x2a7.tmp"  # another file's
+    for path in (stale, live, other):
+        path.write_bytes(b"")
+    write_exr(tmp_path / "out.exr", np.ones((2, 2, 3)))
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["out.exr", live.name, other.name])
+
+
+def test_a_full_disk_keeps_the_previous_image(tmp_path):
+    # A real full file system where one can be mounted (root in a container), else skipped
+    import subprocess
+
+    mount = tmp_path / "small"
+    mount.mkdir()
+    made = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=256k", "tmpfs", str(mount)], capture_output=True
+    )
+    if made.returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        target = mount / "full.exr"
+        image = np.random.default_rng(0).random((64, 64, 3))
+        write_exr(target, image)
+        with open(mount / "filler", "wb", buffering=0) as filler, pytest.raises(OSError):
+            while True:
+                filler.write(b"\0" * 4096)
+        # A small image: the library leaves a short file silently; a larger one: it raises
+        for scale in (2, 8):
+            bigger = np.tile(image * scale, (scale, 1, 1))
+            with pytest.raises(OutputPathError, match="full.exr: .*(incomplete|No space left)"):
+                write_exr(target, bigger)
+        assert np.array_equal(read_exr(target)[0], image.astype(np.float32))
+        assert sorted(p.name for p in mount.iterdir()) == ["filler", "full.exr"]
+    finally:
+        subprocess.run(["umount", str(mount)], check=False)

@@ -185,10 +185,17 @@ def fake_result(nonfinite: int, flagged: int, interrupted: bool = False) -> Rend
 def test_exit_status(capsys, strict, nonfinite, flagged, interrupted, status):
     args = cli.build_parser().parse_args(["render"] + (["--strict"] if strict else []))
     result = fake_result(nonfinite, flagged, interrupted)
-    assert cli.exit_status(args, result, interrupted_while_writing=False) == status
+    assert cli.exit_status(args, result, held_signals=[]) == status
     err = capsys.readouterr().err
     if nonfinite and not interrupted:
         assert "5 samples had NaN or infinite radiance; 2 pixels flagged" in err
+
+
+def test_a_signal_held_while_writing_gives_its_own_status(capsys):
+    args = cli.build_parser().parse_args(["render"])
+    held = [int(signal.SIGTERM)]
+    assert cli.exit_status(args, fake_result(0, 0, False), held_signals=held) == 143
+    assert "interrupted: the image holds" in capsys.readouterr().err
 
 
 def read_until(fd: int, marker: bytes) -> bytes:
@@ -205,9 +212,14 @@ def read_until(fd: int, marker: bytes) -> bytes:
     return seen
 
 
-def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
+@pytest.mark.parametrize(
+    "signum, status",
+    [(signal.SIGINT, 130), (signal.SIGTERM, 128 + 15), (signal.SIGHUP, 128 + 1)],
+)
+def test_an_ending_signal_writes_the_partial_image_and_exits_128_plus_it(tmp_path, signum, status):
+    # Ctrl-C, a job scheduler's SIGTERM, a closed terminal's SIGHUP: the same partial image.
     # stderr on a pseudo-terminal, so the progress bar draws: its first line says a tile is
-    # done, which is when the interrupt is sent (no timing guesses).
+    # done, which is when the signal is sent (no timing guesses).
     out = tmp_path / "slow.exr"
     controller, terminal = pty.openpty()
     command = [
@@ -228,14 +240,14 @@ def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
     try:
         progress = read_until(controller, b"elapsed")
         assert b"%" in progress, progress
-        child.send_signal(signal.SIGINT)
+        child.send_signal(signum)
         messages = read_until(controller, b"(partial=1)")
         stdout, _ = child.communicate()
     finally:
         os.close(controller)
         if child.poll() is None:
             child.kill()
-    assert child.returncode == 130, messages
+    assert child.returncode == status, messages
     assert b"interrupted" in messages and b"interrupted:" in stdout
     pixels, meta = read_exr(out)
     total = 256 * 256
@@ -243,6 +255,49 @@ def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
     # Every channel of the analytic image is positive: rendered pixels are exactly the nonzero.
     assert np.count_nonzero(pixels.max(axis=2)) == meta["rendered_pixels"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.exr", "slow.png"]
+
+
+# The signal arrives while the command still imports its libraries (the moment is made
+# exact by sending it from the import of clrender.cli): one line, no traceback
+INTERRUPT_WHILE_IMPORTING = """
+import builtins, os, signal, sys
+real_import = builtins.__import__
+def interrupting_import(name, *args, **kwargs):
+    if name == "clrender.cli":
+        os.kill(os.getpid(), signal.{signal})
+    return real_import(name, *args, **kwargs)
+builtins.__import__ = interrupting_import
+sys.argv = ["clrender", "render", "analytic", "--res", "8", "-o", "never.exr"]
+from clrender.__main__ import run
+sys.exit(run())
+"""
+
+
+@pytest.mark.parametrize("name, status", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_an_interrupt_while_loading_is_one_line(tmp_path, name, status):
+    child = subprocess.run(
+        [sys.executable, "-c", INTERRUPT_WHILE_IMPORTING.format(signal=name)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert child.returncode == status, child.stderr
+    assert child.stderr == f"clrender: interrupted ({name})\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monkeypatch):
+    import OpenEXR
+
+    out = tmp_path / "edge.exr"
+    argv = ["render", "analytic:edge", "--res", "8", "--spp", "1", "-o", str(out)]
+    assert run_cli(capsys, *argv)[0] == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    monkeypatch.setattr(OpenEXR.File, "write", lambda self, name: open(name, "wb").close())
+    status, stdout, stderr = run_cli(capsys, *argv, "--seed", "5")
+    assert status == 2 and "wrote" not in stdout
+    assert stderr.count("\n") == 1 and "edge.exr: the written file is incomplete" in stderr
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
 def test_progress_bar_is_quiet_unless_stderr_is_a_terminal():
