@@ -115,8 +115,6 @@ class SceneWarning(UserWarning):
 
 ALUMINIUM_ETA = (1.657, 0.880, 0.521)
 ALUMINIUM_K = (9.224, 6.270, 4.837)
-# Secondary rays start this fraction of the scene's bounding-box diagonal off their surface.
-RAY_EPSILON_SCALE = 1e-5
 # Relative tolerance of the parallelogram check of quad vertices.
 PARALLELOGRAM_TOLERANCE = 1e-5
 
@@ -157,7 +155,6 @@ class Scene:
     material_names: list[str]
     quad_names: list[str]
     sphere_names: list[str]
-    ray_epsilon: float
     warnings: list[str] = field(default_factory=list)
 
     @property
@@ -555,8 +552,6 @@ class SceneBuilder:
         materials = pack_materials(self.materials)
         if len(quads) + len(spheres) == 0:
             raise SceneError(f"{self.path}: shapes: the scene has no shapes")
-        low, high = scene_bounds(quads, spheres)
-        diagonal = float(np.linalg.norm(high.astype(np.float64) - low))
         notes = []
         if len(emitters) == 0:
             notes.append(
@@ -581,7 +576,6 @@ class SceneBuilder:
             material_names=list(self.material_index),
             quad_names=self.quad_names,
             sphere_names=self.sphere_names,
-            ray_epsilon=RAY_EPSILON_SCALE * max(diagonal, 1e-30),
             warnings=notes,
         )
 

@@ -177,7 +177,6 @@ class PathTracer:
             np.int32(self.max_depth),
             np.int32(self.next_event_estimation),
             np.int32(self.russian_roulette),
-            np.float32(scene.ray_epsilon),
             *sample_sets.config.path_arguments((width, height)),
             sample_sets.positions,
             sample_sets.offsets_buffer,

@@ -8,13 +8,26 @@
 #include "vecmath.h"
 
 // A surface point found by a ray: position, geometric normal (the quad's front side, the
-// sphere's outside), material and emitter.
+// sphere's outside), material and emitter, and a bound on p's distance from the true surface
+// (float rounding), which is how far rays leaving it start off the surface.
 typedef struct {
     float3 p;
     float3 ng;
     int material;
     int emitter;
+    float error;
 } Surface;
+
+// Float rounding of a computed surface point, per unit of the magnitudes that enter it (the
+// ray origin, the distance travelled, the primitive's position and size): a few dozen float
+// epsilons (pbrt-v4 bounds the same error operation by operation). It follows the point's own
+// magnitude, never the scene's extent: far-away objects do not push every ray off its surface.
+#define SURFACE_ERROR_SCALE (32.0f * FLT_EPSILON)
+
+CL_INLINE float MaxAbs3(float3 v)
+{
+    return Fmax(Fabs(v.x), Fmax(Fabs(v.y), Fabs(v.z)));
+}
 
 // Whether the ray o + t d (inv_d = 1 / d) can meet the block's bounding box for some t in
 // [0, tmax] (slab test). Always true for a block flagged as enclosing the scene (lower[3] = 1:
@@ -157,6 +170,9 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
         s.ng = Load3(q->normal);
         s.material = q->material;
         s.emitter = q->emitter;
+        // The plane distance and o + t d round at the magnitudes of o, t d and the corner
+        float magnitude = MaxAbs3(o) + t * MaxAbs3(d) + MaxAbs3(Load3(q->corner));
+        s.error = SURFACE_ERROR_SCALE * magnitude;
     } else {
         __global const Sphere *sp = &scene->spheres[prim - (int)scene->quad_count];
         float3 center = Load3(sp->center);
@@ -165,6 +181,7 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
         s.p = center + sp->radius * s.ng;
         s.material = sp->material;
         s.emitter = -1;
+        s.error = SURFACE_ERROR_SCALE * (MaxAbs3(center) + sp->radius);
     }
     return s;
 }

@@ -14,7 +14,7 @@ __kernel void intersect_rays(uint count, __global const QuadBlock *quad_blocks,
     if (i >= count)
         return;
     SceneData scene = {0, quad_blocks, spheres, 0, 0, quad_count, quad_block_count, sphere_count,
-                       0u, 0.0f};
+                       0u};
     int id;
     t[i] = Scene_Intersect(&scene, vload3(i, origins), vload3(i, directions), INFINITY, &id);
     prim[i] = id;

@@ -48,10 +48,12 @@ CL_INLINE float3 Integrator_SampleDirect(const SceneData *scene, Surface *surfac
     float3 f = BSDF_Eval(material, wo_local, wi_local) * Fabs(wi_local.z);
     if (!AnyPositive3(f))
         return (float3)(0.0f);
-    float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, scene->ray_eps);
+    float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, surface->error);
+    // The shadow ray stops short of the emitter point by both points' rounding bounds
+    float light_error = SURFACE_ERROR_SCALE * MaxAbs3(surface->p + dist * wi);
     *rays += 1u;
 #ifndef PROFILE_SKIP_SHADOW_RAYS // profiling build: every shadow ray counts as unblocked
-    if (Scene_Occluded(scene, origin, wi, dist - 2.0f * scene->ray_eps))
+    if (Scene_Occluded(scene, origin, wi, dist - 2.0f * (surface->error + light_error)))
         return (float3)(0.0f);
 #endif
     float weight =
@@ -125,7 +127,7 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
         specularBounce = BSDF_IsSpecular(material);
         prev_pdfW = pdfW;
         dir = Frame_ToWorld(frame, wi_local);
-        origin = Surface_OffsetOrigin(surface.p, surface.ng, dir, scene->ray_eps);
+        origin = Surface_OffsetOrigin(surface.p, surface.ng, dir, surface.error);
 
         // Possibly terminate the path with Russian roulette
         float beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
@@ -142,7 +144,7 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
 // One work-item per traced sample: radiance (RGB float) to radiance[3 i .. 3 i + 2].
 __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
                           uint image_height, int max_depth, int nee, int russian_roulette,
-                          float ray_eps, int paths_kind, uint fixed_count, uint strata,
+                          int paths_kind, uint fixed_count, uint strata,
                           uint zsobol_log2_count, uint zsobol_bits,
                           __global const float2 *positions,
                           __global const uint *traced_offsets, __global const uint *pixels,
@@ -158,8 +160,9 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     uint i = get_global_id(0);
     if (i >= traced_total)
         return;
-    SceneData scene = {quads,      quad_blocks,      spheres,      materials,     emitters,
-                       quad_count, quad_block_count, sphere_count, emitter_count, ray_eps};
+    SceneData scene = {quads,      quad_blocks,      spheres,      materials,
+                       emitters,   quad_count,       quad_block_count, sphere_count,
+                       emitter_count};
 
     // Find the sample's pixel, its index in the pixel and its image position
     uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);

@@ -91,7 +91,6 @@ typedef struct {
     uint quad_block_count;
     uint sphere_count;
     uint emitter_count;
-    float ray_eps; // secondary rays start this far off their surface
 } SceneData;
 
 #endif
