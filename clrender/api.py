@@ -51,6 +51,11 @@ def load_scene(name_or_path: str | Path) -> Scene | str:
     bad scene."""
     if isinstance(name_or_path, str) and is_analytic_scene(name_or_path):
         return name_or_path
+    if not isinstance(name_or_path, str | Path):
+        raise ParameterError(
+            f"load_scene takes a scene name or a path, got {type(name_or_path).__name__} "
+            f"{name_or_path!r}"
+        )
     return load_scene_file(name_or_path)
 
 

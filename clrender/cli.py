@@ -214,7 +214,16 @@ def output_paths(output: str | None, scene_label: str) -> OutputPaths:
     """OUT.exr and OUT.png, both checked writable before anything renders."""
     from clrender.imageio import check_writable
 
+    if output is not None and not output.strip():
+        raise ParameterError("-o/--output is empty: give a file name such as out.exr")
     exr = Path(output) if output else Path(scene_label.replace(":", "-") + ".exr")
+    if exr.name.lower() in (".exr", ".png"):
+        raise ParameterError(f"-o/--output {str(exr)!r} has no file name before {exr.name}")
+    if output and exr.suffix == "" and exr.exists() and not exr.is_file():
+        raise ParameterError(
+            f"-o/--output {str(exr)!r} is not a file name (a directory or device): clrender "
+            "writes OUT.exr and OUT.png, give OUT"
+        )
     if exr.suffix.lower() != ".exr":
         if exr.suffix:
             raise ParameterError(f"-o/--output must name an .exr file, got {str(exr)!r}")
@@ -274,11 +283,14 @@ def settings_from_args(args: argparse.Namespace, width: int, height: int):
 
 def check_render_args(args: argparse.Namespace) -> None:
     """Everything checkable without a device, so mistakes fail fast."""
+    from clrender.film import check_image_memory
     from clrender.sampling import check_seed
 
     settings_from_args(args, 1, 1)
     check_seed(args.seed)
-    parse_resolution(args.res)
+    size = parse_resolution(args.res)
+    if isinstance(size, tuple):  # else known only with the scene: checked by RenderSettings
+        check_image_memory(*size)
     if args.max_depth < 0:
         raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
 
@@ -296,7 +308,7 @@ def load_scene_arg(args: argparse.Namespace):
             warnings.simplefilter("ignore", SceneWarning)
             scene = load_scene(args.scene)
     except SceneError as err:
-        if Path(args.scene).exists():
+        if "/" in args.scene or args.scene.endswith(".toml"):  # a file, not a scene name
             raise
         raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
     for note in scene.warnings:

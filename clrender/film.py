@@ -10,10 +10,38 @@ rendered (an interrupted render) hold UNRENDERED_VALUE (black) and are not count
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
+
+from clrender.errors import ParameterError
 
 FLAGGED_VALUE = 0.0
 UNRENDERED_VALUE = 0.0
+# Host bytes a pixel takes from render to written files: the film (float32 RGB and two flags),
+# the image handed to the writers, its EXR read-back check, the PNG's bytes and rows.
+HOST_BYTES_PER_PIXEL = 12 + 2 + 12 + 12 + 7
+
+
+def physical_memory() -> int | None:
+    """This machine's physical memory in bytes (None where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_image_memory(width: int, height: int, memory: int | None = None) -> None:
+    """ParameterError, before any work, if the image alone needs more host memory than the
+    machine has (the render would fail deep inside an allocation)."""
+    memory = physical_memory() if memory is None else memory
+    need = width * height * HOST_BYTES_PER_PIXEL
+    if memory is not None and need > memory:
+        raise ParameterError(
+            f"a {width}x{height} image needs about {need / 2**30:.1f} GiB of host memory "
+            f"({HOST_BYTES_PER_PIXEL} bytes a pixel), more than this machine's "
+            f"{memory / 2**30:.1f} GiB: render it at a lower resolution"
+        )
 
 
 class Film:

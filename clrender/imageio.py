@@ -33,6 +33,7 @@ import OpenEXR
 from clrender.errors import ClrenderError
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+NAME_MAX = 255  # bytes in one file name (Linux, macOS, Windows alike)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 SRGB_BLOCK = 1 << 18  # values per block of the sRGB encoding (2 MB float64 temporaries)
 # Attributes every scanline EXR carries; read_exr leaves them out of the metadata it returns.
@@ -57,6 +58,13 @@ def check_writable(path: str | os.PathLike) -> Path:
     """Fail early with a one-line error if `path` cannot be created or replaced."""
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
+    too_long = [part for part in path.parts if len(os.fsencode(part)) > NAME_MAX]
+    if too_long:
+        raise OutputPathError(
+            f"cannot write {str(path)[:60]}...: a name in the path is over {NAME_MAX} bytes"
+        )
+    if path.exists() and not path.is_file() and not path.is_dir():
+        raise OutputPathError(f"cannot write {path}: it is not a regular file (a device or FIFO)")
     if path.is_dir():
         raise OutputPathError(f"cannot write {path}: it is a directory")
     if not directory.is_dir():

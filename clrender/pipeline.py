@@ -69,11 +69,11 @@ from clrender.estimators.device_cells import (
 from clrender.estimators.pixel import estimate
 from clrender.estimators.redraw import estimate_with_redraw
 from clrender.estimators.registry import Estimator, check_compatible
-from clrender.film import Film
+from clrender.film import Film, check_image_memory
 from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime
 from clrender.samples import SampleSets
-from clrender.sampling import SamplerConfig, generate_sample_sets, make_sampler
+from clrender.sampling import SamplerConfig, check_seed, generate_sample_sets, make_sampler
 from clrender.sppp import auxiliary_count
 
 DEFAULT_TILE_SAMPLES = 4_000_000
@@ -106,6 +106,7 @@ class RenderSettings:
     voronoi_backend: str = "device"
 
     def __post_init__(self) -> None:
+        self.check_fields()
         object.__setattr__(self, "estimator", check_compatible(self.estimator, self.sampler.name))
         # pvor over stratified or Sobol points is unbiased only under a random toroidal shift
         # of each pixel's set (torus cell areas are shift-invariant): on for it, off otherwise
@@ -124,6 +125,21 @@ class RenderSettings:
                 f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "
                 f"{', '.join(VORONOI_BACKENDS)}"
             )
+
+    def check_fields(self) -> None:
+        """One-line ParameterErrors for values of the wrong type or range (the Python API's
+        edge: the command line checks the same before it builds settings)."""
+        for name in ("width", "height", "tile_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
+                raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.sampler, SamplerConfig):
+            raise ParameterError(
+                f"sampler must be a SamplerConfig (clrender.sampling.make_sampler(name, spp)), "
+                f"got {type(self.sampler).__name__} {self.sampler!r}"
+            )
+        check_seed(self.seed)
+        check_image_memory(self.width, self.height)
 
     @property
     def device_cells(self) -> bool:

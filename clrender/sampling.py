@@ -42,7 +42,14 @@ import pyopencl as cl
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
 from clrender.samples import SampleSets
-from clrender.sppp import DEFAULT_ALPHA, auxiliary_count, check_alpha, check_intensity, sppp_eps
+from clrender.sppp import (
+    DEFAULT_ALPHA,
+    MAX_EPS,
+    auxiliary_count,
+    check_alpha,
+    check_intensity,
+    sppp_eps,
+)
 
 # Position kinds (kernels/sampling.cl) and path kinds (kernels/sampler.h).
 POSITIONS_INDEPENDENT, POSITIONS_STRATIFIED_IN_ORDER, POSITIONS_SPPP, POSITIONS_FROM_SAMPLER = (
@@ -233,8 +240,11 @@ def make_sampler(
     if not kind.is_sppp:
         return SamplerConfig(name, n, alpha, toroidal_shift=bool(toroidal_shift))
     eps = sppp_eps(n, alpha) if eps is None else float(eps)
-    if not (math.isfinite(eps) and eps > 0.0):
-        raise ParameterError(f"eps (strip width) must be a positive finite number, got {eps!r}")
+    if not (math.isfinite(eps) and 0.0 < eps <= MAX_EPS):
+        raise ParameterError(
+            f"eps (strip width, in pixels) must be in (0, {MAX_EPS:g}], got {eps!r} "
+            f"(the paper's choice for n = {n}: {sppp_eps(n, alpha):.3g})"
+        )
     return SamplerConfig(name, n, alpha, eps, auxiliary_count(n, eps), bool(toroidal_shift))
 
 

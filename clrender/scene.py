@@ -81,7 +81,9 @@ imports nothing back.
 from __future__ import annotations
 
 import difflib
+import errno
 import math
+import stat
 import tomllib
 import warnings
 from collections.abc import Callable
@@ -184,9 +186,18 @@ def list_scenes() -> list[str]:
 def resolve_scene_path(path_or_name: str | Path) -> Path:
     """A path to an existing file, or a bare shipped scene name ("cornell-box")."""
     path = Path(path_or_name)
-    if path.is_file():
-        return path
     text = str(path_or_name)
+    try:
+        mode = path.stat().st_mode
+    except OSError as err:
+        if err.errno == errno.ENAMETOOLONG:
+            raise SceneError(f"scene file {text[:60]!r}...: name too long") from None
+        mode = None  # does not exist: perhaps a shipped scene's name
+    if mode is not None:
+        if stat.S_ISREG(mode):
+            return path
+        what = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a FIFO or device)"
+        raise SceneError(f"scene file {text!r} is {what}: give a .toml file or a scene name")
     if "/" not in text and "\\" not in text:
         shipped = scenes_dir() / (text if text.endswith(".toml") else f"{text}.toml")
         if shipped.is_file():
@@ -204,13 +215,30 @@ def load_scene(path_or_name: str | Path) -> Scene:
     """Read and validate a scene file (or a shipped scene by name)."""
     path = resolve_scene_path(path_or_name)
     try:
-        with open(path, "rb") as handle:
-            document = tomllib.load(handle)
-    except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"{path}: TOML syntax error: {err}") from None
+        data = path.read_bytes()
     except OSError as err:
         raise SceneError(f"{path}: cannot read: {err.strerror}") from None
-    return SceneBuilder(path).build(document)
+    return SceneBuilder(path).build(parse_scene_text(path, data))
+
+
+def parse_scene_text(path: Path, data: bytes) -> dict:
+    """The TOML document of a scene file's bytes; SceneError (one line) if they are not UTF-8
+    TOML or nest beyond what a scene needs."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise SceneError(
+            f"{path}: not UTF-8 text (byte 0x{data[err.start]:02x} at offset {err.start}): "
+            "scene files are TOML, which must be UTF-8"
+        ) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SceneError(f"{path}: TOML syntax error: {err}") from None
+    except RecursionError:
+        raise SceneError(
+            f"{path}: arrays or tables nested too deeply to read (a scene nests at most 3)"
+        ) from None
 
 
 # --------------------------------------------------------------------------- validation

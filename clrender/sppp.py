@@ -20,6 +20,10 @@ from clrender.errors import ParameterError
 from clrender.samples import SampleSets
 
 DEFAULT_ALPHA = 1e-3
+# Widest strip accepted, in pixels: the paper's choice is below 3 even for n = 1 and
+# alpha = 1e-9; wider strips only multiply the auxiliary nuclei ((1 + 2 eps)^2 - 1 per sample).
+# The redraw driver's enlargements stop there too.
+MAX_EPS = 4.0
 
 
 def check_intensity(n: float) -> None:

@@ -343,3 +343,102 @@ def test_peak_memory_is_bounded_by_the_tile_not_the_image(tmp_path):
     allowance = extra_pixels * BYTES_PER_PIXEL / 2**20 + SLACK_MB
     assert large < PEAK_BOUND_MB, (small, large)
     assert large - small < allowance, (small, large, allowance)
+
+
+# --- files that are not what a scene or an output must be: one line, before any device ---------
+
+
+def deeply_nested(depth: int) -> bytes:
+    return ("a = " + "[" * depth + "]" * depth + "\n").encode()
+
+
+@pytest.mark.parametrize(
+    "content, fragment",
+    [
+        ("a = 1\n".encode("utf-16"), "not UTF-8 text (byte 0xff at offset 0)"),
+        (bytes(range(128, 256)), "not UTF-8 text (byte 0x80 at offset 0)"),
+        (deeply_nested(3000), "arrays or tables nested too deeply"),
+    ],
+)
+def test_unreadable_scene_files_are_one_line(capsys, tmp_path, monkeypatch, content, fragment):
+    monkeypatch.setattr(cli, "create_runtime", no_device)
+    scene = tmp_path / "bad.toml"
+    scene.write_bytes(content)
+    status, _, err = run_cli(capsys, "render", str(scene), *FAST, "-o", str(tmp_path / "o"))
+    assert_one_line_error(status, err, f"{scene}: {fragment}")
+
+
+def test_a_scene_argument_that_is_no_regular_file(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr(cli, "create_runtime", no_device)
+    os.mkfifo(tmp_path / "pipe.toml")
+    (tmp_path / "folder.toml").mkdir()
+    out = str(tmp_path / "o")
+    for name, what in [("pipe.toml", "not a regular file"), ("folder.toml", "is a directory")]:
+        status, _, err = run_cli(capsys, "render", str(tmp_path / name), *FAST, "-o", out)
+        assert_one_line_error(status, err, what)
+    status, _, err = run_cli(capsys, "render", "x" * 300 + ".toml", *FAST, "-o", out)
+    assert_one_line_error(status, err, "name too long")
+
+
+@pytest.mark.parametrize(
+    "output, fragment",
+    [
+        ("", "-o/--output is empty"),
+        ("d/.exr", "has no file name before .exr"),
+        ("/dev/null", "is not a file name (a directory or device)"),
+        ("y" * 300 + ".exr", "over 255 bytes"),
+    ],
+)
+def test_output_names_that_cannot_be_written_are_one_line(
+    capsys, tmp_path, monkeypatch, output, fragment
+):
+    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "d").mkdir()
+    status, _, err = run_cli(capsys, "render", "analytic", *FAST, "-o", output)
+    assert_one_line_error(status, err, fragment)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d"] and not list(
+        (tmp_path / "d").iterdir()
+    )
+
+
+def test_a_resolution_beyond_the_machine_is_refused_before_any_device(capsys, monkeypatch):
+    monkeypatch.setattr(cli, "create_runtime", no_device)
+    status, _, err = run_cli(capsys, "render", "analytic", "--res", "65536x65536")
+    assert_one_line_error(status, err, "a 65536x65536 image needs about 180.0 GiB")
+
+
+# --- the Python API checks its arguments with the same one-line messages -----------------------
+
+
+@pytest.mark.parametrize(
+    "change, fragment",
+    [
+        ({"width": -1}, "width must be a positive integer, got -1"),
+        ({"height": "8"}, "height must be a positive integer, got '8'"),
+        ({"sampler": "sobol"}, "sampler must be a SamplerConfig"),
+        ({"estimator": "vornoi"}, "unknown estimator 'vornoi'"),
+        ({"seed": -1}, "seed must be an integer in [0, 2^32), got -1"),
+        ({"tile_samples": 0}, "tile_samples must be a positive integer, got 0"),
+    ],
+)
+def test_render_settings_refuse_bad_values(change, fragment):
+    from clrender.errors import ParameterError
+    from clrender.pipeline import RenderSettings
+    from clrender.sampling import make_sampler
+
+    arguments = {"width": 8, "height": 8, "sampler": make_sampler("independent", 4)}
+    arguments.update({"estimator": "mc", **change})
+    with pytest.raises(ParameterError) as raised:
+        RenderSettings(**arguments)
+    assert fragment in str(raised.value) and "\n" not in str(raised.value)
+
+
+def test_api_loaders_refuse_what_they_cannot_use():
+    import clrender
+    from clrender.sampling import make_sampler
+
+    with pytest.raises(clrender.ParameterError, match="takes a scene name or a path"):
+        clrender.load_scene(None)
+    with pytest.raises(clrender.ParameterError, match=r"must be in \(0, 4\], got 1000000.0"):
+        make_sampler("sppp", 16, eps=1e6)

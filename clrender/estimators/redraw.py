@@ -7,7 +7,8 @@ cell). It always terminates:
 
 - rounds 0 .. redraws_before_enlarge use the caller's eps (the paper's redraw);
 - each later round multiplies eps by enlarge_factor (the paper's suggested remedy: a wider
-  stretched window makes unbounded W cells rarer), and never goes below sppp_eps(n, alpha),
+  stretched window makes unbounded W cells rarer) up to clrender.sppp.MAX_EPS, and never goes
+  below sppp_eps(n, alpha),
   the eps at which the paper's bound on the rejection probability is alpha: a draw accepted
   where rejection is likely is conditioned on its acceptance, and biased (measured: fvor
   z = -27 after a storm at eps = 1e-4 recovered by plain enlargement);
@@ -29,7 +30,7 @@ from clrender.errors import ClrenderError, ParameterError
 from clrender.estimators.pixel import EstimateResult, estimate, estimate_all
 from clrender.estimators.registry import MC, Estimator, estimator_info
 from clrender.samples import SampleSets
-from clrender.sppp import DEFAULT_ALPHA, sppp_eps
+from clrender.sppp import DEFAULT_ALPHA, MAX_EPS, sppp_eps
 
 # draw(pixel_ids, eps) -> the sample sets of those pixels and the values of their traced samples
 DrawFn = Callable[[np.ndarray, float], tuple[SampleSets, np.ndarray]]
@@ -90,7 +91,7 @@ def estimate_with_redraw(
         if pending.size == 0:
             break
         if round_index > redraws_before_enlarge:
-            eps = max(eps * enlarge_factor, sppp_eps(n, alpha))
+            eps = min(max(eps * enlarge_factor, sppp_eps(n, alpha)), MAX_EPS)
             stats.eps_enlargements += 1
         samples, values = _draw(draw, pending, eps)
         results = estimate_all(entries, samples, values)
