@@ -117,6 +117,11 @@ class SceneWarning(UserWarning):
 
 ALUMINIUM_ETA = (1.657, 0.880, 0.521)
 ALUMINIUM_K = (9.224, 6.270, 4.837)
+# Scene numbers the device's float32 holds: magnitudes up to SCENE_NUMBER_LIMIT (their squares,
+# distances and areas stay finite: float32 ends at 3.4e38), and none between 0 and the smallest
+# normal float32 (it would become 0 or lose its digits).
+SCENE_NUMBER_LIMIT = 1e18
+FLOAT32_SMALLEST = float(np.finfo(np.float32).tiny)
 # Relative tolerance of the parallelogram check of quad vertices.
 PARALLELOGRAM_TOLERANCE = 1e-5
 
@@ -298,6 +303,7 @@ class _Table:
         value = float(value)
         if not math.isfinite(value):
             self.fail(key, f"expected a finite number{what}, got {value}")
+        self.check_device_range(key, value)
         if (low is not None and value < low) or (high is not None and value > high):
             self.fail(key, f"expected a number{what}, got {value:g}")
         return value
@@ -312,7 +318,25 @@ class _Table:
                 self.fail(key, f"expected {expected}, got {_describe(value)}")
             if not math.isfinite(float(item)):
                 self.fail(key, f"expected {expected}, got a non-finite entry in {value}")
+            self.check_device_range(key, float(item))
         return tuple(float(item) for item in value)
+
+    def check_device_range(self, key: str, value: float) -> None:
+        """The device computes in float32, with squares of coordinates: a number must be 0 or
+        within [FLOAT32_SMALLEST, SCENE_NUMBER_LIMIT] in magnitude."""
+        size = abs(value)
+        if size > SCENE_NUMBER_LIMIT:
+            self.fail(
+                key,
+                f"{value:g} is too large for the device's float32 arithmetic (a scene's numbers "
+                f"stay within {SCENE_NUMBER_LIMIT:g}, so that their squares fit)",
+            )
+        if 0.0 < size < FLOAT32_SMALLEST:
+            self.fail(
+                key,
+                f"{value:g} underflows the device's float32 (smallest normal "
+                f"{FLOAT32_SMALLEST:.3g}): use 0 or a larger unit",
+            )
 
     def rgb(self, key: str, default: object = None, high: float | None = None) -> tuple:
         bound = f" in [0, {high:g}]" if high is not None else " >= 0"
