@@ -380,10 +380,10 @@ def glossy_highlight_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
     surface, at least 3 pixels inside that surface's region. Brightness is the channel mean
     after a 5 x 5 median filter, so that a lone firefly of a noisy render is not chosen."""
     brightness, interior = glossy_brightness(scene, image)
-    y, x = np.unravel_index(int(np.argmax(np.where(interior, brightness, -np.inf))), interior.shape)
+    y, x = argmax_where(brightness, interior)
     return ProbePixel(
-        int(x),
-        int(y),
+        x,
+        y,
         image.shape[1],
         "glossy highlight",
         {"short_render_radiance": float(brightness[y, x])},
@@ -396,11 +396,9 @@ def glossy_highlight_edge_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
     highlight is the connected region around the brightest pixel where the brightness is at
     least half that peak; its edge, the highlight's pixels with a 4-neighbour below half the
     peak; of those, the one with the largest brightness gradient (Gaussian derivative, sigma 1
-    pixel, truncated at 2: at these pixels it reads the glossy surface only)."""
+    pixel, truncated at 2 pixels)."""
     brightness, interior = glossy_brightness(scene, image)
-    peak_at = np.unravel_index(
-        int(np.argmax(np.where(interior, brightness, -np.inf))), interior.shape
-    )
+    peak_at = argmax_where(brightness, interior)
     half = 0.5 * brightness[peak_at]
     regions, _ = ndimage.label(interior & (brightness >= half))
     highlight = regions == regions[peak_at]
@@ -409,24 +407,31 @@ def glossy_highlight_edge_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
     if not edge.any():
         raise ParameterError("the glossy highlight has no edge inside the glossy surface")
     steepness = ndimage.gaussian_gradient_magnitude(brightness, 1.0, truncate=2.0)
-    y, x = np.unravel_index(int(np.argmax(np.where(edge, steepness, -np.inf))), edge.shape)
+    y, x = argmax_where(steepness, edge)
     return ProbePixel(
-        int(x),
-        int(y),
+        x,
+        y,
         image.shape[1],
         "glossy highlight edge",
         {
             "short_render_radiance": float(brightness[y, x]),
             "highlight_peak_radiance": float(brightness[peak_at]),
-            "highlight_peak_pixel": [int(peak_at[1]), int(peak_at[0])],
+            "highlight_peak_pixel": [peak_at[1], peak_at[0]],
         },
     )
 
 
+def argmax_where(values: np.ndarray, where: np.ndarray) -> tuple[int, int]:
+    """(y, x) of the largest of `values` (H, W) where `where` (H, W) holds; the first in row
+    order on ties."""
+    y, x = np.unravel_index(int(np.argmax(np.where(where, values, -np.inf))), values.shape)
+    return int(y), int(x)
+
+
 def glossy_brightness(scene: Scene, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(brightness, interior), both (H, W): the channel mean of `image` (H, W, 3) after a 5 x 5
-    median filter, and the pixels at least 3 pixels inside the region of one glossy surface
-    (glossy_pixels), where that filter reads the surface only."""
+    median filter, and the pixels at least 3 pixels inside the region of glossy_pixels, where
+    that filter reads glossy pixels only."""
     height, width, _ = image.shape
     mask = glossy_pixels(scene, width, height)
     interior = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1] >= 3
