@@ -1,21 +1,26 @@
-"""Single-pixel study on the authors' Cornell box: the paper's Figures 6 and 9, over every
-sampler.
+"""Single-pixel study on the authors' Cornell box and its glossy variant: the paper's
+Figures 6 and 9, over every sampler.
 
-    python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--out DIR]
+    python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--pixels NAME ...]
+                                [--out DIR]
 
-Three pixels found from the scene's geometry (clrender.probes, never hard-coded): one the
-light's outline crosses (light covering closest to half of it), one deep inside the lit part
-of the back wall, one seeing the glass ball's centre. For each pixel and spp, R independent
-estimates of every (estimator, sampler) of GROUPS: mc, cvor and pvor over independent samples;
-mc over stratified, stratified-pixel, sobol and zsobol; pvor over stratified and sobol points
-with a random toroidal shift per run (as the render settings do for it); mc_n, vor, vor_sn and
-fvor over sppp and sppp-sobol. A sampler is skipped at a count it does not take (stratified:
-squares; zsobol: powers of two). R sample sets of a pixel are drawn and traced in one launch:
-run r is redraw number r, an independent randomisation (zsobol's key includes it too), then
-each estimator is applied to all R runs as one batch (estimate_all: estimators sharing a
-tessellation share it). SPPP runs a Voronoi estimator rejects (an unbounded W cell) are
-replaced by further draws, as the paper's redraw does; all SPPP estimators of a sampler use the
-same accepted runs.
+Pixels found from the scenes' geometry (clrender.probes, never hard-coded), each in its scene
+(PROBES): in cornell-box, one the light's outline crosses (light covering closest to half of
+it), one deep inside the lit part of the back wall, one seeing the glass ball's centre, and one
+of the floor that the tall box's shadow boundary crosses (the visible share of the light
+changes most across it); in cornell-box-glossy, one on the edge of the glossy box's highlight,
+found in a short deterministic render (mc over Sobol points, SHORT_RENDER_SPP spp, seed
+SHORT_RENDER_SEED). --pixels picks some of them (default all). For each pixel and spp, R
+independent estimates of every (estimator, sampler) of GROUPS: mc, cvor and pvor over
+independent samples; mc over stratified, stratified-pixel, sobol and zsobol; pvor over
+stratified and sobol points with a random toroidal shift per run (as the render settings do
+for it); mc_n, vor, vor_sn and fvor over sppp and sppp-sobol. A sampler is skipped at a count
+it does not take (stratified: squares; zsobol: powers of two). R sample sets of a pixel are
+drawn and traced in one launch: run r is redraw number r, an independent randomisation
+(zsobol's key includes it too), then each estimator is applied to all R runs as one batch
+(estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi estimator
+rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw does; all
+SPPP estimators of a sampler use the same accepted runs.
 
 The value of a pixel is the mean of its RGB channels. Per (pixel, estimator/sampler, spp):
 mean, std and variance over the R runs; milliseconds per estimate of the estimator alone (each
@@ -34,6 +39,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -48,6 +54,7 @@ from common import (  # noqa: E402
     machine,
     make_tracer,
     markdown_table,
+    timed_render,
     write_json,
 )
 
@@ -55,14 +62,42 @@ from clrender.estimators import ESTIMATORS, estimate, estimate_all  # noqa: E402
 from clrender.estimators.device_cells import device_sppp_cells_from_arrays  # noqa: E402
 from clrender.probes import (  # noqa: E402
     PixelRuns,
+    ProbePixel,
     diffuse_wall_pixel,
+    glossy_highlight_edge_pixel,
     light_edge_pixel,
+    shadow_boundary_pixel,
     sphere_pixel,
     trace_pixel_runs,
 )
+from clrender.radiance import PathTracerSource  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 from clrender.samples import SampleSets  # noqa: E402
 from clrender.sampling import SAMPLERS, make_sampler  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Probe:
+    """A pixel of the study: its scene and its finder (clrender.probes), called with (scene,
+    width, height), or with (scene, short render) when it reads a render."""
+
+    scene: str
+    finder: Callable[..., ProbePixel]
+    reads_render: bool = False
+
+
+PROBES = {
+    "light_edge": Probe("cornell-box", light_edge_pixel),
+    "diffuse_wall": Probe("cornell-box", diffuse_wall_pixel),
+    "glass_ball": Probe("cornell-box", sphere_pixel),
+    "shadow_boundary": Probe("cornell-box", shadow_boundary_pixel),
+    "glossy_highlight_edge": Probe(
+        "cornell-box-glossy", glossy_highlight_edge_pixel, reads_render=True
+    ),
+}
+# The short render a finder reads: mc over Sobol points, a fixed seed (deterministic).
+SHORT_RENDER_SPP = 256
+SHORT_RENDER_SEED = 3
 
 
 @dataclass(frozen=True)
@@ -125,30 +160,39 @@ class Study:
     def __init__(self, args):
         self.args = args
         self.runtime = create_runtime()
-        self.tracer = make_tracer(self.runtime, args.scene)
-        self.scene = self.tracer.scene
+        scenes = dict.fromkeys(PROBES[name].scene for name in args.pixels)
+        self.tracers = {scene: make_tracer(self.runtime, scene) for scene in scenes}
         self.size = args.size
-        for group in GROUPS:  # warm-up: kernel builds are not timed
-            trace_pixel_runs(
-                self.runtime, self.tracer, self.sampler(group, 16), 0, 0, 2, self.size, self.size
-            )
+        for tracer in self.tracers.values():  # warm-up: kernel builds are not timed
+            for group in GROUPS:
+                trace_pixel_runs(
+                    self.runtime, tracer, self.sampler(group, 16), 0, 0, 2, self.size, self.size
+                )
 
-    def pixels(self) -> dict:
-        s = self.scene, self.size, self.size
-        return {
-            "light_edge": light_edge_pixel(*s),
-            "diffuse_wall": diffuse_wall_pixel(*s),
-            "glass_ball": sphere_pixel(*s),
-        }
+    def find_pixel(self, probe: Probe) -> ProbePixel:
+        scene = self.tracers[probe.scene].scene
+        if probe.reads_render:
+            return probe.finder(scene, self.short_render(probe.scene))
+        return probe.finder(scene, self.size, self.size)
+
+    def short_render(self, scene: str) -> np.ndarray:
+        """(size, size, 3) render of the scene for a finder that reads one."""
+        source = PathTracerSource(self.tracers[scene], self.size, self.size)
+        image, _ = timed_render(
+            self.runtime, source, "mc", "sobol", SHORT_RENDER_SPP, SHORT_RENDER_SEED
+        )
+        return image
 
     @staticmethod
     def sampler(group: Group, spp: int):
         return replace(make_sampler(group.sampler, spp), toroidal_shift=group.shift)
 
-    def runs(self, group: Group, spp: int, pixel: int, count: int, first: int) -> PixelRuns:
+    def runs(
+        self, scene: str, group: Group, spp: int, pixel: int, count: int, first: int
+    ) -> PixelRuns:
         return trace_pixel_runs(
             self.runtime,
-            self.tracer,
+            self.tracers[scene],
             self.sampler(group, spp),
             self.args.seed + group.seed,
             pixel,
@@ -158,8 +202,9 @@ class Study:
             first,
         )
 
-    def group(self, group: Group, spp: int, pixel: int) -> dict:
-        """{label: {"values": (R,), "estimator_ms", "trace_ms"}} for one sampler's group."""
+    def group(self, scene: str, group: Group, spp: int, pixel: int) -> dict:
+        """{label: {"values": (R,), "estimator_ms", "trace_ms"}} for one sampler's group at a
+        pixel of a scene."""
         sampler = self.sampler(group, spp)
         names = list(group.estimators)
         R = self.args.runs
@@ -169,7 +214,7 @@ class Study:
         device_s = dict.fromkeys(names, 0.0)
         trace_s, drawn, accepted = 0.0, 0, 0
         while accepted < R:
-            runs = self.runs(group, spp, pixel, R - accepted + spare, drawn)
+            runs = self.runs(scene, group, spp, pixel, R - accepted + spare, drawn)
             trace_s += runs.trace_seconds
             drawn += runs.runs
             batch = estimate_batch(runs, sampler, names, self.args.timing_runs)
@@ -285,7 +330,7 @@ def device_summary(entry: dict) -> dict:
     }
 
 
-def study_pixel(study: Study, pixel) -> dict:
+def study_pixel(study: Study, scene: str, pixel: ProbePixel) -> tuple[dict, dict]:
     """({spp: {label: summary}}, {spp: {label: values (R,)}}) over the spp list."""
     table, values = {}, {}
     for spp in study.args.spp:
@@ -294,7 +339,7 @@ def study_pixel(study: Study, pixel) -> dict:
         for group in GROUPS:
             if not usable(group, spp):
                 continue
-            for label, entry in study.group(group, spp, pixel.pixel).items():
+            for label, entry in study.group(scene, group, spp, pixel.pixel).items():
                 row[label] = summarise(entry)
                 values[spp][label] = entry["values"]
         table[spp] = row
@@ -397,7 +442,9 @@ def labels_of(table: dict) -> list[str]:
     return list(dict.fromkeys(label for row in table.values() for label in row))
 
 
-def plot_fig6(table: dict, name: str, pixel, reference: float, out: Path) -> None:
+def plot_fig6(
+    table: dict, name: str, scene: str, pixel: ProbePixel, reference: float, out: Path
+) -> None:
     others = [label for label in labels_of(table) if label != BASELINE]
     cols = 4
     rows = math.ceil((len(others) + 1) / cols)
@@ -420,13 +467,15 @@ def plot_fig6(table: dict, name: str, pixel, reference: float, out: Path) -> Non
     ax.legend(fontsize=6)
     for ax in list(axes.flat)[len(others) + 1 :]:
         ax.set_visible(False)
-    fig.suptitle(f"Figure 6: pixel {name} ({pixel.x}, {pixel.y}), mean +- 1 std over R runs")
+    fig.suptitle(
+        f"Figure 6: pixel {name} ({pixel.x}, {pixel.y}) of {scene}, mean +- 1 std over R runs"
+    )
     fig.tight_layout()
     fig.savefig(out / f"fig6_{name}.png", dpi=100)
     plt.close(fig)
 
 
-def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
+def plot_fig9(table: dict, name: str, scene: str, pixel: ProbePixel, out: Path) -> None:
     fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(15, 5.5))
     cmap = plt.get_cmap("tab20")
     for i, label in enumerate(labels_of(table)):
@@ -469,7 +518,7 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
         title="(b) variance against time",
     )
     ax_v.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.suptitle(f"Figure 9: pixel {name} ({pixel.x}, {pixel.y})")
+    fig.suptitle(f"Figure 9: pixel {name} ({pixel.x}, {pixel.y}) of {scene}")
     fig.tight_layout()
     fig.savefig(out / f"fig9_{name}.png", dpi=100)
     plt.close(fig)
@@ -482,7 +531,13 @@ def plot_fig9(table: dict, name: str, pixel, out: Path) -> None:
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run (R = 16, spp 64, 256)")
-    parser.add_argument("--scene", default="cornell-box")
+    parser.add_argument(
+        "--pixels",
+        nargs="+",
+        choices=list(PROBES),
+        default=list(PROBES),
+        help="probe pixels to study (default all)",
+    )
     parser.add_argument("--size", type=int, default=256, help="image width = height")
     parser.add_argument("--runs", type=int, default=None, help="R runs per point (default 200)")
     parser.add_argument("--spp", type=int, nargs="+", default=None, help="default 64 128 ... 4096")
@@ -524,8 +579,8 @@ def report(results: dict, args, argv) -> str:
         "",
         f"Command: `{command_line('pixel_study.py', argv)}`",
         "",
-        f"{args.scene} at {args.size}x{args.size}, R = {args.runs} runs per point, spp "
-        f"{args.spp}, max depth 8, pixel value = mean of RGB. Machine: "
+        f"{args.size}x{args.size}, R = {args.runs} runs per point, spp {args.spp}, max depth 8, "
+        "pixel value = mean of RGB; each pixel's scene is in its heading. Machine: "
         f"{results['machine']['uptime']}",
         "",
     ]
@@ -533,7 +588,7 @@ def report(results: dict, args, argv) -> str:
         table = entry["table"]
         labels = labels_of(table)
         lines += [
-            f"## {name}: pixel ({entry['pixel']['x']}, {entry['pixel']['y']})",
+            f"## {name}: pixel ({entry['pixel']['x']}, {entry['pixel']['y']}) of {entry['scene']}",
             "",
             f"Found as: {entry['pixel']}",
             "",
@@ -612,7 +667,7 @@ def main(argv=None) -> None:
     start = time.perf_counter()
     results = {
         "settings": {
-            "scene": args.scene,
+            "scenes": {name: PROBES[name].scene for name in args.pixels},
             "size": args.size,
             "runs": args.runs,
             "spp": args.spp,
@@ -622,12 +677,15 @@ def main(argv=None) -> None:
         "machine_before": machine(),
         "pixels": {},
     }
-    for name, pixel in study.pixels().items():
-        print(f"{name}: {pixel.as_dict()}", flush=True)
-        table, values = study_pixel(study, pixel)
+    for name in args.pixels:
+        scene = PROBES[name].scene
+        pixel = study.find_pixel(PROBES[name])
+        print(f"{name} ({scene}): {pixel.as_dict()}", flush=True)
+        table, values = study_pixel(study, scene, pixel)
         top = max(spp for spp in table if REFERENCE_LABEL in table[spp])
         ref = table[top][REFERENCE_LABEL]["mean"]
         results["pixels"][name] = {
+            "scene": scene,
             "pixel": pixel.as_dict(),
             "table": table,
             "reference": ref,
@@ -636,8 +694,8 @@ def main(argv=None) -> None:
             "efficiency_ratio": efficiency_ratios(table),
             "voronoi_vs_ld": voronoi_vs_ld(table, values, args.seed),
         }
-        plot_fig6(table, name, pixel, ref, args.out)
-        plot_fig9(table, name, pixel, args.out)
+        plot_fig6(table, name, scene, pixel, ref, args.out)
+        plot_fig9(table, name, scene, pixel, args.out)
     results["machine"] = machine()
     results["seconds"] = time.perf_counter() - start
     write_json(args.out / "results.json", results)

@@ -5,14 +5,17 @@ many times over.
     edge = light_edge_pixel(scene, 256, 256)        # a pixel the light's outline crosses
     wall = diffuse_wall_pixel(scene, 256, 256)      # deep inside a lit diffuse wall
     ball = sphere_pixel(scene, 256, 256)            # the glass ball's centre
+    shadow = shadow_boundary_pixel(scene, 256, 256)  # floor the box's shadow boundary crosses
+    sheen = glossy_highlight_edge_pixel(glossy_scene, short_render)  # a glossy highlight's edge
     runs = trace_pixel_runs(runtime, tracer, make_sampler("sppp", 256), seed, edge.pixel,
                             runs=200, width=256, height=256)
 
 Pixels are found on the host from the scene description, never hard-coded: the camera projects
 points (the inverse of kernels/camera.h), a small NumPy ray caster finds what each pixel sees
-and whether a point sees the light. `trace_pixel_runs` draws R independent sample sets of one
-pixel in one launch: run r uses redraw number first_redraw + r, and every random number depends
-on (seed, pixel, sample, dimension, redraw), so runs are independent and reproducible.
+and how much of the light a point sees; the glossy finders read a short render as well.
+`trace_pixel_runs` draws R independent sample sets of one pixel in one launch: run r uses
+redraw number first_redraw + r, and every random number depends on (seed, pixel, sample,
+dimension, redraw), so runs are independent and reproducible.
 """
 
 from __future__ import annotations
@@ -35,6 +38,10 @@ NO_HIT = -1
 # Sub-pixel positions (pixel-local) whose rays must agree for a pixel to count as "inside" a
 # surface: the centre and four points near the corners.
 PIXEL_PROBES = np.array([[0.0, 0.0], [-0.45, -0.45], [0.45, -0.45], [-0.45, 0.45], [0.45, 0.45]])
+# Points per side of the grid over the light that visible_light_fraction counts.
+LIGHT_GRID_CELLS = 8
+# Points per batch of shadow rays in light_blockers (memory bound: a few tens of MB).
+SHADOW_CHUNK = 4096
 
 
 @dataclass(frozen=True)
@@ -133,6 +140,13 @@ def shape_materials(scene: Scene) -> np.ndarray:
     return np.concatenate([scene.quads["material"], scene.spheres["material"]]).astype(int)
 
 
+def glass_shapes(scene: Scene) -> np.ndarray:
+    """Shape ids (quads then spheres) of dielectric material."""
+    materials = shape_materials(scene)
+    dielectric = scene.materials["type"][materials] == MATERIAL_TYPES["dielectric"]
+    return np.flatnonzero((materials >= 0) & dielectric)
+
+
 def pixel_hits(scene: Scene, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """(shape ids (H, W, K), hit points (H, W, K, 3)) of the K = len(PIXEL_PROBES) probe rays
     of every pixel."""
@@ -150,14 +164,47 @@ def light_points(scene: Scene, emitter: int = 0) -> np.ndarray:
     return np.array([c, c + e1, c + e2, c + e1 + e2, c + 0.5 * (e1 + e2)])
 
 
-def sees_points(scene: Scene, points: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """(...,) whether every target is unoccluded from each point (shadow rays, small offset)."""
+def light_grid(scene: Scene, emitter: int = 0, cells: int = LIGHT_GRID_CELLS) -> np.ndarray:
+    """The centres of a cells x cells grid over an emitting quad (cells * cells, 3)."""
+    quad = scene.quads[scene.emitters["quad"][emitter]]
+    c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
+    s = (np.arange(cells) + 0.5) / cells
+    return (c + s[:, None, None] * e1 + s[None, :, None] * e2).reshape(-1, 3)
+
+
+def shadow_blockers(scene: Scene, points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(..., T) the shape id blocking the shadow ray from each point to each target (T, 3),
+    NO_HIT where the target is unoccluded (small offset at the point, as sees_points)."""
     to = targets - points[..., None, :]
     dist = np.linalg.norm(to, axis=-1)
     d = to / dist[..., None]
     o = points[..., None, :] + 1e-3 * d
-    t, _ = first_hits(scene, o, d)
-    return (t >= dist * (1.0 - 1e-4)).all(axis=-1)
+    t, shape = first_hits(scene, o, d)
+    return np.where(t >= dist * (1.0 - 1e-4), NO_HIT, shape)
+
+
+def sees_points(scene: Scene, points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """(...,) whether every target is unoccluded from each point (shadow rays, small offset)."""
+    return (shadow_blockers(scene, points, targets) == NO_HIT).all(axis=-1)
+
+
+def light_blockers(scene: Scene, points: np.ndarray, emitter: int = 0) -> np.ndarray:
+    """(..., L) shadow_blockers of the points (..., 3) towards the light_grid points of an
+    emitter, in chunks of points (the ray caster holds rays x shapes x 3 values)."""
+    targets = light_grid(scene, emitter)
+    flat = np.asarray(points, np.float64).reshape(-1, 3)
+    chunks = [
+        shadow_blockers(scene, flat[i : i + SHADOW_CHUNK], targets)
+        for i in range(0, len(flat), SHADOW_CHUNK)
+    ]
+    blockers = np.concatenate(chunks) if chunks else np.empty((0, len(targets)), int)
+    return blockers.reshape(*np.shape(points)[:-1], len(targets))
+
+
+def visible_light_fraction(scene: Scene, points: np.ndarray, emitter: int = 0) -> np.ndarray:
+    """(...,) the share of an emitter's light_grid points each point (..., 3) sees unoccluded:
+    0 in the umbra, 1 fully lit, in between in the penumbra."""
+    return (light_blockers(scene, points, emitter) == NO_HIT).mean(axis=-1)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -261,6 +308,51 @@ def _deepest(mask: np.ndarray, width: int, height: int, what: str) -> ProbePixel
     )
 
 
+def shadow_boundary_pixel(
+    scene: Scene, width: int, height: int, surface: str = "floor", emitter: int = 0
+) -> ProbePixel:
+    """A pixel of a diffuse surface that the boundary of an opaque occluder's shadow crosses.
+
+    At each of the pixel's PIXEL_PROBES points (centre and four near-corners) the visible
+    fraction of the light is the share of a LIGHT_GRID_CELLS x LIGHT_GRID_CELLS grid of points
+    on the emitter that the point sees unoccluded. A pixel qualifies when every probe ray hits
+    the surface, the probes' mean fraction lies in [1/4, 3/4] (penumbra, not umbra or full
+    light) and every blocked shadow ray is blocked by an opaque shape (not glass: the path
+    tracer's shadow rays stop at glass too, but a caustic fills its shadow). Of those, the
+    pixel whose fraction changes most across it (largest max - min over its probes) is
+    chosen, ties broken towards a mean fraction of 1/2."""
+    surface_id = scene.quad_names.index(surface)
+    material = scene.materials[scene.quads["material"][surface_id]]
+    if material["type"] != MATERIAL_TYPES["diffuse"]:
+        raise ParameterError(f"the {surface} is not diffuse")
+    shape, points = pixel_hits(scene, width, height)
+    on_surface = (shape == surface_id).all(axis=-1)
+    blockers = light_blockers(scene, points[on_surface], emitter)  # (P, K, L)
+    fraction = (blockers == NO_HIT).mean(axis=-1)  # (P, K)
+    through_glass = np.isin(blockers, glass_shapes(scene)).any(axis=(-2, -1))
+    mean = fraction.mean(axis=-1)
+    spread = fraction.max(axis=-1) - fraction.min(axis=-1)
+    qualifies = (mean >= 0.25) & (mean <= 0.75) & ~through_glass
+    if not qualifies.any():
+        raise ParameterError(f"no pixel of the {surface} sees an opaque shadow's boundary")
+    score = np.where(qualifies, spread - 1e-3 * np.abs(mean - 0.5), -np.inf)
+    best = int(np.argmax(score))
+    y, x = (int(v[best]) for v in np.nonzero(on_surface))
+    names = scene.quad_names + scene.sphere_names
+    occluders = sorted({names[i] for i in np.unique(blockers[best]) if i != NO_HIT})
+    return ProbePixel(
+        x,
+        y,
+        width,
+        f"shadow boundary ({surface})",
+        {
+            "light_fraction_at_probes": fraction[best].tolist(),
+            "light_fraction_spread": float(spread[best]),
+            "occluders": occluders,
+        },
+    )
+
+
 def sphere_pixel(scene: Scene, width: int, height: int, sphere: int = 0) -> ProbePixel:
     """The pixel the sphere's centre projects to (checked to see that sphere)."""
     centre = scene.spheres["center"][sphere].astype(np.float64)
@@ -287,17 +379,65 @@ def glossy_highlight_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
     """The brightest pixel of a short render `image` (H, W, 3) among pixels seeing one glossy
     surface, at least 3 pixels inside that surface's region. Brightness is the channel mean
     after a 5 x 5 median filter, so that a lone firefly of a noisy render is not chosen."""
+    brightness, interior = glossy_brightness(scene, image)
+    y, x = argmax_where(brightness, interior)
+    return ProbePixel(
+        x,
+        y,
+        image.shape[1],
+        "glossy highlight",
+        {"short_render_radiance": float(brightness[y, x])},
+    )
+
+
+def glossy_highlight_edge_pixel(scene: Scene, image: np.ndarray) -> ProbePixel:
+    """A pixel on the edge of the glossy highlight of a short render `image` (H, W, 3), where
+    its brightness falls off most steeply. Brightness and pixels as glossy_highlight_pixel; the
+    highlight is the connected region around the brightest pixel where the brightness is at
+    least half that peak; its edge, the highlight's pixels with a 4-neighbour below half the
+    peak; of those, the one with the largest brightness gradient (Gaussian derivative, sigma 1
+    pixel, truncated at 2 pixels)."""
+    brightness, interior = glossy_brightness(scene, image)
+    peak_at = argmax_where(brightness, interior)
+    half = 0.5 * brightness[peak_at]
+    regions, _ = ndimage.label(interior & (brightness >= half))
+    highlight = regions == regions[peak_at]
+    dimmer = interior & (brightness < half)
+    edge = highlight & ndimage.binary_dilation(dimmer)  # the default structure: 4-neighbours
+    if not edge.any():
+        raise ParameterError("the glossy highlight has no edge inside the glossy surface")
+    steepness = ndimage.gaussian_gradient_magnitude(brightness, 1.0, truncate=2.0)
+    y, x = argmax_where(steepness, edge)
+    return ProbePixel(
+        x,
+        y,
+        image.shape[1],
+        "glossy highlight edge",
+        {
+            "short_render_radiance": float(brightness[y, x]),
+            "highlight_peak_radiance": float(brightness[peak_at]),
+            "highlight_peak_pixel": [peak_at[1], peak_at[0]],
+        },
+    )
+
+
+def argmax_where(values: np.ndarray, where: np.ndarray) -> tuple[int, int]:
+    """(y, x) of the largest of `values` (H, W) where `where` (H, W) holds; the first in row
+    order on ties."""
+    y, x = np.unravel_index(int(np.argmax(np.where(where, values, -np.inf))), values.shape)
+    return int(y), int(x)
+
+
+def glossy_brightness(scene: Scene, image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(brightness, interior), both (H, W): the channel mean of `image` (H, W, 3) after a 5 x 5
+    median filter, and the pixels at least 3 pixels inside the region of glossy_pixels, where
+    that filter reads glossy pixels only."""
     height, width, _ = image.shape
     mask = glossy_pixels(scene, width, height)
-    depth = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1]
-    smooth = ndimage.median_filter(image.mean(axis=-1), size=5)
-    score = np.where(depth >= 3, smooth, -np.inf)
-    if not np.isfinite(score).any():
+    interior = ndimage.distance_transform_edt(np.pad(mask, 1))[1:-1, 1:-1] >= 3
+    if not interior.any():
         raise ParameterError("the scene has no glossy surface in view")
-    y, x = np.unravel_index(int(np.argmax(score)), score.shape)
-    return ProbePixel(
-        int(x), int(y), width, "glossy highlight", {"short_render_radiance": float(score[y, x])}
-    )
+    return ndimage.median_filter(image.mean(axis=-1), size=5), interior
 
 
 # ---------------------------------------------------------------------------------------------

@@ -38,9 +38,11 @@ def test_01_pixel_study(tmp_path):
         ]
     )
     results = json.loads((tmp_path / "results.json").read_text())
-    assert set(results["pixels"]) == {"light_edge", "diffuse_wall", "glass_ball"}
-    for name in results["pixels"]:
+    assert list(results["pixels"]) == list(pixel_study.PROBES)
+    for name, entry in results["pixels"].items():
+        assert entry["scene"] == pixel_study.PROBES[name].scene
         assert (tmp_path / f"fig6_{name}.png").exists() and (tmp_path / f"fig9_{name}.png").exists()
+    assert "of cornell-box-glossy" in (tmp_path / "report.md").read_text()
 
 
 def test_02_image_study(tmp_path):
