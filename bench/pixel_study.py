@@ -485,26 +485,13 @@ def plot_fig9(table: dict, name: str, scene: str, pixel: ProbePixel, out: Path) 
         _, var = series(table, label, "var")
         ax_v.loglog(total, var, marker="o", ms=3, color=cmap(i % 20), label=label)
         if label.split("/")[0] in REJECTING:
+            device_style = dict(
+                marker="x", ms=3, color=cmap(i % 20), label=f"{label}, device cells"
+            )
             _, device = series(table, label, "device_cells_ms")
-            ax_t.loglog(
-                spp,
-                device,
-                ":",
-                marker="x",
-                ms=3,
-                color=cmap(i % 20),
-                label=f"{label}, device cells",
-            )
+            ax_t.loglog(spp, device, ":", **device_style)
             _, device_total = series(table, label, "device_total_ms")
-            ax_v.loglog(
-                device_total,
-                var,
-                ":",
-                marker="x",
-                ms=3,
-                color=cmap(i % 20),
-                label=f"{label}, device cells",
-            )
+            ax_v.loglog(device_total, var, ":", **device_style)
     spp, trace = series(table, BASELINE, "trace_ms")
     ax_t.loglog(spp, trace, "k--", label="tracing (mc/independent runs)")
     ax_t.set(

@@ -20,9 +20,7 @@ def run() -> int:
 
             return main()
         except KeyboardInterrupt as interrupt:  # before the command's own handling
-            signum = interrupts.signal_of(interrupt)
-            print(f"clrender: interrupted ({interrupts.signal_name(signum)})", file=sys.stderr)
-            return interrupts.exit_status(signum)
+            return interrupts.report(interrupt)
 
 
 if __name__ == "__main__":

@@ -407,6 +407,4 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as interrupt:
         if args.debug:
             raise
-        signum = interrupts.signal_of(interrupt)
-        print(f"clrender: interrupted ({interrupts.signal_name(signum)})", file=sys.stderr)
-        return interrupts.exit_status(signum)
+        return interrupts.report(interrupt)

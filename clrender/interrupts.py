@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 from collections.abc import Iterator
 
 # The signals that end a command with its finished work saved (SIGHUP is POSIX only).
@@ -39,24 +40,30 @@ def _raise(signum: int, frame) -> None:
 
 
 @contextlib.contextmanager
-def ending_signals_interrupt() -> Iterator[None]:
-    """SIGTERM and SIGHUP raise SignalInterrupt while the block runs (main thread only)."""
-    _received.clear()
-    previous = {
-        signum: signal.signal(signum, _raise)
-        for signum in ENDING_SIGNALS
-        if signum != signal.SIGINT
-    }
+def _handlers(signals: tuple[int, ...], handler) -> Iterator[None]:
+    """`handler` for the signals while the block runs; the previous handlers after it."""
+    previous = {signum: signal.signal(signum, handler) for signum in signals}
     try:
         yield
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        for signum, old in previous.items():
+            signal.signal(signum, old)
 
 
-def signal_of(interrupt: KeyboardInterrupt) -> int:
-    """The signal behind an interrupt: SIGINT for Python's own KeyboardInterrupt."""
-    return getattr(interrupt, "signum", int(signal.SIGINT))
+@contextlib.contextmanager
+def ending_signals_interrupt() -> Iterator[None]:
+    """SIGTERM and SIGHUP raise SignalInterrupt while the block runs (main thread only)."""
+    _received.clear()
+    with _handlers(tuple(s for s in ENDING_SIGNALS if s != signal.SIGINT), _raise):
+        yield
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[list[int]]:
+    """Hold SIGINT, SIGTERM and SIGHUP while the block runs; the list gets those that came."""
+    received: list[int] = []
+    with _handlers(ENDING_SIGNALS, lambda number, frame: received.append(number)):
+        yield received
 
 
 def last_signal() -> int:
@@ -68,20 +75,8 @@ def exit_status(signum: int) -> int:
     return 128 + int(signum)
 
 
-def signal_name(signum: int) -> str:
-    return signal.Signals(signum).name
-
-
-@contextlib.contextmanager
-def signals_held() -> Iterator[list[int]]:
-    """Hold SIGINT, SIGTERM and SIGHUP while the block runs; the list gets those that came."""
-    received: list[int] = []
-    previous = {
-        signum: signal.signal(signum, lambda number, frame: received.append(number))
-        for signum in ENDING_SIGNALS
-    }
-    try:
-        yield received
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+def report(interrupt: KeyboardInterrupt) -> int:
+    """Print the one line of an interrupted command; its exit status."""
+    signum = getattr(interrupt, "signum", int(signal.SIGINT))
+    print(f"clrender: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+    return exit_status(signum)
