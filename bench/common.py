@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clrender.imageio import read_exr, srgb_encode, write_exr
+from clrender.imageio import read_exr, srgb_encode, write_atomically, write_exr
 from clrender.pipeline import RenderResult, RenderSettings, render
 from clrender.radiance import PathTracerSource
 from clrender.runtime import Runtime
@@ -246,8 +246,10 @@ def machine() -> dict:
 
 
 def write_json(path: Path, data: dict) -> None:
+    """Write data as JSON atomically: a study killed mid-write keeps its previous file."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=1, default=float))
+    text = json.dumps(data, indent=1, default=float)
+    write_atomically(path, lambda temp: temp.write_text(text))
 
 
 def markdown_table(header: list[str], rows: list[list]) -> str:

@@ -189,8 +189,13 @@ def plot_scene(axes, scene: str, entry: dict) -> None:
     axes[0].legend(fontsize=6, ncol=2)
 
 
+def finished(results: dict) -> dict:
+    """The scene entries whose run completed (an interrupted one has rows but no summary)."""
+    return {k: e for k, e in results["scenes"].items() if e.get("complete", True)}
+
+
 def plot_all(results: dict, out: Path) -> None:
-    for scene, entry in results["scenes"].items():
+    for scene, entry in finished(results).items():
         fig, axes = plt.subplots(1, 2, figsize=(14, 6))
         plot_scene(axes, scene, entry)
         fig.suptitle(
@@ -350,5 +355,14 @@ def report(results: dict) -> str:
         "",
     ]
     for scene, entry in results["scenes"].items():
-        lines += scene_section(scene, entry)
+        if entry.get("complete", True):
+            lines += scene_section(scene, entry)
+        else:
+            rounds = len({(r["spp"], r["seed"]) for r in entry["rows"]})
+            lines += [
+                f"## {scene}: interrupted after {rounds} (spp, seed) rounds",
+                "",
+                f"Resume with the same command: `{entry['settings']['command']}`",
+                "",
+            ]
     return "\n".join(lines)

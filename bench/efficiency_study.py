@@ -32,8 +32,9 @@ variance; per point mean +- standard error over seeds, median wall time of the w
 median CPU time (time.process_time: PoCL's and Dr.Jit's threads run in this process).
 Time to MSE 1e-4 and the targets: bench/efficiency_report.py. Outputs (default
 bench/results/efficiency_study/): results.json (every render's row and the summaries; a scene
-run again replaces its entry, other scenes are kept), efficiency_<scene>.png (MSE against wall
-and CPU time, log-log, error bars), report.md.
+run again replaces its entry, other scenes are kept; written after every (spp, seed) round, so
+a killed run keeps its finished rounds and the same command resumes from them),
+efficiency_<scene>.png (MSE against wall and CPU time, log-log, error bars), report.md.
 
 Configurations: mc over every sampler; mc_n only over the SPPP samplers, because over a
 fixed-count sampler N = n and mc_n is mc exactly (same image); vor_sn and fvor over sppp and
@@ -185,7 +186,10 @@ def start_peer(scene: str, args) -> MitsubaPeer | None:
     return peer
 
 
-def study_scene(runtime, scene: str, args, argv) -> dict:
+def study_scene(runtime, scene: str, args, argv, previous=None, save=None) -> dict:
+    """One scene's study. previous: this scene's entry from an interrupted run; its rows are
+    kept, and its (spp, seed) rounds are not rendered again when its settings match. save(entry)
+    is called after every round, so a killed run loses at most one round."""
     before = machine()
     size = (args.size, args.size)
     ref, ref_var, ref_info = reference(runtime, scene, size, args.reference_spp)
@@ -205,7 +209,15 @@ def study_scene(runtime, scene: str, args, argv) -> dict:
         "reference": ref_info,
         "reference_noise": float(ref_var.mean()),
         "machine_before": before,
+        "complete": False,
     }
+    entry["settings"]["configs"] = [pair_label(*c) for c in chosen]
+    entry["settings"]["backend"] = args.backend
+    entry["settings"]["peer"] = args.peer
+    kept = resumable_rows(previous, entry["settings"])
+    entry["runs"] = (previous.get("runs", []) if kept else []) + [
+        {"started": time.strftime("%Y-%m-%d %H:%M:%S"), "machine_before": before}
+    ]
     if peer is not None:
         entry["peer"] = {"status": peer.status()}
     refs = {"clrender": (ref, ref_var)}
@@ -222,15 +234,20 @@ def study_scene(runtime, scene: str, args, argv) -> dict:
         )
     for estimator, sampler in chosen:  # warm-up: kernel builds and first-call costs
         timed_render(runtime, source, estimator, sampler, args.spp[0], WARMUP_SEED, args.backend)
-    rows: list[dict] = []
+    rows: list[dict] = list(kept)
+    done = {(r["spp"], r["seed"]) for r in kept}
+    if kept:
+        print(f"{scene}: resuming, {len(done)} rounds kept from the interrupted run", flush=True)
     entry["skipped"] = []
+    entry["rows"] = rows
     for spp in args.spp:
-        if use_peer:
+        now = within_budget(chosen, rows, spp, args.max_seconds, entry["skipped"])
+        seeds = [args.seed + k for k in range(args.seeds) if (spp, args.seed + k) not in done]
+        if use_peer and seeds:
             for sampler in MITSUBA_SAMPLERS:
                 peer.render(sampler, spp, WARMUP_SEED)
-        now = within_budget(chosen, rows, spp, args.max_seconds, entry["skipped"])
-        for k in range(args.seeds):
-            seed = args.seed + k
+        for seed in seeds:
+            k = seed - args.seed
             items = [("clrender", c) for c in now]
             if use_peer:  # Mitsuba's samplers spread evenly among clrender's configurations
                 step = max(1, len(items) // len(MITSUBA_SAMPLERS))
@@ -239,13 +256,26 @@ def study_scene(runtime, scene: str, args, argv) -> dict:
             shift = k % len(items)
             for who, what in items[shift:] + items[:shift]:
                 rows.append(one_render(runtime, source, peer, refs, who, what, spp, seed, args))
-    entry["rows"] = rows
+            if save is not None:
+                save(entry)
     entry["machine_after"] = machine()
+    entry["complete"] = True
     entry["summary"] = efficiency_report.summarise(rows)
     entry["time_to_target"] = efficiency_report.times_to_target(entry["summary"])
     if use_peer:
         entry["targets"] = efficiency_report.targets(entry)
     return entry
+
+
+def resumable_rows(previous: dict | None, settings: dict) -> list[dict]:
+    """The rows of an interrupted run of the same study (equal settings but the command line);
+    [] when there is none or it finished."""
+    if not previous or previous.get("complete", True):
+        return []
+    same = {k: v for k, v in previous.get("settings", {}).items() if k != "command"}
+    if same != {k: v for k, v in settings.items() if k != "command"}:
+        return []
+    return previous.get("rows", [])  # saved after whole rounds only
 
 
 def within_budget(chosen, rows, spp, max_seconds, skipped) -> list[tuple[str, str]]:
@@ -312,8 +342,13 @@ def run_study(runtime, args, argv) -> None:
     results.setdefault("scenes", {})
     start = time.perf_counter()
     for scene in args.scenes:
-        results["scenes"][scene] = study_scene(runtime, scene, args, argv)
-        write_json(path, results)  # after each scene: a long run keeps what it has
+
+        def save(entry, scene=scene):  # after each round: a killed run keeps what it has
+            results["scenes"][scene] = entry
+            write_json(path, results)
+
+        previous = results["scenes"].get(scene)
+        save(study_scene(runtime, scene, args, argv, previous, save))
     results["seconds_last_run"] = time.perf_counter() - start
     write_json(path, results)
     efficiency_report.plot_all(results, args.out)

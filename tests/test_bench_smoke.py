@@ -87,6 +87,44 @@ def test_03_efficiency_study_and_perf_ratio(tmp_path):
     assert ratio["ratio_wall"] > 0 and ratio["repeats"] == 1
 
 
+def test_03a_efficiency_study_resumes_after_a_kill(tmp_path, monkeypatch):
+    """A run killed mid-study keeps its whole (spp, seed) rounds in results.json; the same
+    command then renders only the missing rounds and finishes the entry."""
+    import efficiency_report
+    import efficiency_study
+
+    argv = ["--quick", "--size", "8", "--spp", "4", "16", "--reference-spp", "16"]
+    argv += ["--scenes", "cornell-box", "--configs", "mc/sobol", "mc/stratified"]
+    argv += ["--peer", "off", "--out", str(tmp_path)]
+    real = efficiency_study.one_render
+    calls = []
+
+    def killed_in_third_round(*args, **kwargs):
+        calls.append(args[6])  # spp
+        if len(calls) == 5:  # rounds of 2 renders: the third round dies midway
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(efficiency_study, "one_render", killed_in_third_round)
+    with pytest.raises(KeyboardInterrupt):
+        efficiency_study.main(argv)
+    entry = json.loads((tmp_path / "results.json").read_text())["scenes"]["cornell-box"]
+    assert entry["complete"] is False
+    kept = {(r["spp"], r["seed"]) for r in entry["rows"]}
+    assert kept == {(4, 1), (4, 2)} and len(entry["rows"]) == 4
+    assert "interrupted after 2" in efficiency_report.report(
+        json.loads((tmp_path / "results.json").read_text())
+    )
+
+    calls.clear()
+    efficiency_study.main(argv)
+    assert calls == [16, 16, 16, 16]  # only the two rounds at 16 spp rendered again
+    final = json.loads((tmp_path / "results.json").read_text())["scenes"]["cornell-box"]
+    assert final["complete"] is True and len(final["runs"]) == 2
+    assert final["rows"][:4] == entry["rows"]
+    assert {p["label"] for p in final["summary"]} == {"mc/sobol", "mc/stratified"}
+
+
 def test_03b_efficiency_study_peer(tmp_path):
     """mitsuba-cbox with the Mitsuba peer: rendered when mitsuba imports, else the report says
     it was not run."""
