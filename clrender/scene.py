@@ -70,7 +70,9 @@ Optional top-level ``description`` (string). Loading warns (`SceneWarning`, list
 black), or the camera inside a solid shape. That check is cheap and deliberately narrow:
 ``look_from`` strictly inside a sphere, or strictly inside a box (in the box's own frame,
 before its rotation and translation). Quads are never solids, so a camera inside a room of
-quads (the Cornell box, the furnace) is not flagged.
+quads (the Cornell box, the furnace) is not flagged. clrender.scene_checks adds the whole-scene
+checks against the device's float32: a scene spanning under 1e-15 is refused; a shape below
+float32 resolution at its distance and a camera on a surface are warned about.
 
 This module is the reading side of the scene: files, their validation, errors and warnings, and
 the loaded `Scene`. The byte layout the kernels read (the NumPy twins of kernels/scene_types.h
@@ -94,6 +96,12 @@ import numpy as np
 
 from clrender.errors import ClrenderError
 from clrender.package_data import shipped_dir
+from clrender.scene_checks import (
+    ShapeGeometry,
+    camera_on_surface,
+    extent_error,
+    unresolved_shape_notes,
+)
 from clrender.scene_device import (
     MATERIAL_NONE,
     QUAD_BLOCK_WIDTH,
@@ -384,6 +392,7 @@ class SceneBuilder:
         self.spheres: list[dict] = []
         self.sphere_names: list[str] = []
         self.solids: list[tuple[str, Callable[[np.ndarray], bool]]] = []  # (label, inside)
+        self.geometry: list[ShapeGeometry] = []  # every quad and sphere, for scene_checks
 
     def build(self, document: dict) -> Scene:
         top = _Table(self.path, "top level", document)
@@ -501,6 +510,7 @@ class SceneBuilder:
                 table.fail("radius", f"expected a number > 0, got {radius:g}")
             self.spheres.append({"center": center, "radius": radius, "material": material})
             self.sphere_names.append(name)
+            self.geometry.append(ShapeGeometry(label, center=np.array(center), radius=radius))
             centre = np.array(center)
             self.solids.append(
                 (f"{label} (a sphere)", lambda p: float(np.linalg.norm(p - centre)) < radius)
@@ -565,6 +575,7 @@ class SceneBuilder:
             }
         )
         self.quad_names.append(name)
+        self.geometry.append(ShapeGeometry(table.where, corner, edge1, edge2))
 
     def read_box(self, table: _Table, name: str, label: str, material: int) -> None:
         low = np.array(table.vector("min", _REQUIRED))
@@ -589,6 +600,9 @@ class SceneBuilder:
                 }
             )
             self.quad_names.append(f"{name}/face{face}")
+            self.geometry.append(
+                ShapeGeometry(f"{label} face {face}", rotated[0] + translate, *rotated[1:])
+            )
 
         def inside(point: np.ndarray) -> bool:
             local = rotate_y(point - translate, -angle)
@@ -604,18 +618,27 @@ class SceneBuilder:
         materials = pack_materials(self.materials)
         if len(quads) + len(spheres) == 0:
             raise SceneError(f"{self.path}: shapes: the scene has no shapes")
+        origin = np.array(camera.look_from)
+        too_small = extent_error(self.geometry, origin)
+        if too_small:
+            raise SceneError(f"{self.path}: shapes: {too_small}")
         notes = []
         if len(emitters) == 0:
             notes.append(
                 f"{self.path}: the scene has no emitter (no quad with emission): it renders black"
             )
             warnings.warn(notes[-1], SceneWarning, stacklevel=3)
-        origin = np.array(camera.look_from)
         for label, inside in self.solids:
             if inside(origin):
                 where = f"[camera] look_from {list(camera.look_from)} is inside {label}"
                 notes.append(f"{self.path}: {where}: the image shows that shape from the inside")
                 warnings.warn(notes[-1], SceneWarning, stacklevel=3)
+        on_surface = camera_on_surface(self.geometry, origin)
+        for note in ([on_surface] if on_surface else []) + unresolved_shape_notes(
+            self.geometry, origin
+        ):
+            notes.append(f"{self.path}: {note}")
+            warnings.warn(notes[-1], SceneWarning, stacklevel=3)
         return Scene(
             path=self.path,
             name=self.path.stem,

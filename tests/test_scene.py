@@ -231,9 +231,12 @@ def test_camera_inside_a_sphere_or_box_warns_and_only_then(tmp_path):
     # (1, 0, 6) lies in the rotated box's bounding box but outside the box itself.
     outside = MINIMAL.replace("look_from = [0.0, 0.0, 5.0]", "look_from = [1.0, 0.0, 6.0]")
     assert load_scene(write(tmp_path, outside + box, "outside.toml")).warnings == []
-    # On the sphere's surface is not inside; a little further in is.
+    # On the sphere's surface is not inside (but on it: tests/test_scene_checks.py); a little
+    # further in is.
     surface = MINIMAL.replace("radius = 1.0", "radius = 7.0")
-    assert load_scene(write(tmp_path, surface, "surface.toml")).warnings == []
+    with pytest.warns(SceneWarning, match="lies on shapes"):
+        notes = load_scene(write(tmp_path, surface, "surface.toml")).warnings
+    assert len(notes) == 1 and "is inside" not in notes[0]
     inside = MINIMAL.replace("radius = 1.0", "radius = 7.001")
     with pytest.warns(SceneWarning, match=r"inside shapes\[1\] \('ball'\) \(a sphere\)"):
         load_scene(write(tmp_path, inside, "inside.toml"))
