@@ -17,6 +17,17 @@ from functools import cached_property
 
 import numpy as np
 
+from clrender.errors import ParameterError
+
+# The array fields and the dtype a list given for them becomes.
+ARRAY_FIELDS = {
+    "traced": np.float64,
+    "offsets": np.int64,
+    "aux": np.float64,
+    "aux_offsets": np.int64,
+    "redraws": np.int64,
+}
+
 
 @dataclass(frozen=True)
 class SampleSets:
@@ -35,6 +46,30 @@ class SampleSets:
     aux_offsets: np.ndarray | None = None
     eps: float | None = None
     redraws: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        """Array-likes (lists, tuples) become NumPy arrays; what cannot is a ParameterError.
+        Shapes and values are checked where the sets are used (clrender.estimators.pixel)."""
+        for name, dtype in ARRAY_FIELDS.items():
+            value = getattr(self, name)
+            if value is None or isinstance(value, np.ndarray):
+                continue
+            try:
+                array = np.asarray(value, dtype=dtype)
+            except (TypeError, ValueError) as err:
+                raise ParameterError(
+                    f"SampleSets.{name} must be an array of numbers, got {type(value).__name__}"
+                    f" ({err})"
+                ) from None
+            object.__setattr__(self, name, array)
+        for name in ("n", "eps"):
+            value = getattr(self, name)
+            if (value is not None or name == "n") and not isinstance(
+                value, (int, float, np.number)
+            ):
+                raise ParameterError(
+                    f"SampleSets.{name} must be a number, got {type(value).__name__}"
+                )
 
     @property
     def pixel_count(self) -> int:

@@ -244,3 +244,24 @@ def test_fvor_against_a_per_pixel_reference_including_its_vor_sn_fallback():
         np.testing.assert_allclose(results["fvor"].estimates[p], expected, rtol=1e-12)
     assert fallbacks >= 20
     assert results["fvor"].stats.empty_filtered == fallbacks
+
+
+def test_sample_sets_given_lists_are_arrays_and_bad_lists_one_line_errors():
+    """Before: lists ended in AttributeError deep in the checks ('list' has no 'ndim')."""
+    traced = [[0.1, 0.2], [0.3, -0.1], [-0.2, 0.4]]
+    from_lists = SampleSets(traced, [0, 3], 3.0)
+    from_arrays = SampleSets(np.array(traced), np.array([0, 3]), 3.0)
+    for name in ("cvor", "pvor", "mc"):
+        assert estimate(name, from_lists, [1.0, 2.0, 3.0]).estimates == pytest.approx(
+            estimate(name, from_arrays, np.array([1.0, 2.0, 3.0])).estimates, rel=1e-15
+        )
+    bad = [
+        (dict(traced=[[0.1, 0.2], [0.3]], offsets=[0, 2], n=1.0), "traced must be an array"),
+        (dict(traced=traced, offsets=["a", 3], n=1.0), "offsets must be an array"),
+        (dict(traced=traced, offsets=[0, 3], n="x"), "n must be a number"),
+        (dict(traced=traced, offsets=[0, 3], n=None), "n must be a number"),
+    ]
+    for fields, message in bad:
+        with pytest.raises(ParameterError, match=message) as err:
+            SampleSets(**fields)
+        assert "\n" not in str(err.value)
