@@ -112,6 +112,11 @@ SCENE_ERRORS = [
         'type = "box"\nmin = [0.0, 0.0, 0.0]\nmax = [1.0, -1.0, 1.0]',
         ["shapes[1] ('ball'), field 'max'", "max > min on every axis"],
     ),
+    (  # before: a numpy overflow warning, then "degenerate quad"
+        "edge2 = [0.0, 2.0, 0.0]",
+        "edge2 = [0.0, 1e308, 0.0]",
+        ["shapes[0] ('lamp'), field 'edge2'", "too large for the device's float32"],
+    ),
 ]
 SCENE_ERROR_IDS = [
     "toml-syntax",
@@ -129,6 +134,7 @@ SCENE_ERROR_IDS = [
     "inf-vector",
     "degenerate-quad",
     "negative-box-size",
+    "overflowing-edge",
 ]
 
 
@@ -153,8 +159,16 @@ def test_scene_errors_are_one_line_naming_the_file(capsys, tmp_path, old, new, f
             "[camera] look_from [0.0, 0.0, 5.0] is inside shapes[1] ('ball') (a sphere)",
         ),
         (SCENE + BOX, "[camera] look_from [0.0, 0.0, 5.0] is inside shapes[2] ('crate') (a box)"),
+        (
+            SCENE.replace("radius = 1.0", "radius = 7.0"),
+            "[camera] look_from [0.0, 0.0, 5.0] lies on shapes[1] ('ball'): camera rays start",
+        ),
+        (
+            SCENE.replace("radius = 1.0", "radius = 1e-17"),
+            "shapes[1] ('ball'): its radius 1e-17 spans under 16 float32 steps",
+        ),
     ],
-    ids=["no-emitter", "camera-in-sphere", "camera-in-rotated-box"],
+    ids=["no-emitter", "camera-in-sphere", "camera-in-rotated-box", "camera-on-sphere", "tiny"],
 )
 def test_scene_warnings_print_once_and_exit_0(capsys, tmp_path, text, message):
     path = write_scene(tmp_path, text)
