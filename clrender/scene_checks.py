@@ -9,8 +9,8 @@ the camera's placement: what no single field's check can see.
   origin, where the device stores it, and from the camera, along the rays that reach it) has
   lost its shape on the device: a warning (the image is right only where that shape does not
   show). Spheres by their radius, quads by their shorter edge.
-- The camera on a surface (look_from on a quad, within its edges, or on a sphere): camera rays
-  start on that surface and the image is black or wrong, e.g. the furnace's back wall tilted
+- The camera on a surface (look_from on a quad, within its edges, or on a sphere, to within
+  the float32 rounding of look_from itself): camera rays start on that surface and the image is black or wrong, e.g. the furnace's back wall tilted
   through the camera: a warning.
 
 The tolerances follow the device's error bound for a hit point (kernels/geometry.h,
@@ -107,14 +107,16 @@ def unresolved_shape_notes(shapes: Sequence[ShapeGeometry], look_from: np.ndarra
 
 def camera_on_surface(shapes: Sequence[ShapeGeometry], look_from: np.ndarray) -> str | None:
     """The first shape whose surface look_from lies on (within the device's rounding of a hit
-    there), as a warning, or None."""
+    there), as a warning, or None. On means within the float32 rounding of look_from itself:
+    a large shape's own magnitude does not widen it (a 2e9-wide ground quad under the camera
+    is no surface the camera is on)."""
+    tolerance = SURFACE_ERROR_SCALE * float(np.abs(look_from).max())
     for shape in shapes:
         if shape.is_quad:
             c, e1, e2 = shape.corner, shape.edge1, shape.edge2
             normal = np.cross(e1, e2)
             normal /= np.linalg.norm(normal)
             offset = look_from - c
-            tolerance = SURFACE_ERROR_SCALE * (np.abs(look_from).max() + np.abs(c).max())
             if abs(float(normal @ offset)) > tolerance:
                 continue
             # Coordinates of the point in the quad's frame (least squares on the plane).
@@ -124,7 +126,6 @@ def camera_on_surface(shapes: Sequence[ShapeGeometry], look_from: np.ndarray) ->
                 continue
         else:
             distance = float(np.linalg.norm(look_from - shape.center))
-            tolerance = SURFACE_ERROR_SCALE * (np.abs(shape.center).max() + shape.radius)
             if abs(distance - shape.radius) > tolerance:
                 continue
         return (

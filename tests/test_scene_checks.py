@@ -153,3 +153,13 @@ def test_a_camera_on_a_sphere_is_warned_about(tmp_path):
     assert list(load_scene("cornell-box").camera.look_from) == [278.0, 278.0, -800.0]
     with pytest.warns(SceneWarning, match=r"lies on shapes\[\d+\] \('bubble'\)"):
         load_scene(with_extra(tmp_path, "cornell-box", SPHERE_THROUGH_CAMERA))
+
+
+def test_a_huge_quad_below_the_camera_is_no_surface_it_is_on(tmp_path):
+    """A 2e9-wide ground quad 288 units below the camera: its corner's magnitude (1e9) must not
+    widen the check (it did in a first version: 32 epsilons of 1e9 is 3800 units)."""
+    ground = (
+        '\n[[shapes]]\nname = "ground"\ntype = "quad"\ncorner = [-1e9, -10.0, 1e9]\n'
+        'edge1 = [2e9, 0.0, 0.0]\nedge2 = [0.0, 0.0, -2e9]\nmaterial = "white"\n'
+    )
+    load_quietly(with_extra(tmp_path, "cornell-box", ground))
