@@ -55,7 +55,8 @@ class OutputPathError(ClrenderError):
 
 
 def check_writable(path: str | os.PathLike) -> Path:
-    """Fail early with a one-line error if `path` cannot be created or replaced."""
+    """Fail early with a one-line error if `path` cannot be created or replaced. Missing
+    folders are fine when the nearest existing one is writable: the writers create them."""
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
     too_long = [part for part in path.parts if len(os.fsencode(part)) > NAME_MAX]
@@ -67,13 +68,21 @@ def check_writable(path: str | os.PathLike) -> Path:
         raise OutputPathError(f"cannot write {path}: it is not a regular file (a device or FIFO)")
     if path.is_dir():
         raise OutputPathError(f"cannot write {path}: it is a directory")
-    if not directory.is_dir():
-        raise OutputPathError(f"cannot write {path}: directory {directory} does not exist")
-    if not os.access(directory, os.W_OK | os.X_OK) or not can_create_in(directory):
-        raise OutputPathError(f"cannot write {path}: directory {directory} is not writable")
+    existing = nearest_existing(directory)
+    if not existing.is_dir():
+        raise OutputPathError(f"cannot write {path}: {existing} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK) or not can_create_in(existing):
+        raise OutputPathError(f"cannot write {path}: directory {existing} is not writable")
     if path.exists() and not os.access(path, os.W_OK):
         raise OutputPathError(f"cannot write {path}: the existing file is read-only")
     return path
+
+
+def nearest_existing(directory: Path) -> Path:
+    """directory, or its nearest ancestor that exists (a file there is reported by the caller)."""
+    while not directory.exists() and directory != directory.parent:
+        directory = directory.parent
+    return directory
 
 
 def can_create_in(directory: Path) -> bool:
@@ -162,17 +171,18 @@ def make_temp(path: Path) -> Path:
 
 
 def write_all_atomically(jobs: Sequence[tuple[str | os.PathLike, FileWriter]]) -> list[Path]:
-    """For each (path, write): write(temp) to a temporary file beside path, each checked by its
-    writer and flushed to disk; then every temporary file replaces its path. On any error
-    (KeyboardInterrupt included) every temporary file is removed and every old file stays;
-    OutputPathError names the path whose write failed."""
+    """For each (path, write): write(temp) to a temporary file beside path (its missing folders
+    created), each checked by its writer and flushed to disk; then every temporary file
+    replaces its path. On any error (KeyboardInterrupt included) every temporary file is
+    removed and every old file stays; OutputPathError names the path whose write failed."""
     paths = [check_writable(path) for path, _ in jobs]
     temps: list[Path] = []
     try:
         for path, (_, write) in zip(paths, jobs, strict=True):
-            remove_stale_temps(path)
             temp = None
             try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                remove_stale_temps(path)
                 temp = make_temp(path)
                 temps.append(temp)
                 write(temp)

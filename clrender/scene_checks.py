@@ -10,8 +10,8 @@ the camera's placement: what no single field's check can see.
   lost its shape on the device: a warning (the image is right only where that shape does not
   show). Spheres by their radius, quads by their shorter edge.
 - The camera on a surface (look_from on a quad, within its edges, or on a sphere, to within
-  the float32 rounding of look_from itself): camera rays start on that surface and the image is black or wrong, e.g. the furnace's back wall tilted
-  through the camera: a warning.
+  the float32 rounding of look_from itself): camera rays start on that surface and the image
+  is black or wrong, e.g. the furnace's back wall tilted through the camera: a warning.
 
 The tolerances follow the device's error bound for a hit point (kernels/geometry.h,
 SURFACE_ERROR_SCALE = 32 float32 epsilons of the magnitudes involved).

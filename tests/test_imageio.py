@@ -98,7 +98,7 @@ def test_interrupted_write_keeps_the_previous_file(tmp_path):
     assert np.array_equal(read_exr(target)[0], np.ones((2, 2, 3), np.float32))
 
 
-@pytest.mark.parametrize("relative", ["missing-dir/out.exr", "a-file/out.exr", "."])
+@pytest.mark.parametrize("relative", ["a-file/out.exr", "a-file/deeper/out.exr", "."])
 def test_unwritable_paths_fail_with_the_path_named(tmp_path, relative):
     (tmp_path / "a-file").write_text("not a directory")
     path = tmp_path / relative
@@ -110,6 +110,13 @@ def test_unwritable_paths_fail_with_the_path_named(tmp_path, relative):
 
 def test_writable_path_in_an_existing_directory(tmp_path):
     assert check_writable(tmp_path / "new.exr") == tmp_path / "new.exr"
+
+
+def test_missing_folders_are_created_by_the_writers(tmp_path):
+    path = tmp_path / "missing" / "deeper" / "out.png"
+    assert check_writable(path) == path and not path.parent.exists()
+    write_png(path, np.zeros((1, 1, 3)))
+    assert path.is_file()
 
 
 # --- a full disk, a killed writer (issue: no data lost) ---------------------------------------

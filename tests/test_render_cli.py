@@ -144,17 +144,30 @@ def test_bad_arguments_give_one_line_errors_and_status_2(capsys, tmp_path, argv,
     assert "Traceback" not in err
 
 
-def test_unwritable_output_fails_before_any_device_work(capsys, tmp_path, monkeypatch):
+def test_output_under_a_file_fails_before_any_device_work(capsys, tmp_path, monkeypatch):
     def no_device(*args, **kwargs):
         raise AssertionError("a runtime was created before the output path was checked")
 
     monkeypatch.setattr(cli, "create_runtime", no_device)
-    target = tmp_path / "missing" / "out.exr"
+    (tmp_path / "notes.txt").write_text("x")
+    target = tmp_path / "notes.txt" / "deeper" / "out.exr"
     status, _, err = run_cli(capsys, "render", "-o", str(target))
     assert status == 2
     assert (
-        err == f"clrender: error: cannot write {target}: directory {target.parent} does not exist\n"
+        err
+        == f"clrender: error: cannot write {target}: {tmp_path / 'notes.txt'} is not a directory\n"
     )
+
+
+def test_missing_output_folders_are_created(capsys, tmp_path):
+    """The README's `-o out/cbox.exr` on a fresh clone: before, 'directory out does not exist'."""
+    target = tmp_path / "out" / "deeper" / "cbox.exr"
+    status, out, err = run_cli(
+        capsys, "render", "analytic:edge", "--res", "4", "--spp", "1", "-o", str(target)
+    )
+    assert status == 0, err
+    assert target.is_file() and target.with_suffix(".png").is_file()
+    assert read_exr(target)[0].shape == (4, 4, 3)
 
 
 @pytest.mark.parametrize("argv", [["--debug", "render"], ["render", "--debug"]])
