@@ -8,11 +8,13 @@ which agree to ~1e-13 on these sets; 1e-10 still fails on any wrong triangle or 
 
 import numpy as np
 import pytest
+from exact_cells import exact_cells, torus_copies
 from scipy.spatial import Voronoi
 
+from clrender.errors import ClrenderError
 from clrender.estimators import qhull_cells
 from clrender.estimators.qhull_cells import clipped_cells, periodic_cells, sppp_cells
-from clrender.sppp import draw_sppp
+from clrender.sppp import draw_sppp, sppp_eps
 
 RTOL = 1e-10
 
@@ -165,3 +167,123 @@ def test_fvor_box_flags_match_cell_vertices(batch):
             bounded = bool(region) and -1 not in region
             expected.append(bounded and bool((np.abs(vor.vertices[region]) <= half).all()))
         np.testing.assert_array_equal(cells.inside_box[w], expected)
+
+
+# Near-coincident nuclei (issue 12, item 8): a pixel with 41 nuclei within 1e-6 of one spot
+# among ordinary SPPP nuclei, in a batch whose pixels share Qhull calls. Qhull alone drops some
+# of them as "coplanar" or triangulates them wrongly: cells off by far more than 1 %, sums off
+# 1, bounded sets flagged for redraw. References: 60-digit brute-force clipping
+# (tests/exact_cells.py) on the positions the cell code uses (nudged inside W for clipped
+# cells, wrapped for torus cells), and Qhull on the cluster alone, rescaled to unit size.
+
+CLUSTER_PIXEL = 4
+CLUSTER_SCALE = 1e-6
+# Inside W; in W's corner (the cluster among its own mirror images and torus copies)
+CLUSTER_SPOTS = {"inside": (0.13, -0.21), "corner": (0.5 - 5.1e-7, -0.5 + 5.1e-7)}
+REFERENCE_BOX = 8.0  # SPPP reference cells start from [-8, 8]^2: all of these lie inside
+
+
+def with_cluster(spot: str, scale: float = CLUSTER_SCALE, seed: int = 31):
+    """Nine SPPP pixels (n = 64) with 41 nuclei within `scale` of a spot added to one."""
+    rng = np.random.default_rng(seed)
+    batch = draw_sppp(rng, 64, 9, eps=sppp_eps(64))
+    cluster = np.array(CLUSTER_SPOTS[spot]) + scale * (rng.random((41, 2)) - 0.5)
+    parts = [batch.traced[batch.offsets[p] : batch.offsets[p + 1]] for p in range(9)]
+    parts[CLUSTER_PIXEL] = np.concatenate([parts[CLUSTER_PIXEL], cluster])
+    offsets = np.concatenate([[0], np.cumsum([len(part) for part in parts])])
+    return np.concatenate(parts), offsets, batch.aux, batch.aux_offsets
+
+
+@pytest.fixture(scope="module", params=sorted(CLUSTER_SPOTS))
+def cluster_case(request):
+    """The batch, the cluster pixel's slice, and its reference cells of each kind."""
+    traced, offsets, aux, aux_offsets = with_cluster(request.param)
+    w = slice(offsets[CLUSTER_PIXEL], offsets[CLUSTER_PIXEL + 1])
+    a = slice(aux_offsets[CLUSTER_PIXEL], aux_offsets[CLUSTER_PIXEL + 1])
+    nudged = qhull_cells._nudge_inside(traced[w])
+    wrapped = qhull_cells._wrap_torus(traced[w])
+    none = np.zeros((0, 2))
+    sppp, touches = exact_cells(traced[w], aux[a], (-REFERENCE_BOX,) * 2, (REFERENCE_BOX,) * 2)
+    assert not touches.any()  # every cell bounded
+    reference = {
+        "sppp": sppp,
+        "clipped": exact_cells(nudged, none, (-0.5, -0.5), (0.5, 0.5))[0],
+        "periodic": exact_cells(wrapped, torus_copies(wrapped), wrapped - 0.5, wrapped + 0.5)[0],
+    }
+    return (traced, offsets, aux, aux_offsets), w, reference
+
+
+def cells_of(kind: str, traced, offsets, aux, aux_offsets):
+    if kind == "sppp":
+        return sppp_cells(traced, offsets, aux, aux_offsets)
+    return {"clipped": clipped_cells, "periodic": periodic_cells}[kind](traced, offsets)
+
+
+@pytest.mark.parametrize("kind", ["sppp", "clipped", "periodic"])
+def test_cluster_cells_match_exact_reference(cluster_case, kind):
+    """Every cell of the cluster pixel within 1e-9 (relative) of the exact cells, the pixel
+    settled by clipping, all its SPPP cells bounded (no redraw), its clipped and torus areas
+    summing to 1."""
+    batch, w, reference = cluster_case
+    cells = cells_of(kind, *batch)
+    assert cells.bounded[w].all()
+    np.testing.assert_allclose(cells.areas[w], reference[kind], rtol=1e-9)
+    assert cells.stats.settled_pixels == 1
+    if kind != "sppp":
+        assert cells.areas[w].sum() == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["sppp", "clipped", "periodic"])
+def test_cluster_cells_match_qhull_at_both_scales(kind):
+    """Two truths from Qhull, each at a scale it resolves. Inside the cluster: cells that no
+    other nucleus is near enough to cut are those of the cluster alone, which Qhull resolves
+    once the cluster is recentred and scaled by 1 / CLUSTER_SCALE. From afar the cluster is one
+    nucleus: its cells together, and every other cell, are within O(1e-6) of the cells with the
+    cluster replaced by its spot (relative bound 1e-4: the perimeter times 1e-6 over the area).
+    Only the first fails without the settling (Qhull's errors stay inside the cluster)."""
+    traced, offsets, aux, aux_offsets = with_cluster("inside")
+    w = slice(offsets[CLUSTER_PIXEL], offsets[CLUSTER_PIXEL + 1])
+    a = slice(aux_offsets[CLUSTER_PIXEL], aux_offsets[CLUSTER_PIXEL + 1])
+    areas = cells_of(kind, traced, offsets, aux, aux_offsets).areas[w]
+    spot = np.array(CLUSTER_SPOTS["inside"])
+    cluster, others = traced[w][-41:], traced[w][:-41]
+
+    vor = Voronoi((cluster - spot) / CLUSTER_SCALE)
+    nearest_other = np.hypot(*(others - spot).T).min() / CLUSTER_SCALE
+    checked = 0
+    for i in range(41):
+        region = vor.regions[vor.point_region[i]]
+        if not region or -1 in region:
+            continue
+        vertices = vor.vertices[region]
+        # No other nucleus can cut a cell whose vertices are nearer than half its distance
+        if 2 * np.hypot(*vertices.T).max() + 1.0 < nearest_other:
+            expected = shoelace(vertices) * CLUSTER_SCALE**2
+            assert areas[-41 + i] == pytest.approx(expected, rel=1e-9), i
+            checked += 1
+    assert checked >= 10
+
+    one = np.concatenate([others, [spot]])
+    points = {"sppp": np.concatenate([one, aux[a]]), "clipped": mirrored(one)}
+    expected = scipy_areas(points.get(kind, periodic_copies(one)), len(one))
+    np.testing.assert_allclose(areas[:-41], expected[:-1], rtol=1e-4)
+    assert areas[-41:].sum() == pytest.approx(expected[-1], rel=1e-4)
+
+
+@pytest.mark.parametrize("kind", ["clipped", "periodic"])
+def test_area_check_settles_what_detection_misses(monkeypatch, kind):
+    """With the near-coincidence flags off, the corner cluster's pixel still comes out exact:
+    Qhull leaves it with unbounded cells or areas not summing to 1, and it is settled."""
+    monkeypatch.setattr(qhull_cells, "NEAR_COINCIDENT", 0.0)
+    traced, offsets, aux, aux_offsets = with_cluster("corner")
+    cells = cells_of(kind, traced, offsets, aux, aux_offsets)
+    assert cells.stats.settled_pixels == 1
+    sums = np.add.reduceat(cells.areas, offsets[:-1])
+    np.testing.assert_allclose(sums, 1.0, atol=1e-12)
+
+
+def test_area_check_raises_when_settling_fails(monkeypatch):
+    monkeypatch.setattr(qhull_cells, "clipped_cell_areas", lambda nuclei: np.zeros(len(nuclei)))
+    traced, offsets, aux, aux_offsets = with_cluster("inside")
+    with pytest.raises(ClrenderError, match="internal error"):
+        clipped_cells(traced, offsets)

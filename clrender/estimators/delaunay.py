@@ -10,7 +10,9 @@ vertex columns gives every cell area from one pass over the triangles. Sign conv
 fixed by |det|, so Qhull's triangle orientation does not matter.
 
 Coincident points (Qhull reports all but one as "coplanar") split their common cell equally:
-share_coincident.
+share_coincident. Qhull also drops distinct points it cannot tell apart at its precision
+(nearly coincident ones); sharing is wrong for those, and the callers must find them
+(clrender.estimators.qhull_cells does, and settles their pixels by clipping).
 """
 
 from __future__ import annotations
@@ -28,7 +30,12 @@ QHULL_OPTIONS = "Qbb Qc Qz Q12"
 def share_coincident(tri: Delaunay, areas: np.ndarray, *flags: np.ndarray | None) -> None:
     """Coincident points: the vertex Qhull kept and the points it dropped share the cell, so
     the kept vertex's area is split equally and every point gets the share and the kept
-    vertex's flags (in place; flags given as None are skipped)."""
+    vertex's flags (in place; flags given as None are skipped).
+
+    Right for exact duplicates (identical coordinates) only: a point Qhull dropped because it
+    was too close to the kept vertex for Qhull's precision has a cell of its own, and the
+    shares are then wrong; the caller must detect that case (tri.coplanar rows whose points'
+    coordinates differ)."""
     if not len(tri.coplanar):
         return
     dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]

@@ -27,12 +27,30 @@ circumdisc around it lies inside [-1/2 - m, 1/2 + m]^2, where every ghost is pre
 ghost is then farther from each cell vertex than the nucleus itself, so it cannot cut the
 cell); otherwise the pixel is recomputed alone with all ghosts.
 
-Degenerate sets. Coincident points (Qhull reports all but one as "coplanar") split their common
-cell equally. A set Qhull cannot triangulate (fewer than 3 distinct points, or all collinear)
-has only unbounded cells. For the clipped estimator, nuclei within EDGE_NUDGE of an edge of W
-are moved EDGE_NUDGE inside it so that each has a mirror image distinct from itself; this moves
-cell boundaries by at most EDGE_NUDGE. For the periodic estimator a nucleus on the edge x = 1/2
-(or y = 1/2) is the same torus point as one on x = -1/2 and is wrapped there.
+Degenerate sets. Coincident points (identical coordinates; Qhull reports all but one as
+"coplanar") split their common cell equally. A set Qhull cannot triangulate (fewer than 3
+distinct points, or all collinear) has only unbounded cells. For the clipped estimator, nuclei
+within EDGE_NUDGE of an edge of W are moved EDGE_NUDGE inside it so that each has a mirror
+image distinct from itself; this moves cell boundaries by at most EDGE_NUDGE. For the periodic
+estimator a nucleus on the edge x = 1/2 (or y = 1/2) is the same torus point as one on
+x = -1/2 and is wrapped there.
+
+Near-coincident nuclei. Qhull's precision is relative to the extent of the points it is given:
+distinct nuclei far closer together than that (say 41 nuclei within 1e-6 of one spot) may be
+dropped as "coplanar" as if they coincided, or triangulated wrongly without a sign, and their
+cells and their neighbours' come out wrong (even unbounded). So after each call the end points
+of Delaunay edges shorter than NEAR_COINCIDENT times the call's extent (but for an original and
+its own mirror image: that lone pair Qhull resolves, see EDGE_NUDGE) and the points dropped onto
+a vertex with other coordinates are flagged. A flagged pixel that shared its call is redone
+alone (a smaller extent); one still flagged alone is settled exactly by half-plane clipping
+(clrender.estimators.clip_cells; counted in stats.settled_pixels). Qhull's cells were seen to go
+wrong from edges of about 2e-7 times the extent, on clusters of 5 to 200 nuclei. Random sets are
+rarely flagged: a pixel of N uniform nuclei has a pair that close with probability about (pi/2)
+(N NEAR_COINCIDENT extent)^2, 1e-3 for N = 4096 (settled in about 0.3 s), and pixels of 64
+nuclei that share calls are redone alone about once in 1000. Last, clipped and torus cells are
+bounded and tile W: a pixel with an unbounded cell, or whose areas do not sum to 1 within
+AREA_SUM_RTOL, is settled too, and one that still fails the sum raises ClrenderError (an
+internal error); the check costs under 0.1 % of the cell time.
 
 Speed. Qhull's cost per point grows with the size of the call, so pixels are packed into calls
 of about POINTS_PER_QHULL_CALL points; a large pixel gets a call of its own. The points are laid
@@ -51,6 +69,7 @@ import numpy as np
 from scipy.spatial import Delaunay, QhullError
 
 from clrender.errors import ClrenderError, ParameterError
+from clrender.estimators.clip_cells import clipped_cell_areas, sppp_cell_areas, torus_cell_areas
 from clrender.estimators.delaunay import QHULL_OPTIONS, TriangleTerms, as_complex, share_coincident
 from clrender.samples import segments
 
@@ -62,6 +81,12 @@ EDGE_NUDGE = 1e-9
 GHOST_MARGIN_SPACINGS = 5.0
 # Fraction of a pixel's own extent left empty between pixels that share a Qhull call.
 SLOT_GAP_FACTOR = 2.0
+# Nuclei closer than this times the extent of their Qhull call are near-coincident: their pixel
+# is redone alone, then settled by clipping (see "Near-coincident nuclei"). Qhull's cells were
+# seen to go wrong from about 2e-7 on clusters of 5 to 200 nuclei.
+NEAR_COINCIDENT = 1e-5
+# Clipped and torus cells of a pixel must tile W: areas summing to 1 within this.
+AREA_SUM_RTOL = 1e-9
 
 
 @dataclass
@@ -72,12 +97,14 @@ class TessellationStats:
     recomputed_pixels: int = 0  # pixels redone alone (joint cell not provably exact)
     degenerate_pixels: int = 0  # pixels Qhull could not triangulate (all cells unbounded)
     walked_cells: int = 0  # device cells found by the walk (the others by clipping)
+    settled_pixels: int = 0  # pixels Qhull could not resolve, settled by clip_cells
 
     def add(self, other: TessellationStats) -> None:
         self.qhull_calls += other.qhull_calls
         self.recomputed_pixels += other.recomputed_pixels
         self.degenerate_pixels += other.degenerate_pixels
         self.walked_cells += other.walked_cells
+        self.settled_pixels += other.settled_pixels
 
 
 @dataclass
@@ -105,6 +132,7 @@ class _PointSet:
     ghost_offsets: np.ndarray  # (P + 1,) ghosts per pixel
     half_extent: float  # every point lies in [-half_extent, half_extent]^2
     disc_box: float | None  # check circumdiscs against [-disc_box, disc_box]^2 (partial ghosts)
+    ghost_source: np.ndarray  # (G,) the original a ghost images, or -1 (auxiliary nuclei)
 
     @property
     def pixel_count(self) -> int:
@@ -136,11 +164,12 @@ def sppp_cells(
     box: also report which cells lie inside [-box, box]^2 (box = 1/2 + eps is W' for fvor).
     """
     point_set = _sppp_point_set(positions, offsets, aux, aux_offsets)
-    cells, stats = _cells(point_set, box)
-    suspect = _suspect_pixels(point_set, cells.bounded)
+    cells, stats, near = _cells(point_set, box)
+    suspect = np.union1d(_suspect_pixels(point_set, cells.bounded), np.flatnonzero(near))
     if suspect.size:
         subset = _subset_sppp(point_set, suspect)
-        redo, redo_stats = _cells(subset, box, one_pixel_per_call=True)
+        redo, redo_stats, redo_near = _cells(subset, box, one_pixel_per_call=True)
+        redo_stats.settled_pixels += _settle_sppp(redo, subset, np.flatnonzero(redo_near), box)
         _scatter_pixels(cells, redo, point_set.offsets, suspect)
         stats.add(redo_stats)
         stats.recomputed_pixels += suspect.size
@@ -150,12 +179,12 @@ def sppp_cells(
 
 def clipped_cells(positions: np.ndarray, offsets: np.ndarray) -> CellAreas:
     """Cells of the originals among themselves, clipped to W (mirror images as ghosts)."""
-    return _ghost_cells(_nudge_inside(positions), offsets, _mirror_ghosts)
+    return _ghost_cells(_nudge_inside(positions), offsets, _mirror_ghosts, clipped_cell_areas)
 
 
 def periodic_cells(positions: np.ndarray, offsets: np.ndarray) -> CellAreas:
     """Cells of the originals on the torus W (translated copies as ghosts)."""
-    return _ghost_cells(_wrap_torus(positions), offsets, _periodic_ghosts)
+    return _ghost_cells(_wrap_torus(positions), offsets, _periodic_ghosts, torus_cell_areas)
 
 
 def qhull_point_arrays(
@@ -183,7 +212,13 @@ def _sppp_point_set(positions, offsets, aux, aux_offsets) -> _PointSet:
         if len(block):
             half_extent = max(half_extent, float(block.max()), -float(block.min()))
     return _PointSet(
-        positions, aux, np.asarray(offsets), np.asarray(aux_offsets), half_extent, None
+        positions,
+        aux,
+        np.asarray(offsets),
+        np.asarray(aux_offsets),
+        half_extent,
+        None,
+        np.full(len(aux), -1),
     )
 
 
@@ -198,6 +233,7 @@ def _subset_sppp(point_set: _PointSet, pixels: np.ndarray) -> _PointSet:
         ghost_offsets,
         point_set.half_extent,
         None,
+        point_set.ghost_source[ghost_idx],
     )
 
 
@@ -267,30 +303,85 @@ def _ghost_point_set(positions, offsets, make_ghosts, margin: float) -> _PointSe
     full = margin >= 1.0
     half_extent = 1.5 if full else 0.5 + margin
     return _PointSet(
-        positions, ghosts, offsets, ghost_offsets, half_extent, None if full else 0.5 + margin
+        positions,
+        ghosts,
+        offsets,
+        ghost_offsets,
+        half_extent,
+        None if full else 0.5 + margin,
+        source,
     )
 
 
-def _ghost_cells(positions: np.ndarray, offsets: np.ndarray, make_ghosts) -> CellAreas:
+def _ghost_cells(positions: np.ndarray, offsets: np.ndarray, make_ghosts, clip_areas) -> CellAreas:
+    """Clipped or torus cells: Qhull among ghosts (make_ghosts), suspect pixels redone alone,
+    those still near-coincident or unbounded alone, and any whose areas do not sum to 1,
+    settled by clip_areas (clip_cells)."""
     offsets = np.asarray(offsets)
     margin = _ghost_margin(offsets)
     point_set = _ghost_point_set(positions, offsets, make_ghosts, margin)
-    cells, stats = _cells(point_set, None)
-    suspect = _suspect_pixels(point_set, cells.bounded)
+    cells, stats, near = _cells(point_set, None)
+    suspect = np.union1d(_suspect_pixels(point_set, cells.bounded), np.flatnonzero(near))
     if suspect.size:
         index, sub_offsets = segments(offsets, suspect)
         subset = _ghost_point_set(positions[index], sub_offsets, make_ghosts, 1.0)
-        redo, redo_stats = _cells(subset, None, one_pixel_per_call=True)
-        if not redo.bounded.all():
-            raise ClrenderError(
-                "internal error: a clipped/periodic Voronoi cell came out "
-                "unbounded; please report the sample set"
-            )
+        redo, redo_stats, redo_near = _cells(subset, None, one_pixel_per_call=True)
+        # Every clipped or torus cell is bounded: an unbounded one is Qhull's failure too
+        settle = np.union1d(np.flatnonzero(redo_near), _suspect_pixels(subset, redo.bounded))
+        redo_stats.settled_pixels += _settle_ghost_cells(redo, subset, settle, clip_areas)
         _scatter_pixels(cells, redo, offsets, suspect)
         stats.add(redo_stats)
         stats.recomputed_pixels += suspect.size
+
+    # The cells of a pixel tile W: a pixel whose areas miss that is settled, and must then pass
+    unsure = _area_sum_failures(cells.areas, offsets)
+    if unsure.size:
+        stats.settled_pixels += _settle_ghost_cells(cells, point_set, unsure, clip_areas)
+        if _area_sum_failures(cells.areas, offsets).size:
+            raise ClrenderError(
+                "internal error: clipped/periodic Voronoi cell areas of a pixel do not sum "
+                "to 1 even after clipping; please report the sample set"
+            )
     cells.stats = stats
     return cells
+
+
+def _area_sum_failures(areas: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """The pixels with nuclei whose cell areas do not sum to 1 within AREA_SUM_RTOL."""
+    filled = np.flatnonzero(offsets[1:] > offsets[:-1])
+    if not filled.size:
+        return filled
+    # Empty pixels left out, each sum runs from a filled pixel's start to the next one's
+    sums = np.add.reduceat(areas[offsets[0] : offsets[-1]], offsets[filled] - offsets[0])
+    return filled[~(np.abs(sums - 1.0) <= AREA_SUM_RTOL)]
+
+
+def _settle_ghost_cells(
+    cells: CellAreas, point_set: _PointSet, pixels: np.ndarray, clip_areas
+) -> int:
+    """Clipped or torus cells of some pixels of a point set, by clipping (clip_areas, from
+    clip_cells), written over cells; returns the number of pixels."""
+    for p in pixels:  # rare: pixels Qhull could not resolve
+        own = slice(point_set.offsets[p], point_set.offsets[p + 1])
+        cells.areas[own] = clip_areas(point_set.originals[own])
+        cells.bounded[own] = True
+    return len(pixels)
+
+
+def _settle_sppp(
+    cells: CellAreas, point_set: _PointSet, pixels: np.ndarray, box: float | None
+) -> int:
+    """SPPP cells of some pixels of a point set, by clipping (clip_cells), written over
+    cells; returns the number of pixels."""
+    for p in pixels:  # rare: pixels with near-coincident nuclei
+        own = slice(point_set.offsets[p], point_set.offsets[p + 1])
+        aux = point_set.ghosts[point_set.ghost_offsets[p] : point_set.ghost_offsets[p + 1]]
+        settled = sppp_cell_areas(point_set.originals[own], aux, box)
+        cells.areas[own] = settled.areas
+        cells.bounded[own] = settled.bounded
+        if cells.inside_box is not None:
+            cells.inside_box[own] = settled.inside_box
+    return len(pixels)
 
 
 def _suspect_pixels(point_set: _PointSet, exact: np.ndarray) -> np.ndarray:
@@ -322,6 +413,7 @@ class _Layout:
     x + iy, so that one gather moves both coordinates."""
 
     z: np.ndarray  # (N,) pixel-local positions, laid out
+    owner: np.ndarray  # (N,) the original a point is or images (auxiliary nuclei: their own)
     counts: np.ndarray  # (P,) points per pixel
     original_at: np.ndarray  # (T,) laid-out index of every original
     call_bounds: list[int]  # (C + 1,) laid-out index where each call starts
@@ -359,6 +451,12 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
     z = np.empty(total, np.complex128)
     z[original_at] = as_complex(point_set.originals)
     z[ghost_at] = as_complex(point_set.ghosts)
+    owner = np.empty(total, np.int64)
+    owner[original_at] = np.arange(len(point_set.originals))
+    source = point_set.ghost_source
+    owner[ghost_at] = np.where(
+        source >= 0, source, len(point_set.originals) + np.arange(len(source))
+    )
     if one_pixel_per_call:
         call_pixels = np.arange(len(counts) + 1)
     else:
@@ -370,7 +468,9 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
         call_pixels = np.flatnonzero(new_call)
     call_bounds = np.concatenate([starts, [total]])[call_pixels]
     slot_width = 2.0 * point_set.half_extent * (1.0 + SLOT_GAP_FACTOR)
-    return _Layout(z, counts, original_at, call_bounds.tolist(), call_pixels.tolist(), slot_width)
+    return _Layout(
+        z, owner, counts, original_at, call_bounds.tolist(), call_pixels.tolist(), slot_width
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -379,8 +479,9 @@ def _call_layout(point_set: _PointSet, one_pixel_per_call: bool) -> _Layout:
 
 def _cells(
     point_set: _PointSet, box: float | None, one_pixel_per_call: bool = False
-) -> tuple[CellAreas, TessellationStats]:
-    """Areas and exactness flags of the originals' cells; see the module docstring.
+) -> tuple[CellAreas, TessellationStats, np.ndarray]:
+    """Areas and exactness flags of the originals' cells, and which pixels hold
+    near-coincident nuclei ((P,) bool); see the module docstring.
 
     Each Qhull call's triangles are processed right after the call, while they are in cache,
     into the call's contiguous range of the laid-out arrays.
@@ -390,6 +491,7 @@ def _cells(
     total = len(layout.z)
     areas = np.zeros(total)
     suspect = np.zeros(total, bool)  # cell not provably that of the pixel's own diagram
+    near = np.zeros(total, bool)  # near-coincident with another point (see _call_cells)
     outside = np.zeros(total, bool) if box is not None else None
     failed_alone = []
     bounds, first_pixels = layout.call_bounds, layout.call_pixels
@@ -412,11 +514,14 @@ def _cells(
             _call_cells(
                 tri,
                 layout.z[lo:hi],
+                layout.owner[lo:hi],
                 slot,
+                NEAR_COINCIDENT * float(np.abs(points).max()),
                 point_set.disc_box,
                 box,
                 areas[lo:hi],
                 suspect[lo:hi],
+                near[lo:hi],
                 None if outside is None else outside[lo:hi],
             )
 
@@ -429,22 +534,30 @@ def _cells(
     bounded = ~suspect[at]
     cell_areas = np.where(bounded, areas[at], np.nan)
     inside = None if outside is None else bounded & ~outside[at]
-    return CellAreas(cell_areas, bounded, inside), stats
+    near_before = np.concatenate([[0], np.cumsum(near)])  # near points before each point
+    ends = np.cumsum(layout.counts)
+    near_pixels = near_before[ends] > near_before[ends - layout.counts]
+    return CellAreas(cell_areas, bounded, inside), stats, near_pixels
 
 
 def _call_cells(
     tri: Delaunay,
     z: np.ndarray,
+    owner: np.ndarray,
     slot: np.ndarray | None,
+    near_length: float,
     disc_box: float | None,
     box: float | None,
     areas: np.ndarray,
     suspect: np.ndarray,
+    near: np.ndarray,
     outside: np.ndarray | None,
 ) -> None:
-    """Areas, suspect flags and outside-box flags of one Qhull call's points z, written into
-    areas, suspect and outside (views of the call's range). slot: each point's pixel slot
-    (None: one pixel). Runs under np.errstate(divide="ignore", invalid="ignore")."""
+    """Areas, suspect flags, near-coincident flags and outside-box flags of one Qhull call's
+    points z, written into areas, suspect, near and outside (views of the call's range).
+    owner: the original each point is or images; slot: each point's pixel slot (None: one
+    pixel); near_length: NEAR_COINCIDENT times the call's extent. Runs under
+    np.errstate(divide="ignore", invalid="ignore")."""
     count = len(z)
     s = np.ascontiguousarray(tri.simplices.T, dtype=np.intp)  # (3, M): vertices a, b, c
     t = TriangleTerms(z, s)
@@ -471,9 +584,40 @@ def _call_cells(
             out = ~((np.abs(cx) <= box) & (np.abs(cy) <= box))
             outside[s[:, np.flatnonzero(out)]] = True
     suspect[s[:, np.flatnonzero(bad)]] = True
+    _flag_near_coincident(tri, t, z, owner, near_length, near)
 
     share_coincident(tri, local_areas, suspect, outside)
     areas[:] = local_areas
+
+
+def _flag_near_coincident(
+    tri: Delaunay,
+    t: TriangleTerms,
+    z: np.ndarray,
+    owner: np.ndarray,
+    near_length: float,
+    near: np.ndarray,
+) -> None:
+    """Flag (in near) the end points of triangle edges shorter than near_length, except an
+    original and its own mirror image (harmless, and common near W's edges), and the points
+    Qhull dropped as "coplanar" on a vertex with other coordinates (not exact duplicates)."""
+    s = tri.simplices
+    limit = near_length * near_length
+    short = t.l1 < limit
+    short |= t.l2 < limit
+    third = t.e2 - t.e1
+    short |= third.real * third.real + third.imag * third.imag < limit
+    for i, j in ((0, 1), (0, 2), (1, 2)):  # the few short triangles, edge by edge
+        a, b = s[short, i], s[short, j]
+        edge = z[b] - z[a]
+        flagged = (edge.real**2 + edge.imag**2 < limit) & (owner[a] != owner[b])
+        near[a[flagged]] = True
+        near[b[flagged]] = True
+    if len(tri.coplanar):
+        dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
+        distinct = z[dropped] != z[kept]
+        near[dropped[distinct]] = True
+        near[kept[distinct]] = True
 
 
 def _check_degenerate(point_set: _PointSet, pixels: list[int]) -> None:

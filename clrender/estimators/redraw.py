@@ -47,6 +47,7 @@ class RedrawStats:
     empty_filtered: int = 0  # fvor pixels that fell back to vor_sn
     empty_pixels: int = 0  # accepted draws with N = 0
     recomputed_pixels: int = 0  # pixels whose cells were recomputed alone (geometry check)
+    settled_pixels: int = 0  # pixels Qhull could not resolve, settled by clipping
     qhull_calls: int = 0
     redraws_per_round: list[int] = field(default_factory=list)
 
@@ -159,6 +160,7 @@ def _count(
         if entry.cells != "none" and entry.cells not in counted:
             counted.add(entry.cells)
             stats.recomputed_pixels += result.stats.tessellation.recomputed_pixels
+            stats.settled_pixels += result.stats.tessellation.settled_pixels
             stats.qhull_calls += result.stats.tessellation.qhull_calls
 
 
