@@ -748,10 +748,10 @@ def bad_cases_markdown(results: list[dict]) -> str:
     if not bad:
         return "No case in the bad classes."
     rows = [
-        [r["outcome"], r["id"], r["description"][:90], (r["message"] or r["reason"])[:120]]
+        [r["outcome"], r["id"], r["description"][:90], r["reason"][:70], r["message"][:120]]
         for r in sorted(bad, key=lambda r: (BAD_OUTCOMES.index(r["outcome"]), r["id"]))
     ]
-    header = ["outcome", "id", "description", "stderr (a traceback's last line) or reason"]
+    header = ["outcome", "id", "description", "reason", "stderr (a traceback's: its last line)"]
     return markdown_table(header, rows)
 
 
