@@ -3,7 +3,8 @@
 The host does no large linear algebra: one BLAS thread, so that idle OpenBLAS workers do not
 spin on the cores the OpenCL CPU device works on (set before NumPy loads; the user's own
 setting wins). SIGTERM and SIGHUP end the command as Ctrl-C does (clrender.interrupts), from
-the first moment: an interrupt while the libraries load prints one line, not a traceback.
+the first moment: the signals are blocked while the libraries load, so that an interrupt there
+ends the command in one line once they are loaded, never with a traceback.
 """
 
 import os
@@ -16,7 +17,8 @@ def run() -> int:
 
     with interrupts.ending_signals_interrupt():
         try:
-            from clrender.cli import main
+            with interrupts.signals_blocked():  # NumPy, pyopencl, OpenEXR initialise whole
+                from clrender.cli import main
 
             return main()
         except KeyboardInterrupt as interrupt:  # before the command's own handling

@@ -12,6 +12,7 @@ the exit status.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import warnings
 from dataclasses import dataclass
@@ -343,23 +344,36 @@ def write_outputs(result, labels, paths: OutputPaths) -> None:
 
 
 def command_render(args: argparse.Namespace) -> int:
-    from clrender.pipeline import render
-    from clrender.progress import ProgressBar
-    from clrender.report import RenderLabels, summary_lines
+    with interrupts.signals_blocked():  # SciPy and OpenEXR initialise whole
+        from clrender.pipeline import render
+        from clrender.progress import ProgressBar
+        from clrender.report import RenderLabels, summary_lines
 
-    check_render_args(args)
-    label = scene_label(args.scene)
-    paths = output_paths(args.output, label)
-    scene = load_scene_arg(args)
-    runtime = create_runtime(args.device)
-    source, max_depth = make_source(args, runtime, scene)
-    settings = settings_from_args(args, source.width, source.height)
-    labels = RenderLabels(label, runtime.describe(), max_depth)
+    # Set-up with the ending signals blocked: one that comes is acted on when it is done, not
+    # inside a library's initialisation or the OpenCL compiler (clrender.interrupts)
+    with interrupts.signals_blocked():
+        check_render_args(args)
+        label = scene_label(args.scene)
+        paths = output_paths(args.output, label)
+        scene = load_scene_arg(args)
+        runtime = create_runtime(args.device)
+        source, max_depth = make_source(args, runtime, scene)
+        settings = settings_from_args(args, source.width, source.height)
+        labels = RenderLabels(label, runtime.describe(), max_depth)
     progress = ProgressBar(f"{label} {settings.width}x{settings.height}")
     try:
         result = render(runtime, source, settings, progress)
     finally:
         progress.close()
+    if result.stats.interrupted and result.film.rendered_count == 0:
+        # Nothing to save: an all-black partial image would replace the previous one
+        signum = interrupts.last_signal()
+        print(
+            f"clrender: interrupted ({signal.Signals(signum).name}) before any pixel was "
+            "finished: nothing written (a previous image there is kept)",
+            file=sys.stderr,
+        )
+        return interrupts.exit_status(signum)
     with interrupts.signals_held() as held:
         write_outputs(result, labels, paths)
     print("\n".join(summary_lines(result, labels)))

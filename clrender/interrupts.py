@@ -5,7 +5,11 @@ KeyboardInterrupt, in the main thread: a render stops between device calls and t
 writes the finished pixels (partial=1), exactly as after Ctrl-C. The command then exits with
 128 + the signal number, as a shell reports a process the signal ended (130 for Ctrl-C).
 While the images are written every one of these signals is held (`signals_held`) and reported
-after the files are complete.
+after the files are complete. While libraries load, the runtime is set up and OpenCL programs
+build, the signals are blocked (`signals_blocked`): a signal there interrupted an extension
+module's initialisation (an ImportError traceback) or a system call inside the OpenCL
+compiler ("1 error generated."); blocked, it is delivered, and ends the command in one line,
+right after that step.
 """
 
 from __future__ import annotations
@@ -64,6 +68,21 @@ def signals_held() -> Iterator[list[int]]:
     received: list[int] = []
     with _handlers(ENDING_SIGNALS, lambda number, frame: received.append(number)):
         yield received
+
+
+@contextlib.contextmanager
+def signals_blocked() -> Iterator[None]:
+    """Block SIGINT, SIGTERM and SIGHUP in this thread while the block runs (threads started
+    inside it inherit the mask, so the signals reach this one); one that came is delivered,
+    and its handler runs, when the block ends. A no-op where threads cannot mask signals."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, ENDING_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def last_signal() -> int:

@@ -21,6 +21,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.tools as cl_tools
 
+from clrender import interrupts
 from clrender.errors import DeviceError, KernelBuildError
 from clrender.package_data import shipped_dir
 
@@ -190,7 +191,8 @@ def _build_cached(
     source = f'#include "{path.name}"\n'
     options = build_options(defines)
     try:
-        return cl.Program(context, source).build(options=options)
+        with interrupts.signals_blocked():  # a signal mid-build failed the compiler's calls
+            return cl.Program(context, source).build(options=options)
     except cl.RuntimeError as err:
         log = _build_log(err)
         raise KernelBuildError(

@@ -271,14 +271,18 @@ def test_an_ending_signal_writes_the_partial_image_and_exits_128_plus_it(tmp_pat
 
 
 # The signal arrives while the command still imports its libraries (the moment is made
-# exact by sending it from the import of clrender.cli): one line, no traceback
+# exact by sending it from an import): one line, no traceback. From the import of datetime,
+# which NumPy's C initialisation makes: before the signals were blocked there, the interrupt
+# inside it became "ImportError: PyCapsule_Import could not import module datetime".
 INTERRUPT_WHILE_IMPORTING = """
 import builtins, os, signal, sys
 real_import = builtins.__import__
 def interrupting_import(name, *args, **kwargs):
-    if name == "clrender.cli":
+    if name == "{module}" and not sent:
+        sent.append(1)
         os.kill(os.getpid(), signal.{signal})
     return real_import(name, *args, **kwargs)
+sent = []
 builtins.__import__ = interrupting_import
 sys.argv = ["clrender", "render", "analytic", "--res", "8", "-o", "never.exr"]
 from clrender.__main__ import run
@@ -286,10 +290,11 @@ sys.exit(run())
 """
 
 
+@pytest.mark.parametrize("module", ["clrender.cli", "datetime"])
 @pytest.mark.parametrize("name, status", [("SIGINT", 130), ("SIGTERM", 143)])
-def test_an_interrupt_while_loading_is_one_line(tmp_path, name, status):
+def test_an_interrupt_while_loading_is_one_line(tmp_path, name, status, module):
     child = subprocess.run(
-        [sys.executable, "-c", INTERRUPT_WHILE_IMPORTING.format(signal=name)],
+        [sys.executable, "-c", INTERRUPT_WHILE_IMPORTING.format(signal=name, module=module)],
         capture_output=True,
         text=True,
         cwd=tmp_path,
@@ -297,6 +302,49 @@ def test_an_interrupt_while_loading_is_one_line(tmp_path, name, status):
     assert child.returncode == status, child.stderr
     assert child.stderr == f"clrender: interrupted ({name})\n"
     assert list(tmp_path.iterdir()) == []
+
+
+# The signal arrives while an OpenCL program builds (the build finishes first: a signal inside
+# the compiler's system calls failed it, "1 error generated."), or once rendering has begun but
+# before any pixel is finished: one line, and with no pixel to save nothing is written, so the
+# previous image stays (before: an all-black partial image replaced it).
+INTERRUPT_AT = """
+import os, signal, sys
+import pyopencl as cl
+import clrender.pipeline
+def interrupting(real):
+    def call(*args, **kwargs):
+        if not sent:
+            sent.append(1)
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real(*args, **kwargs)
+    return call
+sent = []
+{patch}
+sys.argv = ["clrender", "render", "cornell-box", "--res", "8", "--spp", "1", "-o", "old.exr"]
+from clrender.__main__ import run
+sys.exit(run())
+"""
+PATCHES = {
+    "building": "cl.Program.build = interrupting(cl.Program.build)",
+    "first-tile": "clrender.pipeline.tile_pixels = interrupting(clrender.pipeline.tile_pixels)",
+}
+
+
+@pytest.mark.parametrize("moment", list(PATCHES))
+def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment):
+    (tmp_path / "old.exr").write_bytes(b"a previous image")
+    child = subprocess.run(
+        [sys.executable, "-c", INTERRUPT_AT.format(patch=PATCHES[moment])],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert child.returncode == 143, child.stderr
+    assert child.stderr.count("\n") == 1 and "Traceback" not in child.stderr, child.stderr
+    assert child.stderr.startswith("clrender: interrupted (SIGTERM)"), child.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.exr"]
+    assert (tmp_path / "old.exr").read_bytes() == b"a previous image"
 
 
 def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monkeypatch):
