@@ -189,6 +189,9 @@ def write_all_atomically(jobs: Sequence[tuple[str | os.PathLike, FileWriter]]) -
                 flush_to_disk(temp)
             except (OSError, RuntimeError) as err:  # RuntimeError: the OpenEXR library's
                 reason = getattr(err, "strerror", None) or str(err) or type(err).__name__
+                # OpenEXR names the file: 'Failed to write ... to image file "<temp>". No space
+                # left on device.'; the user knows the path, not the temporary file
+                reason = reason.replace(f'image file "{temp}"', "its temporary file")
                 reason = reason.replace(f'"{temp}"', "its temporary file")
                 raise OutputPathError(f"cannot write {path}: {reason}") from err
         for path, temp in zip(paths, temps, strict=True):

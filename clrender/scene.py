@@ -200,6 +200,10 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
     """A path to an existing file, or a bare shipped scene name ("cornell-box")."""
     path = Path(path_or_name)
     text = str(path_or_name)
+    if not text.strip():  # Path("") is ".", a directory
+        raise SceneError(
+            f"no scene given (an empty name); shipped scenes: {', '.join(list_scenes())}"
+        )
     try:
         mode = path.stat().st_mode
     except OSError as err:

@@ -454,5 +454,7 @@ def test_api_loaders_refuse_what_they_cannot_use():
 
     with pytest.raises(clrender.ParameterError, match="takes a scene name or a path"):
         clrender.load_scene(None)
+    with pytest.raises(clrender.ClrenderError, match=r"no scene given \(an empty name\)"):
+        clrender.load_scene("")  # before: "scene file '' is a directory"
     with pytest.raises(clrender.ParameterError, match=r"must be in \(0, 4\], got 1000000.0"):
         make_sampler("sppp", 16, eps=1e6)

@@ -152,6 +152,25 @@ def test_an_exr_library_error_is_one_line_naming_the_file(tmp_path, monkeypatch)
     assert list(tmp_path.iterdir()) == []
 
 
+def test_the_temporary_file_the_exr_library_names_is_not_shown(tmp_path, monkeypatch):
+    """OpenEXR's message names the temporary file: before, 'Failed to write pixel data to
+    image file its temporary file.'"""
+    import OpenEXR
+
+    def fail(self, name):
+        raise RuntimeError(
+            f'Failed to write pixel data to image file "{name}". No space left on device.'
+        )
+
+    monkeypatch.setattr(OpenEXR.File, "write", fail)
+    with pytest.raises(OutputPathError) as err:
+        write_exr(tmp_path / "a.exr", np.zeros((2, 2, 3)))
+    assert str(err.value) == (
+        f"cannot write {tmp_path / 'a.exr'}: Failed to write pixel data to its temporary file. "
+        "No space left on device."
+    )
+
+
 def test_a_pair_is_replaced_only_when_both_files_are_written(tmp_path):
     exr, png = tmp_path / "out.exr", tmp_path / "out.png"
     write_exr(exr, np.ones((2, 2, 3)))
