@@ -48,6 +48,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from bootstrap import ratio_interval  # noqa: E402
 from common import (  # noqa: E402
     RESULTS,
     command_line,
@@ -389,14 +390,8 @@ def efficiency_ratios(table: dict) -> dict:
     }
 
 
-def bootstrap_ratio(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> tuple:
-    """var(a) / var(b) and its 95 % percentile bootstrap interval (runs resampled with
-    replacement, BOOTSTRAP times, a and b independently)."""
-    ia = rng.integers(0, len(a), (BOOTSTRAP, len(a)))
-    ib = rng.integers(0, len(b), (BOOTSTRAP, len(b)))
-    ratios = a[ia].var(axis=1, ddof=1) / np.maximum(b[ib].var(axis=1, ddof=1), 1e-300)
-    lo, hi = np.percentile(ratios, [2.5, 97.5])
-    return float(a.var(ddof=1) / max(b.var(ddof=1), 1e-300)), float(lo), float(hi)
+def variance(runs: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.var(runs, axis=axis, ddof=1)
 
 
 def voronoi_vs_ld(table: dict, values: dict, seed: int = 0) -> dict:
@@ -417,7 +412,9 @@ def voronoi_vs_ld(table: dict, values: dict, seed: int = 0) -> dict:
         for label in VORONOI_LD:
             if label not in row:
                 continue
-            ratio, lo, hi = bootstrap_ratio(values[spp][best], values[spp][label], rng)
+            # Separate groups, own seeds: independent runs, each resampled on its own
+            a, b = values[spp][best], values[spp][label]
+            ratio, lo, hi = ratio_interval(a, b, variance, rng, paired=False, resamples=BOOTSTRAP)
             cost = row[label]["var"] * row[label]["total_ms"]
             out[spp][label] = {
                 "best_ld_mc": best,

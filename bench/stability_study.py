@@ -39,6 +39,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from analytic_study import FUNCTIONS  # noqa: E402
+from bootstrap import ratio_interval  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
 from clrender.analytic import SmoothSines, StepEdge  # noqa: E402
@@ -209,20 +210,20 @@ def run_all(n: int, runs: int, rng) -> Runs:
 # Statistics
 
 
-def rmse(errors: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.mean(errors**2, axis=-1))
+def rmse(errors: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.sqrt(np.mean(errors**2, axis=axis))
 
 
-def median_abs(errors: np.ndarray) -> np.ndarray:
-    return np.median(np.abs(errors), axis=-1)
+def median_abs(errors: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.median(np.abs(errors), axis=axis)
 
 
 METRICS = {"RMSE": rmse, "median |error|": median_abs}
 
 
-def ratio_ci(errors: np.ndarray, base: np.ndarray, metric: str, rng) -> dict:
-    """metric(errors) / metric(base) with a 95 % bootstrap interval. Equal-length arrays are
-    resampled jointly (paired when they share draws), others independently."""
+def ratio_ci(errors: np.ndarray, base: np.ndarray, metric: str, rng, paired: bool) -> dict:
+    """metric(errors) / metric(base) with a 95 % percentile bootstrap interval (bench/bootstrap.py);
+    paired: the i-th errors and base errors come from the same draws, resampled jointly."""
     stat = METRICS[metric]
     value, base_value = float(stat(errors)), float(stat(base))
     out = {"metric": metric, "value": value, "baseline": base_value}
@@ -233,13 +234,8 @@ def ratio_ci(errors: np.ndarray, base: np.ndarray, metric: str, rng) -> dict:
             "lo": math.nan,
             "hi": math.nan,
         }
-    boots = []
-    for _ in range(0, BOOT_REPS, 100):  # 100 resamples at a time bound the memory
-        idx = rng.integers(0, len(errors), (100, len(errors)))
-        base_idx = idx if len(base) == len(errors) else rng.integers(0, len(base), (100, len(base)))
-        boots.append(stat(errors[idx]) / stat(base[base_idx]))
-    lo, hi = np.percentile(np.concatenate(boots), [2.5, 97.5])
-    return {**out, "ratio": value / base_value, "lo": float(lo), "hi": float(hi)}
+    ratio, lo, hi = ratio_interval(errors, base, stat, rng, paired=paired, resamples=BOOT_REPS)
+    return {**out, "ratio": ratio, "lo": lo, "hi": hi}
 
 
 def verdict(r: dict) -> str:
@@ -554,7 +550,8 @@ def build_atlas(all_runs: dict[int, Runs], storm: dict, rng) -> list[dict]:
         base = all_runs[n].estimates["baseline"][:, c] - exact
         cells = {}
         for name in ROW_NAMES:
-            r = ratio_ci(all_runs[n].estimates[name][:, c] - exact, base, metric, rng)
+            errors = all_runs[n].estimates[name][:, c] - exact
+            r = ratio_ci(errors, base, metric, rng, paired=name in UNIFORM_NAMES)
             cells[name] = {**r, "verdict": verdict(r)}
         rows.append(
             {"situation": label, "n": n, "column": column, "metric": metric, "cells": cells}
@@ -570,7 +567,8 @@ def storm_atlas_row(runs: Runs, storm: dict, rng) -> dict:
     base = runs.estimates["baseline"][:, c] - exact
     cells = {}
     for name in SPPP_NAMES:
-        r = ratio_ci(storm["runs"][label]["holder_1"][name] - exact, base, "RMSE", rng)
+        errors = storm["runs"][label]["holder_1"][name] - exact
+        r = ratio_ci(errors, base, "RMSE", rng, paired=False)
         cells[name] = {**r, "verdict": verdict(r)}
     return {
         "situation": f"storm eps {STORM_EPS:g} ({label}): holder_1, n = {STORM_N}",

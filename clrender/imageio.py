@@ -1,16 +1,17 @@
-"""Image output: linear float32 OpenEXR with render metadata, and an 8-bit sRGB PNG preview.
+"""Image output: linear float32 OpenEXR with render metadata, and an 8-bit sRGB PNG preview
+(encoded by Pillow).
 
 Both writers are atomic and checked: the bytes go to a temporary file in the destination's
-directory (".<name>.<pid>.<random>.tmp"), which is read back (an EXR's pixels must come back
-bit for bit, a PNG's size must match: a full disk can leave a short file without any error from
-the OpenEXR library), flushed to disk (fsync), and only then replaces the requested name with
-os.replace, and the directory entry is flushed too. A reader never sees a half-written file
-under that name; a failed write leaves the old file and raises OutputPathError naming the path.
-`write_all_atomically` does this for several files at once: every file is written and checked
-before the first one replaces its old version (an image and its preview stay a pair). A writer
-killed before its rename leaves its temporary file; the next write to that name removes the
-ones whose process is gone. `check_writable` validates an output path up front, before any
-rendering starts.
+directory (".<name>.<pid>.<random>.tmp"), which is read back (an EXR's float32 pixels and a
+PNG's 8-bit ones must come back exactly: a full disk can leave a short file without any error
+from the OpenEXR library), flushed to disk (fsync), and only then replaces the requested name
+with os.replace, and the directory entry is flushed too. A reader never sees a half-written
+file under that name; a failed write leaves the old file and raises OutputPathError naming the
+path. `write_all_atomically` does this for several files at once: every file is written and
+checked before the first one replaces its old version (an image and its preview stay a pair).
+A writer killed before its rename leaves its temporary file; the next write to that name
+removes the ones whose process is gone. `check_writable` validates an output path up front,
+before any rendering starts.
 
 EXR attributes: the standard ones plus one per metadata entry. OpenEXR's int attribute is
 32-bit and its float attribute single precision, so integers outside the int32 range (seeds up
@@ -21,20 +22,19 @@ from __future__ import annotations
 
 import glob
 import os
-import struct
 import tempfile
-import zlib
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
+from PIL import Image, PngImagePlugin
 
 from clrender.errors import ClrenderError
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 NAME_MAX = 255  # bytes in one file name (Linux, macOS, Windows alike)
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+SRGB_PERCEPTUAL = 0  # the sRGB chunk's rendering intent
 SRGB_BLOCK = 1 << 18  # values per block of the sRGB encoding (2 MB float64 temporaries)
 # Attributes every scanline EXR carries; read_exr leaves them out of the metadata it returns.
 STANDARD_EXR_ATTRIBUTES = {
@@ -310,69 +310,37 @@ def srgb8(linear: np.ndarray) -> np.ndarray:
     return codes.reshape(linear.shape)
 
 
-def png_chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-
-def encode_png(rgb8: np.ndarray) -> bytes:
-    """An 8-bit RGB PNG (filter 0 on every row) carrying an sRGB chunk."""
-    height, width, _ = rgb8.shape
-    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
-    rows = np.zeros((height, 1 + 3 * width), np.uint8)  # leading 0 = filter type None
-    rows[:, 1:] = np.ascontiguousarray(rgb8, np.uint8).reshape(height, 3 * width)
-    return b"".join(
-        [
-            PNG_SIGNATURE,
-            png_chunk(b"IHDR", header),
-            png_chunk(b"sRGB", b"\x00"),  # rendering intent: perceptual
-            png_chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)),
-            png_chunk(b"IEND", b""),
-        ]
-    )
-
-
 def write_png(path: str | os.PathLike, image: np.ndarray) -> Path:
     """Write the sRGB-encoded, clamped 8-bit preview of a linear RGB image."""
     return write_atomically(path, png_writer(image))
 
 
 def png_writer(image: np.ndarray) -> FileWriter:
-    """Writes the preview PNG of a linear RGB image and checks its size on disk."""
-    data = encode_png(srgb8(rgb_float32(image)))
+    """Writes the preview PNG of a linear RGB image (Pillow), then reads it back: its pixels
+    must come back exactly."""
+    codes = srgb8(rgb_float32(image))
+    chunks = PngImagePlugin.PngInfo()
+    chunks.add(b"sRGB", bytes([SRGB_PERCEPTUAL]))  # the code values are sRGB
 
     def write(temp: Path) -> None:
-        temp.write_bytes(data)
-        size = temp.stat().st_size
-        if size != len(data):
-            raise incomplete(temp, f"{size} of {len(data)} bytes")
+        Image.fromarray(codes).save(temp, format="PNG", pnginfo=chunks)
+        try:
+            back = read_png(temp)
+        except (OSError, SyntaxError, ValueError, EOFError) as err:  # Pillow's "broken PNG"
+            raise incomplete(temp, f"{temp.stat().st_size} bytes that do not read back") from err
+        if back.shape != codes.shape or back.tobytes() != codes.tobytes():
+            raise incomplete(temp, "its pixels read back differently")
 
     return write
 
 
-def png_chunks(data: bytes) -> Iterator[tuple[bytes, bytes]]:
-    """(kind, body) of each chunk of a PNG file, CRCs checked."""
-    if not data.startswith(PNG_SIGNATURE):
-        raise ValueError("not a PNG file")
-    pos = len(PNG_SIGNATURE)
-    while pos < len(data):
-        (length,) = struct.unpack(">I", data[pos : pos + 4])
-        kind, body = data[pos + 4 : pos + 8], data[pos + 8 : pos + 8 + length]
-        (crc,) = struct.unpack(">I", data[pos + 8 + length : pos + 12 + length])
-        if zlib.crc32(kind + body) != crc:
-            raise ValueError(f"PNG chunk {kind!r} has a bad CRC")
-        yield kind, body
-        pos += 12 + length
-
-
-def decode_png(data: bytes) -> np.ndarray:
-    """Decode the PNGs encode_png writes (8-bit RGB, filter 0): for tests and tools."""
-    chunks: dict[bytes, bytes] = {}
-    for kind, body in png_chunks(data):
-        chunks[kind] = chunks.get(kind, b"") + body
-    width, height, depth, color_type = struct.unpack(">IIBB", chunks[b"IHDR"][:10])
-    if (depth, color_type) != (8, 2):
-        raise ValueError("only 8-bit RGB PNGs are supported")
-    rows = np.frombuffer(zlib.decompress(chunks[b"IDAT"]), np.uint8).reshape(height, -1)
-    if np.any(rows[:, 0] != 0):
-        raise ValueError("only PNG filter type 0 is supported")
-    return rows[:, 1:].reshape(height, width, 3).copy()
+def read_png(path: str | os.PathLike) -> np.ndarray:
+    """The (H, W, 3) uint8 pixels of an RGB PNG (Pillow), the whole file checked: every chunk's
+    CRC, through the end chunk (Pillow decodes the pixels of a file cut after them). Opened
+    without Image.open's decompression-bomb limit: it would refuse a large render's preview."""
+    with PngImagePlugin.PngImageFile(path) as png:
+        png.verify()
+    with PngImagePlugin.PngImageFile(path) as png:
+        if png.mode != "RGB":
+            raise ValueError(f"{path}: a {png.mode} PNG, not RGB")
+        return np.asarray(png)

@@ -1,49 +1,28 @@
-"""A one-line progress bar on stderr; silent unless stderr is a terminal."""
+"""The render's progress bar, tqdm's: a bar on stderr when it is a terminal, a widget in
+Jupyter (tqdm.auto; with ipywidgets installed), nothing in a pipe or a log file."""
 
 from __future__ import annotations
 
-import sys
-import time
 from typing import TextIO
 
-BAR_WIDTH = 30
-
-
-def format_seconds(seconds: float) -> str:
-    if seconds < 60:
-        return f"{seconds:.1f} s"
-    minutes, secs = divmod(int(round(seconds)), 60)
-    return f"{minutes} min {secs:02d} s"
+from tqdm.auto import tqdm
 
 
 class ProgressBar:
-    """Call with (done, total) pixels; `close()` ends the line. Draws only on a terminal."""
+    """Call with (done, total) pixels, the render's progress callback; `close()` ends the bar.
+    enabled=None: tqdm decides (shown on a terminal or in Jupyter, hidden elsewhere)."""
 
     def __init__(self, label: str, stream: TextIO | None = None, enabled: bool | None = None):
-        self.stream = stream if stream is not None else sys.stderr
-        self.enabled = self.stream.isatty() if enabled is None else enabled
-        self.label = label
-        self.start = time.perf_counter()
-        self.drawn = False
+        # Started now, so that its rate and ETA count the first tile too; total comes with it
+        disable = None if enabled is None else not enabled
+        self.bar = tqdm(desc=label, unit="px", file=stream, disable=disable)
 
     def __call__(self, done: int, total: int) -> None:
-        if not self.enabled or total <= 0:
+        if total <= 0:
             return
-        elapsed = time.perf_counter() - self.start
-        fraction = done / total
-        filled = int(BAR_WIDTH * fraction)
-        eta = elapsed * (1.0 - fraction) / fraction if fraction > 0 else float("nan")
-        eta_text = format_seconds(eta) if fraction > 0 else "?"
-        bar = "#" * filled + "." * (BAR_WIDTH - filled)
-        self.stream.write(
-            f"\r{self.label} [{bar}] {100 * fraction:5.1f}% "
-            f"{format_seconds(elapsed)} elapsed, ETA {eta_text}  "
-        )
-        self.stream.flush()
-        self.drawn = True
+        if self.bar.total != total:
+            self.bar.total = total
+        self.bar.update(done - self.bar.n)
 
     def close(self) -> None:
-        if self.drawn:
-            self.stream.write("\n")
-            self.stream.flush()
-            self.drawn = False
+        self.bar.close()

@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 from clrender import __version__
 from clrender.pipeline import RenderResult
-from clrender.progress import format_seconds
 
 
 @dataclass(frozen=True)
@@ -49,6 +48,13 @@ def render_metadata(result: RenderResult, labels: RenderLabels) -> dict[str, obj
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
     return metadata
+
+
+def format_seconds(seconds: float) -> str:
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(int(round(seconds)), 60)
+    return f"{minutes} min {secs:02d} s"
 
 
 def rate(count: int, seconds: float) -> str:

@@ -1,4 +1,6 @@
-"""Image output: EXR round trip with metadata, PNG encoding, atomic writes, early path checks."""
+"""Image output: EXR round trip with metadata, PNG through Pillow, atomic writes, path checks."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -6,10 +8,10 @@ import pytest
 from clrender.imageio import (
     OutputPathError,
     check_writable,
-    decode_png,
     exr_header,
     exr_writer,
     read_exr,
+    read_png,
     rgb_float32,
     srgb8,
     write_all_atomically,
@@ -65,11 +67,43 @@ def test_png_decodes_to_the_right_size_and_srgb_values(tmp_path):
     image[0, 4] = [1.0, 0.5, 0.18]
     image[2, 0] = [0.0031308, 2.0, -0.5]
     write_png(tmp_path / "preview.png", image)
-    decoded = decode_png((tmp_path / "preview.png").read_bytes())
-    assert decoded.shape == (height, width, 3)
+    decoded = read_png(tmp_path / "preview.png")
+    assert decoded.shape == (height, width, 3) and decoded.dtype == np.uint8
     assert decoded[0, 4].tolist() == [255, 188, 118]
     assert decoded[2, 0].tolist() == [10, 255, 0]
     assert decoded.sum() == 255 + 188 + 118 + 10 + 255
+
+
+def test_png_is_marked_srgb_and_its_rows_are_filtered(tmp_path):
+    # Pillow's encoder filters rows (the hand-written one wrote them unfiltered, 26-32 % larger)
+    import zlib
+
+    from PIL import Image
+
+    y, x = np.mgrid[0:64, 0:96] / 96.0
+    image = np.stack([x, y, 0.5 * (x + y)], axis=-1) ** 2.2  # smooth gradients, as renders
+    write_png(tmp_path / "p.png", image)
+    with Image.open(tmp_path / "p.png") as png:
+        assert (png.format, png.mode, png.size) == ("PNG", "RGB", (96, 64))
+        assert png.info["srgb"] == 0  # sRGB chunk, perceptual intent
+    rows = np.zeros((64, 1 + 3 * 96), np.uint8)
+    rows[:, 1:] = srgb8(image).reshape(64, -1)
+    unfiltered = len(zlib.compress(rows.tobytes(), 6))
+    assert (tmp_path / "p.png").stat().st_size < 0.8 * unfiltered
+
+
+def test_a_preview_over_pillows_decompression_bomb_limit_is_written(tmp_path, monkeypatch):
+    # Image.open warns above 89 M pixels and refuses above 179 M: a large render's preview
+    import warnings
+
+    from PIL import Image
+
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)  # stands in for a 10k x 10k render
+    image = np.random.default_rng(2).random((20, 30, 3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        write_png(tmp_path / "large.png", image)
+        assert np.array_equal(read_png(tmp_path / "large.png"), srgb8(image))
 
 
 def test_failed_write_leaves_no_file_under_the_requested_name(tmp_path):
@@ -138,6 +172,43 @@ def test_a_short_exr_never_replaces_the_previous_one(tmp_path, monkeypatch):
         write_exr(target, np.zeros((4, 4, 3)))
     assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
     assert np.array_equal(read_exr(target)[0], np.ones((4, 4, 3), np.float32))
+
+
+@pytest.mark.parametrize("keep", [0, 8, 40, -30, -12])
+def test_a_short_png_never_replaces_the_previous_one(tmp_path, monkeypatch, keep):
+    # Cut at the signature, the header, inside the pixel data, before IEND: each is read back
+    from PIL import Image
+
+    target = tmp_path / "out.png"
+    write_png(target, np.ones((4, 4, 3)))
+    old = target.read_bytes()
+    real_save = Image.Image.save
+
+    def save_short(self, fp, *args, **kwargs):
+        real_save(self, fp, *args, **kwargs)
+        data = Path(fp).read_bytes()
+        Path(fp).write_bytes(data[:keep])
+
+    monkeypatch.setattr(Image.Image, "save", save_short)
+    image = np.random.default_rng(3).random((16, 16, 3))
+    with pytest.raises(OutputPathError, match=r"cannot write .*out.png: the written file is"):
+        write_png(target, image)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.png"]
+    assert target.read_bytes() == old
+
+
+def test_a_png_whose_pixels_read_back_differently_is_refused(tmp_path, monkeypatch):
+    from PIL import Image
+
+    real_save = Image.Image.save
+
+    def save_other(self, fp, *args, **kwargs):
+        real_save(Image.new("RGB", self.size, (1, 2, 3)), fp, *args, **kwargs)
+
+    monkeypatch.setattr(Image.Image, "save", save_other)
+    with pytest.raises(OutputPathError, match="out.png: .*pixels read back differently"):
+        write_png(tmp_path / "out.png", np.zeros((2, 3, 3)))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_an_exr_library_error_is_one_line_naming_the_file(tmp_path, monkeypatch):
