@@ -91,6 +91,11 @@ def render(
     config = make_sampler(sampler, spp)
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
+    elif not isinstance(scene, Scene):
+        raise ParameterError(
+            "render takes a Scene (clrender.load_scene), a scene name or a path, got "
+            f"{type(scene).__name__} {scene!r}"
+        )
     runtime = runtime_for(device)
     source = radiance_source(runtime, scene, resolution, max_depth)
     settings = RenderSettings(

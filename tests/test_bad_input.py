@@ -456,5 +456,8 @@ def test_api_loaders_refuse_what_they_cannot_use():
         clrender.load_scene(None)
     with pytest.raises(clrender.ClrenderError, match=r"no scene given \(an empty name\)"):
         clrender.load_scene("")  # before: "scene file '' is a directory"
+    for scene in (None, 42):  # before: AttributeError: ... has no attribute 'quads'
+        with pytest.raises(clrender.ParameterError, match="render takes a Scene"):
+            clrender.render(scene, spp=1, sampler="independent", resolution=4)
     with pytest.raises(clrender.ParameterError, match=r"must be in \(0, 4\], got 1000000.0"):
         make_sampler("sppp", 16, eps=1e6)
