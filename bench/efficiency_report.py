@@ -7,11 +7,16 @@ less that reference's own measured variance), median wall time of the call and m
 Time to a target MSE: the (median wall, mean MSE) points of a configuration joined on log-log
 axes; where two consecutive spp bracket the target, the crossing of that segment
 (interpolated); else the line through the two points nearest it, extended (extrapolated, said
-so).
+so). The target on mitsuba-cbox is checked in wall time (the issue's clock) and in CPU time.
+
+    python bench/efficiency_report.py DIR    # summaries, targets, charts, report.md of
+                                             # DIR/results.json again, from its rows
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
 import statistics
 from pathlib import Path
@@ -20,7 +25,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from common import markdown_table  # noqa: E402
+from common import markdown_table, write_json  # noqa: E402
 
 TARGET_MSE = 1e-4
 # The issue's table (an earlier run, quoted for comparison, never used as a result of this one):
@@ -137,17 +142,20 @@ def targets(entry: dict) -> dict:
         row["issue_table_multijitter"] = issue
         row["met_vs_issue_table"] = ours["mse"] <= issue
         out[f"mse_{spp}spp"] = row
-    ours_label, ours_t = fastest(ttt, points, "clrender")
-    theirs_label, theirs_t = fastest(ttt, points, "mitsuba")
-    out["time_to_mse_1e-4"] = {
-        "clrender": ours_label,
-        "clrender_s": ours_t and ours_t["seconds"],
-        "clrender_how": ours_t and ours_t["how"],
-        "mitsuba": theirs_label,
-        "mitsuba_s": theirs_t and theirs_t["seconds"],
-        "mitsuba_how": theirs_t and theirs_t["how"],
-        "met": bool(ours_t and theirs_t and ours_t["seconds"] < theirs_t["seconds"]),
-    }
+    # Wall time is the issue's clock; CPU time beside it, since other work on a shared machine
+    # slows the two renderers' threads differently
+    for clock, key in (("wall", "time_to_mse_1e-4"), ("cpu", "time_to_mse_1e-4_cpu")):
+        ours_label, ours_t = fastest(ttt, points, "clrender", clock)
+        theirs_label, theirs_t = fastest(ttt, points, "mitsuba", clock)
+        out[key] = {
+            "clrender": ours_label,
+            "clrender_s": ours_t and ours_t["seconds"],
+            "clrender_how": ours_t and ours_t["how"],
+            "mitsuba": theirs_label,
+            "mitsuba_s": theirs_t and theirs_t["seconds"],
+            "mitsuba_how": theirs_t and theirs_t["how"],
+            "met": bool(ours_t and theirs_t and ours_t["seconds"] < theirs_t["seconds"]),
+        }
     return out
 
 
@@ -328,14 +336,17 @@ def target_lines(t: dict) -> list[str]:
             f"{fmt(row['issue_table_multijitter'])} -> "
             f"{'met' if row['met_vs_issue_table'] else 'NOT met'}."
         )
-    tt = t["time_to_mse_1e-4"]
-    lines += [
-        f"- Time to MSE 1e-4 (wall): clrender's fastest {tt['clrender']} {fmt(tt['clrender_s'])}"
-        f" s ({tt['clrender_how']}); Mitsuba's fastest {tt['mitsuba']} {fmt(tt['mitsuba_s'])} s "
-        f"({tt['mitsuba_how']}) -> {'met' if tt['met'] else 'NOT met'}.",
-        "",
-    ]
-    return lines
+    for clock, key in (("wall", "time_to_mse_1e-4"), ("CPU", "time_to_mse_1e-4_cpu")):
+        tt = t.get(key)
+        if tt is None:  # results from before CPU time was a target
+            continue
+        lines.append(
+            f"- Time to MSE 1e-4 ({clock}): clrender's fastest {tt['clrender']} "
+            f"{fmt(tt['clrender_s'])} s ({tt['clrender_how']}); Mitsuba's fastest "
+            f"{tt['mitsuba']} {fmt(tt['mitsuba_s'])} s ({tt['mitsuba_how']}) -> "
+            f"{'met' if tt['met'] else 'NOT met'}."
+        )
+    return lines + [""]
 
 
 def report(results: dict) -> str:
@@ -366,3 +377,24 @@ def report(results: dict) -> str:
                 "",
             ]
     return "\n".join(lines)
+
+
+def rebuild(out: Path) -> None:
+    """Summaries, targets, charts and report.md of out/results.json recomputed from its rows
+    (after a change to this module; the renders are not run again)."""
+    path = out / "results.json"
+    results = json.loads(path.read_text())
+    for entry in finished(results).values():
+        entry["summary"] = summarise(entry["rows"])
+        entry["time_to_target"] = times_to_target(entry["summary"])
+        if "targets" in entry:
+            entry["targets"] = targets(entry)
+    write_json(path, results)
+    plot_all(results, out)
+    (out / "report.md").write_text(report(results) + "\n")
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=rebuild.__doc__.split("\n")[0])
+    parser.add_argument("out", type=Path, help="a study's output folder (holds results.json)")
+    rebuild(parser.parse_args().out)
