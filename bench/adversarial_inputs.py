@@ -59,6 +59,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
+import fcntl
 import json
 import os
 import pty
@@ -70,6 +71,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import termios
 import threading
 import time
 import zlib
@@ -142,11 +144,20 @@ class Facts:
     notes: dict = field(default_factory=dict)
 
 
+# A drawing of the progress bar: clrender's own ("... elapsed, ETA ...") or tqdm's
+# ("label:  12%|##  | 8192/65536 [00:01<00:08, 5000px/s]", "label: 0px [00:00, ?px/s]").
+TQDM_BAR = re.compile(r"(\d+/\d+|\d+px) \[\d\d:\d\d[<,]")
+
+
+def is_progress_bar(text: str) -> bool:
+    return "elapsed, ETA" in text or TQDM_BAR.search(text) is not None
+
+
 def stderr_lines(stderr: str) -> list[str]:
     """The non-empty lines of stderr, progress bar redraws removed (a pseudo-terminal's)."""
     lines = []
     for line in stderr.replace("\r\n", "\n").split("\n"):
-        kept = [part for part in line.split("\r") if "elapsed, ETA" not in part]
+        kept = [part for part in line.split("\r") if not is_progress_bar(part)]
         text = "".join(kept).strip()
         if text:
             lines.append(text)
@@ -567,11 +578,23 @@ def prior_state(prior: dict) -> str:
 # --- signal cases --------------------------------------------------------------------------------
 
 
+# A progress bar with finished pixels: clrender's own bar until 2026-11 ("... elapsed"), then
+# tqdm's (" 12%|##  | 8192/65536 [00:01<00:08, ...]", a count above 0).
+TQDM_PROGRESS = re.compile(rb"(?<![\d/])[1-9]\d*/\d+ \[")
+
+
+def shows_progress(data: bytes) -> bool:
+    """Whether a chunk of the terminal shows pixels finished."""
+    return b"elapsed" in data or TQDM_PROGRESS.search(data) is not None
+
+
 def run_signal(runner: Runner, case: Case, where: Path) -> Run:
     """The render with stderr on a pseudo-terminal (the progress bar shows when a tile is
     finished), the signal sent at the case's moment."""
     signum = getattr(signal, case.params["signal"])
     controller, terminal = pty.openpty()
+    # 80 columns: tqdm draws nothing on a terminal 0 wide, as a new pseudo-terminal is
+    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
     start = time.perf_counter()
     child = runner.start(case, where, stderr=terminal)
     os.close(terminal)
@@ -593,7 +616,7 @@ def run_signal(runner: Runner, case: Case, where: Path) -> Run:
     if moment == "tile":
         deadline = start + runner.timeout
         while time.perf_counter() < deadline and child.poll() is None:
-            if any(b"elapsed" in data for _, data in chunks):
+            if any(shows_progress(data) for _, data in chunks):
                 break
             time.sleep(0.01)
         time.sleep(0.3)
@@ -610,7 +633,7 @@ def run_signal(runner: Runner, case: Case, where: Path) -> Run:
     code, out, _ = runner.finish(child, runner.timeout)
     reader.join(timeout=5)
     os.close(controller)
-    started = any(b"elapsed" in data for t, data in chunks if t <= sent)
+    started = any(shows_progress(data) for t, data in chunks if t <= sent)
     stderr = b"".join(data for _, data in chunks).decode("utf-8", "replace")
     return Run(code, out, stderr, time.perf_counter() - start, started, notes)
 

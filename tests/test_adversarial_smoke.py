@@ -94,6 +94,14 @@ def test_classify_exemptions():
 def test_progress_bar_redraws_are_not_error_lines():
     stderr = "\rbox [##....] 10.0% 1.0 s elapsed, ETA 9.0 s  \r\nclrender: interrupted\r\n"
     assert adv.stderr_lines(stderr) == ["clrender: interrupted"]
+    tqdm = (
+        "\rbox 8x8: 0px [00:00, ?px/s]\rbox 8x8:  18%|##  | 11991/65536 [00:00<00:02, "
+        "21705.25px/s]\r\nclrender: interrupted: the image holds 13704 of 65536 pixels\r\n"
+    )
+    assert adv.stderr_lines(tqdm) == [
+        "clrender: interrupted: the image holds 13704 of 65536 pixels"
+    ]
+    assert adv.shows_progress(tqdm.encode()) and not adv.shows_progress(b"0/64 [00:00<?")
     assert adv.message(["Traceback (most recent call last):", "  x", "KeyError: 1"]) == (
         "KeyError: 1"
     )
