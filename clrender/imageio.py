@@ -34,6 +34,7 @@ from clrender.errors import ClrenderError
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 NAME_MAX = 255  # bytes in one file name (Linux, macOS, Windows alike)
+PATH_MAX = 4096  # bytes in a whole path (Linux; longer ones fail with ENAMETOOLONG)
 SRGB_PERCEPTUAL = 0  # the sRGB chunk's rendering intent
 SRGB_BLOCK = 1 << 18  # values per block of the sRGB encoding (2 MB float64 temporaries)
 # Attributes every scanline EXR carries; read_exr leaves them out of the metadata it returns.
@@ -63,6 +64,10 @@ def check_writable(path: str | os.PathLike) -> Path:
     if too_long:
         raise OutputPathError(
             f"cannot write {str(path)[:60]}...: a name in the path is over {NAME_MAX} bytes"
+        )
+    if len(os.fsencode(str(path.absolute()))) >= PATH_MAX:
+        raise OutputPathError(
+            f"cannot write {str(path)[:60]}...: the path is over {PATH_MAX} bytes in all"
         )
     if path.exists() and not path.is_file() and not path.is_dir():
         raise OutputPathError(f"cannot write {path}: it is not a regular file (a device or FIFO)")

@@ -401,6 +401,7 @@ def test_a_scene_argument_that_is_no_regular_file(capsys, tmp_path, monkeypatch)
         ("d/.exr", "has no file name before .exr"),
         ("/dev/null", "is not a file name (a directory or device)"),
         ("y" * 300 + ".exr", "over 255 bytes"),
+        ("/".join(["z" * 200] * 25) + "/o.exr", "the path is over 4096 bytes in all"),
     ],
 )
 def test_output_names_that_cannot_be_written_are_one_line(
