@@ -15,19 +15,22 @@ import numpy as np
 DIGITS = 60
 
 
-def exact_cells(nuclei: np.ndarray, others: np.ndarray, lo, hi) -> tuple[np.ndarray, np.ndarray]:
+def exact_cells(nuclei: np.ndarray, others: np.ndarray, lo, hi, radii: bool = False) -> tuple:
     """(areas, touches): the areas of the cells of nuclei[i] ((K, 2)) among nuclei + others
     ((A, 2)) within the box [lo, hi] (per cell: (K, 2) arrays, or (2,) for all), coincident
-    nuclei sharing a cell equally, and whether each cell reaches the box's boundary."""
+    nuclei sharing a cell equally, and whether each cell reaches the box's boundary. With
+    radii, also each cell's largest vertex distance from its nucleus (rounded to float): the
+    cell is that among any superset of the points that adds none within twice this of it."""
     points = np.concatenate([nuclei, others])
     lo = np.broadcast_to(np.asarray(lo, float), nuclei.shape)
     hi = np.broadcast_to(np.asarray(hi, float), nuclei.shape)
     areas, touches = np.zeros(len(nuclei)), np.zeros(len(nuclei), bool)
+    reach = np.zeros(len(nuclei))
     for i, a in enumerate(nuclei):
         coincident = (points == a).all(axis=1)
-        area, touches[i] = _cell(a, points[~coincident], lo[i], hi[i])
+        area, touches[i], reach[i] = _cell(a, points[~coincident], lo[i], hi[i])
         areas[i] = area / coincident.sum()
-    return areas, touches
+    return (areas, touches, reach) if radii else (areas, touches)
 
 
 def torus_copies(points: np.ndarray) -> np.ndarray:
@@ -36,7 +39,8 @@ def torus_copies(points: np.ndarray) -> np.ndarray:
     return np.concatenate([points + np.array(s, float) for s in shifts])
 
 
-def _cell(a: np.ndarray, others: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[float, bool]:
+def _cell(a: np.ndarray, others: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """(area, touches the box, largest vertex distance) of the cell of a among others."""
     with localcontext() as context:
         context.prec = DIGITS
         ax, ay = Decimal(a[0]), Decimal(a[1])
@@ -55,7 +59,8 @@ def _cell(a: np.ndarray, others: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> 
             min(abs(x + ax - x0), abs(x + ax - x1), abs(y + ay - y0), abs(y + ay - y1)) < tiny
             for x, y in poly
         )
-        return float(area / 2), on_box
+        radius = max((x * x + y * y).sqrt() for x, y in poly)
+        return float(area / 2), on_box, float(radius)
 
 
 def _clip(poly, dx, dy, half):

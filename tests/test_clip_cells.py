@@ -3,15 +3,22 @@
 Against Qhull's cells (clrender.estimators.qhull_cells) where Qhull is exact: random pixels
 (1e-10 relative, as in test_qhull_cells), degenerate sets, lattices; against the 60-digit
 brute-force reference (tests/exact_cells.py) on clusters of nuclei down to 1e-9 apart, where
-Qhull is not.
+Qhull is not. Cells of some nuclei among a point set (cells_among) against scipy's Voronoi
+diagram, and bit for bit whatever else is clipped with them and from whichever box.
 """
 
 import numpy as np
 import pytest
 from exact_cells import exact_cells, torus_copies
+from scipy.spatial import Voronoi
 
 from clrender.estimators import qhull_cells
-from clrender.estimators.clip_cells import clipped_cell_areas, sppp_cell_areas, torus_cell_areas
+from clrender.estimators.clip_cells import (
+    cells_among,
+    clipped_cell_areas,
+    sppp_cell_areas,
+    torus_cell_areas,
+)
 from clrender.sppp import draw_sppp, sppp_eps
 
 RTOL = 1e-10
@@ -138,3 +145,68 @@ def test_coincident_nuclei_share_their_cell():
         np.testing.assert_allclose(shared[[0, 25]], alone[0] / 2, rtol=1e-12)
         np.testing.assert_allclose(shared[[22, 26, 27]], alone[22] / 3, rtol=1e-12)
         assert shared.sum() == pytest.approx(1.0, abs=1e-12)
+
+
+# 6. Cells of some nuclei among a point set (cells_among, how the image-level estimators settle
+# near-coincident nuclei): Qhull's cells, and the same bits whatever is clipped with them
+def test_cells_among_match_voronoi():
+    # Random points on [0, 6]^2 (n = 64): the cells inside [1, 5]^2, their neighbours and the
+    # bounding boxes of their circumdiscs against scipy.spatial.Voronoi (1e-10 relative).
+    rng = np.random.default_rng(45)
+    points = 6.0 * rng.random((rng.poisson(64 * 36), 2))
+    which = np.flatnonzero(((points > 1.0) & (points < 5.0)).all(axis=1))
+    cells = cells_among(points, which, (0.0, 0.0, 6.0, 6.0))
+    vor = Voronoi(points)
+    areas, discs, neighbours = [], [], set()
+    for i in which:  # reference only: a loop over a thousand regions
+        vertices = vor.vertices[vor.regions[vor.point_region[i]]]
+        x, y = vertices.T
+        areas.append(0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
+        r = np.hypot(*(vertices - points[i]).T)
+        discs.append([(x - r).min(), (y - r).min(), (x + r).max(), (y + r).max()])
+        ridges = vor.ridge_points[(vor.ridge_points == i).any(axis=1)]
+        neighbours.update(ridges[ridges != i].tolist())
+    np.testing.assert_allclose(cells.areas, areas, rtol=1e-10)
+    np.testing.assert_allclose(cells.disc_boxes, discs, rtol=1e-10)
+    assert set(cells.neighbours.tolist()) == neighbours
+
+
+@pytest.mark.parametrize("case", ["random with a cluster", "lattice"])
+def test_cells_among_do_not_depend_on_batch_or_box(case):
+    # Each cell clipped alone, with all the others (a cluster's cells grow the neighbour
+    # lists of all of them), and from another box: bit for bit. The lattice has ties at every
+    # distance, where the lists grow too.
+    rng = np.random.default_rng(46)
+    if case == "lattice":
+        side = np.arange(12) / 12.0
+        points = np.stack(np.meshgrid(side, side), -1).reshape(-1, 2)
+    else:
+        cluster = 0.43 + 1e-7 * (rng.random((41, 2)) - 0.5)
+        points = np.concatenate([rng.random((200, 2)), cluster])
+    which = np.flatnonzero(((points > 0.25) & (points < 0.75)).all(axis=1))
+    box = (0.0, 0.0, 1.0, 1.0)
+    together = cells_among(points, which, box)
+    wider = cells_among(points, which, (-3.0, -1.0, 2.0, 5.0))
+    alone = [cells_among(points, [i], box) for i in which]
+    assert np.array_equal(wider.areas, together.areas)
+    assert np.array_equal(wider.disc_boxes, together.disc_boxes)
+    assert np.array_equal([cells.areas[0] for cells in alone], together.areas)
+    assert np.array_equal(np.concatenate([c.disc_boxes for c in alone]), together.disc_boxes)
+
+
+def test_ties_at_the_last_distance_when_lists_grow():
+    # A nucleus at the origin among the 36 integer points at distance 65 (65^2 = 4225 has 36
+    # representations as a sum of two squares): its list of FIRST_NEIGHBOURS runs out in the
+    # middle of those ties; the longer list must resume after the 15 used, and skip none.
+    # Against the 60-digit reference, alone and in a batch with a ring point's (big) cell.
+    ring = [(x, y) for x in range(-65, 66) for y in range(-65, 66) if x * x + y * y == 65**2]
+    assert len(ring) == 36
+    outer = [(130.0 * np.cos(t), 130.0 * np.sin(t)) for t in np.arange(64) * np.pi / 32]
+    points = np.concatenate([[[0.0, 0.0]], np.array(ring, float), np.array(outer)])
+    box = (-200.0, -200.0, 200.0, 200.0)
+    expected, _ = exact_cells(points[:1], points[1:], box[:2], box[2:])
+    alone = cells_among(points, [0], box)
+    np.testing.assert_allclose(alone.areas, expected, rtol=1e-12)
+    assert set(alone.neighbours.tolist()) == set(range(1, 37))
+    batch = cells_among(points, [0, 5], box)
+    assert batch.areas[0] == alone.areas[0]

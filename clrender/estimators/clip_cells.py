@@ -1,6 +1,7 @@
-"""Exact Voronoi cells of one pixel's nuclei by half-plane clipping: how the host settles the
-pixels whose Qhull cells cannot be trusted (clusters of nearly coincident nuclei; see
-clrender.estimators.qhull_cells, "Near-coincident nuclei").
+"""Exact Voronoi cells by half-plane clipping: how the host settles the pixels whose Qhull
+cells cannot be trusted (clusters of nearly coincident nuclei; see
+clrender.estimators.qhull_cells, "Near-coincident nuclei"), and the cells of such nuclei in the
+image-level tessellation (clrender.estimators.image).
 
 The cell of nucleus a among nuclei Q is the intersection of the half-planes
 (z - a) . d <= |d|^2 / 2, d = q - a, q in Q. Each cell is clipped from a start polygon by its
@@ -19,6 +20,10 @@ bisector lies beyond every vertex) and the cell is final. The three tessellation
   else from all the nuclei; bounded cells are clipped from the box of half-size
   SPPP_START_BOX times the set's extent (a cell still touching that box at the end counts as
   unbounded: its nucleus lies within rounding of the hull).
+- Some nuclei among a point set (cells_among, for the image-level blocks): start from a given
+  box; the neighbours are all the points. Besides the areas it reports each cell's Delaunay
+  circumdiscs (their bounding box, for the blocks' certification) and the points that border
+  the cells.
 
 Coincident nuclei (identical coordinates) share their cell equally, as in qhull_cells.
 
@@ -40,10 +45,22 @@ neighbour rank: every open cell advances one neighbour in its own distance-sorte
 (scipy.spatial.cKDTree, asked for more neighbours when an open cell has used its list up), and
 finished cells leave the working arrays. A random pixel of 4096 nuclei takes 0.2 to 0.4 s (any
 of the three tessellations), one of 64 nuclei about 0.02 s.
+
+Reproducibility (cells_among). A cell's vertices are circumcentres of its nucleus and two of its
+neighbours, computed when the later of the two clips the polygon, in neighbour order; a cell
+that ends clear of its start box therefore does not depend on that box. Each cell is clipped by
+its own sites in distance order, each once (when the lists grow, every cell resumes after the
+sites it has used, ties at the last distance included), whatever other cells are clipped with
+it; and its area is summed exactly rounded (math.fsum), so neither the polygon's first vertex
+nor the arrays' width matter. Such a cell has the same bits in any point set that holds its
+neighbours (barring a point within rounding of one of its circumcircles), which the
+image-level estimators need across blockings.
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -117,6 +134,45 @@ def sppp_cell_areas(nuclei: np.ndarray, aux: np.ndarray, box: float | None = Non
     return SpppCells(areas, bounded, inside)
 
 
+@dataclass(frozen=True)
+class CellsAmong:
+    """Cells of some nuclei of a point set within a box (cells_among): areas; disc_boxes (K, 4)
+    x0, y0, x1, y1, the bounding box of each cell's Delaunay circumdiscs (the discs centred at
+    its vertices through its nucleus); neighbours, the indices of the points whose bisector
+    bounds one of the cells (sorted, unique)."""
+
+    areas: np.ndarray
+    disc_boxes: np.ndarray
+    neighbours: np.ndarray
+
+
+def cells_among(
+    points: np.ndarray, which: np.ndarray, box: tuple[float, ...], tree: cKDTree | None = None
+) -> CellsAmong:
+    """Cells of points[which] among all the points ((M, 2)), clipped to box = (x0, y0, x1, y1)
+    (each nucleus inside it); tree: a cKDTree of the points, if one is at hand.
+
+    A cell whose disc box lies inside the box comes out with the same bits from any such box,
+    any point set that holds its neighbours, and whatever other cells are computed with it
+    (module docstring, "Reproducibility").
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 2)
+    which = np.asarray(which, np.int64)
+    if which.size == 0:
+        return CellsAmong(np.zeros(0), np.zeros((0, 4)), np.zeros(0, np.int64))
+    tree = cKDTree(points) if tree is None else tree
+    nuclei = points[which]
+    lo = np.array(box[:2], np.float64) - nuclei
+    hi = np.array(box[2:], np.float64) - nuclei
+    polygons = _clip_all(nuclei, points, tree, lo, hi)
+    here = as_complex(nuclei)
+    sites = polygons.bisector_sites()
+    found = tree.query_ball_point(np.column_stack([sites.real, sites.imag]), 0.0)
+    neighbours = np.unique(np.fromiter(itertools.chain.from_iterable(found), np.int64))
+    areas = polygons.fsum_areas() / _multiplicity(nuclei, tree)
+    return CellsAmong(areas, polygons.disc_boxes(here), neighbours)
+
+
 # ---------------------------------------------------------------------------------------------
 # Clipping
 
@@ -172,6 +228,30 @@ class _Polygons:
         x = np.abs(self.v.real + nuclei.real[:, None])
         y = np.abs(self.v.imag + nuclei.imag[:, None])
         return np.where(self.valid(), np.maximum(x, y), 0.0).max(axis=1)
+
+    def fsum_areas(self) -> np.ndarray:
+        """Shoelace areas with each cell's terms summed exactly rounded (math.fsum): the same
+        bits whichever vertex a polygon starts from and whatever the arrays' capacity."""
+        nxt = np.take_along_axis(self.v, self.next_index(), axis=1)
+        cross = self.v.real * nxt.imag - self.v.imag * nxt.real
+        rows = zip(cross, self.count, strict=True)
+        return np.array([0.5 * math.fsum(row[:k]) for row, k in rows], np.float64)
+
+    def disc_boxes(self, nuclei: np.ndarray) -> np.ndarray:
+        """(K, 4) x0, y0, x1, y1: the bounding box of the discs centred at each cell's vertices
+        through its nucleus (its Delaunay circumdiscs), absolute coordinates."""
+        valid = self.valid()
+        radius = np.sqrt(_norm2(self.v))
+        lo_x = np.where(valid, self.v.real - radius, np.inf).min(axis=1)
+        lo_y = np.where(valid, self.v.imag - radius, np.inf).min(axis=1)
+        hi_x = np.where(valid, self.v.real + radius, -np.inf).max(axis=1)
+        hi_y = np.where(valid, self.v.imag + radius, -np.inf).max(axis=1)
+        x, y = nuclei.real, nuclei.imag
+        return np.column_stack([x + lo_x, y + lo_y, x + hi_x, y + hi_y])
+
+    def bisector_sites(self) -> np.ndarray:
+        """The sites (absolute, complex) of the edges that lie on bisectors, all cells."""
+        return self.site[self.valid() & (self.side < 0)]
 
 
 def _clip(poly: _Polygons, nuclei: np.ndarray, sites: np.ndarray) -> _Polygons:
@@ -280,13 +360,13 @@ def _clip_all(
     rank = np.zeros(len(here), np.int64)  # next neighbour of each open cell
     while open_cells.size:
         rows = np.arange(open_cells.size)
-        # Open cells that have used their list up get a longer one (the ties at the last
-        # distance used are clipped again, which changes nothing)
+        # Open cells that have used their list up get a longer one (every open cell does,
+        # and resumes after the sites it has used: none is clipped twice)
         if width < total and (rank >= width).any():
-            last = dist[rows, rank - 1]
+            last, used, used_count = dist[rows, rank - 1], index, rank
             width = min(4 * width, total)
             dist, index = _query(tree, nuclei[open_cells], width)
-            rank = (dist < last[:, None]).sum(axis=1)
+            rank = _resume(dist, index, last, used, used_count)
         used_up = rank >= width  # (only when width == total: nothing left to clip by)
         site = np.where(used_up, here, sites[index[rows, np.minimum(rank, width - 1)]])
         poly = _clip(poly, here, site)
@@ -308,6 +388,26 @@ def _clip_all(
 def _query(tree: cKDTree, nuclei: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
     dist, index = tree.query(nuclei, k=width)
     return dist.reshape(len(nuclei), width), index.reshape(len(nuclei), width)
+
+
+def _resume(
+    dist: np.ndarray, index: np.ndarray, last: np.ndarray, used: np.ndarray, used_count: np.ndarray
+) -> np.ndarray:
+    """Where each cell resumes in its longer neighbour list (dist, index; rows sorted by
+    distance) after the sites it has used (the first used_count[i] of used[i], the last at
+    distance last[i]). Every nearer site was used. Of the sites at distance last, those used are
+    moved to the front of their run (index is changed in place), so that no site is clipped
+    twice: a cell's clipping then does not depend on when the lists grew, that is on which
+    other cells it is clipped with."""
+    rank = (dist <= last[:, None]).sum(axis=1)
+    at_last = dist == last[:, None]
+    for i in np.flatnonzero(at_last.sum(axis=1) > 1):  # rare: ties at the last distance
+        run = np.flatnonzero(at_last[i])
+        sites = index[i, run]
+        done = np.isin(sites, used[i, : used_count[i]])
+        index[i, run] = np.concatenate([sites[done], sites[~done]])
+        rank[i] = run[0] + int(done.sum())
+    return rank
 
 
 def _store(finished: _Polygons, cells: np.ndarray, poly: _Polygons) -> _Polygons:

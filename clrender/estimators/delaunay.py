@@ -11,13 +11,12 @@ fixed by |det|, so Qhull's triangle orientation does not matter.
 
 Coincident points (Qhull reports all but one as "coplanar") split their common cell equally:
 share_coincident. Qhull also drops distinct points it cannot tell apart at its precision
-(nearly coincident ones); sharing is wrong for those, and the callers must find them
-(clrender.estimators.qhull_cells does, and settles their pixels by clipping).
+(nearly coincident ones), or triangulates them wrongly; sharing is wrong for those, and the
+callers must find them (clrender.estimators.qhull_cells and clrender.estimators.image do, and
+settle their cells by clipping).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import Delaunay
@@ -103,27 +102,3 @@ def _squared_norm(e: np.ndarray) -> np.ndarray:
     norm = e.real * e.real
     norm += e.imag * e.imag
     return norm
-
-
-@dataclass(frozen=True)
-class TriangleGeometry:
-    """Per-triangle quantities: vertex a's position, circumcentre offset u = o - a, and the
-    signed areas each vertex's cell gets from the triangle."""
-
-    ax: np.ndarray
-    ay: np.ndarray
-    ux: np.ndarray
-    uy: np.ndarray
-    area_a: np.ndarray
-    area_b: np.ndarray
-    area_c: np.ndarray
-
-
-def triangle_geometry(points: np.ndarray, simplices: np.ndarray) -> TriangleGeometry:
-    """The same terms for (N, 2) points and (M, 3) simplices, as plain arrays."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = TriangleTerms(
-            as_complex(points), np.ascontiguousarray(np.asarray(simplices).T, dtype=np.intp)
-        )
-        ux, uy = t.circumcentre_offset()
-    return TriangleGeometry(t.za.real, t.za.imag, ux, uy, t.pieces[0], t.pieces[1], t.pieces[2])

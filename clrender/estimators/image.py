@@ -44,10 +44,34 @@ Image border: the guard band reaches beyond the image; clrender.estimators.image
 its pixels RNG keys ("frame", the default, or "periodic").
 
 Computation. A run of pixels (a render tile) is cut into rectangular blocks of about
-BLOCK_POINTS nuclei; each block is one Qhull Delaunay, cell areas come from the circumcentre
-quadrilaterals summed with np.bincount (clrender.estimators.delaunay), per-pixel sums from
+BLOCK_POINTS nuclei, nearly square, and none more than twice a square block's width (a run's
+partial rows are cut into such pieces); each block is one Qhull Delaunay, given coordinates
+relative to the centre of the known rectangle (Qhull's precision is relative to their size).
+Cell areas come from the circumcentre quadrilaterals, computed from the image coordinates
+themselves and summed with np.bincount (clrender.estimators.delaunay), per-pixel sums from
 np.bincount. Triangles are put in a canonical order (vertices sorted by a unique point id, rows
 sorted) before summing, so a certified cell's area does not depend on the tiling or blocking.
+
+Near-coincident nuclei. Qhull resolves nuclei only down to a fraction of its coordinates' size:
+closer ones (41 nuclei within 1e-6 pixel of a spot, in a block of ~10 pixels) are dropped as
+"coplanar" as if they coincided or triangulated wrongly, without a sign, and their cells come
+out wrong by factors up to 1e11 (clrender.estimators.qhull_cells, "Near-coincident nuclei",
+has the measurements). So when a block's triangulation has an edge shorter than
+near_coincident_length(n, delta), or a point dropped onto a vertex with other coordinates, the
+block's points within that length of another (found by a k-d tree) are settled exactly by
+half-plane clipping within the known rectangle (clrender.estimators.clip_cells.cells_among),
+and with them every traced nucleus whose cell borders theirs, in the clipped cells or in
+Qhull's triangles; a settled cell is certified by the same empty-disc rule (its circumdiscs in
+the known rectangle) and counted in stats.settled_nuclei. The length is NEAR_COINCIDENT (the
+rule of qhull_cells) times the largest extent Qhull can be given by a block of run_blocks with
+guard delta, not the block's own, so that which cells are settled does not depend on the
+blocking; a settled cell's bits do not either (clip_cells, "Reproducibility"). Two exceptions,
+each giving the same areas to rounding: a widened block whose own extent is larger uses that
+instead, and may settle a pair that another blocking leaves to Qhull; and a wrong triangle of
+Qhull's may add a cell that is no true neighbour in one block and not in another. Random
+nuclei are seldom settled: a block of M points holds a pair that close with probability about
+M pi n length^2 / 2, under 1 % at n = 64 (length 1.1e-4 pixel), settled in ~15 ms (the block's
+Qhull call takes ~50 ms); the check itself costs ~0.1 % of a block's time.
 """
 
 from __future__ import annotations
@@ -56,10 +80,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import Delaunay, QhullError
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from clrender.errors import ParameterError
-from clrender.estimators.delaunay import QHULL_OPTIONS, share_coincident, triangle_geometry
+from clrender.estimators.clip_cells import cells_among
+from clrender.estimators.delaunay import QHULL_OPTIONS, TriangleTerms, as_complex, share_coincident
 from clrender.estimators.image_plane import (
     DEFAULT_BORDER,
     PixelPoints,
@@ -69,6 +94,7 @@ from clrender.estimators.image_plane import (
     grid_from_points,
     tile_point_source,
 )
+from clrender.estimators.qhull_cells import NEAR_COINCIDENT
 from clrender.estimators.registry import ESTIMATORS, PixelSums
 from clrender.samples import SampleSets
 from clrender.sppp import DEFAULT_ALPHA, sppp_eps
@@ -83,6 +109,14 @@ def guard_distance(n: float, alpha: float = DEFAULT_ALPHA) -> float:
     return 2.0 * sppp_eps(n, alpha)
 
 
+def near_coincident_length(n: float, delta: float) -> float:
+    """Nuclei of a block closer than this (pixels) are settled by clipping: NEAR_COINCIDENT
+    times the largest extent (|coordinate|, block centred) that a block of run_blocks with
+    guard delta gives Qhull, so that it is the same for every blocking (module docstring)."""
+    _, rows, columns = _block_shape(n)
+    return NEAR_COINCIDENT * (0.5 * max(rows, columns) + delta)
+
+
 # ---------------------------------------------------------------------------------------------
 # Cells of one block
 
@@ -91,31 +125,47 @@ def guard_distance(n: float, alpha: float = DEFAULT_ALPHA) -> float:
 class RegionCells:
     """Cells of the traced nuclei (the first traced_count points) of one tessellation."""
 
-    areas: np.ndarray  # (T,) float64, NaN where the cell is unbounded in the finite set
+    areas: np.ndarray  # (T,) float64, NaN where the cell is not certified
     certified: np.ndarray  # (T,) bool: provably the cell of the complete process
+    settled: int = 0  # traced nuclei whose cells were settled by clipping (near-coincident)
 
 
 def region_cells(
-    points: np.ndarray, traced_count: int, known: tuple[float, ...], ids: np.ndarray | None = None
+    points: np.ndarray,
+    traced_count: int,
+    known: tuple[float, ...],
+    ids: np.ndarray | None = None,
+    near_length: float = 0.0,
 ) -> RegionCells:
     """Voronoi cell areas of points[:traced_count] among all points, one Qhull call.
 
     known = (x0, y0, x1, y1): the rectangle in which `points` hold every nucleus of the
     process; a cell is certified when it is bounded and all its Delaunay circumdiscs lie in
     `known`. ids (unique per point) fix a canonical triangle order (bit-reproducible areas).
+    Nuclei closer than near_length (at least NEAR_COINCIDENT times the extent of Qhull's
+    coordinates) and their neighbours are settled by clipping (module docstring).
     """
     t = traced_count
     if t == 0:
         return RegionCells(np.zeros(0), np.zeros(0, bool))
-    origin = np.floor(np.asarray(known[:2], np.float64))  # integer shift: exact
-    local = np.asarray(points, np.float64) - origin
+    points = np.asarray(points, np.float64)
+    known = np.asarray(known, np.float64)
+    # Qhull's precision is relative to the size of its coordinates: the block centred
+    local = points - 0.5 * (known[:2] + known[2:])
     try:
         tri = Delaunay(local, qhull_options=QHULL_OPTIONS)
     except (QhullError, ValueError):  # < 3 points or collinear: no bounded cell
         return RegionCells(np.full(t, np.nan), np.zeros(t, bool))
     simplices = tri.simplices if ids is None else _canonical(tri.simplices, ids)
-    areas, bad = _areas_and_flags(tri, local, simplices, np.asarray(known) - np.tile(origin, 2))
-    return RegionCells(np.where(bad[:t], np.nan, areas[:t]), ~bad[:t])
+    # Cell geometry from the image coordinates themselves: no block-dependent rounding
+    areas, bad, shortest = _areas_and_flags(tri, points, simplices, known)
+    near_length = max(near_length, NEAR_COINCIDENT * float(np.abs(local).max()))
+    settled = 0
+    # Nuclei nearer than near_length: a shorter edge (a correct triangulation holds the edge
+    # from every point to its nearest neighbour) or a point dropped onto a distinct vertex
+    if (shortest < near_length * near_length).any() or _dropped_apart(tri, points).size:
+        settled = _settle_near_coincident(points, t, tri, simplices, known, near_length, areas, bad)
+    return RegionCells(np.where(bad[:t], np.nan, areas[:t]), ~bad[:t], settled)
 
 
 def _canonical(simplices: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -128,29 +178,81 @@ def _canonical(simplices: np.ndarray, ids: np.ndarray) -> np.ndarray:
 
 def _areas_and_flags(
     tri: Delaunay, points: np.ndarray, s: np.ndarray, known: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Cell areas of every point and the flags "not certified" (hull, disc outside known)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell areas of every point, the flags "not certified" (hull, disc outside known), and
+    each triangle's shortest squared edge."""
     count = len(points)
-    g = triangle_geometry(points, s)
-    areas = (
-        np.bincount(s[:, 0], g.area_a, count)
-        + np.bincount(s[:, 1], g.area_b, count)
-        + np.bincount(s[:, 2], g.area_c, count)
-    )
-    bad = np.zeros(count, bool)
-    bad[np.unique(tri.convex_hull)] = True
-    with np.errstate(invalid="ignore"):
-        cx, cy = g.ax + g.ux, g.ay + g.uy
-        radius = np.sqrt(g.ux * g.ux + g.uy * g.uy)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = TriangleTerms(as_complex(points), np.ascontiguousarray(s.T, dtype=np.intp))
+        ux, uy = t.circumcentre_offset()
+        cx, cy = t.za.real + ux, t.za.imag + uy
+        radius = np.sqrt(ux * ux + uy * uy)
         inside = (
             (cx - radius >= known[0])
             & (cx + radius <= known[2])
             & (cy - radius >= known[1])
             & (cy + radius <= known[3])
         )
-    bad[s[~(inside & np.isfinite(g.area_a + g.area_b + g.area_c))].ravel()] = True
+    area_a, area_b, area_c = t.pieces
+    areas = (
+        np.bincount(s[:, 0], area_a, count)
+        + np.bincount(s[:, 1], area_b, count)
+        + np.bincount(s[:, 2], area_c, count)
+    )
+    bad = np.zeros(count, bool)
+    bad[np.unique(tri.convex_hull)] = True
+    bad[s[~(inside & np.isfinite(area_a + area_b + area_c))].ravel()] = True
     share_coincident(tri, areas, bad)
-    return areas, bad
+    third = t.e2 - t.e1
+    shortest = np.minimum(np.minimum(t.l1, t.l2), third.real * third.real + third.imag * third.imag)
+    return areas, bad, shortest
+
+
+def _dropped_apart(tri: Delaunay, points: np.ndarray) -> np.ndarray:
+    """The points Qhull dropped as "coplanar" onto a vertex with other coordinates, and those
+    vertices (exact duplicates, rightly shared by share_coincident, left out)."""
+    if not len(tri.coplanar):
+        return np.zeros(0, np.int64)
+    dropped, kept = tri.coplanar[:, 0], tri.coplanar[:, 2]
+    apart = (points[dropped] != points[kept]).any(axis=1)
+    return np.union1d(dropped[apart], kept[apart])
+
+
+def _settle_near_coincident(
+    points: np.ndarray,
+    traced_count: int,
+    tri: Delaunay,
+    s: np.ndarray,
+    known: np.ndarray,
+    near_length: float,
+    areas: np.ndarray,
+    bad: np.ndarray,
+) -> int:
+    """Settle by clipping (clip_cells.cells_among, within `known`) the cells of the traced
+    nuclei that are within near_length of another point or border the cell of one (in the
+    clipped cells, or in Qhull's triangles, which may be wrong there), written over areas and
+    bad; returns how many. The near points are found by a k-d tree, not from Qhull's edges,
+    so that they do not depend on Qhull's errors."""
+    tree = cKDTree(points)
+    pairs = tree.query_pairs(near_length, output_type="ndarray")
+    near = np.union1d(pairs.ravel(), _dropped_apart(tri, points))
+    near_cells = cells_among(points, near, known, tree)
+    bordering = np.union1d(near_cells.neighbours, s[np.isin(s, near).any(axis=1)].ravel())
+    others = np.setdiff1d(bordering[bordering < traced_count], near)
+    settled = 0
+    for nuclei, cells in ((near, near_cells), (others, cells_among(points, others, known, tree))):
+        traced = nuclei < traced_count
+        index = nuclei[traced]
+        discs = cells.disc_boxes[traced]
+        areas[index] = cells.areas[traced]
+        bad[index] = ~(
+            (discs[:, 0] >= known[0])
+            & (discs[:, 1] >= known[1])
+            & (discs[:, 2] <= known[2])
+            & (discs[:, 3] <= known[3])
+        )
+        settled += index.size
+    return settled
 
 
 # ---------------------------------------------------------------------------------------------
@@ -165,6 +267,7 @@ class ImageVoronoiStats:
     guard_nuclei: int = 0  # untraced nuclei handed to Qhull
     widened_blocks: int = 0  # blocks redone with a doubled guard (fallback)
     uncertified_nuclei: int = 0  # cells still not provably exact after the last widening
+    settled_nuclei: int = 0  # cells settled by clipping (near-coincident nuclei, neighbours)
     empty_pixels: int = 0  # pixels with N = 0
 
     def add(self, other: ImageVoronoiStats) -> None:
@@ -183,14 +286,19 @@ class BlockResult:
 
 
 def estimate_block(
-    source: PointSource, rect: PixelRect, delta: float, extent: tuple[float, ...] | None = None
+    source: PointSource,
+    rect: PixelRect,
+    delta: float,
+    extent: tuple[float, ...] | None = None,
+    near_length: float = 0.0,
 ) -> BlockResult:
     """One block: tessellate rect's nuclei with the guard nuclei within delta of rect, and
-    widen the guard (doubling delta, up to MAX_GUARD) while a cell is not certified."""
+    widen the guard (doubling delta, up to MAX_GUARD) while a cell is not certified. Nuclei
+    closer than near_length (near_coincident_length; at least the block's own) are settled."""
     stats = ImageVoronoiStats(blocks=1)
     traced = source(*rect.coords())
     while True:
-        cells, guard_count = _block_cells(source, rect, delta, traced, extent)
+        cells, guard_count = _block_cells(source, rect, delta, traced, extent, near_length)
         stats.qhull_calls += 1
         if cells.certified.all() or delta >= MAX_GUARD:
             break
@@ -202,6 +310,7 @@ def estimate_block(
     stats.traced_nuclei = len(owner)
     stats.guard_nuclei = guard_count
     stats.uncertified_nuclei = int((~cells.certified).sum())
+    stats.settled_nuclei = cells.settled
     stats.empty_pixels = int((traced.counts == 0).sum())
     return BlockResult(
         _bincount_columns(owner, weighted, rect.count),
@@ -219,6 +328,7 @@ def _block_cells(
     delta: float,
     traced: PixelPoints,
     extent: tuple[float, ...] | None,
+    near_length: float,
 ) -> tuple[RegionCells, int]:
     known = (rect.x0 - delta, rect.y0 - delta, rect.x1 + delta, rect.y1 + delta)
     if extent is not None:  # a finite realisation holds no nuclei beyond its extent
@@ -235,7 +345,8 @@ def _block_cells(
     near = (p[:, 0] > known[0]) & (p[:, 0] < known[2]) & (p[:, 1] > known[1]) & (p[:, 1] < known[3])
     points = np.concatenate([traced.positions, p[near]])
     ids = np.concatenate([traced.ids, guard.ids[near]])
-    return region_cells(points, len(traced.positions), known, ids), int(near.sum())
+    cells = region_cells(points, len(traced.positions), known, ids, near_length)
+    return cells, int(near.sum())
 
 
 def _bincount_columns(owner: np.ndarray, weights: np.ndarray, count: int) -> np.ndarray:
@@ -246,10 +357,19 @@ def _bincount_columns(owner: np.ndarray, weights: np.ndarray, count: int) -> np.
     )
 
 
+def _block_shape(n: float) -> tuple[int, int, int]:
+    """(pixels, rows, columns): blocks of about BLOCK_POINTS nuclei, i.e. `pixels` pixels,
+    nearly square (rows high), a thin run cut into blocks at most `columns` wide (twice a
+    square block's width), so that no block is much longer than a square one."""
+    pixels = max(1, round(BLOCK_POINTS / n))
+    side = max(1, math.isqrt(pixels))
+    return pixels, side, 2 * max(1, pixels // side)
+
+
 def run_blocks(width: int, start: int, stop: int, n: float) -> list[PixelRect]:
     """Rectangular blocks covering the scanline run of pixels [start, stop) of an image of the
     given width: the partial first row, the full rows, the partial last row, each cut into
-    blocks of about BLOCK_POINTS nuclei."""
+    blocks of about BLOCK_POINTS nuclei (at most as long as _block_shape allows)."""
     rows = []
     y_first, x_first = divmod(start, width)
     y_last, x_last = divmod(stop, width)  # stop is exclusive
@@ -259,14 +379,13 @@ def run_blocks(width: int, start: int, stop: int, n: float) -> list[PixelRect]:
         rows.append(PixelRect(x_first, y_first, width, y_first + 1))
         rows.append(PixelRect(0, y_first + 1, width, y_last))
         rows.append(PixelRect(0, y_last, x_last, y_last + 1))
-    pixels = max(1, round(BLOCK_POINTS / n))
-    side = max(1, math.isqrt(pixels))
-    return [block for rect in rows if rect.count for block in _cut(rect, side, pixels)]
+    pixels, side, columns = _block_shape(n)
+    return [block for rect in rows if rect.count for block in _cut(rect, side, pixels, columns)]
 
 
-def _cut(rect: PixelRect, side: int, pixels: int) -> list[PixelRect]:
+def _cut(rect: PixelRect, side: int, pixels: int, columns: int) -> list[PixelRect]:
     bh = min(rect.height, side)
-    bw = min(rect.width, max(1, pixels // bh))
+    bw = min(rect.width, max(1, pixels // bh), columns)
     return [
         PixelRect(x, y, min(x + bw, rect.x1), min(y + bh, rect.y1))
         for y in range(rect.y0, rect.y1, bh)
@@ -306,7 +425,8 @@ def estimate_run(
     """The image-level sums of the image pixels start .. stop - 1 (scanline order)."""
     stats = ImageVoronoiStats()
     blocks = run_blocks(width, start, stop, n)
-    results = [estimate_block(source, block, delta, extent) for block in blocks]
+    near_length = near_coincident_length(n, delta)
+    results = [estimate_block(source, block, delta, extent, near_length) for block in blocks]
     index = np.concatenate([ys * width + xs - start for xs, ys in (b.coords() for b in blocks)])
     order = np.argsort(index)
     for r in results:
