@@ -226,6 +226,13 @@ def read_until(fd: int, marker: bytes) -> bytes:
     return seen
 
 
+def default_sigint() -> None:
+    """In a child: Ctrl-C's default action, so that Python installs its KeyboardInterrupt
+    handler. A test run started in the background (`pytest &`) ignores SIGINT, and a child
+    inherits that: it would render on through the test's SIGINT."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize(
     "signum, status",
     [(signal.SIGINT, 130), (signal.SIGTERM, 128 + 15), (signal.SIGHUP, 128 + 1)],
@@ -251,7 +258,9 @@ def test_an_ending_signal_writes_the_partial_image_and_exits_128_plus_it(tmp_pat
         "-o",
         str(out),
     ]
-    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=terminal, cwd=tmp_path)
+    child = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=terminal, cwd=tmp_path, preexec_fn=default_sigint
+    )
     os.close(terminal)
     try:
         progress = read_until(controller, b"%|")
@@ -301,6 +310,7 @@ def test_an_interrupt_while_loading_is_one_line(tmp_path, name, status, module):
         capture_output=True,
         text=True,
         cwd=tmp_path,
+        preexec_fn=default_sigint,
     )
     assert child.returncode == status, child.stderr
     assert child.stderr == f"clrender: interrupted ({name})\n"
