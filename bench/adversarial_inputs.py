@@ -298,6 +298,7 @@ class Runner:
             env=env,
             stdin=subprocess.DEVNULL,
             start_new_session=True,
+            preexec_fn=default_signals,
             **streams,
         )
         with contextlib.suppress(OSError):  # the address-space limit (the child is starting up)
@@ -573,6 +574,14 @@ def prior_state(prior: dict) -> str:
         if state in states:
             return state
     return "intact"
+
+
+def default_signals() -> None:
+    """In a case's child: the default actions of SIGINT, SIGTERM and SIGHUP, as for a command
+    typed at a terminal, whatever the harness was started with (`&` ignores SIGINT, `nohup`
+    SIGHUP, and a child inherits both)."""
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_DFL)
 
 
 # --- signal cases --------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """Signals that end a command the way Ctrl-C does.
 
 SIGTERM (a job scheduler, `kill`) and SIGHUP (a closed terminal) raise SignalInterrupt, a
-KeyboardInterrupt, in the main thread: a render stops between device calls and the command
+KeyboardInterrupt, in the main thread (unless the process started with them ignored, as under
+`nohup`: they stay ignored): a render stops between device calls and the command
 writes the finished pixels (partial=1), exactly as after Ctrl-C. The command then exits with
 128 + the signal number, as a shell reports a process the signal ended (130 for Ctrl-C).
 While the images are written every one of these signals is held (`signals_held`) and reported
@@ -56,17 +57,24 @@ def _handlers(signals: tuple[int, ...], handler) -> Iterator[None]:
 
 @contextlib.contextmanager
 def ending_signals_interrupt() -> Iterator[None]:
-    """SIGTERM and SIGHUP raise SignalInterrupt while the block runs (main thread only)."""
+    """SIGTERM and SIGHUP raise SignalInterrupt while the block runs (main thread only), unless
+    the process was started with them ignored (`nohup` ignores SIGHUP): those stay ignored, as
+    Python leaves an ignored SIGINT."""
     _received.clear()
-    with _handlers(tuple(s for s in ENDING_SIGNALS if s != signal.SIGINT), _raise):
+    with _handlers(tuple(s for s in _not_ignored() if s != signal.SIGINT), _raise):
         yield
+
+
+def _not_ignored() -> tuple[int, ...]:
+    """The ending signals this process does not ignore."""
+    return tuple(s for s in ENDING_SIGNALS if signal.getsignal(s) != signal.SIG_IGN)
 
 
 @contextlib.contextmanager
 def signals_held() -> Iterator[list[int]]:
     """Hold SIGINT, SIGTERM and SIGHUP while the block runs; the list gets those that came."""
     received: list[int] = []
-    with _handlers(ENDING_SIGNALS, lambda number, frame: received.append(number)):
+    with _handlers(_not_ignored(), lambda number, frame: received.append(number)):
         yield received
 
 

@@ -226,11 +226,32 @@ def read_until(fd: int, marker: bytes) -> bytes:
     return seen
 
 
-def default_sigint() -> None:
-    """In a child: Ctrl-C's default action, so that Python installs its KeyboardInterrupt
-    handler. A test run started in the background (`pytest &`) ignores SIGINT, and a child
-    inherits that: it would render on through the test's SIGINT."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+def default_signals() -> None:
+    """In a child: the default action of Ctrl-C, SIGTERM and SIGHUP, as at a terminal. A test
+    run started in the background (`pytest &`) ignores SIGINT, under `nohup` SIGHUP, and a
+    child inherits that: it would render on through the test's signal."""
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, signal.SIG_DFL)
+
+
+def ignored_sighup() -> None:
+    """In a child: SIGHUP ignored, as `nohup` starts a command."""
+    default_signals()
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def slow_render_on_a_terminal(tmp_path, preexec) -> tuple[subprocess.Popen, int]:
+    """A ~10 s render with stderr on an 80-column pseudo-terminal (tqdm draws nothing on a
+    terminal 0 wide, as a new one is): the child and the terminal's controlling side."""
+    controller, terminal = pty.openpty()
+    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    command = [sys.executable, "-m", "clrender", "render", "analytic", "--res", "256"]
+    command += ["--spp", "64", "-o", str(tmp_path / "slow.exr")]
+    child = subprocess.Popen(
+        command, stdout=subprocess.PIPE, stderr=terminal, cwd=tmp_path, preexec_fn=preexec
+    )
+    os.close(terminal)
+    return child, controller
 
 
 @pytest.mark.parametrize(
@@ -242,26 +263,7 @@ def test_an_ending_signal_writes_the_partial_image_and_exits_128_plus_it(tmp_pat
     # stderr on a pseudo-terminal, so the progress bar draws: its first line with a percentage
     # says a tile is done, which is when the signal is sent (no timing guesses).
     out = tmp_path / "slow.exr"
-    controller, terminal = pty.openpty()
-    # 80 columns: tqdm draws nothing on a terminal 0 wide, as a new pseudo-terminal is
-    fcntl.ioctl(terminal, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
-    command = [
-        sys.executable,
-        "-m",
-        "clrender",
-        "render",
-        "analytic",
-        "--res",
-        "256",
-        "--spp",
-        "64",
-        "-o",
-        str(out),
-    ]
-    child = subprocess.Popen(
-        command, stdout=subprocess.PIPE, stderr=terminal, cwd=tmp_path, preexec_fn=default_sigint
-    )
-    os.close(terminal)
+    child, controller = slow_render_on_a_terminal(tmp_path, default_signals)
     try:
         progress = read_until(controller, b"%|")
         assert b"/65536 [" in progress, progress
@@ -280,6 +282,22 @@ def test_an_ending_signal_writes_the_partial_image_and_exits_128_plus_it(tmp_pat
     # Every channel of the analytic image is positive: rendered pixels are exactly the nonzero.
     assert np.count_nonzero(pixels.max(axis=2)) == meta["rendered_pixels"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.exr", "slow.png"]
+
+
+def test_under_nohup_a_closed_terminal_does_not_end_the_render(tmp_path):
+    """SIGHUP ignored at start (nohup) stays ignored: the render finishes whole (before: the
+    SIGHUP handler replaced nohup's and ended it with a partial image)."""
+    child, controller = slow_render_on_a_terminal(tmp_path, ignored_sighup)
+    try:
+        assert b"/65536 [" in read_until(controller, b"%|")
+        child.send_signal(signal.SIGHUP)
+        stdout, _ = child.communicate()
+    finally:
+        os.close(controller)
+        if child.poll() is None:
+            child.kill()
+    assert child.returncode == 0, stdout
+    assert read_exr(tmp_path / "slow.exr")[1]["partial"] == 0
 
 
 # The signal arrives while the command still imports its libraries (the moment is made
@@ -310,7 +328,7 @@ def test_an_interrupt_while_loading_is_one_line(tmp_path, name, status, module):
         capture_output=True,
         text=True,
         cwd=tmp_path,
-        preexec_fn=default_sigint,
+        preexec_fn=default_signals,
     )
     assert child.returncode == status, child.stderr
     assert child.stderr == f"clrender: interrupted ({name})\n"
