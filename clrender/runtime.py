@@ -128,6 +128,12 @@ class Runtime:
         items = tuple(sorted((defines or {}).items()))
         return _kernel_cached(self.context, source_file, items, name)
 
+    def launch_1d(self, kernel: cl.Kernel, count: int, *args) -> cl.Event:
+        """Enqueue kernel over count work-items (the global size padded to the local size;
+        the kernel skips the padding itself) on this runtime's queue."""
+        local = self.local_size
+        return kernel(self.queue, (padded_global_size(count, local),), (local,), *args)
+
     def allocate(self, nbytes: int) -> cl.MemoryObjectHolder:
         """A read-write device buffer of at least nbytes (at least 16) from the pool; it goes
         back to the pool when no longer referenced."""

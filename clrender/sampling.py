@@ -40,7 +40,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrender.errors import ParameterError
-from clrender.runtime import Runtime, padded_global_size
+from clrender.runtime import Runtime
 from clrender.samples import SampleSets
 from clrender.sppp import (
     DEFAULT_ALPHA,
@@ -365,13 +365,11 @@ def _launch_fill(
     path_arguments: tuple,
     image_width: int,
 ) -> None:
-    queue, local = runtime.queue, (runtime.local_size,)
     if traced_total:
         fill = runtime.kernel("sampling.cl", "fill_traced")
-        fill(
-            queue,
-            (padded_global_size(traced_total),),
-            local,
+        runtime.launch_1d(
+            fill,
+            traced_total,
             np.uint32(pixel_count),
             np.uint32(seed),
             np.int32(config.kind.positions),
@@ -387,10 +385,9 @@ def _launch_fill(
         )
     if config.n_aux and pixel_count:
         fill = runtime.kernel("sampling.cl", "fill_auxiliary")
-        fill(
-            queue,
-            (padded_global_size(config.n_aux * pixel_count),),
-            local,
+        runtime.launch_1d(
+            fill,
+            config.n_aux * pixel_count,
             np.uint32(pixel_count),
             np.uint32(seed),
             np.float32(config.eps),
@@ -426,10 +423,9 @@ def _launch_count(
 ) -> np.ndarray:
     counts_buf = runtime.allocate(4 * pixel_count)
     count = runtime.kernel("sampling.cl", "count_samples")
-    count(
-        runtime.queue,
-        (padded_global_size(pixel_count),),
-        (runtime.local_size,),
+    runtime.launch_1d(
+        count,
+        pixel_count,
         np.uint32(pixel_count),
         np.uint32(seed),
         np.int32(config.kind.positions),

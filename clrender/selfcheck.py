@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from clrender.runtime import Runtime, padded_global_size
+from clrender.runtime import Runtime
 
 # Random123 tests/kat_vectors, philox4x32 10: counter, key, expected output.
 PHILOX_KAT = (
@@ -40,10 +40,9 @@ def device_philox(runtime: Runtime, counters: np.ndarray, keys: np.ndarray) -> n
     ctr_buf, key_buf = runtime.upload(counters), runtime.upload(keys)
     out_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=out.nbytes)
     kernel = runtime.kernel("selfcheck.cl", "philox_blocks")
-    kernel(
-        runtime.queue,
-        (padded_global_size(len(out)),),
-        (runtime.local_size,),
+    runtime.launch_1d(
+        kernel,
+        len(out),
         np.uint32(len(out)),
         ctr_buf,
         key_buf,

@@ -66,7 +66,7 @@ from clrender.estimators.qhull_cells import (
     sppp_cells,
 )
 from clrender.estimators.registry import PixelSums
-from clrender.runtime import Runtime, padded_global_size
+from clrender.runtime import Runtime
 from clrender.samples import SampleSets, segments
 from clrender.sampling import DeviceSampleSets
 
@@ -193,7 +193,7 @@ def device_periodic_cells_from_arrays(
     traced32, _ = _check_arrays(positions, offsets, empty, np.zeros(len(np.asarray(offsets))))
     offsets = np.asarray(offsets, np.int64)
     buffer, upload = runtime.upload_async(traced32)
-    defines = _precision_setup(runtime, precision)[0]
+    defines = kernel_defines(runtime, precision)
     mean_count = len(traced32) / max(len(offsets) - 1, 1)
     layout = _periodic_layout(runtime, buffer, offsets, mean_count, defines)
 
@@ -238,7 +238,7 @@ def device_periodic_sums(
     """The PixelSums of pvor (area and weighted; no kept sums: NaN, as on the host) for a
     launch's sample sets, from their cells on the torus W, all on the device. No pixel is
     redrawn: a cell the kernel leaves undecided or unbounded flags its pixel as fallback."""
-    defines = _precision_setup(runtime, precision)[0]
+    defines = kernel_defines(runtime, precision)
     layout = _periodic_layout(
         runtime,
         sample_sets.positions,
@@ -269,11 +269,9 @@ def _device_sums(
         sums_buf, flags_buf = runtime.allocate(sums.nbytes), runtime.allocate(flags.nbytes)
         nonfinite_buf = runtime.allocate(nonfinite.nbytes)
         reduce = runtime.kernel(SUMS_KERNEL_FILE, "voronoi_pixel_sums", defines)
-        local = runtime.local_size
-        reduce(
-            runtime.queue,
-            (padded_global_size(pixels, local),),
-            (local,),
+        runtime.launch_1d(
+            reduce,
+            pixels,
             np.uint32(pixels),
             offsets,
             radiance,
@@ -332,8 +330,12 @@ def settle_undecided(
 
 def kernel_defines(runtime: Runtime, precision: str) -> dict[str, object]:
     """Build options for the precision; DeviceError if the device has no double support."""
+    return _defines(resolve_precision(runtime, precision))
+
+
+def _defines(precision: str) -> dict[str, object]:
+    """Build options of a resolved precision ("single", "mixed" or "double")."""
     defines: dict[str, object] = {"VORONOI_MAX_VERTICES": MAX_VERTICES}
-    precision = resolve_precision(runtime, precision)
     if precision == "mixed":
         defines["VORONOI_AREA_DOUBLE"] = True
     elif precision == "double":
@@ -398,11 +400,9 @@ def _periodic_layout(
     nuclei = runtime.allocate(8 * TORUS_COPIES * max(traced, 1))
     if traced:
         copies = runtime.kernel(KERNEL_FILE, "voronoi_periodic_copies", defines)
-        local = runtime.local_size
-        copies(
-            runtime.queue,
-            (padded_global_size(traced, local),),
-            (local,),
+        runtime.launch_1d(
+            copies,
+            traced,
             np.uint32(traced),
             positions,
             nuclei,
@@ -420,8 +420,8 @@ def _periodic_layout(
 
 def _precision_setup(runtime: Runtime, precision: str) -> tuple[dict[str, object], type]:
     """(build options, NumPy type of the areas) for the precision."""
-    single = resolve_precision(runtime, precision) == "single"
-    return kernel_defines(runtime, precision), np.float32 if single else np.float64
+    resolved = resolve_precision(runtime, precision)
+    return _defines(resolved), np.float32 if resolved == "single" else np.float64
 
 
 def _cells(
@@ -472,7 +472,6 @@ def _enqueue_cells(
     """Queue the grid and cell kernels of a non-empty layout; (areas, status, offsets) device
     buffers (offsets: the traced offsets, then the auxiliary ones) and the offsets' upload
     event, to hold until a blocking read (Runtime.upload_async)."""
-    queue, local = runtime.queue, (runtime.local_size,)
     traced, pixels = layout.traced_total, layout.pixel_count
     total = traced + int(layout.aux_offsets[-1])
     side = layout.grid_side
@@ -490,10 +489,9 @@ def _enqueue_cells(
     half = np.float32(layout.half_extent)
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
-    build(
-        queue,
-        (padded_global_size(pixels, local[0]),),
-        local,
+    runtime.launch_1d(
+        build,
+        pixels,
         np.uint32(pixels),
         np.uint32(traced),
         np.int32(side),
@@ -505,10 +503,9 @@ def _enqueue_cells(
         sorted_index,
     )
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
-    compute(
-        queue,
-        (padded_global_size(pixels * side * side, local[0]),),
-        local,
+    runtime.launch_1d(
+        compute,
+        pixels * side * side,
         np.uint32(pixels),
         np.uint32(traced),
         np.int32(side),
