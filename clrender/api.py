@@ -7,18 +7,23 @@
     result.image  # (64, 64, 3) float32 linear RGB, row 0 at the top
     result.stats.wall_seconds
 
+    both = clrender.render(scene, spp=64, estimators=["mc_n", "vor_sn"], resolution=64)
+    both.images["mc_n"], both.images["vor_sn"]  # one trace, one image per estimator
+
 The command line (`python -m clrender render`) goes through the same functions.
 """
 
 from __future__ import annotations
 
 import functools
+import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 from clrender import pipeline
 from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource, is_analytic_scene
 from clrender.errors import ParameterError
-from clrender.estimators import Estimator, check_compatible
+from clrender.estimators import Estimator, EstimatorWarning, check_compatible, pairing_advice
 from clrender.pipeline import (
     DEFAULT_TILE_SAMPLES,
     ProgressCallback,
@@ -26,7 +31,7 @@ from clrender.pipeline import (
     RenderSettings,
 )
 from clrender.radiance import PathTracerSource, RadianceSource
-from clrender.runtime import Runtime, create_runtime
+from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
 from clrender.scene import Scene
 from clrender.scene import load_scene as load_scene_file
@@ -65,6 +70,7 @@ def render(
     spp: int = 64,
     sampler: str = "sppp",
     estimator: str | Estimator | None = None,
+    estimators: Sequence[str | Estimator] | None = None,
     resolution: Resolution = None,
     seed: int = 0,
     device: str | None = None,
@@ -78,16 +84,24 @@ def render(
 
     spp: samples per pixel (the SPPP intensity n); sampler: a name of clrender.sampling.SAMPLERS;
     estimator: a name of clrender.estimators.ESTIMATORS (default vor_sn with sppp, mc
-    otherwise); resolution: None for the scene's own size, a width N (the scene's aspect
-    ratio) or (width, height); device: an index or name substring of an OpenCL device (default
-    PYOPENCL_CTX, else the first device); progress(done_pixels, total_pixels) is called after
-    each tile. Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB, `.stats`,
-    `.settings`. Bad arguments raise ParameterError (a ClrenderError) with a one-line message.
+    otherwise), or estimators: a list of names, every one estimated from the same traced
+    samples (`.images[name]`, one image each; see clrender.pipeline for redrawn pixels);
+    resolution: None for the scene's own size, a width N (the scene's aspect ratio) or (width,
+    height); device: an index or name substring of an OpenCL device (default PYOPENCL_CTX,
+    else the first device); progress(done_pixels, total_pixels) is called after each tile.
+    Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB of the (first) estimator,
+    `.images`, `.layers` (per-pixel sample counts, redraws, variance), `.stats` (with times per
+    stage and per estimator), `.settings`. Bad arguments raise ParameterError (a ClrenderError)
+    with a one-line message; a poor estimator/sampler pair warns (EstimatorWarning).
     One render at a time per process and device: renders share the device's runtime (its
     compiled programs), so calls from several threads must be serialised by the caller.
     """
     check_sampler_name(sampler, spp)
-    entry = check_compatible(estimator or default_estimator(sampler), sampler)
+    entries = estimator_entries(estimator, estimators, sampler)
+    for entry in entries:
+        advice = pairing_advice(entry, sampler)
+        if advice:
+            warnings.warn(advice, EstimatorWarning, stacklevel=2)
     config = make_sampler(sampler, spp)
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
@@ -97,18 +111,42 @@ def render(
             f"{type(scene).__name__} {scene!r}"
         )
     runtime = runtime_for(device)
+    built = thread_build_seconds()
     source = radiance_source(runtime, scene, resolution, max_depth)
+    setup_compile = thread_build_seconds() - built
     settings = RenderSettings(
         source.width,
         source.height,
         config,
-        entry,
+        entries,
         seed,
         tile_samples,
         overlap,
         voronoi_backend,
     )
-    return pipeline.render(runtime, source, settings, progress)
+    result = pipeline.render(runtime, source, settings, progress)
+    result.stats.compile_seconds += setup_compile
+    return result
+
+
+def estimator_entries(
+    estimator: str | Estimator | None,
+    estimators: Sequence[str | Estimator] | None,
+    sampler: str,
+) -> list[Estimator]:
+    """The registry entries of `estimator` or `estimators` (not both), each checked against
+    the sampler; the sampler's default estimator when neither is given."""
+    if estimators is None:
+        return [check_compatible(estimator or default_estimator(sampler), sampler)]
+    if estimator is not None:
+        raise ParameterError("give estimator or estimators, not both")
+    if isinstance(estimators, str | Estimator) or not isinstance(estimators, Sequence):
+        raise ParameterError(
+            f"estimators takes a list of names such as ['mc', 'vor_sn'], got {estimators!r}"
+        )
+    if not estimators:
+        raise ParameterError("estimators is empty: name at least one")
+    return [check_compatible(name, sampler) for name in estimators]
 
 
 def check_sampler_name(sampler: str, spp: int) -> None:

@@ -2,12 +2,20 @@
 
     sample sets (kernels/sampling.cl, clrender.sampling.generate_sample_sets)
       -> radiance of each traced sample (a RadianceSource: the path tracer or an analytic image)
-      -> one estimate per pixel (clrender.estimators: the registry entry says how)
-      -> film (clrender.film)
+      -> one estimate per pixel and estimator (clrender.estimators: the registry entry says how)
+      -> one film per estimator, and the per-pixel layers (clrender.film)
 
-The estimator is validated once, when RenderSettings is made (its registry entry, checked
-against the sampler); the pipeline then asks that entry (its cells, whether the device forms
-its sums, whether it is image-level), never the name.
+Several estimators share one trace: each tile is drawn and traced once, each kind of cells
+is computed once (the device sums of vor, vor_sn and fvor are one kernel call, and carry the
+plain sums mc and mc_n need), and every estimator gets its own image. A pixel that one of
+them rejects (an unbounded SPPP cell) is redrawn for all the per-pixel estimators, which then
+use the same accepted draw; so each Voronoi estimator's image is the one it would get alone,
+and mc's differs from mc alone only in the redrawn pixels (it keeps draw 0 alone). The
+image-level estimators (ivor, ivor_sn) never reject and keep draw 0.
+
+The estimators are validated once, when RenderSettings is made (their registry entries,
+checked against the sampler); the pipeline then asks the entries (their cells, whether the
+device forms their sums, whether they are image-level), never the names.
 
 A tile is a run of consecutive pixels (scanline order) holding about `tile_samples` samples,
 so memory stays bounded whatever the resolution and spp. With `overlap`, the host estimator of
@@ -30,10 +38,14 @@ comes back, and the host stage only divides. A tile with a cell the kernel canno
 certify has those pixels settled on the host (their samples read back, cells by Qhull). With
 "qhull" the host computes the cells with Qhull.
 
-Timing: `device_seconds` is the time the main thread spends drawing sample sets, tracing
-(and computing device Voronoi cells) and downloading; `host_seconds` the estimator stage's
-own time (the image-level estimators ivor and ivor_sn also draw their guard nuclei there, on
-a second OpenCL context so that no kernel object is shared between threads).
+Timing (RenderStats): the main thread's time per device stage (stage_seconds: sample
+sets, tracing, voronoi, readback; each ends with the device done with it; device_seconds is
+their sum), the estimator stage's own time per group of estimators sharing a tessellation
+(estimator_seconds; host_seconds is their sum with the redraws' host part), and
+compile_seconds, the program builds and kernel creation met on the way (first uses in a
+process: programs are cached), taken out of the stages. The image-level estimators ivor and
+ivor_sn also draw their guard nuclei in the estimator stage, on a second OpenCL context so
+that no kernel object is shared between threads.
 
 Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only;
 a per-pixel estimator sees only its pixel's samples; the image-level ones (ivor, ivor_sn) see
@@ -50,9 +62,10 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pyopencl as cl
@@ -66,12 +79,13 @@ from clrender.estimators.device_cells import (
     device_sppp_sums,
     settle_undecided,
 )
-from clrender.estimators.pixel import estimate
+from clrender.estimators.pixel import estimate_all
 from clrender.estimators.redraw import estimate_with_redraw
-from clrender.estimators.registry import Estimator, check_compatible
-from clrender.film import Film, check_image_memory
+from clrender.estimators.registry import Estimator, PixelSums, check_compatible
+from clrender.estimators.variance import PixelMoments, mc_variance
+from clrender.film import Film, PixelLayers, check_image_memory
 from clrender.radiance import RadianceSource
-from clrender.runtime import Runtime
+from clrender.runtime import Runtime, thread_build_seconds
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, check_seed, generate_sample_sets, make_sampler
 from clrender.sppp import auxiliary_count
@@ -90,12 +104,17 @@ MIN_TILE_PIXELS = 256
 # makes itself: the driver starts at the first redraw.
 REDRAWS_BEFORE_ENLARGE = 3 - 1
 MAX_REDRAW_ROUNDS = 12 - 1
+# The device stages a render times on its main thread (RenderStats.stage_seconds).
+DEVICE_STAGES = ("sample_sets", "tracing", "voronoi", "readback")
 
 ProgressCallback = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
 class RenderSettings:
+    """What to render. `estimator` is one estimator (a name or a registry entry), or a list of
+    them: one trace, one image per estimator (`extra_estimators` holds all but the first)."""
+
     width: int
     height: int
     sampler: SamplerConfig
@@ -104,20 +123,23 @@ class RenderSettings:
     tile_samples: int = DEFAULT_TILE_SAMPLES
     overlap: bool = True
     voronoi_backend: str = "device"
+    extra_estimators: tuple[Estimator, ...] = ()
 
     def __post_init__(self) -> None:
         self.check_fields()
-        object.__setattr__(self, "estimator", check_compatible(self.estimator, self.sampler.name))
+        self.resolve_estimators()
         # pvor over stratified or Sobol points is unbiased only under a random toroidal shift
-        # of each pixel's set (torus cell areas are shift-invariant): on for it, off otherwise
-        shift = self.estimator.cells == "periodic" and self.sampler.kind.low_discrepancy_positions
+        # of each pixel's set (torus cell areas are shift-invariant): on for it (and so for
+        # every estimator of the render), off otherwise
+        periodic = any(entry.cells == "periodic" for entry in self.estimators)
+        shift = periodic and self.sampler.kind.low_discrepancy_positions
         if shift != self.sampler.toroidal_shift:
             object.__setattr__(self, "sampler", replace(self.sampler, toroidal_shift=shift))
         self.sampler.path_arguments((self.width, self.height))  # zsobol: does the image fit?
         # Auxiliary nuclei shape only the SPPP cells: drawn for the estimators that use them (a
         # settings object made by dataclasses.replace from another gets them back if needed).
         wanted = auxiliary_count(self.sampler.n, self.sampler.eps) if self.sampler.eps else 0
-        n_aux = wanted if self.estimator.needs_aux else 0
+        n_aux = wanted if any(entry.needs_aux for entry in self.estimators) else 0
         if n_aux != self.sampler.n_aux:
             object.__setattr__(self, "sampler", replace(self.sampler, n_aux=n_aux))
         if self.voronoi_backend not in VORONOI_BACKENDS:
@@ -139,13 +161,53 @@ class RenderSettings:
                 f"got {type(self.sampler).__name__} {self.sampler!r}"
             )
         check_seed(self.seed)
-        check_image_memory(self.width, self.height)
+
+    def resolve_estimators(self) -> None:
+        """Registry entries for `estimator` (one, or a list) and `extra_estimators`, each
+        checked against the sampler; a name given twice is an error."""
+        given = self.estimator
+        many = isinstance(given, list | tuple)
+        if many and not given:
+            raise ParameterError("no estimator given: name at least one")
+        names = [*(given if many else [given]), *self.extra_estimators]
+        entries = [check_compatible(name, self.sampler.name) for name in names]
+        seen = [entry.name for entry in entries]
+        twice = sorted({name for name in seen if seen.count(name) > 1})
+        if twice:
+            raise ParameterError(f"estimator {twice[0]!r} is named twice: name each once")
+        object.__setattr__(self, "estimator", entries[0])
+        object.__setattr__(self, "extra_estimators", tuple(entries[1:]))
+        check_image_memory(self.width, self.height, estimators=len(entries))
+
+    @property
+    def estimators(self) -> tuple[Estimator, ...]:
+        """Every estimator of the render, the first (`estimator`) first."""
+        return (self.estimator, *self.extra_estimators)
+
+    @property
+    def device_cell_kinds(self) -> tuple[str, ...]:
+        """The kinds of Voronoi cells the device computes for the tiles ("sppp": vor, vor_sn,
+        fvor; "periodic": pvor), each with its per-pixel sums."""
+        if self.voronoi_backend != "device":
+            return ()
+        kinds = [entry.cells for entry in self.estimators if entry.device_sums]
+        return tuple(dict.fromkeys(kinds))
 
     @property
     def device_cells(self) -> bool:
         """Whether the tiles' cells come from the device kernel (the SPPP cells of vor, vor_sn,
         fvor; pvor's torus cells)."""
-        return self.voronoi_backend == "device" and self.estimator.device_sums
+        return bool(self.device_cell_kinds)
+
+    @property
+    def needs_host_samples(self) -> bool:
+        """Whether the tiles' sample sets and radiance come back to the host: for an estimator
+        the device sums do not serve (mc and mc_n are served by any device sums)."""
+        kinds = self.device_cell_kinds
+        return any(
+            not (entry.cells in kinds or (entry.cells == "none" and kinds))
+            for entry in self.estimators
+        )
 
     @property
     def pixel_count(self) -> int:
@@ -157,9 +219,19 @@ class RenderStats:
     tiles: int = 0
     traced_samples: int = 0
     rays: int = 0
-    device_seconds: float = 0.0  # sample sets + radiance + downloads, as the main thread waits
-    host_seconds: float = 0.0  # estimator stage (Voronoi cells and sums)
+    device_seconds: float = 0.0  # the device stages below, summed (compile excluded)
+    host_seconds: float = 0.0  # estimator stage (Voronoi cells and sums), redraws' host part
     wall_seconds: float = 0.0
+    compile_seconds: float = 0.0  # program builds and kernel creation (first use in a process)
+    # main-thread seconds per device stage (DEVICE_STAGES): drawing sample sets, tracing,
+    # device Voronoi cells and sums (with the host's settling of undecided pixels), read-back
+    stage_seconds: dict[str, float] = field(
+        default_factory=lambda: dict.fromkeys(DEVICE_STAGES, 0.0)
+    )
+    # host seconds per estimator; estimators that share a tessellation are timed together,
+    # under their names joined by "+" (e.g. "vor+vor_sn")
+    estimator_seconds: dict[str, float] = field(default_factory=dict)
+    redraw_host_seconds: float = 0.0  # host part of the redraws (in host_seconds)
     redrawn_pixels: int = 0  # pixel redraws after a rejection (a pixel may count twice)
     eps_enlargements: int = 0  # redraw rounds that needed a wider eps
     unresolved_pixels: int = 0  # still rejected after every redraw: mc estimate of the last
@@ -169,53 +241,65 @@ class RenderStats:
 
 @dataclass
 class RenderResult:
-    film: Film
+    film: Film  # the first estimator's
     stats: RenderStats
     settings: RenderSettings
+    films: dict[str, Film] = field(default_factory=dict)  # every estimator's, by name
+    layers: PixelLayers | None = None
 
     @property
     def image(self) -> np.ndarray:
-        """(height, width, 3) float32 linear RGB, row 0 at the top (0 where not rendered)."""
+        """(height, width, 3) float32 linear RGB of the first estimator, row 0 at the top (0
+        where not rendered)."""
         return self.film.image()
+
+    @property
+    def images(self) -> dict[str, np.ndarray]:
+        """Every estimator's image, by name, in the order they were named."""
+        return {name: film.image() for name, film in self.films.items()}
 
 
 @dataclass
 class TileSamples:
-    """The device stage's output for a list of pixels: host sample sets and radiance, or
-    (device cells) only the per-pixel sums of the Voronoi estimators."""
+    """The device stage's output for a list of pixels: host sample sets and radiance (when an
+    estimator needs them), the per-pixel sums of each kind of device cells, and each pixel's
+    moments (count, sum f, sum f^2)."""
 
     pixels: np.ndarray  # (P,) uint32 global pixel indices
     redraws: np.ndarray  # (P,) uint32 redraw numbers
-    sets: SampleSets | None  # None with sums
-    radiance: np.ndarray | None  # (T, 3) float32, traced-sample order; None with sums
+    sets: SampleSets | None  # None when no estimator needs host samples
+    radiance: np.ndarray | None  # (T, 3) float32, traced-sample order; None with sets
     rays: int
     source_nonfinite: int
-    sums: DeviceSums | None = None  # per-pixel sums computed on the device
+    sums: dict[str, DeviceSums] = field(default_factory=dict)  # by cell kind
+    moments: PixelMoments | None = None
 
     @property
     def traced_count(self) -> int:
-        return int(self.sums.counts.sum()) if self.sums is not None else len(self.radiance)
+        return int(self.moments.counts.sum())
 
 
 @dataclass
 class TileEstimate:
-    """The host stage's output: one estimate per pixel, with per-pixel flags."""
+    """The host stage's output: one estimate per pixel and estimator, with per-pixel flags."""
 
     pixels: np.ndarray
     redraws: np.ndarray
-    estimates: np.ndarray  # (P, 3) float64, NaN where needs_redraw
+    estimates: dict[str, np.ndarray]  # name -> (P, 3) float64, NaN where needs_redraw
     flagged: np.ndarray  # (P,) bool: a sample with non-finite radiance
     needs_redraw: np.ndarray  # (P,) bool
     nonfinite_samples: int
-    seconds: float = 0.0  # time the estimate took (added to the stats on the main thread)
+    moments: PixelMoments
+    seconds: dict[str, float] = field(default_factory=dict)  # host time per estimator group
+    compile_seconds: float = 0.0  # program builds on the estimator thread
 
 
 def pixels_per_tile(settings: RenderSettings) -> int:
     """Tile length in pixels: within the sample budget, and about TARGET_TILE_COUNT tiles. The
     budget counts every nucleus a pixel's cells hold: auxiliary ones, torus translates."""
     per_pixel = settings.sampler.n + settings.sampler.n_aux
-    if settings.device_cells and settings.estimator.cells == "periodic":
-        per_pixel = settings.sampler.n * TORUS_COPIES
+    if "periodic" in settings.device_cell_kinds:
+        per_pixel = max(per_pixel, settings.sampler.n * TORUS_COPIES)
     budget = max(1, settings.tile_samples // per_pixel)
     spread = max(MIN_TILE_PIXELS, math.ceil(settings.pixel_count / TARGET_TILE_COUNT))
     return min(budget, spread)
@@ -235,6 +319,27 @@ def tile_pixels(settings: RenderSettings, start: int) -> np.ndarray:
     return np.arange(start, stop, dtype=np.uint32)
 
 
+class StageClock:
+    """Main-thread seconds per device stage, with the thread's program builds taken out and
+    counted as compile time. Each stage ends with the device done with it (a blocking call),
+    so the device's time is not charged to a later stage."""
+
+    def __init__(self, stats: RenderStats):
+        self.stats = stats
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        start, built = time.perf_counter(), thread_build_seconds()
+        try:
+            yield
+        finally:
+            compile_seconds = thread_build_seconds() - built
+            seconds = time.perf_counter() - start - compile_seconds
+            self.stats.compile_seconds += compile_seconds
+            self.stats.stage_seconds[name] += seconds
+            self.stats.device_seconds += seconds
+
+
 # --- the two stages ----------------------------------------------------------------------
 
 
@@ -245,105 +350,158 @@ def trace_tile(
     seed: int,
     pixels: np.ndarray,
     redraws: np.ndarray,
-    device_cells: str | None = None,
+    device_kinds: Sequence[str] = (),
+    host_samples: bool = True,
+    clock: StageClock | None = None,
 ) -> TileSamples:
-    """Device stage: draw the pixels' sample sets and get their radiance. With device_cells
-    ("sppp" or "periodic"), that kind of Voronoi cells and each pixel's weighted sums are
-    queued after the tracing and only the sums come back (if the kernel left pixels undecided,
-    the samples come back too and the host settles those pixels with Qhull); otherwise the
-    sample sets and radiance are brought to the host."""
-    device_sets = generate_sample_sets(
-        runtime, sampler, seed, pixels, redraws, (source.width, source.height)
-    )
-    pending = source.trace(device_sets, seed)
-    if device_cells:
-        radiance = pending.to_device(runtime)
-        if device_cells == "periodic":
-            box = None
-            sums = device_periodic_sums(runtime, device_sets, radiance.buffer)
-        else:
-            box = 0.5 + sampler.eps
-            sums = device_sppp_sums(runtime, device_sets, radiance.buffer, box)
-        if sums.fallback.any():
-            values = pending.to_host().values.astype(np.float64)
-            values[~np.isfinite(values).all(axis=1)] = 0.0  # as in the sums kernel
-            host_sets = device_sets.to_host(runtime.queue)
-            sums = settle_undecided(sums, host_sets, values, box, device_cells)
-        return TileSamples(
-            pixels, redraws, None, None, radiance.ray_count, radiance.device_nonfinite, sums=sums
+    """Device stage: draw the pixels' sample sets and get their radiance. For each kind in
+    device_kinds ("sppp", "periodic"), that kind of Voronoi cells and each pixel's weighted
+    sums are formed on the device after the tracing, and only the sums come back (if the kernel
+    left pixels undecided, the samples come back too and the host settles those pixels with
+    Qhull); with host_samples (or without device kinds) the sample sets and radiance come to
+    the host as well."""
+    clock = clock or StageClock(RenderStats())
+    with clock.stage("sample_sets"):
+        device_sets = generate_sample_sets(
+            runtime, sampler, seed, pixels, redraws, (source.width, source.height)
         )
-    sets = device_sets.to_host(runtime.queue)
-    radiance = pending.to_host()
+        runtime.queue.finish()
+    with clock.stage("tracing"):
+        pending = source.trace(device_sets, seed)
+        radiance = pending.to_device(runtime)  # reads the ray counters: waits for the trace
+    sums: dict[str, DeviceSums] = {}
+    with clock.stage("voronoi"):
+        for kind in device_kinds:
+            if kind == "periodic":
+                sums[kind] = device_periodic_sums(runtime, device_sets, radiance.buffer)
+            else:
+                sums[kind] = device_sppp_sums(
+                    runtime, device_sets, radiance.buffer, sppp_box(sampler)
+                )
+    sets = values = None
+    if host_samples or not device_kinds or any(s.fallback.any() for s in sums.values()):
+        with clock.stage("readback"):
+            sets = device_sets.to_host(runtime.queue)
+            values = pending.to_host().values
+    if any(s.fallback.any() for s in sums.values()):
+        with clock.stage("voronoi"):
+            finite = zero_nonfinite(values)
+            for kind, device in sums.items():
+                if device.fallback.any():
+                    box = sppp_box(sampler) if kind == "sppp" else None
+                    sums[kind] = settle_undecided(device, sets, finite, box, kind)
+    if sets is not None:
+        moments = PixelMoments.of_samples(sets, zero_nonfinite(values))
+    else:
+        device = next(iter(sums.values())).sums
+        moments = PixelMoments(np.asarray(device.counts, np.int64), device.value, device.square)
+    keep_samples = host_samples or not device_kinds
     return TileSamples(
-        pixels, redraws, sets, radiance.values, radiance.ray_count, radiance.device_nonfinite
+        pixels,
+        redraws,
+        sets if keep_samples else None,
+        values if keep_samples else None,
+        radiance.ray_count,
+        radiance.device_nonfinite,
+        sums,
+        moments,
     )
+
+
+def sppp_box(sampler: SamplerConfig) -> float:
+    """Half the side of W' = [-1/2 - eps, 1/2 + eps]^2, the SPPP cells' box."""
+    return 0.5 + sampler.eps
+
+
+def zero_nonfinite(values: np.ndarray) -> np.ndarray:
+    """float64 copy of (T, 3) radiance with non-finite rows set to 0 (as the sums kernel)."""
+    values = values.astype(np.float64)
+    values[~np.isfinite(values).all(axis=1)] = 0.0
+    return values
+
+
+def estimator_groups(settings: RenderSettings) -> list[tuple[Estimator, ...]]:
+    """The estimators grouped by the cells they share (computed once per group), in order."""
+    groups: dict[str, list[Estimator]] = {}
+    for entry in settings.estimators:
+        groups.setdefault(entry.cells, []).append(entry)
+    return [tuple(group) for group in groups.values()]
 
 
 def estimate_tile(
     settings: RenderSettings, tile: TileSamples, host_runtime: Runtime
 ) -> TileEstimate:
-    """Host stage: one estimate per pixel. Samples with non-finite radiance are counted, enter
-    the estimator as 0 and flag their pixel. host_runtime serves the image-level estimators,
+    """Host stage: one estimate per pixel and estimator, each group of estimators sharing a
+    tessellation timed apart. Samples with non-finite radiance are counted, enter the
+    estimators as 0 and flag their pixel. host_runtime serves the image-level estimators,
     which draw their guard nuclei on the device."""
-    if tile.sums is not None:
-        return sums_estimate(settings, tile)
-    values = tile.radiance.astype(np.float64)
-    bad_samples = ~np.isfinite(values).all(axis=1)
-    values[bad_samples] = 0.0
-    flagged = np.bincount(tile.sets.pixel_index, bad_samples, len(tile.pixels)) > 0
-    if settings.estimator.image_level:
-        estimates, needs_redraw = image_estimates(settings, tile, values, host_runtime)
+    count = len(tile.pixels)
+    values = None if tile.radiance is None else zero_nonfinite(tile.radiance)
+    if tile.sets is not None:
+        bad_samples = ~np.isfinite(tile.radiance).all(axis=1)
+        flagged = np.bincount(tile.sets.pixel_index, bad_samples, count) > 0
+        nonfinite = int(np.count_nonzero(bad_samples))
     else:
-        estimates, needs_redraw = pixel_estimates(settings, tile.sets, values)
-    return TileEstimate(
-        tile.pixels,
-        tile.redraws,
-        estimates.reshape(len(tile.pixels), 3),
-        flagged,
-        needs_redraw,
-        int(np.count_nonzero(bad_samples)) + tile.source_nonfinite,
-    )
-
-
-def sums_estimate(settings: RenderSettings, tile: TileSamples) -> TileEstimate:
-    """Host stage of a tile whose Voronoi sums the device formed: the estimator's division.
-    Non-finite radiance counted 0 in the sums and flags its pixel."""
-    device = tile.sums
-    estimates = settings.estimator.formula(device.sums)
-    estimates = np.where(device.redraw[:, None], np.nan, estimates)
+        device = next(iter(tile.sums.values()))
+        flagged, nonfinite = device.nonfinite > 0, int(device.nonfinite.sum())
+    estimates: dict[str, np.ndarray] = {}
+    seconds: dict[str, float] = {}
+    needs_redraw = np.zeros(count, bool)
+    for group in estimator_groups(settings):
+        start = time.perf_counter()
+        results, rejected = group_estimates(settings, tile, group, values, host_runtime)
+        needs_redraw |= rejected
+        estimates.update(results)
+        seconds["+".join(entry.name for entry in group)] = time.perf_counter() - start
+    for entry in settings.estimators:
+        if not entry.image_level:
+            estimates[entry.name] = np.where(needs_redraw[:, None], np.nan, estimates[entry.name])
     return TileEstimate(
         tile.pixels,
         tile.redraws,
         estimates,
-        device.nonfinite > 0,
-        device.redraw,
-        int(device.nonfinite.sum()) + tile.source_nonfinite,
+        flagged,
+        needs_redraw,
+        nonfinite + tile.source_nonfinite,
+        tile.moments,
+        seconds,
     )
 
 
-def pixel_estimates(
-    settings: RenderSettings, sets: SampleSets, values: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """(estimates, needs_redraw) of a per-pixel estimator (clrender.estimators.pixel)."""
-    result = estimate(settings.estimator, sets, values)
-    return result.estimates, result.needs_redraw
-
-
-def image_estimates(
-    settings: RenderSettings, tile: TileSamples, values: np.ndarray, host_runtime: Runtime
-) -> tuple[np.ndarray, np.ndarray]:
-    """(estimates, no redraws) of an image-level estimator (clrender.estimators.image)."""
-    run = image.estimate_tile_image(
-        host_runtime,
-        settings.sampler,
-        settings.seed,
-        settings.width,
-        settings.height,
-        tile.pixels,
-        tile.sets,
-        values,
-    )
-    return settings.estimator.formula(run.sums), np.zeros(len(tile.pixels), bool)
+def group_estimates(
+    settings: RenderSettings,
+    tile: TileSamples,
+    group: tuple[Estimator, ...],
+    values: np.ndarray | None,
+    host_runtime: Runtime,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """({name: (P, 3) estimates}, needs_redraw) of estimators sharing one kind of cells: from
+    the device sums of that kind, from any device sums (mc, mc_n: plain sums), the image-level
+    tessellation, or the host samples."""
+    kind = group[0].cells
+    count = len(tile.pixels)
+    if kind in tile.sums:
+        device = tile.sums[kind]
+        return {entry.name: entry.formula(device.sums) for entry in group}, device.redraw
+    if kind == "none" and tile.sets is None:
+        device = next(iter(tile.sums.values())).sums
+        plain = PixelSums(device.counts, device.n, value=device.value)
+        return {entry.name: entry.formula(plain) for entry in group}, np.zeros(count, bool)
+    if kind == "image":
+        run = image.estimate_tile_image(
+            host_runtime,
+            settings.sampler,
+            settings.seed,
+            settings.width,
+            settings.height,
+            tile.pixels,
+            tile.sets,
+            values,
+        )
+        return {entry.name: entry.formula(run.sums) for entry in group}, np.zeros(count, bool)
+    results = estimate_all(group, tile.sets, values)
+    rejected = np.logical_or.reduce([result.needs_redraw for result in results.values()])
+    return {name: result.estimates.reshape(count, 3) for name, result in results.items()}, rejected
 
 
 def sibling_runtime(runtime: Runtime) -> Runtime:
@@ -357,48 +515,81 @@ def sibling_runtime(runtime: Runtime) -> Runtime:
 
 
 class TilePipeline:
-    """Runs the stages over the tiles and records results on the film and in the stats."""
+    """Runs the stages over the tiles and records results on the films, the layers and the
+    stats."""
 
     def __init__(self, runtime: Runtime, source: RadianceSource, settings: RenderSettings):
         self.runtime = runtime
         self.source = source
         self.settings = settings
-        self.film = Film(settings.width, settings.height)
+        self.films = {
+            entry.name: Film(settings.width, settings.height) for entry in settings.estimators
+        }
+        self.layers = PixelLayers(settings.width, settings.height)
         self.stats = RenderStats()
+        self.clock = StageClock(self.stats)
         self.in_flight: Future | None = None  # the estimate of the previous tile
-        needs_device = settings.estimator.image_level and settings.overlap
+        image_level = any(entry.image_level for entry in settings.estimators)
+        needs_device = image_level and settings.overlap
         self.host_runtime = sibling_runtime(runtime) if needs_device else runtime
+
+    @property
+    def film(self) -> Film:
+        return self.films[self.settings.estimator.name]
 
     def trace(
         self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
     ) -> TileSamples:
-        start = time.perf_counter()
         # Tiles use the device cells if configured; redraws go through Qhull in the driver.
-        use_device = sampler is None and self.settings.device_cells
-        device_cells = self.settings.estimator.cells if use_device else None
-        sampler = sampler or self.settings.sampler
+        redraw = sampler is not None
         tile = trace_tile(
-            self.runtime, self.source, sampler, self.settings.seed, pixels, redraws, device_cells
+            self.runtime,
+            self.source,
+            sampler or self.settings.sampler,
+            self.settings.seed,
+            pixels,
+            redraws,
+            () if redraw else self.settings.device_cell_kinds,
+            redraw or self.settings.needs_host_samples,
+            self.clock,
         )
-        self.stats.device_seconds += time.perf_counter() - start
         self.stats.traced_samples += tile.traced_count
         self.stats.rays += tile.rays
         return tile
 
     def estimate(self, tile: TileSamples) -> TileEstimate:
         """The host stage (on the worker thread when overlapping: it touches no stats)."""
-        start = time.perf_counter()
+        start, built = time.perf_counter(), thread_build_seconds()
         result = estimate_tile(self.settings, tile, self.host_runtime)
-        result.seconds = time.perf_counter() - start
+        result.compile_seconds = thread_build_seconds() - built
+        elapsed = time.perf_counter() - start - result.compile_seconds
+        # The groups' own times, scaled so that they sum to the stage's time without builds
+        total = sum(result.seconds.values())
+        scale = elapsed / total if total > 0 else 0.0
+        result.seconds = {name: seconds * scale for name, seconds in result.seconds.items()}
         return result
 
     def record(self, result: TileEstimate) -> None:
-        """Store the accepted pixels of an estimate on the film."""
-        self.stats.host_seconds += result.seconds
+        """Store the accepted pixels of an estimate on the films and the layers."""
+        for name, seconds in result.seconds.items():
+            self.stats.estimator_seconds[name] = (
+                self.stats.estimator_seconds.get(name, 0.0) + seconds
+            )
+            self.stats.host_seconds += seconds
+        self.stats.compile_seconds += result.compile_seconds
         self.stats.nonfinite_samples += result.nonfinite_samples
         accepted = ~result.needs_redraw
-        self.film.record(
-            result.pixels[accepted], result.estimates[accepted], result.flagged[accepted]
+        for entry in self.settings.estimators:
+            keep = np.ones_like(accepted) if entry.image_level else accepted
+            self.films[entry.name].record(
+                result.pixels[keep], result.estimates[entry.name][keep], result.flagged[keep]
+            )
+        moments = result.moments.subset(accepted)
+        self.layers.record(
+            result.pixels[accepted],
+            moments.counts,
+            result.redraws[accepted],
+            mc_variance(moments, self.settings.sampler),
         )
 
     def finish(self, result: TileEstimate) -> None:
@@ -409,15 +600,18 @@ class TilePipeline:
             self.redraw(result.pixels[rejected], result.redraws[rejected])
 
     def redraw(self, pixels: np.ndarray, redraws: np.ndarray) -> None:
-        """Estimate rejected pixels again from new draws, through the bounded redraw driver.
-        Non-finite radiance is left in: it makes the pixel's estimate non-finite, which the
-        film flags."""
+        """Estimate rejected pixels again from new draws, through the bounded redraw driver:
+        every per-pixel estimator of a pixel uses the same accepted draw (the image-level ones
+        kept their estimate: they never reject). Non-finite radiance is left in: it makes the
+        pixel's estimate non-finite, which the film flags."""
         start = time.perf_counter()
         device_before = self.stats.device_seconds
+        compile_before = self.stats.compile_seconds
         draws = PixelRedraws(self, pixels, redraws)
         sampler = self.settings.sampler
+        per_pixel = [entry for entry in self.settings.estimators if not entry.image_level]
         outcome = estimate_with_redraw(
-            self.settings.estimator,
+            per_pixel,
             draws.draw,
             len(pixels),
             sampler.n,
@@ -427,13 +621,20 @@ class TilePipeline:
             max_rounds=MAX_REDRAW_ROUNDS,
             on_exhausted="mc",
         )
-        estimates = outcome.estimates[self.settings.estimator.name].reshape(len(pixels), 3)
-        self.film.record(pixels, estimates, np.zeros(len(pixels), bool))
+        for entry in per_pixel:
+            estimates = outcome.estimates[entry.name].reshape(len(pixels), 3)
+            self.films[entry.name].record(pixels, estimates, np.zeros(len(pixels), bool))
+        moments = draws.moments
+        self.layers.record(pixels, moments.counts, draws.redraws, mc_variance(moments, sampler))
         self.stats.redrawn_pixels += outcome.stats.redraws + len(pixels)
         self.stats.eps_enlargements += outcome.stats.eps_enlargements
         self.stats.unresolved_pixels += outcome.stats.exhausted_pixels
-        device = self.stats.device_seconds - device_before
-        self.stats.host_seconds += time.perf_counter() - start - device
+        elsewhere = (self.stats.device_seconds - device_before) + (
+            self.stats.compile_seconds - compile_before
+        )
+        host = time.perf_counter() - start - elsewhere
+        self.stats.host_seconds += host
+        self.stats.redraw_host_seconds += host
 
     def run(self, tiles: range, progress: ProgressCallback | None) -> None:
         """Trace tile k + 1 while tile k is estimated (on a worker thread if overlapping)."""
@@ -472,12 +673,18 @@ class TilePipeline:
 
 class PixelRedraws:
     """The draw of estimate_with_redraw for a list of rejected pixels: each draw increments the
-    drawn pixels' redraw numbers and traces them like a tile."""
+    drawn pixels' redraw numbers and traces them like a tile. A pixel's last draw is its
+    accepted one (or the one whose mc estimate it keeps): its moments are kept for the
+    layers."""
 
     def __init__(self, pipeline: TilePipeline, pixels: np.ndarray, redraws: np.ndarray):
         self.pipeline = pipeline
         self.pixels = pixels
         self.redraws = redraws.astype(np.uint32)
+        count = len(pixels)
+        self.moments = PixelMoments(
+            np.zeros(count, np.int64), np.zeros((count, 3)), np.zeros((count, 3))
+        )
 
     def draw(self, ids: np.ndarray, eps: float) -> tuple[SampleSets, np.ndarray]:
         self.redraws[ids] += 1
@@ -487,6 +694,9 @@ class PixelRedraws:
         self.pipeline.stats.nonfinite_samples += tile.source_nonfinite + int(
             np.count_nonzero(~np.isfinite(tile.radiance).all(axis=1))
         )
+        self.moments.counts[ids] = tile.moments.counts
+        self.moments.value[ids] = tile.moments.value
+        self.moments.square[ids] = tile.moments.square
         return tile.sets, tile.radiance.astype(np.float64)
 
 
@@ -496,7 +706,8 @@ def render(
     settings: RenderSettings,
     progress: ProgressCallback | None = None,
 ) -> RenderResult:
-    """Render the source's image with the settings' sampler and estimator."""
+    """Render the source's image with the settings' sampler and estimators (one image each,
+    from the same traced samples)."""
     if (source.width, source.height) != (settings.width, settings.height):
         raise ParameterError(
             f"the radiance source renders {source.width} x {source.height}, "
@@ -507,4 +718,4 @@ def render(
     start = time.perf_counter()
     pipeline.run(tiles, progress)
     pipeline.stats.wall_seconds = time.perf_counter() - start
-    return RenderResult(pipeline.film, pipeline.stats, settings)
+    return RenderResult(pipeline.film, pipeline.stats, settings, pipeline.films, pipeline.layers)

@@ -6,7 +6,8 @@
 // voronoi_cell_areas (kernels/voronoi_cells.cl; same -D precision options, and area_real and
 // the status bits from voronoi_common.h). Output per pixel: SUMS_PER_PIXEL values, in order
 // sum v, sum f v (R, G, B), then the same over the nuclei whose cell lies inside W' (status
-// VORONOI_INSIDE); flag bits:
+// VORONOI_INSIDE), then sum f and sum f^2 (R, G, B each) over every traced sample whatever its
+// cell (the mc estimators and the per-pixel variance layer read them); flag bits:
 //   SUMS_REDRAW     a traced nucleus has an unbounded cell: the pixel must be redrawn
 //   SUMS_FALLBACK   a cell the device could not decide: the host recomputes the pixel
 // and the number of samples whose radiance was NaN or infinite (they count as 0 here).
@@ -14,7 +15,7 @@
 
 #include "voronoi_common.h"
 
-#define SUMS_PER_PIXEL 8
+#define SUMS_PER_PIXEL 14
 #define SUMS_REDRAW 1
 #define SUMS_FALLBACK 2
 
@@ -30,7 +31,7 @@ __kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_o
     uint p = get_global_id(0);
     if (p >= pixel_count)
         return;
-    area_real total[SUMS_PER_PIXEL] = {0, 0, 0, 0, 0, 0, 0, 0};
+    area_real total[SUMS_PER_PIXEL] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
     uchar flag = 0;
     uint bad = 0;
     for (uint s = traced_offsets[p]; s < traced_offsets[p + 1]; ++s) {
@@ -40,6 +41,13 @@ __kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_o
             bad += 1;
             r = g = b = 0.0f;
         }
+        // Plain sums and sums of squares, every sample (in the area precision, as on the host)
+        total[8] += r;
+        total[9] += g;
+        total[10] += b;
+        total[11] += (area_real)r * r;
+        total[12] += (area_real)g * g;
+        total[13] += (area_real)b * b;
         // Cells that are not exact bounded ones only flag the pixel
         uchar cell = status[s];
         if (!(cell & VORONOI_BOUNDED)) {

@@ -8,6 +8,7 @@ Modules in the order data flows through them:
   device_cells  per-pixel SPPP cells and sums on the OpenCL device
   image         image-level estimators: one tessellation of every pixel's nuclei
   redraw        the paper's rejection: bounded redraws of pixels with an unbounded cell
+  variance      the per-pixel variance layer (the mc estimate's, from the same samples)
 """
 
 from clrender.estimators.pixel import EstimateResult, EstimateStats, estimate, estimate_all
@@ -15,9 +16,11 @@ from clrender.estimators.redraw import RedrawOutcome, RedrawStats, estimate_with
 from clrender.estimators.registry import (
     ESTIMATORS,
     Estimator,
+    EstimatorWarning,
     PixelSums,
     check_compatible,
     estimator_info,
+    pairing_advice,
 )
 
 __all__ = [
@@ -25,6 +28,7 @@ __all__ = [
     "EstimateResult",
     "EstimateStats",
     "Estimator",
+    "EstimatorWarning",
     "PixelSums",
     "RedrawOutcome",
     "RedrawStats",
@@ -33,4 +37,5 @@ __all__ = [
     "estimate_all",
     "estimate_with_redraw",
     "estimator_info",
+    "pairing_advice",
 ]

@@ -73,7 +73,7 @@ from clrender.sampling import DeviceSampleSets
 KERNEL_FILE = "voronoi_cells.cl"
 SUMS_KERNEL_FILE = "voronoi_sums.cl"
 # kernels/voronoi_sums.cl: per-pixel values and flag bits
-SUMS_PER_PIXEL = 8
+SUMS_PER_PIXEL = 14
 SUMS_REDRAW, SUMS_FALLBACK = 1, 2
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
@@ -294,6 +294,8 @@ def _device_sums(
         weighted=sums[:, 1:4],
         kept_area=sums[:, 4],
         kept_weighted=sums[:, 5:8],
+        value=sums[:, 8:11],
+        square=sums[:, 11:14],
     )
     return DeviceSums(
         pixel_sums,

@@ -54,8 +54,9 @@ CELL_KINDS = ("none", "sppp", "clipped", "periodic", "image")
 class PixelSums:
     """Per-pixel sums an estimator's formula reads: over pixel p's N traced nuclei x, sum f(x)
     (value), sum v(x) (area) and sum f(x) v(x) (weighted), v the cell area of the estimator's
-    tessellation; kept_*: the same over the nuclei whose cell lies inside W' (fvor). Sums are
-    (P,) or (P, C); those a tessellation does not form are None."""
+    tessellation; kept_*: the same over the nuclei whose cell lies inside W' (fvor); square:
+    sum f(x)^2 (the device sums form it, for the per-pixel variance layer). Sums are (P,) or
+    (P, C); those a tessellation does not form are None."""
 
     counts: np.ndarray  # (P,) N, traced nuclei per pixel
     n: float  # the sampler's intensity
@@ -64,6 +65,7 @@ class PixelSums:
     weighted: np.ndarray | None = None
     kept_area: np.ndarray | None = None
     kept_weighted: np.ndarray | None = None
+    square: np.ndarray | None = None
 
 
 def per_pixel(column: np.ndarray, like: np.ndarray) -> np.ndarray:
@@ -248,3 +250,22 @@ def check_compatible(estimator: str | Estimator, sampler: str) -> Estimator:
 
 # What a pixel still rejected after the last redraw gets (clrender.estimators.redraw).
 MC = ESTIMATORS["mc"]
+
+
+class EstimatorWarning(UserWarning):
+    """An estimator and sampler pair that works but is known to be a poor choice."""
+
+
+def pairing_advice(estimator: str | Estimator, sampler: str) -> str | None:
+    """One line saying why the pair is a poor choice and what to use instead, or None."""
+    from clrender.sampling import sampler_kind
+
+    entry = estimator_info(estimator)
+    if entry.name == "mc" and sampler_kind(sampler).is_sppp:
+        return (
+            f"mc over the {sampler} sampler divides by the intensity n while each pixel draws a "
+            "Poisson number N of samples, so the count's own variance adds to every pixel "
+            "(far noisier than mc over fixed counts): use --estimator mc_n or vor_sn with "
+            f"{sampler}, or mc with --sampler sobol"
+        )
+    return None

@@ -1,0 +1,153 @@
+"""One trace, many estimators: every estimator's image from one render equals the one it gets
+rendered alone (the per-pixel estimators of a redrawn pixel share its accepted draw), the
+per-pixel layers hold the accepted draw's count, redraw number and an unbiased variance, and
+the render's time is split into stages."""
+
+import numpy as np
+import pytest
+
+from clrender.analytic import AnalyticSource
+from clrender.errors import ParameterError
+from clrender.estimators.variance import PixelMoments, mc_variance, variance_is_unbiased
+from clrender.estimators.registry import estimator_info
+from clrender.pipeline import DEVICE_STAGES, RenderSettings, render
+from clrender.samples import SampleSets
+from clrender.sampling import make_sampler
+
+WIDTH, HEIGHT = 24, 16
+
+
+def source(runtime, scene="analytic:mix"):
+    return AnalyticSource.for_scene(scene, runtime.queue, WIDTH, HEIGHT)
+
+
+def settings(estimator, sampler="sppp", spp=16, eps=None, **options):
+    config = (
+        make_sampler(sampler, spp, eps=eps) if sampler == "sppp" else make_sampler(sampler, spp)
+    )
+    return RenderSettings(WIDTH, HEIGHT, config, estimator, seed=3, **options)
+
+
+@pytest.mark.parametrize(
+    "names, backend",
+    [
+        (["mc", "vor_sn", "fvor", "vor"], "device"),
+        (["mc_n", "pvor", "vor_sn"], "device"),
+        (["ivor_sn", "mc", "vor_sn", "cvor"], "device"),
+        (["mc", "vor_sn", "fvor"], "qhull"),
+    ],
+)
+def test_each_image_equals_its_estimator_rendered_alone(runtime, names, backend):
+    # eps = 0.02 makes most pixels reject their first draw: the redraw path is exercised
+    many = render(
+        runtime, source(runtime), settings(names, eps=0.02, voronoi_backend=backend)
+    )
+    redrawn = many.layers.redraws.reshape(-1) > 0
+    assert list(many.images) == names and redrawn.sum() > WIDTH * HEIGHT // 4
+    for name in names:
+        alone = render(runtime, source(runtime), settings(name, eps=0.02, voronoi_backend=backend))
+        same = (alone.image == many.images[name]).all(axis=-1).reshape(-1)
+        if estimator_info(name).cells in ("sppp",) or estimator_info(name).image_level:
+            assert same.all(), name  # it redraws the same pixels alone, or never redraws
+        else:
+            # mc, mc_n, cvor, pvor never reject alone: they keep draw 0 there
+            assert same[~redrawn].all(), name
+            assert not same[redrawn].all(), name
+
+
+def test_mc_from_the_device_sums_equals_mc_from_the_host_samples(runtime):
+    # With a device-cell estimator beside it, mc reads the plain sums of the Voronoi kernel
+    many = render(runtime, source(runtime), settings(["vor_sn", "mc"]))
+    alone = render(runtime, source(runtime), settings("mc"))
+    redrawn = many.layers.images()["redraws"] > 0
+    np.testing.assert_array_equal(many.images["mc"][~redrawn], alone.image[~redrawn])
+
+
+def test_a_pvor_render_shifts_every_estimators_low_discrepancy_points(runtime):
+    many = render(runtime, source(runtime), settings(["mc", "pvor"], sampler="sobol"))
+    assert many.settings.sampler.toroidal_shift
+    alone = render(runtime, source(runtime), settings("pvor", sampler="sobol"))
+    np.testing.assert_array_equal(many.images["pvor"], alone.image)
+
+
+def test_layers_hold_the_accepted_draws_counts_and_redraw_numbers(runtime):
+    result = render(runtime, source(runtime), settings(["mc", "vor_sn"], eps=0.02))
+    assert result.layers.samples.sum() == result.stats.traced_samples - redraw_samples(result)
+    assert result.layers.redraws.max() >= 1
+    assert result.stats.redrawn_pixels == pytest.approx(result.layers.redraws.sum(), rel=0.25)
+    fixed = render(runtime, source(runtime), settings("mc", sampler="stratified"))
+    assert (fixed.layers.samples == 16).all() and (fixed.layers.redraws == 0).all()
+
+
+def redraw_samples(result) -> int:
+    """Samples traced in draws that were later replaced: every draw but each pixel's last."""
+    # The traced total counts every draw; the layer only the accepted ones. Re-derive the
+    # replaced draws' samples as the difference, which must be positive when pixels redrew.
+    replaced = result.stats.traced_samples - int(result.layers.samples.sum())
+    assert replaced > 0
+    return replaced
+
+
+def test_variance_layer_is_the_unbiased_variance_of_mc(runtime):
+    # Independent samples of analytic:smooth, 64 seeds: the mean of the layer matches the
+    # variance of the mc estimates across seeds within 5 standard errors (per image)
+    estimates, layers = [], []
+    for seed in range(64):
+        config = make_sampler("independent", 8)
+        result = render(
+            runtime,
+            source(runtime, "analytic:smooth"),
+            RenderSettings(WIDTH, HEIGHT, config, "mc", seed=seed),
+        )
+        estimates.append(result.image)
+        layers.append(result.layers.variance.reshape(HEIGHT, WIDTH, 3))
+    estimates, layers = np.array(estimates, np.float64), np.array(layers, np.float64)
+    observed = estimates.var(axis=0, ddof=1).mean()
+    predicted = layers.mean()
+    # The across-seed variance of a variance estimate from 64 draws: about sqrt(2/63) relative
+    assert abs(observed - predicted) < 5 * np.sqrt(2 / 63) * predicted / np.sqrt(WIDTH * HEIGHT / 4)
+
+
+def test_variance_formulas_against_hand_computed_values():
+    sets = SampleSets(
+        np.array([[0.1, 0.2], [0.3, -0.1], [0.0, 0.0], [0.2, 0.2], [0.4, 0.4]], np.float32),
+        np.array([0, 2, 5]),
+        n=2.0,
+    )
+    values = np.array([[1.0, 2, 3], [3, 2, 1], [0, 0, 0], [1, 1, 1], [2, 2, 2]])
+    moments = PixelMoments.of_samples(sets, values)
+    fixed = mc_variance(moments, make_sampler("independent", 2))
+    np.testing.assert_allclose(fixed[0], [1.0, 0.0, 1.0])  # s^2 / n: s^2 = (2, 0, 2), n = 2
+    poisson = mc_variance(moments, make_sampler("sppp", 2))
+    np.testing.assert_allclose(poisson[1], [5 / 4] * 3)  # sum f^2 / n^2 = (0 + 1 + 4) / 4
+    assert variance_is_unbiased(estimator_info("mc"), make_sampler("sppp", 4))
+    assert not variance_is_unbiased(estimator_info("mc"), make_sampler("sobol", 4))
+    assert not variance_is_unbiased(estimator_info("vor_sn"), make_sampler("sppp", 4))
+
+
+def test_stage_times_add_up_to_the_device_time(runtime):
+    result = render(runtime, source(runtime), settings(["mc", "vor_sn", "fvor"]))
+    stats = result.stats
+    assert set(stats.stage_seconds) == set(DEVICE_STAGES)
+    assert stats.device_seconds == pytest.approx(sum(stats.stage_seconds.values()))
+    assert set(stats.estimator_seconds) == {"mc", "vor_sn+fvor"}
+    assert stats.host_seconds == pytest.approx(
+        sum(stats.estimator_seconds.values()) + stats.redraw_host_seconds
+    )
+    assert stats.stage_seconds["voronoi"] > 0 and stats.stage_seconds["tracing"] > 0
+
+
+@pytest.mark.parametrize(
+    "estimators, message",
+    [
+        (["mc", "mc"], "named twice"),
+        ([], "at least one"),
+        (["mc", "nope"], "unknown estimator"),
+        (["mc", "vor_sn"], "needs the auxiliary nuclei"),
+    ],
+)
+def test_bad_estimator_lists_are_one_line_errors(estimators, message):
+    sampler = "sobol" if "vor_sn" in estimators else "sppp"
+    with pytest.raises(ParameterError, match=message) as error:
+        settings(estimators, sampler=sampler)
+    assert "\n" not in str(error.value)
