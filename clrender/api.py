@@ -125,7 +125,7 @@ def render(
         voronoi_backend,
     )
     result = pipeline.render(runtime, source, settings, progress)
-    result.stats.compile_seconds += setup_compile
+    result.stats.setup_compile_seconds = setup_compile
     return result
 
 

@@ -244,11 +244,17 @@ def rgb_float32(image: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(image, np.float32)
 
 
-def write_exr(path: str | os.PathLike, image: np.ndarray, metadata: dict | None = None) -> Path:
-    """Write a linear RGB float32 EXR (ZIP compression) with metadata attributes."""
+def write_exr(
+    path: str | os.PathLike,
+    image: np.ndarray,
+    metadata: dict | None = None,
+    layers: dict[str, np.ndarray] | None = None,
+) -> Path:
+    """Write a linear RGB float32 EXR (ZIP compression) with metadata attributes and optional
+    named layers beside RGB (see exr_writer)."""
     pixels = rgb_float32(image)
     header = exr_header(metadata)
-    return write_atomically(path, exr_writer(pixels, header))
+    return write_atomically(path, exr_writer(pixels, header, layers))
 
 
 def exr_header(metadata: dict | None) -> dict:
@@ -261,21 +267,54 @@ def exr_header(metadata: dict | None) -> dict:
     return header
 
 
-def exr_writer(pixels: np.ndarray, header: dict) -> FileWriter:
-    """Writes the EXR, then reads it back: the pixels must come back bit for bit (the library
-    can leave a short file on a full disk without an error)."""
+def exr_layer(name: str, values: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """A layer as the bindings write it: (H, W) uint32 or float32 (one channel `name`), or
+    (H, W, 3) float32 (channels name.R, name.G, name.B), C-contiguous."""
+    values = np.asarray(values)
+    if values.shape[:2] != shape or values.ndim not in (2, 3) or values.shape[2:] not in ((), (3,)):
+        raise ValueError(
+            f"layer {name!r}: shape {values.shape}, expected {shape} or {shape + (3,)}"
+        )
+    dtype = (
+        np.uint32 if np.issubdtype(values.dtype, np.integer) or values.dtype == bool else np.float32
+    )
+    return np.ascontiguousarray(values, dtype)
+
+
+def exr_writer(
+    pixels: np.ndarray, header: dict, layers: dict[str, np.ndarray] | None = None
+) -> FileWriter:
+    """Writes the EXR (RGB, then each named layer: integer ones as UINT channels, the others as
+    FLOAT, three-channel ones as name.R, name.G, name.B), then reads it back: every channel must
+    come back bit for bit (the library can leave a short file on a full disk without an
+    error)."""
+    shape = pixels.shape[:2]
+    channels = {"RGB": pixels}
+    for name, values in (layers or {}).items():
+        if name in ("RGB", "R", "G", "B"):
+            raise ValueError(f"layer name {name!r} clashes with the image's own channels")
+        channels[name] = exr_layer(name, values, shape)
 
     def write(temp: Path) -> None:
-        with OpenEXR.File(header, {"RGB": pixels}) as exr:
+        with OpenEXR.File(dict(header), dict(channels)) as exr:  # the bindings edit both
             exr.write(str(temp))
         try:
-            back, _ = read_exr(temp)
+            back = read_exr_channels(temp)
         except RuntimeError as err:
             raise incomplete(temp, f"{temp.stat().st_size} bytes that do not read back") from err
-        if back.shape != pixels.shape or back.tobytes() != pixels.tobytes():
-            raise incomplete(temp, "its pixels read back differently")
+        for name, values in channels.items():
+            got = back.get(name)
+            if got is None or got.shape != values.shape or got.tobytes() != values.tobytes():
+                raise incomplete(temp, f"its {name} pixels read back differently")
 
     return write
+
+
+def read_exr_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Every channel group of an EXR as the bindings read it: "RGB" (H, W, 3), a layer written
+    as name.R/G/B as (H, W, 3), single channels as (H, W)."""
+    with OpenEXR.File(str(path)) as exr:
+        return {name: np.array(channel.pixels) for name, channel in exr.channels().items()}
 
 
 def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:

@@ -222,7 +222,10 @@ class RenderStats:
     device_seconds: float = 0.0  # the device stages below, summed (compile excluded)
     host_seconds: float = 0.0  # estimator stage (Voronoi cells and sums), redraws' host part
     wall_seconds: float = 0.0
-    compile_seconds: float = 0.0  # program builds and kernel creation (first use in a process)
+    # program builds and kernel creation (first uses in a process): during the render (in
+    # wall_seconds, out of the stages), and before it, for its radiance source (api.render)
+    compile_seconds: float = 0.0
+    setup_compile_seconds: float = 0.0
     # main-thread seconds per device stage (DEVICE_STAGES): drawing sample sets, tracing,
     # device Voronoi cells and sums (with the host's settling of undecided pixels), read-back
     stage_seconds: dict[str, float] = field(
@@ -237,6 +240,11 @@ class RenderStats:
     unresolved_pixels: int = 0  # still rejected after every redraw: mc estimate of the last
     nonfinite_samples: int = 0  # NaN/Inf radiance, from the source's count or found on the host
     interrupted: bool = False
+
+    @property
+    def run_seconds(self) -> float:
+        """Wall time without the program builds met during the render (rates use it)."""
+        return max(self.wall_seconds - self.compile_seconds, 0.0)
 
 
 @dataclass

@@ -1,11 +1,16 @@
-"""What a render reports: the EXR metadata and the closing summary."""
+"""What a render reports: the EXR metadata, the closing summary and its JSON form."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from clrender import __version__
-from clrender.pipeline import RenderResult
+from clrender.estimators.variance import variance_is_unbiased
+from clrender.pipeline import DEVICE_STAGES, RenderResult
+
+# The per-pixel layers written beside RGB in every EXR (clrender.film.PixelLayers), with
+# "flagged" from the estimator's film.
+LAYER_NAMES = ("samples", "redraws", "flagged", "mc_variance")
 
 
 @dataclass(frozen=True)
@@ -17,21 +22,34 @@ class RenderLabels:
     max_depth: int | None  # None for sources without paths (analytic images)
 
 
-def render_metadata(result: RenderResult, labels: RenderLabels) -> dict[str, object]:
-    """EXR header attributes describing the render (see clrender.imageio for their types)."""
-    settings, stats, film = result.settings, result.stats, result.film
+def render_metadata(
+    result: RenderResult,
+    labels: RenderLabels,
+    estimator: str | None = None,
+    errors: dict | None = None,
+) -> dict[str, object]:
+    """EXR header attributes describing the render and one of its estimators' images (the
+    first by default); errors: the image's error against a reference (clrender.compare's
+    ImageErrors.as_dict() with the reference's name), stored with an `error_` prefix. See
+    clrender.imageio for the attribute types."""
+    settings, stats = result.settings, result.stats
+    name = estimator or settings.estimator.name
+    film = result.films.get(name, result.film)
     sampler = settings.sampler
     metadata: dict[str, object] = {
         "software": f"clrender {__version__}",
         "scene": labels.scene,
         "spp": sampler.n,
         "sampler": sampler.name,
-        "estimator": settings.estimator.name,
+        "estimator": name,
         "seed": settings.seed,
         "device": labels.device,
         "render_time_s": stats.wall_seconds,
         "device_time_s": stats.device_seconds,
         "host_time_s": stats.host_seconds,
+        "compile_time_s": stats.compile_seconds,
+        "setup_compile_time_s": stats.setup_compile_seconds,
+        **{f"{stage}_time_s": stats.stage_seconds[stage] for stage in DEVICE_STAGES},
         "partial": int(not film.complete),
         "rendered_pixels": film.rendered_count,
         "traced_samples": stats.traced_samples,
@@ -40,19 +58,50 @@ def render_metadata(result: RenderResult, labels: RenderLabels) -> dict[str, obj
         "unresolved_pixels": stats.unresolved_pixels,
         "nonfinite_samples": stats.nonfinite_samples,
         "flagged_pixels": film.flagged_count,
+        "layers": ",".join(LAYER_NAMES),
     }
+    group = estimator_group(stats.estimator_seconds, name)
+    if group is not None:
+        metadata["estimator_time_s"] = stats.estimator_seconds[group]
+        if group != name:
+            metadata["estimator_timed_with"] = group
+    if len(settings.estimators) > 1:
+        metadata["estimators"] = ",".join(entry.name for entry in settings.estimators)
+    entry = next(entry for entry in settings.estimators if entry.name == name)
+    if variance_is_unbiased(entry, sampler) and result.layers is not None:
+        rendered = film.rendered
+        metadata["noise_mse"] = float(result.layers.variance[rendered].mean(dtype="float64"))
     if sampler.toroidal_shift:
         metadata["toroidal_shift"] = 1
     if sampler.is_sppp:
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
+    for key, value in (errors or {}).items():
+        if value is not None:
+            metadata[f"error_{key}"] = value
     return metadata
+
+
+def estimator_group(estimator_seconds: dict[str, float], name: str) -> str | None:
+    """The key its host time is filed under: the name, or its group's names joined by +."""
+    for group in estimator_seconds:
+        if name in group.split("+"):
+            return group
+    return None
+
+
+def exr_layers(result: RenderResult, estimator: str) -> dict:
+    """The per-pixel layers of one estimator's EXR, by channel name (LAYER_NAMES)."""
+    film = result.films[estimator]
+    layers = result.layers.images()
+    layers["flagged"] = film.flagged.reshape(film.height, film.width)
+    return {name: layers[name] for name in LAYER_NAMES}
 
 
 def format_seconds(seconds: float) -> str:
     if seconds < 60:
-        return f"{seconds:.1f} s"
+        return f"{seconds:.1f} s" if seconds >= 0.1 or seconds == 0 else f"{seconds:.3f} s"
     minutes, secs = divmod(int(round(seconds)), 60)
     return f"{minutes} min {secs:02d} s"
 
@@ -71,16 +120,26 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
     sampler = settings.sampler
     status = "interrupted" if stats.interrupted else "done"
     overlap = "on" if settings.overlap else "off"
+    names = " ".join(entry.name for entry in settings.estimators)
+    stages = ", ".join(
+        f"{stage.replace('_', ' ')} {format_seconds(stats.stage_seconds[stage])}"
+        for stage in DEVICE_STAGES
+    )
+    estimators = ", ".join(
+        f"{group} {format_seconds(seconds)}" for group, seconds in stats.estimator_seconds.items()
+    )
     return [
         f"{labels.scene}: {settings.width}x{settings.height}, {sampler.n} spp, "
         f"{sampler.name}{' (toroidal shift)' if sampler.toroidal_shift else ''} + "
-        f"{settings.estimator.name}, seed {settings.seed} on {labels.device}",
+        f"{names}, seed {settings.seed} on {labels.device}",
         f"{status}: {film.rendered_count}/{film.pixel_count} pixels in "
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
-        f"host Voronoi {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "
-        f"overlap {overlap})",
-        f"paths {stats.traced_samples:,} ({rate(stats.traced_samples, stats.wall_seconds)}), "
-        f"rays {stats.rays:,} ({rate(stats.rays, stats.wall_seconds)})",
+        f"host estimators {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "
+        f"overlap {overlap}; kernel builds {format_seconds(stats.compile_seconds)}, and "
+        f"{format_seconds(stats.setup_compile_seconds)} before the render)",
+        f"device stages: {stages}; host: {estimators or 'none'}",
+        f"paths {stats.traced_samples:,} ({rate(stats.traced_samples, stats.run_seconds)}), "
+        f"rays {stats.rays:,} ({rate(stats.rays, stats.run_seconds)}), without kernel builds",
         f"rejections: {stats.redrawn_pixels} pixel redraws, {stats.unresolved_pixels} pixels "
         f"unresolved (mc fallback); non-finite samples: {stats.nonfinite_samples}, "
         f"flagged pixels: {film.flagged_count}",
