@@ -55,6 +55,40 @@ def test_exr_writes_non_contiguous_and_float64_images_correctly(tmp_path):
     assert np.array_equal(pixels, flipped.astype(np.float32))
 
 
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"count": np.uint32, "variance.R": np.float32, "variance.G": np.float32},
+        {"A": np.float32},  # the bindings group R, G, B, A into one RGBA array by default
+        {"Z": np.float16},
+    ],
+    ids=["named", "alpha", "half"],
+)
+def test_exr_rgb_is_read_whatever_other_channels_it_holds(tmp_path, extra):
+    import OpenEXR
+
+    rng = np.random.default_rng(2)
+    rgb = rng.random((3, 5, 3)).astype(np.float32)
+    channels = {name: np.ascontiguousarray(rgb[..., i]) for i, name in enumerate("RGB")}
+    channels.update({name: np.ones((3, 5), dtype) for name, dtype in extra.items()})
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header | {"noise_mse": 0.5}, channels) as exr:
+        exr.write(str(tmp_path / "extra.exr"))
+    pixels, meta = read_exr(tmp_path / "extra.exr")
+    assert pixels.dtype == np.float32 and np.array_equal(pixels, rgb)
+    assert meta == {"noise_mse": 0.5}
+
+
+def test_exr_without_rgb_channels_names_what_it_has(tmp_path):
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {"Y": np.zeros((2, 2), np.float32)}) as exr:
+        exr.write(str(tmp_path / "grey.exr"))
+    with pytest.raises(ValueError, match=r"^the EXR has no R, G, B channel \(its channels: Y\)$"):
+        read_exr(tmp_path / "grey.exr")
+
+
 def test_srgb_transfer_function_values():
     linear = np.array([-1.0, 0.0, 0.0031308, 0.18, 0.5, 1.0, 7.0, np.nan])
     # 0.18 -> 0.46135 * 255 = 117.6; 0.5 -> 0.73536 * 255 = 187.5 (rounds up); clamped ends.
