@@ -270,7 +270,7 @@ def exr_writer(pixels: np.ndarray, header: dict) -> FileWriter:
             exr.write(str(temp))
         try:
             back, _ = read_exr(temp)
-        except RuntimeError as err:
+        except (RuntimeError, ValueError) as err:  # ValueError: a file cut in its pixel data
             raise incomplete(temp, f"{temp.stat().st_size} bytes that do not read back") from err
         if back.shape != pixels.shape or back.tobytes() != pixels.tobytes():
             raise incomplete(temp, "its pixels read back differently")

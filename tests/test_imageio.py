@@ -208,6 +208,28 @@ def test_a_short_exr_never_replaces_the_previous_one(tmp_path, monkeypatch):
     assert np.array_equal(read_exr(target)[0], np.ones((4, 4, 3), np.float32))
 
 
+def test_an_exr_cut_in_its_pixel_data_never_replaces_the_previous_one(tmp_path, monkeypatch):
+    # The bindings read such a file with a ValueError (a file cut after its magic number: a
+    # RuntimeError); either is a failed write, reported in one line
+    import OpenEXR
+
+    target = tmp_path / "out.exr"
+    write_exr(target, np.ones((4, 4, 3)))
+    write_whole = OpenEXR.File.write
+
+    def write_cut(self, name):
+        write_whole(self, name)
+        data = Path(name).read_bytes()
+        Path(name).write_bytes(data[: len(data) // 2])
+
+    monkeypatch.setattr(OpenEXR.File, "write", write_cut)
+    image = np.random.default_rng(0).random((300, 200, 3))  # several chunks: cut between them
+    with pytest.raises(OutputPathError, match=r"cannot write .*out.exr: the written file is"):
+        write_exr(target, image)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
+    assert np.array_equal(read_exr(target)[0], np.ones((4, 4, 3), np.float32))
+
+
 @pytest.mark.parametrize("keep", [0, 8, 40, -30, -12])
 def test_a_short_png_never_replaces_the_previous_one(tmp_path, monkeypatch, keep):
     # Cut at the signature, the header, inside the pixel data, before IEND: each is read back
