@@ -108,6 +108,10 @@ def current_umask() -> int:
     return mask
 
 
+class MissingChannelsError(ValueError):
+    """An EXR has no R, G or B channel (the bindings raise ValueError for a damaged file too)."""
+
+
 class IncompleteWrite(OSError):
     """A file came back from disk other than it was written (a full disk, a failing device)."""
 
@@ -281,7 +285,8 @@ def exr_writer(pixels: np.ndarray, header: dict) -> FileWriter:
 def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
     """The (H, W, 3) float32 RGB pixels of an EXR and its non-standard attributes. The R, G
     and B channels are read by name, whatever other channels the file holds (an A channel, or
-    named ones such as count or variance.R); ValueError if one of the three is missing."""
+    named ones such as count or variance.R); MissingChannelsError if one of the three is
+    missing."""
     # separate_channels: by default the bindings group R, G, B with A into one "RGBA" array
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         # Copy inside the block: the bindings empty the header dict when the file closes.
@@ -290,7 +295,7 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
         channels = exr.channels()
         missing = [name for name in "RGB" if name not in channels]
         if missing:
-            raise ValueError(
+            raise MissingChannelsError(
                 f"the EXR has no {', '.join(missing)} channel (its channels: "
                 f"{', '.join(sorted(channels)) or 'none'})"
             )

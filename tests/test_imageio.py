@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from clrender.imageio import (
+    MissingChannelsError,
     OutputPathError,
     check_writable,
     exr_header,
@@ -85,7 +86,9 @@ def test_exr_without_rgb_channels_names_what_it_has(tmp_path):
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with OpenEXR.File(header, {"Y": np.zeros((2, 2), np.float32)}) as exr:
         exr.write(str(tmp_path / "grey.exr"))
-    with pytest.raises(ValueError, match=r"^the EXR has no R, G, B channel \(its channels: Y\)$"):
+    with pytest.raises(
+        MissingChannelsError, match=r"^the EXR has no R, G, B channel \(its channels: Y\)$"
+    ):
         read_exr(tmp_path / "grey.exr")
 
 
