@@ -72,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_render_options(render)
+    from clrender.compare import add_compare_parser
+
+    add_compare_parser(commands)
     return parser
 
 
@@ -403,7 +406,18 @@ def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> in
     return 0
 
 
-COMMANDS = {"devices": command_devices, "render": command_render, None: command_devices}
+def command_compare(args: argparse.Namespace) -> int:
+    from clrender.compare import run_compare
+
+    return run_compare(args)
+
+
+COMMANDS = {
+    "devices": command_devices,
+    "render": command_render,
+    "compare": command_compare,
+    None: command_devices,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

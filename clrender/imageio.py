@@ -108,6 +108,10 @@ def current_umask() -> int:
     return mask
 
 
+class MissingChannelsError(ValueError):
+    """An EXR has no R, G or B channel (the bindings raise ValueError for a damaged file too)."""
+
+
 class IncompleteWrite(OSError):
     """A file came back from disk other than it was written (a full disk, a failing device)."""
 
@@ -300,7 +304,7 @@ def exr_writer(
             exr.write(str(temp))
         try:
             back = read_exr_channels(temp)
-        except RuntimeError as err:
+        except (RuntimeError, ValueError) as err:  # ValueError: a file cut in its pixel data
             raise incomplete(temp, f"{temp.stat().st_size} bytes that do not read back") from err
         for name, values in channels.items():
             got = back.get(name)
@@ -318,17 +322,24 @@ def read_exr_channels(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
-    """The (H, W, 3) float32 RGB pixels of an EXR and its non-standard attributes."""
-    with OpenEXR.File(str(path)) as exr:
+    """The (H, W, 3) float32 RGB pixels of an EXR and its non-standard attributes. The R, G
+    and B channels are read by name, whatever other channels the file holds (an A channel, or
+    named ones such as count or variance.R); MissingChannelsError if one of the three is
+    missing."""
+    # separate_channels: by default the bindings group R, G, B with A into one "RGBA" array
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
         # Copy inside the block: the bindings empty the header dict when the file closes.
         header = exr.header()
         metadata = {k: v for k, v in header.items() if k not in STANDARD_EXR_ATTRIBUTES}
         channels = exr.channels()
-        if "RGB" in channels:
-            pixels = np.array(channels["RGB"].pixels, np.float32)
-        else:
-            pixels = np.stack([channels[c].pixels for c in "RGB"], axis=-1).astype(np.float32)
-    return pixels, metadata
+        missing = [name for name in "RGB" if name not in channels]
+        if missing:
+            raise MissingChannelsError(
+                f"the EXR has no {', '.join(missing)} channel (its channels: "
+                f"{', '.join(sorted(channels)) or 'none'})"
+            )
+        pixels = np.stack([channels[name].pixels for name in "RGB"], axis=-1)
+    return pixels.astype(np.float32, copy=False), metadata
 
 
 # --- PNG -------------------------------------------------------------------------------------

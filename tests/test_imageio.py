@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from clrender.imageio import (
+    MissingChannelsError,
     OutputPathError,
     check_writable,
     exr_header,
@@ -53,6 +54,42 @@ def test_exr_writes_non_contiguous_and_float64_images_correctly(tmp_path):
     write_exr(tmp_path / "view.exr", flipped)
     pixels, _ = read_exr(tmp_path / "view.exr")
     assert np.array_equal(pixels, flipped.astype(np.float32))
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"count": np.uint32, "variance.R": np.float32, "variance.G": np.float32},
+        {"A": np.float32},  # the bindings group R, G, B, A into one RGBA array by default
+        {"Z": np.float16},
+    ],
+    ids=["named", "alpha", "half"],
+)
+def test_exr_rgb_is_read_whatever_other_channels_it_holds(tmp_path, extra):
+    import OpenEXR
+
+    rng = np.random.default_rng(2)
+    rgb = rng.random((3, 5, 3)).astype(np.float32)
+    channels = {name: np.ascontiguousarray(rgb[..., i]) for i, name in enumerate("RGB")}
+    channels.update({name: np.ones((3, 5), dtype) for name, dtype in extra.items()})
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header | {"noise_mse": 0.5}, channels) as exr:
+        exr.write(str(tmp_path / "extra.exr"))
+    pixels, meta = read_exr(tmp_path / "extra.exr")
+    assert pixels.dtype == np.float32 and np.array_equal(pixels, rgb)
+    assert meta == {"noise_mse": 0.5}
+
+
+def test_exr_without_rgb_channels_names_what_it_has(tmp_path):
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {"Y": np.zeros((2, 2), np.float32)}) as exr:
+        exr.write(str(tmp_path / "grey.exr"))
+    with pytest.raises(
+        MissingChannelsError, match=r"^the EXR has no R, G, B channel \(its channels: Y\)$"
+    ):
+        read_exr(tmp_path / "grey.exr")
 
 
 def test_srgb_transfer_function_values():
@@ -170,6 +207,28 @@ def test_a_short_exr_never_replaces_the_previous_one(tmp_path, monkeypatch):
     monkeypatch.setattr(OpenEXR.File, "write", write_short)
     with pytest.raises(OutputPathError, match=r"cannot write .*out.exr: the written file is"):
         write_exr(target, np.zeros((4, 4, 3)))
+    assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
+    assert np.array_equal(read_exr(target)[0], np.ones((4, 4, 3), np.float32))
+
+
+def test_an_exr_cut_in_its_pixel_data_never_replaces_the_previous_one(tmp_path, monkeypatch):
+    # The bindings read such a file with a ValueError (a file cut after its magic number: a
+    # RuntimeError); either is a failed write, reported in one line
+    import OpenEXR
+
+    target = tmp_path / "out.exr"
+    write_exr(target, np.ones((4, 4, 3)))
+    write_whole = OpenEXR.File.write
+
+    def write_cut(self, name):
+        write_whole(self, name)
+        data = Path(name).read_bytes()
+        Path(name).write_bytes(data[: len(data) // 2])
+
+    monkeypatch.setattr(OpenEXR.File, "write", write_cut)
+    image = np.random.default_rng(0).random((300, 200, 3))  # several chunks: cut between them
+    with pytest.raises(OutputPathError, match=r"cannot write .*out.exr: the written file is"):
+        write_exr(target, image)
     assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
     assert np.array_equal(read_exr(target)[0], np.ones((4, 4, 3), np.float32))
 

@@ -8,8 +8,8 @@ import pytest
 
 from clrender.analytic import AnalyticSource
 from clrender.errors import ParameterError
-from clrender.estimators.variance import PixelMoments, mc_variance, variance_is_unbiased
 from clrender.estimators.registry import estimator_info
+from clrender.estimators.variance import PixelMoments, mc_variance, variance_is_unbiased
 from clrender.pipeline import DEVICE_STAGES, RenderSettings, render
 from clrender.samples import SampleSets
 from clrender.sampling import make_sampler
@@ -39,9 +39,7 @@ def settings(estimator, sampler="sppp", spp=16, eps=None, **options):
 )
 def test_each_image_equals_its_estimator_rendered_alone(runtime, names, backend):
     # eps = 0.02 makes most pixels reject their first draw: the redraw path is exercised
-    many = render(
-        runtime, source(runtime), settings(names, eps=0.02, voronoi_backend=backend)
-    )
+    many = render(runtime, source(runtime), settings(names, eps=0.02, voronoi_backend=backend))
     redrawn = many.layers.redraws.reshape(-1) > 0
     assert list(many.images) == names and redrawn.sum() > WIDTH * HEIGHT // 4
     for name in names:
