@@ -1,17 +1,20 @@
 """Command line: `python -m clrender [COMMAND] ...`.
 
 With no command it lists the OpenCL platforms and devices and runs a self-check kernel on
-the selected device; `render` renders a scene to a linear EXR and an sRGB PNG preview. Errors
+the selected device; `render` renders a scene to a linear EXR and an sRGB PNG preview (one
+pair per estimator, all from one trace, with `--estimator mc,vor_sn,fvor`); `compare` gives the
+error of an image against a reference; `scenes` lists the shipped scenes. Errors
 the user can fix print as one line (no traceback unless --debug) and exit with status 2;
 an interrupted render (Ctrl-C, SIGTERM, SIGHUP) writes what it has and exits with status
 128 + the signal number (130, 143, 129). Warnings (a scene with
 no emitter, a camera inside a solid shape) print one line each on stderr and do not change
-the exit status.
+the exit status, as does one for a poor estimator/sampler pair (mc over SPPP samples).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import warnings
@@ -64,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", parser_class=OneLineErrorParser)
     devices = commands.add_parser("devices", help="list OpenCL devices and run a self-check")
     add_device_option(devices)
+    commands.add_parser("scenes", help="list the shipped scenes and the analytic images")
     render = commands.add_parser(
         "render",
         help="render a scene to OUT.exr (linear float) and OUT.png (sRGB preview)",
@@ -150,9 +154,25 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     add(
         "--estimator",
         default=None,
-        metavar="NAME",
-        help=f"pixel estimator: {', '.join(ESTIMATORS)} (default: vor_sn with sppp, mc otherwise)",
+        metavar="NAME[,NAME...]",
+        help=f"pixel estimator, or several separated by commas, all from one trace (one output "
+        f"pair each, OUT.NAME.exr and OUT.NAME.png): {', '.join(ESTIMATORS)} (default: vor_sn "
+        "with sppp, mc otherwise)",
     )
+    add(
+        "--reference",
+        default=None,
+        metavar="REF.exr",
+        help="report each image's error against this EXR (MSE, relMSE, and MSE minus the "
+        "reference's own noise when its metadata carries noise_mse); analytic images are "
+        "compared with their exact pixel integrals without it",
+    )
+    add(
+        "--json",
+        action="store_true",
+        help="print the closing summary as one JSON object on stdout (and nothing else there)",
+    )
+    add("--quiet", action="store_true", help="no progress bar and no summary: warnings only")
     add("--seed", type=int, default=0, help="random seed, 0 <= S < 2^32 (default: 0)")
     add(
         "--max-depth",
@@ -214,8 +234,11 @@ class OutputPaths:
     png: Path
 
 
-def output_paths(output: str | None, scene_label: str) -> OutputPaths:
-    """OUT.exr and OUT.png, both checked writable before anything renders."""
+def output_paths(
+    output: str | None, scene_label: str, estimators: list[str] | None = None
+) -> dict[str, OutputPaths]:
+    """OUT.exr and OUT.png for one estimator, OUT.<estimator>.exr and .png for each of several,
+    all checked writable before anything renders."""
     from clrender.imageio import check_writable
 
     if output is not None and not output.strip():
@@ -232,8 +255,29 @@ def output_paths(output: str | None, scene_label: str) -> OutputPaths:
         if exr.suffix:
             raise ParameterError(f"-o/--output must name an .exr file, got {str(exr)!r}")
         exr = exr.with_suffix(".exr")
-    png = exr.with_suffix(".png")
-    return OutputPaths(check_writable(exr), check_writable(png))
+    names = estimators or [""]
+    paths = {}
+    for name in names:
+        named = exr.with_name(f"{exr.stem}.{name}{exr.suffix}") if len(names) > 1 else exr
+        paths[name] = OutputPaths(check_writable(named), check_writable(named.with_suffix(".png")))
+    return paths
+
+
+def estimator_names(text: str | None, sampler: str) -> list[str]:
+    """The estimators of --estimator NAME[,NAME...], each checked against the sampler (the
+    sampler's default estimator without the option)."""
+    from clrender.api import default_estimator
+    from clrender.estimators import check_compatible
+
+    if text is None:
+        return [check_compatible(default_estimator(sampler), sampler).name]
+    names = [name.strip() for name in text.split(",")]
+    if not all(names):
+        raise ParameterError(f"--estimator {text!r} has an empty name: give NAME[,NAME...]")
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise ParameterError(f"--estimator names {twice[0]!r} twice: name each once")
+    return [check_compatible(name, sampler).name for name in names]
 
 
 def parse_resolution(text: str) -> tuple[int, int] | int | None:
@@ -261,15 +305,13 @@ def scene_label(scene: str) -> str:
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
-    from clrender.api import default_estimator
-    from clrender.estimators import check_compatible
     from clrender.pipeline import DEFAULT_TILE_SAMPLES, RenderSettings
     from clrender.sampling import make_sampler, sampler_kind
 
     if args.spp <= 0:
         raise ParameterError(f"--spp must be a positive integer, got {args.spp}")
     sampler_kind(args.sampler)
-    estimator = check_compatible(args.estimator or default_estimator(args.sampler), args.sampler)
+    estimators = estimator_names(args.estimator, args.sampler)
     tile_samples = DEFAULT_TILE_SAMPLES if args.tile_samples is None else args.tile_samples
     if tile_samples <= 0:
         raise ParameterError(f"--tile-samples must be a positive integer, got {tile_samples}")
@@ -277,7 +319,7 @@ def settings_from_args(args: argparse.Namespace, width: int, height: int):
         width,
         height,
         make_sampler(args.sampler, args.spp),
-        estimator,
+        estimators,
         args.seed,
         tile_samples,
         not args.no_overlap,
@@ -330,8 +372,9 @@ def make_source(args: argparse.Namespace, runtime, scene):
     return source, None if scene is None else args.max_depth
 
 
-def write_outputs(result, labels, paths: OutputPaths) -> None:
-    """Both images, each checked on disk before either replaces its old version."""
+def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:
+    """Every estimator's EXR (RGB, the per-pixel layers, the metadata with its errors) and PNG,
+    each checked on disk before any replaces its old version."""
     from clrender.imageio import (
         exr_header,
         exr_writer,
@@ -339,35 +382,100 @@ def write_outputs(result, labels, paths: OutputPaths) -> None:
         rgb_float32,
         write_all_atomically,
     )
-    from clrender.report import render_metadata
+    from clrender.report import exr_layers, render_metadata
 
-    image = rgb_float32(result.film.image())
-    header = exr_header(render_metadata(result, labels))
-    write_all_atomically([(paths.exr, exr_writer(image, header)), (paths.png, png_writer(image))])
+    jobs = []
+    for name, pair in zip(result.films, paths.values(), strict=True):
+        image = rgb_float32(result.films[name].image())
+        header = exr_header(render_metadata(result, labels, name, errors.get(name)))
+        jobs.append((pair.exr, exr_writer(image, header, exr_layers(result, name))))
+        jobs.append((pair.png, png_writer(image)))
+    write_all_atomically(jobs)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What the images are compared with: a reference EXR, or an analytic image's exact
+    pixel integrals."""
+
+    label: str
+    pixels: object  # (H, W, 3) array
+    noise: float | None
+
+
+def load_reference(args: argparse.Namespace, source, settings) -> Reference | None:
+    """--reference (checked against the render's size before it starts), else the exact
+    pixel integrals of an analytic image, else None."""
+    from clrender.compare import read_reference
+
+    if args.reference:
+        shape = (settings.height, settings.width)
+        pixels, noise = read_reference(args.reference, expected_shape=shape)
+        return Reference(args.reference, pixels, noise)
+    if hasattr(source, "pixel_integrals"):
+        return Reference("exact pixel integrals", source.pixel_integrals(), 0.0)
+    return None
+
+
+def reference_errors(result, reference: Reference | None) -> dict[str, dict]:
+    """{estimator: errors as a dict, with the reference's label} for a complete render."""
+    from clrender.compare import image_errors
+
+    if reference is None or not result.film.complete:
+        return {}
+    errors = {}
+    for name, film in result.films.items():
+        measured = image_errors(film.image(), reference.pixels, reference.noise)
+        errors[name] = {**measured.as_dict(), "reference": reference.label}
+        errors[name]["summary"] = measured.summary_line()
+    return errors
+
+
+def error_lines(errors: dict[str, dict], result, reference: Reference | None) -> list[str]:
+    if reference is None:
+        return []
+    if not errors:
+        return [f"no error against {reference.label}: the render is partial"]
+    return [
+        f"{name} against {reference.label}: {values['summary']}" for name, values in errors.items()
+    ]
 
 
 def command_render(args: argparse.Namespace) -> int:
     with interrupts.signals_blocked():  # SciPy and OpenEXR initialise whole
+        from clrender.estimators import pairing_advice
         from clrender.pipeline import render
         from clrender.progress import ProgressBar
-        from clrender.report import RenderLabels, summary_lines
+        from clrender.report import RenderLabels, summary_json, summary_lines
+        from clrender.runtime import thread_build_seconds
 
     # Set-up with the ending signals blocked: one that comes is acted on when it is done, not
     # inside a library's initialisation or the OpenCL compiler (clrender.interrupts)
     with interrupts.signals_blocked():
         check_render_args(args)
         label = scene_label(args.scene)
-        paths = output_paths(args.output, label)
+        names = estimator_names(args.estimator, args.sampler)
+        paths = output_paths(args.output, label, names)
         scene = load_scene_arg(args)
+        for name in names:
+            advice = pairing_advice(name, args.sampler)
+            if advice:
+                print(f"clrender: warning: {advice}", file=sys.stderr)
         runtime = create_runtime(args.device)
+        built = thread_build_seconds()
         source, max_depth = make_source(args, runtime, scene)
+        setup_compile = thread_build_seconds() - built
         settings = settings_from_args(args, source.width, source.height)
+        reference = load_reference(args, source, settings)
         labels = RenderLabels(label, runtime.describe(), max_depth)
-    progress = ProgressBar(f"{label} {settings.width}x{settings.height}")
+    progress = ProgressBar(
+        f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
+    )
     try:
         result = render(runtime, source, settings, progress)
     finally:
         progress.close()
+    result.stats.setup_compile_seconds = setup_compile
     if result.stats.interrupted and result.film.rendered_count == 0:
         # Nothing to save: an all-black partial image would replace the previous one
         signum = interrupts.last_signal()
@@ -377,11 +485,39 @@ def command_render(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return interrupts.exit_status(signum)
+    errors = reference_errors(result, reference)
     with interrupts.signals_held() as held:
-        write_outputs(result, labels, paths)
-    print("\n".join(summary_lines(result, labels)))
-    print(f"wrote {paths.exr} and {paths.png}")
+        write_outputs(result, labels, paths, errors)
+    outputs = {name: pair for name, pair in zip(result.films, paths.values(), strict=True)}
+    if args.json:
+        summary = summary_json(result, labels, outputs, errors, reference and reference.label)
+        print(json.dumps(summary, indent=1))
+    elif not args.quiet:
+        print("\n".join(summary_lines(result, labels) + error_lines(errors, result, reference)))
+        for pair in outputs.values():
+            print(f"wrote {pair.exr} and {pair.png}")
     return exit_status(args, result, held)
+
+
+def command_scenes(args: argparse.Namespace) -> int:
+    """The shipped scenes (name, size, the first sentence of their description) and the
+    analytic images."""
+    import textwrap
+
+    from clrender.analytic import ANALYTIC_KINDS
+    from clrender.scene import list_scenes, load_scene
+
+    print("shipped scenes (python -m clrender render NAME):")
+    for name in list_scenes():
+        scene = load_scene(name)
+        width, height = scene.camera.resolution
+        text = " ".join(scene.description.split())
+        first = text.split(". ")[0].rstrip(".") + "." if text else "(no description)"
+        line = f"  {name:20s} {width}x{height}  {first}"
+        print(textwrap.fill(line, 100, subsequent_indent=" " * 34))
+    kinds = "|".join(ANALYTIC_KINDS)
+    print(f"analytic images with exact pixel integrals: analytic[:{kinds}] (default size 64x64)")
+    return 0
 
 
 def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> int:
@@ -415,6 +551,7 @@ def command_compare(args: argparse.Namespace) -> int:
 COMMANDS = {
     "devices": command_devices,
     "render": command_render,
+    "scenes": command_scenes,
     "compare": command_compare,
     None: command_devices,
 }

@@ -78,7 +78,7 @@ def render_metadata(
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
     for key, value in (errors or {}).items():
-        if value is not None:
+        if value is not None and key != "summary":
             metadata[f"error_{key}"] = value
     return metadata
 
@@ -144,3 +144,53 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
         f"unresolved (mc fallback); non-finite samples: {stats.nonfinite_samples}, "
         f"flagged pixels: {film.flagged_count}",
     ]
+
+
+def summary_json(
+    result: RenderResult,
+    labels: RenderLabels,
+    outputs: dict,
+    errors: dict[str, dict],
+    reference: str | None,
+) -> dict[str, object]:
+    """The closing summary as JSON-ready data: the render's settings and status, its timings
+    split by stage, and per estimator its files, its EXR metadata and its errors against the
+    reference (None without one, or for a partial render)."""
+    settings, stats = result.settings, result.stats
+    timings = {
+        "wall_s": stats.wall_seconds,
+        "run_s": stats.run_seconds,
+        "compile_s": stats.compile_seconds,
+        "setup_compile_s": stats.setup_compile_seconds,
+        "device_s": stats.device_seconds,
+        **{f"{stage}_s": stats.stage_seconds[stage] for stage in DEVICE_STAGES},
+        "host_s": stats.host_seconds,
+        "estimators_s": dict(stats.estimator_seconds),
+        "redraw_host_s": stats.redraw_host_seconds,
+    }
+    images = {}
+    for name, pair in outputs.items():
+        measured = errors.get(name)
+        images[name] = {
+            "exr": str(pair.exr),
+            "png": str(pair.png),
+            "metadata": render_metadata(result, labels, name, measured),
+            "errors": None
+            if measured is None
+            else {key: value for key, value in measured.items() if key != "summary"},
+        }
+    return {
+        "status": "interrupted" if stats.interrupted else "done",
+        "scene": labels.scene,
+        "width": settings.width,
+        "height": settings.height,
+        "spp": settings.sampler.n,
+        "sampler": settings.sampler.name,
+        "estimators": [entry.name for entry in settings.estimators],
+        "seed": settings.seed,
+        "device": labels.device,
+        "paths_per_second": stats.traced_samples / stats.run_seconds if stats.run_seconds else 0,
+        "timings": timings,
+        "reference": reference,
+        "images": images,
+    }
