@@ -48,6 +48,7 @@ from clrender.errors import ClrenderError, ParameterError
 
 RELATIVE_OFFSET = 0.01  # the relMSE denominator's (|r| + 0.01)^2, pbrt-v4's
 NOISE_ATTRIBUTE = "noise_mse"  # the reference's own noise, in its EXR metadata
+ERROR_BLOCK_VALUES = 1 << 18  # values per block of the error sums (2 MB float64 temporaries)
 MAP_DECADES = 4  # the preview's log scale spans this many decades of relative squared error
 EXR_MAGIC = b"\x76\x2f\x31\x01"  # the first four bytes of every OpenEXR file
 # The preview's colour ramp (a black-purple-orange-yellow heat scale): display (sRGB-encoded)
@@ -116,8 +117,14 @@ class ImageErrors:
 
 
 def checked_pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both arrays as float64, checked: (H, W, 3) RGB, the same shape, finite, not empty;
-    ParameterError otherwise."""
+    """Both arrays as float64, checked (see checked_arrays)."""
+    image, reference = checked_arrays(image, reference)
+    return image.astype(np.float64), reference.astype(np.float64)
+
+
+def checked_arrays(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both arrays, checked: (H, W, 3) RGB, the same shape, finite, not empty; ParameterError
+    otherwise."""
     arrays = []
     for role, array in (("image", image), ("reference", reference)):
         array = np.asarray(array)
@@ -137,7 +144,7 @@ def checked_pair(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, 
         bad = nonfinite_pixels(array)
         if bad:
             raise ParameterError(f"the {role} has {bad} pixels with NaN or infinite values")
-    return image.astype(np.float64), reference.astype(np.float64)
+    return image, reference
 
 
 def nonfinite_pixels(pixels: np.ndarray) -> int:
@@ -161,16 +168,24 @@ def image_errors(
     """The errors of an (H, W, 3) image against an (H, W, 3) reference, in float64.
     reference_noise: the reference's own noise (the mean per-pixel variance of its estimator),
     if known. ParameterError on a wrong shape, differing shapes or NaN/infinite values."""
-    image, reference = checked_pair(image, reference)
+    image, reference = checked_arrays(image, reference)
     if reference_noise is not None:
         reference_noise = checked_noise(reference_noise)
-    squared = squared_errors(image, reference)
-    per_channel = squared.mean(axis=(0, 1))
+    # Sums over blocks of rows: float64 temporaries of a block, not of the whole image
+    squared_sum, relative_sum = np.zeros(3), 0.0
+    rows = max(1, ERROR_BLOCK_VALUES // (3 * image.shape[1]))
+    for top in range(0, image.shape[0], rows):
+        block = np.asarray(reference[top : top + rows], np.float64)
+        squared = squared_errors(np.asarray(image[top : top + rows], np.float64), block)
+        squared_sum += squared.sum(axis=(0, 1))
+        relative_sum += float(relative_squared_errors(squared, block).sum())
+    pixels = image.shape[0] * image.shape[1]
+    per_channel = squared_sum / pixels
     return ImageErrors(
-        mse=float(squared.mean()),
-        rel_mse=float(relative_squared_errors(squared, reference).mean()),
+        mse=float(per_channel.mean()),
+        rel_mse=relative_sum / (3 * pixels),
         mse_per_channel=(float(per_channel[0]), float(per_channel[1]), float(per_channel[2])),
-        pixels=image.shape[0] * image.shape[1],
+        pixels=pixels,
         reference_noise=reference_noise,
     )
 

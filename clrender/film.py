@@ -25,8 +25,9 @@ UNRENDERED_VALUE = 0.0
 # Host bytes a pixel takes from render to written files: the film (float32 RGB and two flags),
 # the image handed to the writers, its EXR read-back check, the PNG's bytes and rows.
 HOST_BYTES_PER_PIXEL = 12 + 2 + 12 + 12 + 7
-# ... and the layers: samples, redraws, variance (RGB), each kept and written once
-LAYER_BYTES_PER_PIXEL = 4 + 4 + 12
+# ... and the layers (samples, redraws, RGB variance: 20 B), their EXR channels as written and
+# read back (2 x 24 B) and the flags as a uint32 channel, once per render
+LAYER_BYTES_PER_PIXEL = 20 + 2 * 24 + 4
 
 
 def physical_memory() -> int | None:
@@ -44,7 +45,7 @@ def check_image_memory(
     and their written copy) need more host memory than the machine has (the render would fail
     deep inside an allocation)."""
     memory = physical_memory() if memory is None else memory
-    per_pixel = HOST_BYTES_PER_PIXEL * estimators + 2 * LAYER_BYTES_PER_PIXEL
+    per_pixel = HOST_BYTES_PER_PIXEL * estimators + LAYER_BYTES_PER_PIXEL
     need = width * height * per_pixel
     if memory is not None and need > memory:
         raise ParameterError(

@@ -47,7 +47,7 @@ def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_p
         str(out),
     )
     assert status == 0
-    assert "done: 384/384 pixels" in stdout and "host Voronoi" in stdout
+    assert "done: 384/384 pixels" in stdout and "host estimators" in stdout
     pixels, meta = read_exr(out)
     assert pixels.shape == (16, 24, 3) and np.isfinite(pixels).all() and pixels.min() > 0
     assert meta["scene"] == "analytic:mix" and meta["spp"] == 16 and meta["seed"] == 7
