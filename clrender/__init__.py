@@ -5,7 +5,9 @@
     scene = clrender.load_scene("cornell-box")
     result = clrender.render(scene, spp=64, estimator="vor_sn", resolution=64)
     result.image  # (64, 64, 3) float32 linear RGB
+    clrender.preview(result)  # a tone-mapped sRGB preview (a PIL image: notebooks show it)
 
+clrender.image_errors(image, reference) gives MSE and relative MSE (clrender.compare).
 clrender.ESTIMATORS lists every pixel estimator (clrender.estimators.registry); errors a user
 can fix are clrender.ClrenderError with a one-line message.
 """
@@ -13,7 +15,16 @@ can fix are clrender.ClrenderError with a one-line message.
 from clrender.errors import ClrenderError, ParameterError
 
 __version__ = "0.1.0"
-__all__ = ["ESTIMATORS", "ClrenderError", "ParameterError", "__version__", "load_scene", "render"]
+__all__ = [
+    "ESTIMATORS",
+    "ClrenderError",
+    "ParameterError",
+    "__version__",
+    "image_errors",
+    "load_scene",
+    "preview",
+    "render",
+]
 
 # The front door is imported on first use, so that `python -m clrender` can set up the process
 # (one BLAS thread, clrender/__main__.py) before NumPy loads.
@@ -21,6 +32,8 @@ _LAZY = {
     "load_scene": "clrender.api",
     "render": "clrender.api",
     "ESTIMATORS": "clrender.estimators",
+    "image_errors": "clrender.compare",
+    "preview": "clrender.display",
 }
 
 

@@ -266,6 +266,16 @@ class RenderResult:
         """Every estimator's image, by name, in the order they were named."""
         return {name: film.image() for name, film in self.films.items()}
 
+    def _repr_png_(self) -> bytes:
+        """Jupyter's rich display: every estimator's image, named (clrender.display)."""
+        import io
+
+        from clrender.display import preview
+
+        buffer = io.BytesIO()
+        preview(self).save(buffer, format="PNG")
+        return buffer.getvalue()
+
 
 @dataclass
 class TileSamples:
