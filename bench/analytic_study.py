@@ -1,6 +1,7 @@
 """Analytic study of the pixel estimators: the paper's Table 2, Figure 2 and Figure 3.
 
     python bench/analytic_study.py [--quick] [--out DIR] [--runs R] [--sweep-runs R2]
+        [--n 4096] [--sweep-n 32 64 ...]
 
 Integrates the six functions of the paper's Table 1 over W = [-1/2, 1/2]^2 (exact integrals
 from NOTES.md) with every per-pixel estimator of clrender.estimators, from SPPP sample sets drawn
@@ -440,6 +441,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--sweep-runs", type=int, default=None, help="runs per n for Figure 2 (default 1000)"
     )
     parser.add_argument("--n", type=int, default=None, help="Table 2 intensity (default 4096)")
+    parser.add_argument(
+        "--sweep-n",
+        type=int,
+        nargs="+",
+        default=None,
+        help="intensities of Figures 2 and 3 (default 32 64 ... 16384; --quick: 32 ... 256)",
+    )
     parser.add_argument("--seed", type=int, default=2025)
     return parser.parse_args(argv)
 
@@ -450,7 +458,7 @@ def main(argv=None) -> None:
     table_n = args.n or (256 if quick else 4096)
     runs = args.runs or (100 if quick else 10_000)
     sweep_runs = args.sweep_runs or (40 if quick else 1000)
-    sweep_ns = [2**k for k in range(5, 9 if quick else 15)]
+    sweep_ns = args.sweep_n or [2**k for k in range(5, 9 if quick else 15)]
     timing_pixels = 5 if quick else 20
     slope_n_min = 64 if quick else 256
     rng = np.random.default_rng(args.seed)
