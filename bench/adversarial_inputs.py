@@ -1,6 +1,7 @@
-"""Adversarial inputs (issue 12): the catalog of bench/adversarial_catalog.py (bad scene files,
-command-line values, Python API misuse, signals, a full disk) run against a chosen checkout of
-clrender as a user would run it, each outcome classified, tables before and after.
+"""Adversarial inputs run against a chosen checkout of clrender as a user would run it.
+
+The catalog of bench/adversarial_catalog.py (bad scene files, command-line values, Python API
+misuse, signals, a full disk), each case's outcome classified, tables before and after.
 
     python bench/adversarial_inputs.py                          # this repository, every kind
     python bench/adversarial_inputs.py --checkout /work/wt-before --label before

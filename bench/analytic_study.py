@@ -1,6 +1,7 @@
 """Analytic study of the pixel estimators: the paper's Table 2, Figure 2 and Figure 3.
 
     python bench/analytic_study.py [--quick] [--out DIR] [--runs R] [--sweep-runs R2]
+        [--n 4096] [--sweep-n 32 64 ...]
 
 Integrates the six functions of the paper's Table 1 over W = [-1/2, 1/2]^2 (exact integrals
 from NOTES.md) with every per-pixel estimator of clrender.estimators, from SPPP sample sets drawn
@@ -8,10 +9,13 @@ by the NumPy reference generator; rejected pixels are redrawn by
 clrender.estimators.estimate_with_redraw.
 All six functions are value columns of the same draws, so each tessellation serves all six.
 
-Outputs (default bench/results/analytic/): results.json (every number), report.md (tables),
-table2.png, fig2_<function>.png (mean +- std and std against n), fig3_<function>.png (RMSE
-against time per estimate). Times are per estimate, one core, excluding sample drawing and
-function evaluation (the estimator alone: tessellation + weighted sums).
+Outputs (default bench/results/analytic/): results.json (every number), report.md (tables and
+the figures with their captions), table2.png, fig2_<function>.png (mean +- std and std against
+n), fig3_<function>.png (RMSE against time per estimate). Times are per estimate, one core,
+excluding sample drawing and function evaluation (the estimator alone: tessellation + weighted
+sums). Error bars on std and RMSE: 95 % percentile bootstrap intervals over the runs
+(bench/bootstrap.py). The paper's Table 2 is at n = 4096 over 10 000 runs; a run at another n
+(--quick: 256) says so beside the paper's columns.
 """
 
 from __future__ import annotations
@@ -32,6 +36,14 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from bootstrap import statistic_interval  # noqa: E402
+from figures import (  # noqa: E402
+    SAVE_OPTIONS,
+    caption,
+    draw_caption,
+    legend_beside,
+    report_caption,
+)
 
 from clrender.estimators import ESTIMATORS, estimate, estimate_with_redraw  # noqa: E402
 from clrender.sppp import draw_sppp  # noqa: E402
@@ -67,6 +79,8 @@ FUNCTIONS = {
 HOLDER_EXPONENT = {"holder_1": 1.0, "holder_0.5": 0.5, "holder_0.1": 0.1, "holder_0.01": 0.01}
 
 # The paper's Table 2 (std over 10 000 runs at n = 4096; ms per estimate on their machine).
+PAPER_TABLE2_N = 4096
+PAPER_TABLE2_RUNS = 10_000
 PAPER_TABLE2 = {
     "holder_1": (0.00086, 0.000171, 0.000167, 2.28, 201.97, 149.87),
     "holder_0.5": (0.001786, 0.000291, 0.000292, 4.04, 204.82, 150.30),
@@ -138,18 +152,34 @@ def time_estimators(n: int, pixels: int, rng: np.random.Generator, repeats: int 
     return times
 
 
-def summarise(estimates: np.ndarray, exact: np.ndarray) -> dict:
-    """Per function: mean, std, bias, standard error, RMSE, IQR (NaN-free columns)."""
+BOOTSTRAP = 1000  # resamples of the runs behind each error bar
+
+
+def std_of(runs: np.ndarray, axis: int = 0) -> np.ndarray:
+    return np.std(runs, axis=axis, ddof=1)
+
+
+def rms_of(errors: np.ndarray, axis: int = 0) -> np.ndarray:
+    return np.sqrt(np.mean(errors**2, axis=axis))
+
+
+def summarise(estimates: np.ndarray, exact: np.ndarray, rng: np.random.Generator) -> dict:
+    """Per function: mean, std, bias, standard error, RMSE, IQR (NaN-free columns), and the
+    95 % bootstrap intervals over the runs of the std and the RMSE (std_ci, rmse_ci: (low,
+    high) per function)."""
     runs = len(estimates)
     mean = estimates.mean(axis=0)
-    std = estimates.std(axis=0, ddof=1)
+    std = std_of(estimates)
     q75, q25 = np.percentile(estimates, [75, 25], axis=0)
+    errors = estimates - exact
     return {
         "mean": mean,
         "std": std,
+        "std_ci": np.stack(statistic_interval(estimates, std_of, rng, resamples=BOOTSTRAP), -1),
         "bias": mean - exact,
         "se": std / math.sqrt(runs),
-        "rmse": np.sqrt(((estimates - exact) ** 2).mean(axis=0)),
+        "rmse": rms_of(errors),
+        "rmse_ci": np.stack(statistic_interval(errors, rms_of, rng, resamples=BOOTSTRAP), -1),
         "iqr": q75 - q25,
     }
 
@@ -173,19 +203,36 @@ def predicted_slope(function: str, estimator: str) -> float | None:
 
 
 def to_lists(summary: dict) -> dict:
-    return {key: [float(v) for v in value] for key, value in summary.items()}
+    return {key: np.asarray(value, dtype=float).tolist() for key, value in summary.items()}
 
 
 # ---------------------------------------------------------------------------------------------
 # Reports
 
 
+def paper_columns_note(runs: int, n: int) -> str:
+    """What the paper's columns are, and whether this run's n and runs match them."""
+    paper = f"n = {PAPER_TABLE2_N}, {PAPER_TABLE2_RUNS} runs"
+    if n == PAPER_TABLE2_N:
+        return f"The paper's columns are at the same n ({paper})."
+    return (
+        f"**This run is at n = {n} ({runs} runs); the paper's columns are at {paper}**: "
+        f"they are quoted for reference and are not comparable value for value (std falls "
+        f"with n, by about (n / {PAPER_TABLE2_N})^(1/2) for mc and faster for the Voronoi "
+        "estimators)."
+    )
+
+
 def table2_markdown(table: dict, runs: int, n: int) -> str:
+    paper = f"n = {PAPER_TABLE2_N}"
     lines = [
-        f"## Table 2: std over {runs} runs at n = {n} (bias +- standard error; "
-        "ms per estimate, this machine, one core)",
+        f"## Table 2: std over {runs} runs at n = {n} (95 % bootstrap interval; bias +- "
+        "standard error; ms per estimate, this machine, one core)",
         "",
-        "| function | estimator | std | bias +- se | IQR | ms | paper std | paper ms |",
+        paper_columns_note(runs, n),
+        "",
+        f"| function | estimator | std at n = {n} [95 %] | bias +- se | IQR | ms | "
+        f"paper std ({paper}) | paper ms ({paper}) |",
         "|---|---|---|---|---|---|---|---|",
     ]
     paper_columns = {"mc_n": 0, "vor_sn": 1, "fvor": 2}
@@ -200,7 +247,8 @@ def table2_markdown(table: dict, runs: int, n: int) -> str:
             )
             paper_ms = f"{paper[column + 3]:.1f}" if column is not None else ""
             lines.append(
-                f"| {function} | {estimator} | {row['std']:.3g} | "
+                f"| {function} | {estimator} | {row['std']:.3g} "
+                f"[{row['std_ci'][0]:.3g}, {row['std_ci'][1]:.3g}] | "
                 f"{row['bias']:+.2e} +- {row['se']:.1e} | {row['iqr']:.3g} | "
                 f"{row['ms']:.2f} | {paper_std} | {paper_ms} |"
             )
@@ -238,66 +286,146 @@ def slopes_markdown(slopes: dict, n_min: int) -> str:
     return "\n".join(lines)
 
 
-def plot_sweep(sweep: dict, out: Path) -> None:
+def figure_caption(figure: str, config: dict, function: str | None = None) -> str:
+    """Every parameter of one of the study's figures ("table2", "fig2" or "fig3")."""
+    what = {
+        "table2": f"Table 2 as bars: std of each per-pixel estimator at n = {config['table_n']}",
+        "fig2": f"Figure 2, {function}: mean +- std (left) and std (right) against n",
+        "fig3": f"Figure 3, {function}: RMSE against time per estimate",
+    }[figure]
+    runs = (
+        f"{config['runs']} at n = {config['table_n']}"
+        if figure == "table2"
+        else f"{config['sweep_runs']} per n, n = {', '.join(str(n) for n in config['sweep_n'])}"
+    )
+    return caption(
+        what,
+        {
+            "function": None
+            if function is None
+            else f"{function} over W = [-1/2, 1/2]^2, exact integral "
+            f"{config['exact'][function]:.6g}",
+            "functions": "the six of the paper's Table 1 over W" if function is None else None,
+            "runs (independent pixels)": runs,
+            "sampler": "SPPP draws of the NumPy reference generator, rejected pixels redrawn",
+            "estimators": ", ".join(ESTIMATOR_NAMES),
+            "error bars": f"95 % percentile bootstrap interval over the runs ({BOOTSTRAP} "
+            "resamples)"
+            if figure != "fig2"
+            else f"std: 95 % percentile bootstrap interval over the runs ({BOOTSTRAP} "
+            "resamples); mean: band of +- 1 std",
+            "times": f"median of 3 calls on {config['timing_pixels']} pixels, estimator only"
+            if figure == "fig3"
+            else None,
+            "seed": config["seed"],
+            "device": "host, one core (NumPy and Qhull)",
+            "paper": f"Table 2 at n = {PAPER_TABLE2_N}, {PAPER_TABLE2_RUNS} runs (not drawn)"
+            if figure == "table2"
+            else None,
+        },
+    )
+
+
+def interval_bars(values, intervals) -> np.ndarray:
+    """(2, k) distances below and above each value of its interval, for errorbar's yerr."""
+    values, intervals = np.asarray(values), np.asarray(intervals)
+    return np.maximum(np.stack([values - intervals[:, 0], intervals[:, 1] - values]), 0.0)
+
+
+def save_figure(fig, path: Path) -> None:
+    fig.savefig(path, dpi=110, **SAVE_OPTIONS)
+    plt.close(fig)
+
+
+def plot_sweep(sweep: dict, out: Path, config: dict) -> None:
     ns = sweep["n"]
     for f_index, function in enumerate(FUNCTIONS):
         exact = FUNCTIONS[function][1]
-        fig, (ax_mean, ax_std) = plt.subplots(1, 2, figsize=(12, 4.5))
+        fig, axes = plt.subplots(1, 2, figsize=(13, 5), layout="constrained")
+        ax_mean, ax_std = axes
         for name in ESTIMATOR_NAMES:
             mean = np.array([s[name]["mean"][f_index] for s in sweep["summaries"]])
             std = np.array([s[name]["std"][f_index] for s in sweep["summaries"]])
+            ci = [s[name]["std_ci"][f_index] for s in sweep["summaries"]]
             (line,) = ax_mean.plot(ns, mean, label=name)
             ax_mean.fill_between(ns, mean - std, mean + std, color=line.get_color(), alpha=0.15)
-            ax_std.loglog(ns, std, marker="o", ms=3, label=name)
+            ax_std.errorbar(
+                ns, std, yerr=interval_bars(std, ci), marker="o", ms=3, capsize=2, label=name
+            )
         ax_mean.axhline(exact, color="k", lw=0.8, ls="--", label="exact")
         ax_mean.set_xscale("log", base=2)
-        ax_mean.set(
-            xlabel="n (samples per pixel)", ylabel="estimate", title=f"{function}: mean +- std"
-        )
-        ax_std.set(xlabel="n", ylabel="std", title=f"{function}: std against n")
-        ax_mean.legend(fontsize=7)
-        ax_std.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / f"fig2_{function}.png", dpi=110)
-        plt.close(fig)
+        ax_std.set_xscale("log", base=2)
+        ax_std.set_yscale("log")
+        ax_mean.set(xlabel="n (samples per pixel)", ylabel="estimate", title="mean +- std")
+        ax_std.set(xlabel="n", ylabel="std", title="std against n")
+        legend_beside(fig, axes)
+        draw_caption(fig, figure_caption("fig2", config, function), width=160)
+        save_figure(fig, out / f"fig2_{function}.png")
 
 
-def plot_efficiency(sweep: dict, out: Path) -> None:
+def plot_efficiency(sweep: dict, out: Path, config: dict) -> None:
     for f_index, function in enumerate(FUNCTIONS):
-        fig, ax = plt.subplots(figsize=(6, 4.5))
+        fig, ax = plt.subplots(figsize=(8, 5.5), layout="constrained")
         for name in ESTIMATOR_NAMES:
             rmse = [s[name]["rmse"][f_index] for s in sweep["summaries"]]
+            ci = [s[name]["rmse_ci"][f_index] for s in sweep["summaries"]]
             ms = [t[name] for t in sweep["ms"]]
-            ax.loglog(ms, rmse, marker="o", ms=3, label=name)
+            ax.errorbar(
+                ms, rmse, yerr=interval_bars(rmse, ci), marker="o", ms=3, capsize=2, label=name
+            )
         ax.set(
+            xscale="log",
+            yscale="log",
             xlabel="ms per estimate (estimator only, one core)",
             ylabel="RMSE",
-            title=f"{function}: error against time",
+            title="error against time",
         )
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out / f"fig3_{function}.png", dpi=110)
-        plt.close(fig)
+        legend_beside(fig, [ax])
+        draw_caption(fig, figure_caption("fig3", config, function), width=100)
+        save_figure(fig, out / f"fig3_{function}.png")
 
 
-def plot_table2(table: dict, out: Path) -> None:
-    fig, ax = plt.subplots(figsize=(10, 4.5))
+def plot_table2(table: dict, out: Path, config: dict) -> None:
+    fig, ax = plt.subplots(figsize=(11, 5), layout="constrained")
     width = 0.8 / len(ESTIMATOR_NAMES)
     functions = list(table)
     for i, name in enumerate(ESTIMATOR_NAMES):
+        std = [table[f][name]["std"] for f in functions]
         ax.bar(
             np.arange(len(functions)) + i * width,
-            [table[f][name]["std"] for f in functions],
+            std,
             width,
+            yerr=interval_bars(std, [table[f][name]["std_ci"] for f in functions]),
+            capsize=1.5,
             label=name,
         )
     ax.set_yscale("log")
     ax.set_xticks(np.arange(len(functions)) + 0.4, functions, fontsize=8)
-    ax.set(ylabel="std", title="Table 2: std per estimator")
-    ax.legend(fontsize=7, ncol=4)
-    fig.tight_layout()
-    fig.savefig(out / "table2.png", dpi=110)
-    plt.close(fig)
+    ax.set(ylabel=f"std at n = {config['table_n']}", title="Table 2: std per estimator")
+    legend_beside(fig, [ax])
+    draw_caption(fig, figure_caption("table2", config), width=140)
+    save_figure(fig, out / "table2.png")
+
+
+def figures_markdown(config: dict) -> str:
+    """The figures with their captions, for the report."""
+    lines = [
+        "## Figures",
+        "",
+        "![table2](table2.png)",
+        "",
+        report_caption(figure_caption("table2", config)),
+        "",
+    ]
+    for function in FUNCTIONS:
+        for figure in ("fig2", "fig3"):
+            lines += [
+                f"![{figure} {function}]({figure}_{function}.png)",
+                "",
+                report_caption(figure_caption(figure, config, function)),
+                "",
+            ]
+    return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -313,6 +441,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--sweep-runs", type=int, default=None, help="runs per n for Figure 2 (default 1000)"
     )
     parser.add_argument("--n", type=int, default=None, help="Table 2 intensity (default 4096)")
+    parser.add_argument(
+        "--sweep-n",
+        type=int,
+        nargs="+",
+        default=None,
+        help="intensities of Figures 2 and 3 (default 32 64 ... 16384; --quick: 32 ... 256)",
+    )
     parser.add_argument("--seed", type=int, default=2025)
     return parser.parse_args(argv)
 
@@ -323,10 +458,12 @@ def main(argv=None) -> None:
     table_n = args.n or (256 if quick else 4096)
     runs = args.runs or (100 if quick else 10_000)
     sweep_runs = args.sweep_runs or (40 if quick else 1000)
-    sweep_ns = [2**k for k in range(5, 9 if quick else 15)]
+    sweep_ns = args.sweep_n or [2**k for k in range(5, 9 if quick else 15)]
     timing_pixels = 5 if quick else 20
     slope_n_min = 64 if quick else 256
     rng = np.random.default_rng(args.seed)
+    # The error bars' resampling has its own stream: the draws do not depend on it
+    boot_rng = np.random.default_rng([args.seed, 1])
     exact = np.array([e for _, e in FUNCTIONS.values()])
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -338,8 +475,8 @@ def main(argv=None) -> None:
     for f_index, function in enumerate(FUNCTIONS):
         table[function] = {}
         for name in ESTIMATOR_NAMES:
-            s = summarise(estimates[name], exact)
-            table[function][name] = {key: float(v[f_index]) for key, v in s.items()}
+            s = summarise(estimates[name], exact, boot_rng)
+            table[function][name] = {key: np.asarray(v)[f_index].tolist() for key, v in s.items()}
             table[function][name]["ms"] = table_ms[name]
     print(table2_markdown(table, runs, table_n))
     print(f"redraw statistics: {redraw_stats}; Table 2 took {time.perf_counter() - start:.0f} s")
@@ -349,7 +486,10 @@ def main(argv=None) -> None:
     for n in sweep_ns:
         estimates_n, stats_n = run_estimates(n, sweep_runs, rng)
         sweep["summaries"].append(
-            {name: to_lists(summarise(estimates_n[name], exact)) for name in ESTIMATOR_NAMES}
+            {
+                name: to_lists(summarise(estimates_n[name], exact, boot_rng))
+                for name in ESTIMATOR_NAMES
+            }
         )
         sweep["ms"].append(time_estimators(n, timing_pixels, rng))
         sweep["redraw_stats"].append(stats_n)
@@ -365,9 +505,6 @@ def main(argv=None) -> None:
             }
     print(slopes_markdown(slopes, slope_n_min))
 
-    plot_table2(table, args.out)
-    plot_sweep(sweep, args.out)
-    plot_efficiency(sweep, args.out)
     config = {
         "table_n": table_n,
         "runs": runs,
@@ -379,6 +516,9 @@ def main(argv=None) -> None:
         "timing_pixels": timing_pixels,
         "exact": dict(zip(FUNCTIONS, exact.tolist(), strict=True)),
     }
+    plot_table2(table, args.out, config)
+    plot_sweep(sweep, args.out, config)
+    plot_efficiency(sweep, args.out, config)
     results = {
         "config": config,
         "table2": table,
@@ -397,6 +537,8 @@ def main(argv=None) -> None:
         table2_markdown(table, runs, table_n),
         "",
         slopes_markdown(slopes, slope_n_min),
+        "",
+        figures_markdown(config),
     ]
     (args.out / "report.md").write_text("\n".join(report) + "\n")
     print(f"wrote {args.out}/results.json, report.md and PNG charts")

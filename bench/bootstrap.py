@@ -1,5 +1,7 @@
-"""Bootstrap intervals of a ratio of two samples' statistics, through scipy.stats.bootstrap: the
-pixel study's variance ratios and the stability study's error ratios.
+"""Bootstrap intervals through scipy.stats.bootstrap: of a ratio of two samples' statistics (the
+pixel study's variance ratios, the stability study's error ratios, the efficiency study's MSE
+ratios over seeds) and of one sample's statistic (the error bars of the analytic and pixel
+studies' std, RMSE and variance points).
 
 Percentile intervals, not BCa: BCa's acceleration is a jackknife estimate, and the jackknife
 is inconsistent for the median, one of the stability study's two metrics; it also costs R
@@ -54,3 +56,30 @@ def ratio_interval(
         )
     interval = result.confidence_interval
     return float(ratio(a, b)), float(interval.low), float(interval.high)
+
+
+def statistic_interval(
+    sample: np.ndarray,
+    statistic: Statistic,
+    rng: np.random.Generator,
+    *,
+    resamples: int,
+    axis: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The 95 % percentile bootstrap interval (low, high) of statistic(sample) along `axis`
+    (the runs), from `resamples` resamples of the runs with replacement; one interval per
+    remaining index (e.g. per function column)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        result = bootstrap(
+            (sample,),
+            statistic,
+            n_resamples=resamples,
+            batch=BATCH,
+            vectorized=True,
+            axis=axis,
+            confidence_level=CONFIDENCE,
+            method="percentile",
+            rng=rng,
+        )
+    interval = result.confidence_interval
+    return np.asarray(interval.low), np.asarray(interval.high)

@@ -8,8 +8,11 @@ brightest pixel of a short render among pixels seeing the glossy box). For each 
 one SPPP sample set (redrawn while a W nucleus has an unbounded cell, as the renderer does),
 traced; Voronoi cells of W + auxiliary nuclei from scipy.spatial.Voronoi, clipped to W' for
 display; each W nucleus' cell filled with its sample's radiance (sRGB of RGB clamped to
-[0, 1]), auxiliary cells outlined only, auxiliary nuclei in blue, the pixel border W in red and
-W' dashed. The title gives the pixel's mc and vor_sn estimates (RGB mean).
+[0, 1]) and outlined in black, cells whose radiance was clamped (brighter than display white,
+such as the light's) hatched as well; auxiliary cells outlined in white only, over a blue
+background (BACKGROUND) that no radiance colour of white or grey takes, so the light's white
+cells stand out from it; auxiliary nuclei in navy, the pixel border W in red and W' dashed. The
+title gives the pixel's mc and vor_sn estimates (RGB mean); the caption every parameter.
 Outputs (default bench/results/cells_figure/): cells_<pixel>_n<n>.png, cells.png (all).
 """
 
@@ -23,9 +26,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import RESULTS, make_source, make_tracer, timed_render  # noqa: E402
+from common import MAX_DEPTH, RESULTS, make_source, make_tracer, timed_render  # noqa: E402
+from figures import SAVE_OPTIONS, caption, draw_caption  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
+from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from scipy.spatial import Voronoi  # noqa: E402
 
 from clrender.estimators import estimate_all  # noqa: E402
@@ -42,6 +46,10 @@ from clrender.samples import SampleSets  # noqa: E402
 from clrender.sampling import make_sampler  # noqa: E402
 
 MAX_REDRAWS = 20
+# Behind the cells: a mid blue, far from the white of the light's cells and from the black and
+# greys of unlit ones.
+BACKGROUND = "#8fb0d0"
+CLAMPED_HATCH = "////"
 
 
 def find_pixels(runtime, size: int) -> list[tuple[str, str, object]]:
@@ -99,17 +107,30 @@ def draw_cells(ax, runs, sampler, estimates: dict, title: str) -> None:
     aux = runs.sets.aux.astype(np.float64)
     box = 0.5 + sampler.eps
     polygons = cell_polygons(np.vstack([traced, aux]), box)
-    colours = srgb_encode(runs.radiance)
+    radiance = np.asarray(runs.radiance, dtype=np.float64)
+    colours = srgb_encode(radiance)
+    clamped = (radiance > 1.0).any(axis=1)
     traced_cells = polygons[: len(traced)]  # all bounded: the draw was accepted
-    ax.add_collection(
-        PolyCollection(traced_cells, facecolors=colours, edgecolors="0.25", linewidths=0.4)
-    )
+    ax.set_facecolor(BACKGROUND)
     aux_cells = [p for p in polygons[len(traced) :] if p is not None and len(p) >= 3]
     ax.add_collection(
-        PolyCollection(aux_cells, facecolors="none", edgecolors="0.7", linewidths=0.4)
+        PolyCollection(aux_cells, facecolors="none", edgecolors="white", linewidths=0.5)
     )
+    ax.add_collection(
+        PolyCollection(traced_cells, facecolors=colours, edgecolors="k", linewidths=0.6)
+    )
+    if clamped.any():
+        ax.add_collection(
+            PolyCollection(
+                [cell for cell, bright in zip(traced_cells, clamped, strict=True) if bright],
+                facecolors="none",
+                edgecolors="0.45",
+                linewidths=0.0,
+                hatch=CLAMPED_HATCH,
+            )
+        )
     ax.plot(traced[:, 0], traced[:, 1], ".", color="k", ms=1.5, label="W nuclei (traced)")
-    ax.plot(aux[:, 0], aux[:, 1], ".", color="tab:blue", ms=3, label="auxiliary nuclei")
+    ax.plot(aux[:, 0], aux[:, 1], ".", color="navy", ms=3, label="auxiliary nuclei")
     ax.add_patch(Rectangle((-0.5, -0.5), 1, 1, fill=False, ec="red", lw=1.5, label="pixel W"))
     ax.add_patch(
         Rectangle((-box, -box), 2 * box, 2 * box, fill=False, ec="0.4", ls="--", lw=0.8, label="W'")
@@ -122,6 +143,33 @@ def draw_cells(ax, runs, sampler, estimates: dict, title: str) -> None:
         f"{title}\nN = {len(traced)}, mc {estimates['mc']:.3f}, vor_sn "
         f"{estimates['vor_sn']:.3f} (RGB mean)",
         fontsize=9,
+    )
+
+
+def legend(ax) -> None:
+    """The legend, with the background and the hatching of clamped cells explained."""
+    handles, _ = ax.get_legend_handles_labels()
+    handles += [
+        Patch(facecolor="white", edgecolor="k", hatch=CLAMPED_HATCH, label="radiance > 1, clamped"),
+        Patch(facecolor=BACKGROUND, edgecolor="white", label="auxiliary cells (outline)"),
+    ]
+    ax.legend(handles=handles, fontsize=7, loc="lower right", framealpha=0.9)
+
+
+def figure_caption(args, device: str) -> str:
+    return caption(
+        "SPPP Voronoi cells of single pixels coloured by traced radiance (the paper's Figure 8)",
+        {
+            "resolution": f"{args.size} x {args.size}",
+            "n (SPPP intensity)": ", ".join(str(n) for n in args.n),
+            "draws": f"one accepted draw per pixel and n (seed {args.seed}, redrawn while a W "
+            "cell is unbounded)",
+            "sampler": "sppp",
+            "estimators in the titles": "mc and vor_sn, RGB mean",
+            "colour": "sRGB of the radiance clamped to [0, 1]",
+            "max depth": MAX_DEPTH,
+            "device": device,
+        },
     )
 
 
@@ -144,7 +192,11 @@ def main(argv=None) -> None:
     pixels = find_pixels(runtime, args.size)
     tracers = {scene: make_tracer(runtime, scene) for scene in {p[1] for p in pixels}}
     fig, axes = plt.subplots(
-        len(args.n), len(pixels), figsize=(5 * len(pixels), 5.2 * len(args.n)), squeeze=False
+        len(args.n),
+        len(pixels),
+        figsize=(5 * len(pixels), 5.2 * len(args.n) + 0.6),
+        squeeze=False,
+        layout="constrained",
     )
     for col, (name, scene, pixel) in enumerate(pixels):
         print(f"{name} ({scene}): {pixel.as_dict()}", flush=True)
@@ -153,15 +205,14 @@ def main(argv=None) -> None:
             title = f"{name} ({pixel.x}, {pixel.y}) of {scene}, n = {n}"
             one, ax = plt.subplots(figsize=(5.5, 5.8))
             draw_cells(ax, *drawn, title)
-            ax.legend(fontsize=7, loc="lower right", framealpha=0.8)
+            legend(ax)
             one.tight_layout()
             one.savefig(args.out / f"cells_{name}_n{n}.png", dpi=110)
             plt.close(one)
             draw_cells(axes[row, col], *drawn, title)
-    axes[0, 0].legend(fontsize=7, loc="lower right", framealpha=0.8)
-    fig.suptitle("Figure 8: SPPP Voronoi cells coloured by traced radiance (sRGB, clamped)")
-    fig.tight_layout()
-    fig.savefig(args.out / "cells.png", dpi=90)
+    legend(axes[0, 0])
+    draw_caption(fig, figure_caption(args, runtime.describe()), width=130)
+    fig.savefig(args.out / "cells.png", dpi=90, **SAVE_OPTIONS)
     plt.close(fig)
     print(f"wrote {args.out}/cells.png and one PNG per pixel and n")
 

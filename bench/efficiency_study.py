@@ -42,8 +42,8 @@ sppp-sobol (they need auxiliary nuclei); pvor over stratified and sobol (the ren
 a random toroidal shift per pixel, which makes it unbiased there); ivor_sn over sppp-sobol and
 sppp (it needs Poisson counts).
 
---perf-ratio: the issue's performance figure. The authors' Cornell box at 256 x 256 and 256
-spp: mc over independent samples against the best Voronoi estimator (by default the one of vor,
+--perf-ratio: the Voronoi-over-mc wall-time figure. The authors' Cornell box at 256 x 256 and
+256 spp: mc over independent samples against the best Voronoi estimator (by default the one of vor,
 vor_sn, fvor, pvor -- the Voronoi estimators the device backend computes -- with the lowest MSE at
 the highest spp of a previous default-mode run on cornell-box, else vor_sn), alternated after
 a warm-up, --repeats times each; medians of wall, device and host seconds and the ratio of
@@ -208,6 +208,7 @@ def study_scene(runtime, scene: str, args, argv, previous=None, save=None) -> di
         },
         "reference": ref_info,
         "reference_noise": float(ref_var.mean()),
+        "device": runtime.describe(),
         "machine_before": before,
         "complete": False,
     }

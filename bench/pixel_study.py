@@ -31,7 +31,9 @@ pixel and spp, each Voronoi estimator over low-discrepancy samples (VORONOI_LD) 
 best low-discrepancy mc (LD_MC, the lowest variance at that spp): var(best) / var(estimator)
 with a 95 % bootstrap interval, the efficiency ratio, and wins / loses / tie. Outputs (default
 bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std against
-spp), fig9_<pixel>.png (time against spp, variance against time).
+spp), fig9_<pixel>.png (time against spp, variance against time, each variance with its 95 %
+bootstrap interval over the R runs: var_ci in results.json), each figure with a caption of its
+parameters (in the figure and under it in the report).
 """
 
 from __future__ import annotations
@@ -42,14 +44,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from bootstrap import ratio_interval  # noqa: E402
+from bootstrap import ratio_interval, statistic_interval  # noqa: E402
 from common import (  # noqa: E402
+    MAX_DEPTH,
     RESULTS,
     command_line,
     machine,
@@ -58,6 +62,7 @@ from common import (  # noqa: E402
     timed_render,
     write_json,
 )
+from figures import SAVE_OPTIONS, caption, draw_caption, report_caption  # noqa: E402
 
 from clrender.estimators import ESTIMATORS, estimate, estimate_all  # noqa: E402
 from clrender.estimators.device_cells import device_sppp_cells_from_arrays  # noqa: E402
@@ -142,6 +147,7 @@ VORONOI_LD = (
     "fvor/sppp-sobol",
 )
 BOOTSTRAP = 2000
+BOOTSTRAP_ERROR_BARS = 1000  # resamples behind a variance's error bar
 # The estimators of SPPP cells (vor, vor_sn, fvor): they reject runs with an unbounded W cell,
 # and the device kernel can compute their cells.
 REJECTING = tuple(name for name, entry in ESTIMATORS.items() if entry.cells == "sppp")
@@ -307,13 +313,17 @@ def pixel_samples(
     return samples, runs.radiance[:traced].mean(axis=1)
 
 
-def summarise(entry: dict) -> dict:
+def summarise(entry: dict, rng: np.random.Generator) -> dict:
+    """Mean, std and variance over the R runs (the variance with its 95 % percentile bootstrap
+    interval over the runs, var_ci), and the times."""
     v = entry["values"]
     total = entry["estimator_ms"] + entry["trace_ms"]
+    low, high = statistic_interval(v, variance, rng, resamples=BOOTSTRAP_ERROR_BARS)
     return {
         "mean": float(v.mean()),
         "std": float(v.std(ddof=1)),
         "var": float(v.var(ddof=1)),
+        "var_ci": [float(low), float(high)],
         "estimator_ms": entry["estimator_ms"],
         "trace_ms": entry["trace_ms"],
         "total_ms": total,
@@ -334,6 +344,7 @@ def device_summary(entry: dict) -> dict:
 def study_pixel(study: Study, scene: str, pixel: ProbePixel) -> tuple[dict, dict]:
     """({spp: {label: summary}}, {spp: {label: values (R,)}}) over the spp list."""
     table, values = {}, {}
+    rng = np.random.default_rng([study.args.seed, 1])  # error bars only: the draws are not its
     for spp in study.args.spp:
         row = {}
         values[spp] = {}
@@ -341,7 +352,7 @@ def study_pixel(study: Study, scene: str, pixel: ProbePixel) -> tuple[dict, dict
             if not usable(group, spp):
                 continue
             for label, entry in study.group(scene, group, spp, pixel.pixel).items():
-                row[label] = summarise(entry)
+                row[label] = summarise(entry, rng)
                 values[spp][label] = entry["values"]
         table[spp] = row
         print(
@@ -440,12 +451,14 @@ def labels_of(table: dict) -> list[str]:
 
 
 def plot_fig6(
-    table: dict, name: str, scene: str, pixel: ProbePixel, reference: float, out: Path
+    table: dict, name: str, scene: str, pixel: ProbePixel, reference: float, args, out: Path
 ) -> None:
     others = [label for label in labels_of(table) if label != BASELINE]
     cols = 4
     rows = math.ceil((len(others) + 1) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.3 * rows), squeeze=False)
+    fig, axes = plt.subplots(
+        rows, cols, figsize=(4 * cols, 3.3 * rows + 0.6), squeeze=False, layout="constrained"
+    )
     for ax, label in zip(axes.flat, others, strict=False):
         for lab, colour in ((BASELINE, "0.4"), (label, "C1")):
             spp, mean = series(table, lab, "mean")
@@ -464,23 +477,30 @@ def plot_fig6(
     ax.legend(fontsize=6)
     for ax in list(axes.flat)[len(others) + 1 :]:
         ax.set_visible(False)
-    fig.suptitle(
-        f"Figure 6: pixel {name} ({pixel.x}, {pixel.y}) of {scene}, mean +- 1 std over R runs"
-    )
-    fig.tight_layout()
-    fig.savefig(out / f"fig6_{name}.png", dpi=100)
+    draw_caption(fig, figure_caption("fig6", name, scene, pixel, args), width=180)
+    fig.savefig(out / f"fig6_{name}.png", dpi=100, **SAVE_OPTIONS)
     plt.close(fig)
 
 
-def plot_fig9(table: dict, name: str, scene: str, pixel: ProbePixel, out: Path) -> None:
-    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(15, 5.5))
+def plot_fig9(table: dict, name: str, scene: str, pixel: ProbePixel, args, out: Path) -> None:
+    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(15, 6), layout="constrained")
     cmap = plt.get_cmap("tab20")
     for i, label in enumerate(labels_of(table)):
         spp, ms = series(table, label, "estimator_ms")
         ax_t.loglog(spp, ms, marker="o", ms=3, color=cmap(i % 20), label=label)
         _, total = series(table, label, "total_ms")
         _, var = series(table, label, "var")
-        ax_v.loglog(total, var, marker="o", ms=3, color=cmap(i % 20), label=label)
+        _, ci = series(table, label, "var_ci")
+        ax_v.errorbar(
+            total,
+            var,
+            yerr=np.maximum(np.stack([var - ci[:, 0], ci[:, 1] - var]), 0.0),
+            marker="o",
+            ms=3,
+            capsize=2,
+            color=cmap(i % 20),
+            label=label,
+        )
         if label.split("/")[0] in REJECTING:
             device_style = dict(
                 marker="x", ms=3, color=cmap(i % 20), label=f"{label}, device cells"
@@ -497,15 +517,49 @@ def plot_fig9(table: dict, name: str, scene: str, pixel: ProbePixel, out: Path) 
         title="(a) estimator time per estimate (Qhull; dotted: device cells)",
     )
     ax_v.set(
+        xscale="log",
+        yscale="log",
         xlabel="ms per estimate (tracing + estimator)",
-        ylabel="variance",
+        ylabel="variance over the runs (95 % bootstrap interval)",
         title="(b) variance against time",
     )
     ax_v.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
-    fig.suptitle(f"Figure 9: pixel {name} ({pixel.x}, {pixel.y}) of {scene}")
-    fig.tight_layout()
-    fig.savefig(out / f"fig9_{name}.png", dpi=100)
+    draw_caption(fig, figure_caption("fig9", name, scene, pixel, args), width=170)
+    fig.savefig(out / f"fig9_{name}.png", dpi=100, **SAVE_OPTIONS)
     plt.close(fig)
+
+
+def figure_caption(figure: str, name: str, scene: str, pixel: ProbePixel, args) -> str:
+    """Every parameter of a pixel's Figure 6 or 9."""
+    what = {
+        "fig6": f"Figure 6, pixel {name}: estimate (mean +- 1 std over the runs) against spp, "
+        f"each configuration beside {BASELINE}, and the std of all",
+        "fig9": f"Figure 9, pixel {name}: estimator time against spp, and variance against "
+        "time per estimate",
+    }[figure]
+    return caption(
+        what,
+        {
+            "scene": scene,
+            "pixel": f"({pixel.x}, {pixel.y}) of {args.size} x {args.size}, {pixel.what}",
+            "spp": ", ".join(str(spp) for spp in args.spp),
+            "runs": f"R = {args.runs} independent estimates per point (seed {args.seed} + a "
+            "per-sampler offset)",
+            "labels": f"estimator/sampler; {BASELINE} is plain Monte Carlo over uniform "
+            "samples, the paper's MC",
+            "value": "mean of RGB",
+            "error bars": f"variance: 95 % percentile bootstrap interval over the runs "
+            f"({BOOTSTRAP_ERROR_BARS} resamples)"
+            if figure == "fig9"
+            else "band: +- 1 std over the runs",
+            "times": f"estimator alone on {args.timing_runs} runs, fastest of >= 3 calls, "
+            "host Qhull cells (dotted: device cells); tracing per run from the launch"
+            if figure == "fig9"
+            else None,
+            "max depth": MAX_DEPTH,
+            "device": args.device,
+        },
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -537,6 +591,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     args.runs = args.runs or (16 if args.quick else 200)
     args.spp = args.spp or ([64, 256] if args.quick else [2**k for k in range(6, 13)])
     return args
+
+
+def pixel_of(entry: dict) -> ProbePixel:
+    """The pixel of a results entry, as figure_caption reads it (x, y, what)."""
+    p = entry["pixel"]
+    return SimpleNamespace(x=p["x"], y=p["y"], what=p["what"])
 
 
 def vs_ld_table(vs: dict) -> str:
@@ -638,7 +698,13 @@ def report(results: dict, args, argv) -> str:
             "",
             vs_ld_table(entry["voronoi_vs_ld"]),
             "",
-            f"![fig6](fig6_{name}.png) ![fig9](fig9_{name}.png)",
+            f"![fig6](fig6_{name}.png)",
+            "",
+            report_caption(figure_caption("fig6", name, entry["scene"], pixel_of(entry), args)),
+            "",
+            f"![fig9](fig9_{name}.png)",
+            "",
+            report_caption(figure_caption("fig9", name, entry["scene"], pixel_of(entry), args)),
             "",
         ]
     return "\n".join(lines)
@@ -648,6 +714,7 @@ def main(argv=None) -> None:
     args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     study = Study(args)
+    args.device = study.runtime.describe()
     start = time.perf_counter()
     results = {
         "settings": {
@@ -657,6 +724,7 @@ def main(argv=None) -> None:
             "spp": args.spp,
             "seed": args.seed,
             "quick": args.quick,
+            "device": args.device,
         },
         "machine_before": machine(),
         "pixels": {},
@@ -678,8 +746,8 @@ def main(argv=None) -> None:
             "efficiency_ratio": efficiency_ratios(table),
             "voronoi_vs_ld": voronoi_vs_ld(table, values, args.seed),
         }
-        plot_fig6(table, name, scene, pixel, ref, args.out)
-        plot_fig9(table, name, scene, pixel, args.out)
+        plot_fig6(table, name, scene, pixel, ref, args, args.out)
+        plot_fig9(table, name, scene, pixel, args, args.out)
     results["machine"] = machine()
     results["seconds"] = time.perf_counter() - start
     write_json(args.out / "results.json", results)

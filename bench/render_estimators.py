@@ -6,7 +6,8 @@
 Takes the cached reference of bench/common.py (4 stratified mc parts, reference-spp in all,
 rendered once and reused), then renders every (estimator, sampler) pair through the full
 pipeline at the same spp for each seed, and reports the mean squared error over the image (all
-channels), its per-seed values, and the host (estimator) time. This is how the render
+channels), its per-seed values and standard error over the seeds, and the host (estimator)
+time. This is how the render
 command's default estimator was chosen. For MSE against wall time at several spp on both
 Cornell boxes see bench/efficiency_study.py. Output: JSON (default
 bench/results/render_estimators.json).
@@ -27,6 +28,7 @@ from common import (
     timed_render,
     write_json,
 )
+from figures import spread
 
 from clrender.runtime import create_runtime
 
@@ -57,19 +59,21 @@ def main(argv=None) -> None:
         renders = [
             timed_render(runtime, source, estimator, sampler, args.spp, seed) for seed in args.seeds
         ]
-        mses = [image_errors(image, ref, ref_var)["mse"] for image, _ in renders]
+        mses = spread([image_errors(image, ref, ref_var)["mse"] for image, _ in renders])
         host = statistics.mean(row["host_s"] for _, row in renders)
         rows.append(
             {
                 "estimator": estimator,
                 "sampler": sampler,
-                "mse": statistics.mean(mses),
-                "mse_per_seed": mses,
+                "mse": mses["mean"],
+                "mse_se": mses["se"],
+                "seeds": args.seeds,
+                "mse_per_seed": mses["values"],
                 "host_s": host,
             }
         )
         print(
-            f"{estimator:8s} {sampler:10s} MSE {rows[-1]['mse']:.5f} "
+            f"{estimator:8s} {sampler:10s} MSE {mses['mean']:.5f} +- {mses['se']:.1g} "
             f"({', '.join(f'{m:.5f}' for m in mses)})  host {host:.2f} s",
             flush=True,
         )
@@ -77,6 +81,7 @@ def main(argv=None) -> None:
         args.output,
         {
             "settings": {k: str(v) for k, v in vars(args).items()},
+            "device": runtime.describe(),
             "reference": ref_info,
             "rows": rows,
         },

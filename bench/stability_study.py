@@ -1,4 +1,5 @@
-"""Stability study of the pixel estimators and their failure atlas (issue 5, item 1).
+"""Stability study of the pixel estimators and their failure atlas: where each one is worse
+than plain Monte Carlo.
 
     python bench/stability_study.py [--quick] [--out DIR] [--seed S]
 
@@ -10,8 +11,10 @@ rejection storm (eps far too small), the infinite-variance discontinuity functio
 
 Sample sets: the SPPP estimators (mc, mc_n, vor, vor_sn, fvor) use the NumPy SPPP generator
 (clrender.sppp.draw_sppp; rejected pixels redrawn by clrender.estimators.estimate_with_redraw);
-cvor and pvor use N = n uniform points, and so does the baseline "mc" of the atlas: the
-standard Monte Carlo mean of n uniform samples. All test functions are value columns of the
+cvor and pvor use N = n uniform points, and so does the baseline of the atlas, mc/independent:
+the standard Monte Carlo mean of n uniform samples. Every chart and table names an estimator
+with its samples (mc/sppp: mc over SPPP draws, sum / n; mc/independent: the baseline), so the
+atlas's first column and its baseline are told apart. All test functions are value columns of the
 same draws, so each tessellation serves all of them.
 
 Outputs (default bench/results/stability/): results.json (every number), estimates.npz (the
@@ -40,6 +43,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from analytic_study import FUNCTIONS  # noqa: E402
 from bootstrap import ratio_interval  # noqa: E402
+from figures import caption, draw_caption, report_caption  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
 from clrender.analytic import SmoothSines, StepEdge  # noqa: E402
@@ -52,7 +56,22 @@ from clrender.sppp import auxiliary_count, draw_sppp, rejection_bound, sppp_eps 
 SPPP_NAMES = ["mc", "mc_n", "vor", "vor_sn", "fvor"]
 UNIFORM_NAMES = ["cvor", "pvor"]
 ROW_NAMES = SPPP_NAMES + UNIFORM_NAMES
-BASELINE = "mc over n uniform points"
+BASELINE = "mc/independent"  # the mean of n uniform samples
+
+
+def display(name: str) -> str:
+    """An estimator's name with its samples, as the other benches label configurations:
+    "<estimator>/sppp" over SPPP draws, "<estimator>/independent" over n uniform points, and
+    the baseline (mc over n uniform points) as mc/independent."""
+    if name == "baseline":
+        return BASELINE
+    return f"{name}/sppp" if name in SPPP_NAMES else f"{name}/independent"
+
+
+def displayed(names) -> list[str]:
+    return [display(name) for name in names]
+
+
 POINTS_PER_CALL = 200_000
 EXACT_TOL = 1e-12
 BOOT_REPS = 1000
@@ -240,7 +259,7 @@ def ratio_ci(errors: np.ndarray, base: np.ndarray, metric: str, rng, paired: boo
 
 def verdict(r: dict) -> str:
     if r["baseline"] <= EXACT_TOL:
-        return "same (both exact)" if r["value"] <= EXACT_TOL else "worse (mc exact)"
+        return "same (both exact)" if r["value"] <= EXACT_TOL else f"worse ({BASELINE} exact)"
     if r["lo"] > 1.0:
         return "worse"
     return "better" if r["hi"] < 1.0 else "same"
@@ -591,7 +610,26 @@ def save(fig, out: Path, name: str, tight: bool = True) -> str:
     return name
 
 
-def plot_atlas(atlas: list[dict], out: Path) -> str:
+def atlas_caption(config: dict) -> str:
+    """The atlas figure's parameters."""
+    runs = config["runs"]
+    return caption(
+        "Failure atlas: error of each estimator over its samples against the baseline's",
+        {
+            "pixels": "one per run, f integrated over W = [-1/2, 1/2]^2 against its exact integral",
+            "runs": ", ".join(f"{r} at n = {n}" for n, r in runs.items()),
+            "seed": config["seed"],
+            "baseline": f"{BASELINE}, the mean of n uniform samples",
+            "columns": "estimator/samples (sppp: Poisson draws redrawn when rejected; "
+            "independent: n uniform points, paired with the baseline's)",
+            "cells": "error ratio (RMSE, or median |error| where noted) and verdict from its 95 % "
+            f"percentile bootstrap interval ({BOOT_REPS} resamples of the runs)",
+            "device": "host (NumPy and Qhull, one thread)",
+        },
+    )
+
+
+def plot_atlas(atlas: list[dict], out: Path, config: dict) -> str:
     ratios = np.array(
         [
             [row["cells"][name]["ratio"] if name in row["cells"] else np.nan for name in ROW_NAMES]
@@ -599,7 +637,7 @@ def plot_atlas(atlas: list[dict], out: Path) -> str:
         ]
     )
     shown = np.clip(np.log2(np.where(np.isinf(ratios), 8.0, ratios)), -3, 3)
-    fig, ax = plt.subplots(figsize=(13, 0.45 * len(atlas) + 1.5))
+    fig, ax = plt.subplots(figsize=(13, 0.45 * len(atlas) + 2.5), layout="constrained")
     image = ax.imshow(shown, cmap="RdBu_r", vmin=-3, vmax=3, aspect="auto")
     for i, row in enumerate(atlas):
         for j, name in enumerate(ROW_NAMES):
@@ -615,11 +653,11 @@ def plot_atlas(atlas: list[dict], out: Path) -> str:
                     fontsize=6,
                     color="w" if abs(shown[i, j]) > 2 else "k",
                 )
-    ax.set_xticks(range(len(ROW_NAMES)), ROW_NAMES)
+    ax.set_xticks(range(len(ROW_NAMES)), [d.replace("/", "/\n") for d in displayed(ROW_NAMES)])
     ax.set_yticks(range(len(atlas)), [row["situation"] for row in atlas], fontsize=7)
-    fig.colorbar(image, ax=ax, label="log2(error ratio estimator / mc), clipped to +-3")
-    fig.subplots_adjust(left=0.3)
-    ax.set_title("Failure atlas: error ratio against mc over n uniform points")
+    fig.colorbar(image, ax=ax, label=f"log2(error ratio estimator / {BASELINE}), clipped to +-3")
+    ax.set_title(f"Failure atlas: error ratio against {BASELINE} (the mean of n uniform samples)")
+    draw_caption(fig, atlas_caption(config))
     return save(fig, out, "atlas.png", tight=False)
 
 
@@ -641,9 +679,13 @@ def plot_small_n(small: dict, out: Path) -> str:
     for name in ROW_NAMES:
         bias = np.array([r["estimators"][name]["bias"] for r in rows])
         se = np.array([r["estimators"][name]["se"] for r in rows])
-        ax1.errorbar(ns, bias, yerr=2 * se, marker="o", ms=3, capsize=2, label=name)
+        ax1.errorbar(ns, bias, yerr=2 * se, marker="o", ms=3, capsize=2, label=display(name))
         ax2.loglog(
-            ns, [r["estimators"][name]["rmse_ratio"] for r in rows], marker="o", ms=3, label=name
+            ns,
+            [r["estimators"][name]["rmse_ratio"] for r in rows],
+            marker="o",
+            ms=3,
+            label=display(name),
         )
     ax1.axhline(0, color="k", lw=0.8)
     ax1.set(xscale="log", xlabel="n", ylabel="bias +- 2 SE", title="smooth pixel: bias")
@@ -728,7 +770,7 @@ def plot_discontinuity(disc: dict, all_runs: dict[int, Runs], out: Path) -> str:
     for name in [*ROW_NAMES, "baseline"]:
         errors = np.sort(np.abs(all_runs[n].estimates[name][:, c] - exact))
         survival = 1.0 - np.arange(len(errors)) / len(errors)
-        ax0.loglog(errors, survival, lw=1, label="mc (uniform)" if name == "baseline" else name)
+        ax0.loglog(errors, survival, lw=1, label=display(name))
     ax0.set(
         xlabel="|estimate - exact|",
         ylabel="fraction of pixels with a larger error",
@@ -757,11 +799,11 @@ def plot_fireflies(fire: dict, out: Path) -> str:
         base = np.array(fire["by_n"][n]["baseline"]["rmse_by_gain"])
         for name in ROW_NAMES:
             ratio = np.array(fire["by_n"][n][name]["rmse_by_gain"]) / base
-            ax.loglog(fire["gains"], ratio, marker="o", ms=3, label=name)
+            ax.loglog(fire["gains"], ratio, marker="o", ms=3, label=display(name))
         ax.axhline(1, color="k", lw=0.8, ls="--")
         ax.set(
             xlabel="firefly gain (1 = no firefly)",
-            ylabel="RMSE / RMSE(mc uniform)",
+            ylabel=f"RMSE / RMSE({BASELINE})",
             title=f"smooth pixel, one firefly, n = {n}",
         )
         ax.legend(fontsize=7)
@@ -786,7 +828,7 @@ def plot_flat(flat: list[dict], out: Path) -> str:
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for name in ROW_NAMES + ["baseline"]:
         std = [max(r["estimators"][name]["std"], 1e-17) for r in flat]
-        ax.loglog(ns, std, marker="o", ms=3, label="mc (uniform)" if name == "baseline" else name)
+        ax.loglog(ns, std, marker="o", ms=3, label=display(name))
     ax.loglog(ns, [n**-0.5 for n in ns], "k--", lw=0.8, label="1 / sqrt(n)")
     ax.set(
         xlabel="n",
@@ -831,12 +873,12 @@ def atlas_markdown(atlas: list[dict]) -> list[str]:
                     f"[{fmt(cell['lo'])}, {fmt(cell['hi'])}]"
                 )
         rows.append([row["situation"], row["metric"], *cells])
-    return table(["situation", "metric", *ROW_NAMES], rows)
+    return table(["situation", "metric", *displayed(ROW_NAMES)], rows)
 
 
 def ratio_text(cell: dict) -> str:
     if math.isinf(cell["ratio"]):
-        return f"{cell['metric']} {fmt(cell['value'])} where mc is exact"
+        return f"{cell['metric']} {fmt(cell['value'])} where {BASELINE} is exact"
     return f"{fmt(cell['ratio'])}x"
 
 
@@ -848,7 +890,9 @@ def worse_than_mc_markdown(atlas: list[dict]) -> list[str]:
             for row in atlas
             if name in row["cells"] and row["cells"][name]["verdict"].startswith("worse")
         ]
-        lines.append(f"- **{name}**: " + ("; ".join(worse) if worse else "never worse here"))
+        lines.append(
+            f"- **{display(name)}**: " + ("; ".join(worse) if worse else "never worse here")
+        )
     return lines
 
 
@@ -870,7 +914,7 @@ def small_n_markdown(small: dict, near: dict, fvor_rows: list[dict]) -> list[str
         "",
         *table(["n", "pixels", "P(N = 0)", "exp(-n)", "P(N = 1)", "P(N = 2)", "P(N = 3)"], counts),
         "",
-        "### Smooth pixel: bias (z = bias / SE) and RMSE ratio against mc over n uniform points",
+        f"### Smooth pixel: bias (z = bias / SE) and RMSE ratio against {BASELINE}",
         "",
     ]
 
@@ -879,7 +923,7 @@ def small_n_markdown(small: dict, near: dict, fvor_rows: list[dict]) -> list[str
         return f"{fmt(measured['bias'])} (z {z:+.1f}); {fmt(measured['rmse_ratio'])}"
 
     rows = [[r["n"], *[bias_cell(r["estimators"][m]) for m in ROW_NAMES]] for r in small["rows"]]
-    lines += table(["n", *ROW_NAMES], rows)
+    lines += table(["n", *displayed(ROW_NAMES)], rows)
     lines += [
         "",
         f"### Near-empty pixels at n = {near['n']} (SPPP estimators conditioned on N; "
@@ -896,7 +940,7 @@ def small_n_markdown(small: dict, near: dict, fvor_rows: list[dict]) -> list[str
             for m in SPPP_NAMES
         ]
         rows.append([label, entry["pixels"], *cells])
-    lines += table(["N", "pixels", *SPPP_NAMES], rows)
+    lines += table(["N", "pixels", *displayed(SPPP_NAMES)], rows)
     lines += [
         "",
         "### fvor with an empty filtered set (no W cell inside W')",
@@ -980,7 +1024,7 @@ def storm_markdown(storm: dict) -> list[str]:
         "final eps",
         "exhausted",
         "Qhull calls",
-        *[f"{m} z" for m in SPPP_NAMES],
+        *[f"{display(m)} z" for m in SPPP_NAMES],
     ]
     rows = []
     reference = storm["reference"]
@@ -1035,7 +1079,7 @@ def storm_markdown(storm: dict) -> list[str]:
     ]
     by_eps = storm["runs"][STORM_ATLAS_DRIVER]["by_accept_eps"]
     lines += table(
-        ["eps at acceptance", "n'", "paper's bound there", "pixels", *SPPP_NAMES],
+        ["eps at acceptance", "n'", "paper's bound there", "pixels", *displayed(SPPP_NAMES)],
         [
             [
                 fmt(r["eps"]),
@@ -1069,7 +1113,7 @@ def discontinuity_markdown(disc: dict) -> list[str]:
                 ],
                 [
                     [
-                        "mc (uniform)" if name == "baseline" else name,
+                        display(name),
                         fmt(d["mean"]),
                         fmt(d["std"]),
                         fmt(d["iqr"]),
@@ -1099,7 +1143,7 @@ def firefly_markdown(fire: dict) -> list[str]:
         ]
         rows = [
             [
-                "mc (uniform)" if name == "baseline" else name,
+                display(name),
                 *[fmt(v) for v in d["rmse_by_gain"]],
                 d["finite"],
                 fmt(d["n_weight_mean"]),
@@ -1125,14 +1169,16 @@ def flat_markdown(flat: list[dict]) -> list[str]:
         ]
         for r in flat
     ]
-    return table(["n", *ROW_NAMES, "mc (uniform)"], rows)
+    return table(["n", *displayed(ROW_NAMES), BASELINE], rows)
 
 
 EXPLANATIONS = {
     "atlas": (
-        "Each cell: verdict, the error ratio estimator / mc (mc = the mean of n uniform samples, "
-        "the standard pixel estimator) and its 95 % bootstrap interval. better: the interval "
-        "lies below 1; worse: above 1; same: it contains 1. When mc is exact (flat pixel) a "
+        "Each cell: verdict, the error ratio estimator / mc/independent (the mean of n uniform "
+        "samples, the standard pixel estimator) and its 95 % bootstrap interval. better: the "
+        "interval lies below 1; worse: above 1; same: it contains 1. Columns name each "
+        "estimator with its samples: mc/sppp is mc over SPPP draws (sum / n under Poisson N), "
+        "not the baseline. When mc/independent is exact (flat pixel) a "
         "cell compares the two errors directly. The discontinuity function has infinite "
         "variance, so its rows compare median absolute errors. mc, mc_n, vor, vor_sn and fvor "
         "run on SPPP draws (Poisson N, redrawn when rejected), cvor and pvor on the same kind "
@@ -1186,7 +1232,9 @@ def build_report(results: dict, charts: dict, argv: list[str]) -> str:
         "",
         f"![atlas]({charts['atlas']})",
         "",
-        "## Where each estimator is worse than mc",
+        report_caption(atlas_caption(results["config"])),
+        "",
+        f"## Where each estimator is worse than {BASELINE}",
         "",
         *worse_than_mc_markdown(results["atlas"]),
         "",
@@ -1342,7 +1390,7 @@ def analyse(cfg: Config, measured: dict, all_runs: dict[int, Runs], rng) -> dict
 
 def plot_all(results: dict, all_runs: dict[int, Runs], out: Path) -> dict:
     return {
-        "atlas": plot_atlas(results["atlas"], out),
+        "atlas": plot_atlas(results["atlas"], out, results["config"]),
         "small_n": plot_small_n(results["small_n"], out),
         "rejection": plot_rejection(results["rejection"], out),
         "storm": plot_storm(results["storm"], out),
@@ -1390,10 +1438,10 @@ def print_summary(results: dict) -> None:
         "\n".join(
             [
                 "",
-                "Failure atlas (error ratio estimator / mc over n uniform points):",
+                f"Failure atlas (error ratio estimator / {BASELINE}):",
                 *atlas_markdown(results["atlas"]),
                 "",
-                "Worse than mc:",
+                f"Worse than {BASELINE}:",
                 *worse_than_mc_markdown(results["atlas"]),
             ]
         )

@@ -1,10 +1,17 @@
 """Smoke runs of the study benches at tiny settings, in-process (a few seconds each): every
-output file is written and the JSON holds what the report quotes."""
+output file is written and the JSON holds what the report quotes; and the figures read as a
+paper's: several seeds (or runs) behind each point with its spread, every parameter in each
+caption, no two labels overlapping, baselines named apart, the paper's values labelled with
+their own n or spp, and no tracker references in the scripts' help."""
 
 import json
+import re
+import runpy
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
@@ -42,7 +49,15 @@ def test_01_pixel_study(tmp_path):
     for name, entry in results["pixels"].items():
         assert entry["scene"] == pixel_study.PROBES[name].scene
         assert (tmp_path / f"fig6_{name}.png").exists() and (tmp_path / f"fig9_{name}.png").exists()
-    assert "of cornell-box-glossy" in (tmp_path / "report.md").read_text()
+        for point in entry["table"]["16"].values():  # each variance's interval over the runs
+            low, high = point["var_ci"]
+            assert low <= point["var"] <= high
+    report = (tmp_path / "report.md").read_text()
+    assert "of cornell-box-glossy" in report
+    captions = [line for line in report.splitlines() if line.startswith("*Figure 9")]
+    assert len(captions) == len(pixel_study.PROBES)
+    for words in ("of 64 x 64", "spp 16", "R = 4", "seed 7", "device ", "bootstrap"):
+        assert all(words in line for line in captions), words
 
 
 def test_02_image_study(tmp_path):
@@ -53,7 +68,22 @@ def test_02_image_study(tmp_path):
     )
     results = json.loads((tmp_path / "results.json").read_text())
     assert len(results["rows"]) == len(common.RENDER_PAIRS)
-    assert (tmp_path / "error_maps.png").exists() and (tmp_path / "report.md").exists()
+    assert len(results["renders"]) == 2 * len(common.RENDER_PAIRS)  # --quick: 2 seeds a pair
+    for row in results["rows"]:
+        assert row["seeds"] == [1, 2] and len(row["mse_per_seed"]) == 2
+        assert row["mse"] == pytest.approx(np.mean(row["mse_per_seed"]))
+        assert row["mse_se"] == pytest.approx(np.std(row["mse_per_seed"], ddof=1) / np.sqrt(2))
+    for name in ("error_maps.png", "renders.png", "mse.png", "report.md"):
+        assert (tmp_path / name).exists()
+    report = (tmp_path / "report.md").read_text()
+    captions = [line for line in report.splitlines() if line.startswith("*")]
+    assert len(captions) == 3  # mse, renders, error maps
+    for words in ("cornell-box", "8 x 8", "spp 4", "device ", "reference mc/sobol, 16 spp"):
+        assert all(words in line for line in captions), words
+    assert "seeds 2 per pair (1, 2)" in captions[0] and "standard error" in captions[0]
+    # The paper's MSE is at 256 spp: its column says so, and the text that this run is not
+    assert "paper MSE (256 spp)" in report and "this run is at 4 spp" in report
+    assert re.search(r"vor_sn/sppp = \d+\.\d+ \[-?\d+\.\d+, \d+\.\d+\]", report)
 
 
 def test_03_efficiency_study_and_perf_ratio(tmp_path):
@@ -80,6 +110,26 @@ def test_03_efficiency_study_and_perf_ratio(tmp_path):
     labels = {p["label"] for p in entry["summary"]}
     assert labels == {common.pair_label(*c) for c in efficiency_study.CONFIGS}
     assert all(p["seeds"] == 2 for p in entry["summary"])  # --quick: 2 seeds per point
+    for point in entry["summary"]:  # the spread behind each error bar, and its values
+        assert point["seed_list"] == [1, 2] and len(point["mse_per_seed"]) == 2
+        assert point["mse"] == pytest.approx(np.mean(point["mse_per_seed"]))
+        assert point["mse_se"] == pytest.approx(np.std(point["mse_per_seed"], ddof=1) / np.sqrt(2))
+    report = (tmp_path / "report.md").read_text()
+    caption = next(line for line in report.splitlines() if line.startswith("*Efficiency on"))
+    for words in (
+        "cornell-box",
+        "resolution 8 x 8",
+        "spp 4;",
+        "seeds 2 per point",
+        "standard error",
+        "reference mc/sobol, 16 spp",
+        f"device {entry['device']}",
+        "Voronoi cells",
+    ):
+        assert words in caption, words
+    assert "issue" not in report.lower()
+    assert "Conclusions (from this run" in report
+    assert re.search(r"the best baseline, mc(_n)?/\S+ \(", report) or "no ratio" in report
     efficiency_study.main(
         ["--perf-ratio", "--quick", "--size", "8", "--spp", "4", "--out", str(tmp_path)]
     )
@@ -151,3 +201,192 @@ def test_04_cells_figure(tmp_path):
     cells_figure.main(["--n", "8", "--size", "64", "--out", str(tmp_path)])
     assert (tmp_path / "cells.png").exists()
     assert len(list(tmp_path.glob("cells_*_n8.png"))) == 3
+
+
+def test_03c_efficiency_chart_labels_do_not_overlap(tmp_path):
+    """The legend sits beside the axes and no two texts overlap, on a quick run's narrow time
+    range (0.015 to 0.45 s: the default log axes labelled minor ticks there, and 3x10^-2 ran
+    into 4x10^-2) and on a wide one, with every configuration."""
+    import efficiency_report
+    import efficiency_study
+    import figures
+    import matplotlib.pyplot as plt
+
+    rng = np.random.default_rng(0)
+    configs = efficiency_study.CONFIGS
+    for low, high in ((0.015, 0.45), (0.3, 400.0)):
+        rows = [
+            {
+                "estimator": estimator,
+                "sampler": sampler,
+                "spp": spp,
+                "seed": seed,
+                "mse_minus_ref_noise": 0.05 / spp * (1 + 0.1 * rng.random()),
+                "mse": 0.05 / spp,
+                "call_s": low * (high / low) ** (k / len(configs)) * (1.3 if spp == 64 else 1),
+                "cpu_s": low * (high / low) ** (k / len(configs)) * 1.5,
+            }
+            for k, (estimator, sampler) in enumerate(configs)
+            for spp in (16, 64)
+            for seed in (1, 2)
+        ]
+        summary = efficiency_report.summarise(rows)
+        entry = {
+            "settings": {"size": 8, "spp": [16, 64], "seeds": 2, "first_seed": 1},
+            "reference": {"sampler": "sobol", "spp": 64, "parts": 4},
+            "summary": summary,
+            "time_to_target": efficiency_report.times_to_target(summary),
+            "device": "test device",
+        }
+        fig = efficiency_report.scene_figure("cornell-box", entry)
+        assert figures.overlapping_texts(fig) == []
+        fig.canvas.draw()
+        (legend,) = fig.legends
+        box = legend.get_window_extent()
+        assert not any(box.overlaps(ax.get_window_extent()) for ax in fig.axes)
+        plt.close(fig)
+
+
+def test_03d_figure_helpers():
+    """overlapping_texts finds two texts drawn on one another, and not hidden ones; spread is
+    the mean and standard error of the values it keeps."""
+    import figures
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots()
+    ax.text(0.5, 0.5, "one label")
+    ax.text(0.5, 0.5, "another label")
+    ax.text(0.1, 0.9, "hidden", visible=False)
+    ax.text(0.1, 0.9, "not hidden")
+    assert figures.overlapping_texts(fig) == [("one label", "another label")]
+    plt.close(fig)
+    result = figures.spread([1.0, 2.0, 4.0])
+    assert result["mean"] == pytest.approx(7 / 3) and result["values"] == [1.0, 2.0, 4.0]
+    assert result["se"] == pytest.approx(np.std([1, 2, 4], ddof=1) / np.sqrt(3))
+
+
+def test_03e_statistic_interval_covers_the_std():
+    from bootstrap import statistic_interval
+
+    rng = np.random.default_rng(1)
+    runs = rng.normal(scale=[1.0, 3.0], size=(2000, 2))  # two columns, two known stds
+
+    def std(a, axis=0):
+        return np.std(a, axis=axis, ddof=1)
+
+    low, high = statistic_interval(runs, std, rng, resamples=500)
+    assert (low < [1.0, 3.0]).all() and (high > [1.0, 3.0]).all()
+    assert (high - low < [0.15, 0.45]).all()
+
+
+def test_04a_cells_stand_out_from_the_background():
+    """The light's cells (radiance clamped to white) are hatched and drawn over a background
+    far from white, so they do not vanish into it."""
+    import cells_figure
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+
+    angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+    ring = 0.9 * np.column_stack([np.cos(angles), np.sin(angles)])
+    traced = np.array([[-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3], [0.3, 0.3], [0.0, 0.0]])
+    radiance = np.array([[5.0, 5.0, 5.0], [2.0, 1.5, 1.2], [0.2, 0.2, 0.2], [0.0] * 3, [0.5] * 3])
+    runs = SimpleNamespace(sets=SimpleNamespace(traced=traced, aux=ring), radiance=radiance)
+    fig, ax = plt.subplots()
+    cells_figure.draw_cells(ax, runs, SimpleNamespace(eps=0.5), {"mc": 1.0, "vor_sn": 1.0}, "t")
+    background = np.array(to_rgb(ax.get_facecolor()))
+    assert np.linalg.norm(background - 1.0) > 0.5  # far from the light's white
+    assert np.linalg.norm(background) > 0.5  # and from black shadow
+    filled = [c for c in ax.collections if len(c.get_facecolors()) == len(traced)]
+    (cells,) = filled
+    for colour in cells.get_facecolors()[:2]:  # the two light cells: white, unlike the ground
+        assert np.allclose(colour[:3], 1.0)
+        assert np.linalg.norm(colour[:3] - background) > 0.5
+    hatched = [c for c in ax.collections if c.get_hatch()]
+    assert len(hatched) == 1 and len(hatched[0].get_paths()) == 2  # exactly the clamped cells
+    plt.close(fig)
+
+
+def test_05_analytic_study(tmp_path):
+    """Table 2 and the sweep carry bootstrap intervals over the runs; a run at n = 64 labels the
+    paper's columns n = 4096 and says the two differ; every figure has its caption."""
+    import analytic_study
+
+    argv = ["--quick", "--runs", "16", "--sweep-runs", "8", "--n", "64", "--sweep-n", "32", "64"]
+    analytic_study.main(argv + ["--out", str(tmp_path)])
+    results = json.loads((tmp_path / "results.json").read_text())
+    row = results["table2"]["holder_1"]["vor_sn"]
+    assert row["std_ci"][0] <= row["std"] <= row["std_ci"][1]
+    for summary in results["sweep"]["summaries"]:
+        low, high = np.array(summary["mc"]["rmse_ci"]).T
+        assert (low <= np.array(summary["mc"]["rmse"]) + 1e-15).all()
+        assert (np.array(summary["mc"]["rmse"]) <= high + 1e-15).all()
+    report = (tmp_path / "report.md").read_text()
+    assert "paper std (n = 4096)" in report and "paper ms (n = 4096)" in report
+    assert "This run is at n = 64 (16 runs); the paper's columns are at n = 4096" in report
+    captions = [line for line in report.splitlines() if re.match(r"\*(Table|Figure)", line)]
+    assert len(captions) == 1 + 2 * len(analytic_study.FUNCTIONS)
+    for words in ("runs", "seed 2025", "device host", "sampler SPPP", "bootstrap"):
+        assert all(words in line for line in captions), words
+    assert "20 at n = 64" not in captions[0] and "16 at n = 64" in captions[0]
+    assert all((tmp_path / f"fig3_{f}.png").exists() for f in analytic_study.FUNCTIONS)
+
+
+def test_06_stability_atlas_names_its_baseline_apart():
+    """The atlas's first column is mc over SPPP draws and its baseline mc over n uniform
+    points: each named with its samples, never both "mc"; the figure's texts do not overlap
+    and its caption gives the runs, seed and bootstrap."""
+    import figures
+    import matplotlib.pyplot as plt
+    import stability_study
+
+    cell = {"ratio": 2.0, "lo": 1.5, "hi": 2.5, "verdict": "worse", "value": 2.0, "baseline": 1}
+    atlas = [
+        {
+            "situation": f"smooth, n = {n}",
+            "n": n,
+            "metric": "RMSE",
+            "cells": dict.fromkeys(stability_study.ROW_NAMES, cell),
+        }
+        for n in (2, 16)
+    ]
+    header = stability_study.atlas_markdown(atlas)[0]
+    assert "| mc/sppp |" in header and "| mc |" not in header
+    assert stability_study.BASELINE == "mc/independent" and "| mc/independent |" not in header
+    config = {"runs": {2: 300, 16: 300}, "seed": 2026}
+    figures_made = []
+    real_save = stability_study.save
+
+    def keep(fig, out, name, tight=True):
+        fig.canvas.draw()
+        figures_made.append(fig)
+        return name
+
+    stability_study.save = keep
+    try:
+        stability_study.plot_atlas(atlas, Path("unused"), config)
+    finally:
+        stability_study.save = real_save
+    (fig,) = figures_made
+    ax = fig.axes[0]
+    columns = [t.get_text().replace("\n", "") for t in ax.get_xticklabels()]
+    assert columns[0] == "mc/sppp" and "mc/independent" not in columns
+    assert "mc/independent" in ax.get_title()
+    assert figures.overlapping_texts(fig) == []
+    caption = fig._suptitle.get_text().replace("\n", " ")
+    for words in ("300 at n = 2", "seed 2026", "baseline mc/independent", "bootstrap"):
+        assert words in caption, words
+    plt.close(fig)
+
+
+def test_07_help_texts_name_no_tracker_issue(monkeypatch, capsys):
+    """Every bench script's --help says what it does, not which tracker issue asked for it."""
+    scripts = [p for p in sorted(BENCH.glob("*.py")) if "ArgumentParser" in p.read_text()]
+    assert len(scripts) >= 10
+    for script in scripts:
+        monkeypatch.setattr(sys, "argv", [str(script), "--help"])
+        with pytest.raises(SystemExit) as exit_:
+            runpy.run_path(str(script), run_name="__main__")
+        assert exit_.value.code == 0, script.name
+        text = capsys.readouterr().out
+        assert text.startswith("usage:"), script.name
+        assert not re.search(r"\bissues?\b|#\d+", text, re.IGNORECASE), (script.name, text)
