@@ -421,10 +421,12 @@ def reference_errors(result, reference: Reference | None) -> dict[str, dict]:
     """{estimator: errors as a dict, with the reference's label} for a complete render."""
     from clrender.compare import image_errors
 
-    if reference is None or not result.film.complete:
+    if reference is None:
         return {}
     errors = {}
     for name, film in result.films.items():
+        if not film.complete:  # no error of a partial image: its missing pixels are 0
+            continue
         measured = image_errors(film.image(), reference.pixels, reference.noise)
         errors[name] = {**measured.as_dict(), "reference": reference.label}
         errors[name]["summary"] = measured.summary_line()
@@ -434,10 +436,11 @@ def reference_errors(result, reference: Reference | None) -> dict[str, dict]:
 def error_lines(errors: dict[str, dict], result, reference: Reference | None) -> list[str]:
     if reference is None:
         return []
-    if not errors:
-        return [f"no error against {reference.label}: the render is partial"]
     return [
-        f"{name} against {reference.label}: {values['summary']}" for name, values in errors.items()
+        f"{name} against {reference.label}: {errors[name]['summary']}"
+        if name in errors
+        else f"{name}: no error against {reference.label}: its image is partial"
+        for name in result.films
     ]
 
 
@@ -446,7 +449,7 @@ def command_render(args: argparse.Namespace) -> int:
         from clrender.estimators import pairing_advice
         from clrender.pipeline import render
         from clrender.progress import ProgressBar
-        from clrender.report import RenderLabels, summary_json, summary_lines
+        from clrender.report import RenderLabels, json_ready, summary_json, summary_lines
         from clrender.runtime import thread_build_seconds
 
     # Set-up with the ending signals blocked: one that comes is acted on when it is done, not
@@ -476,7 +479,8 @@ def command_render(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     result.stats.setup_compile_seconds = setup_compile
-    if result.stats.interrupted and result.film.rendered_count == 0:
+    rendered = max(film.rendered_count for film in result.films.values())
+    if result.stats.interrupted and rendered == 0:
         # Nothing to save: an all-black partial image would replace the previous one
         signum = interrupts.last_signal()
         print(
@@ -484,6 +488,9 @@ def command_render(args: argparse.Namespace) -> int:
             "finished: nothing written (a previous image there is kept)",
             file=sys.stderr,
         )
+        if args.json:
+            summary = summary_json(result, labels, {}, {}, reference and reference.label)
+            print(json.dumps(json_ready(summary), indent=1, allow_nan=False))
         return interrupts.exit_status(signum)
     errors = reference_errors(result, reference)
     with interrupts.signals_held() as held:
@@ -491,7 +498,7 @@ def command_render(args: argparse.Namespace) -> int:
     outputs = {name: pair for name, pair in zip(result.films, paths.values(), strict=True)}
     if args.json:
         summary = summary_json(result, labels, outputs, errors, reference and reference.label)
-        print(json.dumps(summary, indent=1))
+        print(json.dumps(json_ready(summary), indent=1, allow_nan=False))
     elif not args.quiet:
         print("\n".join(summary_lines(result, labels) + error_lines(errors, result, reference)))
         for pair in outputs.values():
@@ -524,9 +531,11 @@ def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> in
     """The command's status; held_signals: the signals that came while the images were
     written (the render itself reports an interrupt in its stats)."""
     if result.stats.interrupted or held_signals:
+        counts = sorted({film.rendered_count for film in result.films.values()})
+        held = " to ".join(str(count) for count in (counts[0], counts[-1])[: len(counts)])
         print(
-            f"clrender: interrupted: the image holds {result.film.rendered_count} of "
-            f"{result.film.pixel_count} pixels (partial=1)",
+            f"clrender: interrupted: the image{'s hold' if len(result.films) > 1 else ' holds'} "
+            f"{held} of {result.film.pixel_count} pixels (partial=1)",
             file=sys.stderr,
         )
         signum = held_signals[-1] if held_signals else interrupts.last_signal()

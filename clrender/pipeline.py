@@ -8,10 +8,12 @@
 Several estimators share one trace: each tile is drawn and traced once, each kind of cells
 is computed once (the device sums of vor, vor_sn and fvor are one kernel call, and carry the
 plain sums mc and mc_n need), and every estimator gets its own image. A pixel that one of
-them rejects (an unbounded SPPP cell) is redrawn for all the per-pixel estimators, which then
-use the same accepted draw; so each Voronoi estimator's image is the one it would get alone,
-and mc's differs from mc alone only in the redrawn pixels (it keeps draw 0 alone). The
-image-level estimators (ivor, ivor_sn) never reject and keep draw 0.
+them rejects (an unbounded SPPP cell) is redrawn for all the per-pixel estimators, which
+then use the same accepted draw; so the rejecting estimators' images (vor, vor_sn, fvor) are
+the ones they get alone, and the non-rejecting per-pixel ones (mc, mc_n, cvor, pvor) differ
+from theirs alone in the redrawn pixels (alone they keep draw 0). The image-level estimators (ivor,
+ivor_sn) never reject and keep draw 0 (and its layers: first_draw_layers). pvor's toroidal
+shift over stratified or Sobol points moves every estimator's points.
 
 The estimators are validated once, when RenderSettings is made (their registry entries,
 checked against the sampler); the pipeline then asks the entries (their cells, whether the
@@ -43,7 +45,10 @@ sets, tracing, voronoi, readback; each ends with the device done with it; device
 their sum), the estimator stage's own time per group of estimators sharing a tessellation
 (estimator_seconds; host_seconds is their sum with the redraws' host part), and
 compile_seconds, the program builds and kernel creation met on the way (first uses in a
-process: programs are cached), taken out of the stages. The image-level estimators ivor and
+process: programs are cached), taken out of the stages (PoCL's code generation at a kernel's
+first launch is not seen: on a cold cache it stays in that launch's stage); run_seconds is
+the wall time without the builds met on the main thread. The per-pixel layers' host time is
+layer_seconds (in host_seconds). The image-level estimators ivor and
 ivor_sn also draw their guard nuclei in the estimator stage, on a second OpenCL context so
 that no kernel object is shared between threads.
 
@@ -77,6 +82,7 @@ from clrender.estimators.device_cells import (
     DeviceSums,
     device_periodic_sums,
     device_sppp_sums,
+    resolve_precision,
     settle_undecided,
 )
 from clrender.estimators.pixel import estimate_all
@@ -113,7 +119,11 @@ ProgressCallback = Callable[[int, int], None]
 @dataclass(frozen=True)
 class RenderSettings:
     """What to render. `estimator` is one estimator (a name or a registry entry), or a list of
-    them: one trace, one image per estimator (`extra_estimators` holds all but the first)."""
+    them: one trace, one image per estimator. Made, it holds the first, and
+    `extra_estimators` the others. A list always names every estimator (extra_estimators is
+    then replaced); one estimator replaces the first and keeps the others, so
+    dataclasses.replace(settings, seed=1) keeps them all and replace(settings, estimator=[...])
+    sets a new list."""
 
     width: int
     height: int
@@ -169,7 +179,7 @@ class RenderSettings:
         many = isinstance(given, list | tuple)
         if many and not given:
             raise ParameterError("no estimator given: name at least one")
-        names = [*(given if many else [given]), *self.extra_estimators]
+        names = list(given) if many else [given, *self.extra_estimators]
         entries = [check_compatible(name, self.sampler.name) for name in names]
         seen = [entry.name for entry in entries]
         twice = sorted({name for name in seen if seen.count(name) > 1})
@@ -225,6 +235,7 @@ class RenderStats:
     # program builds and kernel creation (first uses in a process): during the render (in
     # wall_seconds, out of the stages), and before it, for its radiance source (api.render)
     compile_seconds: float = 0.0
+    main_compile_seconds: float = 0.0  # the part met on the main thread
     setup_compile_seconds: float = 0.0
     # main-thread seconds per device stage (DEVICE_STAGES): drawing sample sets, tracing,
     # device Voronoi cells and sums (with the host's settling of undecided pixels), read-back
@@ -235,6 +246,7 @@ class RenderStats:
     # under their names joined by "+" (e.g. "vor+vor_sn")
     estimator_seconds: dict[str, float] = field(default_factory=dict)
     redraw_host_seconds: float = 0.0  # host part of the redraws (in host_seconds)
+    layer_seconds: float = 0.0  # the per-pixel layers' host time (in host_seconds)
     redrawn_pixels: int = 0  # pixel redraws after a rejection (a pixel may count twice)
     eps_enlargements: int = 0  # redraw rounds that needed a wider eps
     unresolved_pixels: int = 0  # still rejected after every redraw: mc estimate of the last
@@ -243,8 +255,9 @@ class RenderStats:
 
     @property
     def run_seconds(self) -> float:
-        """Wall time without the program builds met during the render (rates use it)."""
-        return max(self.wall_seconds - self.compile_seconds, 0.0)
+        """Wall time without the program builds met on the render's main thread (rates use
+        it; the estimator thread's builds may overlap tracing, so they stay in)."""
+        return max(self.wall_seconds - self.main_compile_seconds, 0.0)
 
 
 @dataclass
@@ -254,6 +267,16 @@ class RenderResult:
     settings: RenderSettings
     films: dict[str, Film] = field(default_factory=dict)  # every estimator's, by name
     layers: PixelLayers | None = None
+    # draw 0's layers, when image-level estimators (which keep draw 0) share the render with
+    # rejecting ones (whose redrawn pixels' layers are in `layers`)
+    first_draw_layers: PixelLayers | None = None
+
+    def layers_of(self, estimator: str) -> PixelLayers | None:
+        """The layers of the draws an estimator's image comes from."""
+        entry = next(entry for entry in self.settings.estimators if entry.name == estimator)
+        if entry.image_level and self.first_draw_layers is not None:
+            return self.first_draw_layers
+        return self.layers
 
     @property
     def image(self) -> np.ndarray:
@@ -280,8 +303,8 @@ class RenderResult:
 @dataclass
 class TileSamples:
     """The device stage's output for a list of pixels: host sample sets and radiance (when an
-    estimator needs them), the per-pixel sums of each kind of device cells, and each pixel's
-    moments (count, sum f, sum f^2)."""
+    estimator or the variance layer needs them) and the per-pixel sums of each kind of device
+    cells."""
 
     pixels: np.ndarray  # (P,) uint32 global pixel indices
     redraws: np.ndarray  # (P,) uint32 redraw numbers
@@ -290,11 +313,26 @@ class TileSamples:
     rays: int
     source_nonfinite: int
     sums: dict[str, DeviceSums] = field(default_factory=dict)  # by cell kind
-    moments: PixelMoments | None = None
+
+    @property
+    def counts(self) -> np.ndarray:
+        """(P,) traced samples per pixel."""
+        if self.sets is not None:
+            return np.asarray(self.sets.counts, np.int64)
+        return np.asarray(next(iter(self.sums.values())).counts, np.int64)
 
     @property
     def traced_count(self) -> int:
-        return int(self.moments.counts.sum())
+        return int(self.counts.sum())
+
+    def moments(self, values: np.ndarray | None = None) -> PixelMoments:
+        """Each pixel's count, sum f and sum f^2: from the host samples (values: their radiance
+        with non-finite rows zeroed, if already made) or the device sums' plain sums."""
+        if self.sets is not None:
+            values = zero_nonfinite(self.radiance) if values is None else values
+            return PixelMoments.of_samples(self.sets, values)
+        device = next(iter(self.sums.values())).sums
+        return PixelMoments(self.counts, device.value, device.square)
 
 
 @dataclass
@@ -307,8 +345,10 @@ class TileEstimate:
     flagged: np.ndarray  # (P,) bool: a sample with non-finite radiance
     needs_redraw: np.ndarray  # (P,) bool
     nonfinite_samples: int
-    moments: PixelMoments
+    counts: np.ndarray  # (P,) traced samples: the layers
+    variance: np.ndarray  # (P, 3) float32 mc variance: the layers
     seconds: dict[str, float] = field(default_factory=dict)  # host time per estimator group
+    layer_seconds: float = 0.0  # host time of the layers
     compile_seconds: float = 0.0  # program builds on the estimator thread
 
 
@@ -354,6 +394,7 @@ class StageClock:
             compile_seconds = thread_build_seconds() - built
             seconds = time.perf_counter() - start - compile_seconds
             self.stats.compile_seconds += compile_seconds
+            self.stats.main_compile_seconds += compile_seconds
             self.stats.stage_seconds[name] += seconds
             self.stats.device_seconds += seconds
 
@@ -408,11 +449,6 @@ def trace_tile(
                 if device.fallback.any():
                     box = sppp_box(sampler) if kind == "sppp" else None
                     sums[kind] = settle_undecided(device, sets, finite, box, kind)
-    if sets is not None:
-        moments = PixelMoments.of_samples(sets, zero_nonfinite(values))
-    else:
-        device = next(iter(sums.values())).sums
-        moments = PixelMoments(np.asarray(device.counts, np.int64), device.value, device.square)
     keep_samples = host_samples or not device_kinds
     return TileSamples(
         pixels,
@@ -422,7 +458,6 @@ def trace_tile(
         radiance.ray_count,
         radiance.device_nonfinite,
         sums,
-        moments,
     )
 
 
@@ -474,6 +509,9 @@ def estimate_tile(
     for entry in settings.estimators:
         if not entry.image_level:
             estimates[entry.name] = np.where(needs_redraw[:, None], np.nan, estimates[entry.name])
+    start = time.perf_counter()
+    moments = tile.moments(values)
+    variance = mc_variance(moments, settings.sampler)
     return TileEstimate(
         tile.pixels,
         tile.redraws,
@@ -481,8 +519,10 @@ def estimate_tile(
         flagged,
         needs_redraw,
         nonfinite + tile.source_nonfinite,
-        tile.moments,
+        moments.counts,
+        variance,
         seconds,
+        time.perf_counter() - start,
     )
 
 
@@ -524,9 +564,13 @@ def group_estimates(
 
 def sibling_runtime(runtime: Runtime) -> Runtime:
     """A second context and queue on the same device, for device calls from the estimator
-    thread: kernel objects (and their arguments) are never shared between threads."""
-    context = cl.Context([runtime.device])
-    return Runtime(runtime.device, context, cl.CommandQueue(context), runtime.local_size)
+    thread: kernel objects (and their arguments) are never shared between threads. Made once
+    per runtime, so that its programs are built once per process too."""
+    if runtime.sibling is None:
+        context = cl.Context([runtime.device])
+        queue = cl.CommandQueue(context)
+        runtime.sibling = Runtime(runtime.device, context, queue, runtime.local_size)
+    return runtime.sibling
 
 
 # --- the pipeline ------------------------------------------------------------------------
@@ -544,10 +588,18 @@ class TilePipeline:
             entry.name: Film(settings.width, settings.height) for entry in settings.estimators
         }
         self.layers = PixelLayers(settings.width, settings.height)
+        # The image-level estimators keep draw 0 of a pixel the others redraw: their layers
+        image_level = any(entry.image_level for entry in settings.estimators)
+        rejecting = any(entry.needs_aux for entry in settings.estimators)
+        both = image_level and rejecting
+        self.first_draw_layers = PixelLayers(settings.width, settings.height) if both else None
+        # Without double precision the device's plain sums are float32: mc, mc_n and the
+        # variance layer then come from the host samples (float64, as every other render)
+        single = bool(settings.device_cell_kinds) and resolve_precision(runtime, "auto") == "single"
+        self.host_samples = settings.needs_host_samples or single
         self.stats = RenderStats()
         self.clock = StageClock(self.stats)
         self.in_flight: Future | None = None  # the estimate of the previous tile
-        image_level = any(entry.image_level for entry in settings.estimators)
         needs_device = image_level and settings.overlap
         self.host_runtime = sibling_runtime(runtime) if needs_device else runtime
 
@@ -568,7 +620,7 @@ class TilePipeline:
             pixels,
             redraws,
             () if redraw else self.settings.device_cell_kinds,
-            redraw or self.settings.needs_host_samples,
+            redraw or self.host_samples,
             self.clock,
         )
         self.stats.traced_samples += tile.traced_count
@@ -581,10 +633,11 @@ class TilePipeline:
         result = estimate_tile(self.settings, tile, self.host_runtime)
         result.compile_seconds = thread_build_seconds() - built
         elapsed = time.perf_counter() - start - result.compile_seconds
-        # The groups' own times, scaled so that they sum to the stage's time without builds
-        total = sum(result.seconds.values())
+        # The parts' own times, scaled so that they sum to the stage's time without builds
+        total = sum(result.seconds.values()) + result.layer_seconds
         scale = elapsed / total if total > 0 else 0.0
         result.seconds = {name: seconds * scale for name, seconds in result.seconds.items()}
+        result.layer_seconds *= scale
         return result
 
     def record(self, result: TileEstimate) -> None:
@@ -594,7 +647,11 @@ class TilePipeline:
                 self.stats.estimator_seconds.get(name, 0.0) + seconds
             )
             self.stats.host_seconds += seconds
+        self.stats.layer_seconds += result.layer_seconds
+        self.stats.host_seconds += result.layer_seconds
         self.stats.compile_seconds += result.compile_seconds
+        if not self.settings.overlap:  # the estimate ran on the main thread
+            self.stats.main_compile_seconds += result.compile_seconds
         self.stats.nonfinite_samples += result.nonfinite_samples
         accepted = ~result.needs_redraw
         for entry in self.settings.estimators:
@@ -602,13 +659,16 @@ class TilePipeline:
             self.films[entry.name].record(
                 result.pixels[keep], result.estimates[entry.name][keep], result.flagged[keep]
             )
-        moments = result.moments.subset(accepted)
         self.layers.record(
             result.pixels[accepted],
-            moments.counts,
+            result.counts[accepted],
             result.redraws[accepted],
-            mc_variance(moments, self.settings.sampler),
+            result.variance[accepted],
         )
+        if self.first_draw_layers is not None:
+            self.first_draw_layers.record(
+                result.pixels, result.counts, result.redraws, result.variance
+            )
 
     def finish(self, result: TileEstimate) -> None:
         """Record a tile and redraw its rejected pixels (device work: on the main thread)."""
@@ -712,9 +772,10 @@ class PixelRedraws:
         self.pipeline.stats.nonfinite_samples += tile.source_nonfinite + int(
             np.count_nonzero(~np.isfinite(tile.radiance).all(axis=1))
         )
-        self.moments.counts[ids] = tile.moments.counts
-        self.moments.value[ids] = tile.moments.value
-        self.moments.square[ids] = tile.moments.square
+        moments = tile.moments()
+        self.moments.counts[ids] = moments.counts
+        self.moments.value[ids] = moments.value
+        self.moments.square[ids] = moments.square
         return tile.sets, tile.radiance.astype(np.float64)
 
 
@@ -736,4 +797,11 @@ def render(
     start = time.perf_counter()
     pipeline.run(tiles, progress)
     pipeline.stats.wall_seconds = time.perf_counter() - start
-    return RenderResult(pipeline.film, pipeline.stats, settings, pipeline.films, pipeline.layers)
+    return RenderResult(
+        pipeline.film,
+        pipeline.stats,
+        settings,
+        pipeline.films,
+        pipeline.layers,
+        pipeline.first_draw_layers,
+    )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from clrender import __version__
@@ -67,10 +68,9 @@ def render_metadata(
             metadata["estimator_timed_with"] = group
     if len(settings.estimators) > 1:
         metadata["estimators"] = ",".join(entry.name for entry in settings.estimators)
-    entry = next(entry for entry in settings.estimators if entry.name == name)
-    if variance_is_unbiased(entry, sampler) and result.layers is not None:
-        rendered = film.rendered
-        metadata["noise_mse"] = float(result.layers.variance[rendered].mean(dtype="float64"))
+    noise = own_noise(result, name)
+    if noise is not None:
+        metadata["noise_mse"] = noise
     if sampler.toroidal_shift:
         metadata["toroidal_shift"] = 1
     if sampler.is_sppp:
@@ -81,6 +81,22 @@ def render_metadata(
         if value is not None and key != "summary":
             metadata[f"error_{key}"] = value
     return metadata
+
+
+def own_noise(result: RenderResult, estimator: str) -> float | None:
+    """The mean of the variance layer over the rendered pixels where it is the estimator's own
+    unbiased variance (clrender.estimators.variance), else None: not for a render that redrew
+    pixels (their accepted draws are conditioned on acceptance), nor where it is not finite
+    (one sample per pixel)."""
+    entry = next(entry for entry in result.settings.estimators if entry.name == estimator)
+    layers = result.layers_of(estimator)
+    film = result.films[estimator]
+    if layers is None or result.stats.redrawn_pixels or not film.rendered.any():
+        return None
+    if not variance_is_unbiased(entry, result.settings.sampler):
+        return None
+    noise = float(layers.variance[film.rendered].mean(dtype="float64"))
+    return noise if math.isfinite(noise) else None
 
 
 def estimator_group(estimator_seconds: dict[str, float], name: str) -> str | None:
@@ -94,7 +110,7 @@ def estimator_group(estimator_seconds: dict[str, float], name: str) -> str | Non
 def exr_layers(result: RenderResult, estimator: str) -> dict:
     """The per-pixel layers of one estimator's EXR, by channel name (LAYER_NAMES)."""
     film = result.films[estimator]
-    layers = result.layers.images()
+    layers = result.layers_of(estimator).images()
     layers["flagged"] = film.flagged.reshape(film.height, film.width)
     return {name: layers[name] for name in LAYER_NAMES}
 
@@ -167,6 +183,7 @@ def summary_json(
         "host_s": stats.host_seconds,
         "estimators_s": dict(stats.estimator_seconds),
         "redraw_host_s": stats.redraw_host_seconds,
+        "layers_s": stats.layer_seconds,
     }
     images = {}
     for name, pair in outputs.items():
@@ -194,3 +211,14 @@ def summary_json(
         "reference": reference,
         "images": images,
     }
+
+
+def json_ready(value: object) -> object:
+    """value with every non-finite float replaced by None (JSON has no NaN or Infinity)."""
+    if isinstance(value, dict):
+        return {key: json_ready(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_ready(item) for item in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

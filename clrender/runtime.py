@@ -117,6 +117,8 @@ class Runtime:
     queue: cl.CommandQueue
     local_size: int = LOCAL_SIZE
     pool: cl_tools.MemoryPool = field(init=False, repr=False)
+    # a second context on the device, for another thread (clrender.pipeline.sibling_runtime)
+    sibling: Runtime | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.pool = cl_tools.MemoryPool(cl_tools.ImmediateAllocator(self.queue))
