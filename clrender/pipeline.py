@@ -271,6 +271,10 @@ class RenderResult:
     # rejecting ones (whose redrawn pixels' layers are in `layers`)
     first_draw_layers: PixelLayers | None = None
 
+    def __post_init__(self) -> None:
+        if not self.films:  # a result made of one film
+            self.films = {self.settings.estimator.name: self.film}
+
     def layers_of(self, estimator: str) -> PixelLayers | None:
         """The layers of the draws an estimator's image comes from."""
         entry = next(entry for entry in self.settings.estimators if entry.name == estimator)
