@@ -433,8 +433,8 @@ def trace_tile(
         pending = source.trace(device_sets, seed)
         radiance = pending.to_device(runtime)  # reads the ray counters: waits for the trace
     sums: dict[str, DeviceSums] = {}
-    with clock.stage("voronoi"):
-        for kind in device_kinds:
+    for kind in device_kinds:
+        with clock.stage("voronoi"):
             if kind == "periodic":
                 sums[kind] = device_periodic_sums(runtime, device_sets, radiance.buffer)
             else:

@@ -390,3 +390,26 @@ def test_07_help_texts_name_no_tracker_issue(monkeypatch, capsys):
         text = capsys.readouterr().out
         assert text.startswith("usage:"), script.name
         assert not re.search(r"\bissues?\b|#\d+", text, re.IGNORECASE), (script.name, text)
+
+
+def test_08_render_throughput_splits_the_render_and_compares_in_one_run(tmp_path):
+    import render_throughput
+
+    render_throughput.main(
+        ["--size", "16", "--spp", "4", "--repeats", "2", "--output", str(tmp_path)]
+        + ["--configs", "independent/mc", "sppp/vor_sn"]
+    )
+    data = json.loads((tmp_path / "results.json").read_text())
+    points = data["summary"]["4"]
+    for config in ("independent/mc", "sppp/vor_sn"):
+        point = points[config]
+        assert point["repeats"] == 2 and point["paths"] > 0
+        assert point["render_over_tracing"] >= 1.0 and point["tracing_s"] > 0
+        if "mitsuba/independent" in points:
+            mitsuba = points["mitsuba/independent"]["wall_paths_per_s"]
+            assert point["wall_ratio_to_mitsuba"] == pytest.approx(
+                point["wall_paths_per_s"] / mitsuba
+            )
+    assert points["sppp/vor_sn"]["voronoi_s"] > 0 and points["independent/mc"]["voronoi_s"] == 0
+    renders = [row for row in data["renders"] if row["renderer"] == "clrender"]
+    assert len(renders) == 4 and data["command"].startswith("python bench/render_throughput.py")
