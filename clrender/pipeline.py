@@ -501,12 +501,15 @@ def estimate_tile(
     else:
         device = next(iter(tile.sums.values()))
         flagged, nonfinite = device.nonfinite > 0, int(device.nonfinite.sum())
+    start = time.perf_counter()
+    moments = tile.moments(values)
+    layer_seconds = time.perf_counter() - start
     estimates: dict[str, np.ndarray] = {}
     seconds: dict[str, float] = {}
     needs_redraw = np.zeros(count, bool)
     for group in estimator_groups(settings):
         start = time.perf_counter()
-        results, rejected = group_estimates(settings, tile, group, values, host_runtime)
+        results, rejected = group_estimates(settings, tile, group, values, moments, host_runtime)
         needs_redraw |= rejected
         estimates.update(results)
         seconds["+".join(entry.name for entry in group)] = time.perf_counter() - start
@@ -514,8 +517,8 @@ def estimate_tile(
         if not entry.image_level:
             estimates[entry.name] = np.where(needs_redraw[:, None], np.nan, estimates[entry.name])
     start = time.perf_counter()
-    moments = tile.moments(values)
     variance = mc_variance(moments, settings.sampler)
+    layer_seconds += time.perf_counter() - start
     return TileEstimate(
         tile.pixels,
         tile.redraws,
@@ -526,7 +529,7 @@ def estimate_tile(
         moments.counts,
         variance,
         seconds,
-        time.perf_counter() - start,
+        layer_seconds,
     )
 
 
@@ -535,19 +538,19 @@ def group_estimates(
     tile: TileSamples,
     group: tuple[Estimator, ...],
     values: np.ndarray | None,
+    moments: PixelMoments,
     host_runtime: Runtime,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """({name: (P, 3) estimates}, needs_redraw) of estimators sharing one kind of cells: from
-    the device sums of that kind, from any device sums (mc, mc_n: plain sums), the image-level
-    tessellation, or the host samples."""
+    the device sums of that kind, the plain sums of the moments (mc, mc_n: the host samples'
+    or the device sums'), the image-level tessellation, or the host samples."""
     kind = group[0].cells
     count = len(tile.pixels)
     if kind in tile.sums:
         device = tile.sums[kind]
         return {entry.name: entry.formula(device.sums) for entry in group}, device.redraw
-    if kind == "none" and tile.sets is None:
-        device = next(iter(tile.sums.values())).sums
-        plain = PixelSums(device.counts, device.n, value=device.value)
+    if kind == "none":
+        plain = PixelSums(moments.counts, settings.sampler.n, value=moments.value)
         return {entry.name: entry.formula(plain) for entry in group}, np.zeros(count, bool)
     if kind == "image":
         run = image.estimate_tile_image(

@@ -100,18 +100,18 @@ def cell_sums(
     `kept` (and cells carrying inside-W' flags) the same over the kept nuclei (NaN otherwise)."""
     sums = PixelSums(samples.counts, samples.n)
     if cells is None:
-        sums.value = _pixel_sums(samples, values)
+        sums.value = pixel_sums(samples, values)
         return sums
     products = values * per_pixel(cells.areas, values)
-    sums.area = _pixel_sums(samples, cells.areas)
-    sums.weighted = _pixel_sums(samples, products)
+    sums.area = pixel_sums(samples, cells.areas)
+    sums.weighted = pixel_sums(samples, products)
     if not kept or cells.inside_box is None:
         sums.kept_area = np.full(samples.pixel_count, np.nan)
         sums.kept_weighted = np.full((samples.pixel_count,) + products.shape[1:], np.nan)
     else:
         # where, not a product with 0: a dropped nucleus's value is ignored even if infinite
-        sums.kept_area = _pixel_sums(samples, np.where(cells.inside_box, cells.areas, 0.0))
-        sums.kept_weighted = _pixel_sums(
+        sums.kept_area = pixel_sums(samples, np.where(cells.inside_box, cells.areas, 0.0))
+        sums.kept_weighted = pixel_sums(
             samples, np.where(per_pixel(cells.inside_box, products), products, 0.0)
         )
     return sums
@@ -192,7 +192,7 @@ def _tessellations(
 # Sums and results
 
 
-def _pixel_sums(samples: SampleSets, weights: np.ndarray) -> np.ndarray:
+def pixel_sums(samples: SampleSets, weights: np.ndarray) -> np.ndarray:
     """Per-pixel sums of (T,) or (T, C) weights -> (P,) or (P, C) (0 for empty pixels).
     Samples are grouped by pixel, so each pixel's sum is one segment of a reduceat (all
     channels in one pass over contiguous rows)."""

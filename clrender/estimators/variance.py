@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clrender.estimators.pixel import pixel_sums
 from clrender.estimators.registry import Estimator
 from clrender.samples import SampleSets
 from clrender.sampling import PATHS_INDEPENDENT, POSITIONS_INDEPENDENT, SamplerConfig
@@ -43,14 +44,10 @@ class PixelMoments:
 
     @classmethod
     def of_samples(cls, sets: SampleSets, values: np.ndarray) -> PixelMoments:
-        """From host samples: values (T, 3) float64 with non-finite rows already zeroed."""
-        value = np.empty((sets.pixel_count, 3))
-        square = np.empty((sets.pixel_count, 3))
-        for channel in range(3):
-            column = values[:, channel]
-            value[:, channel] = np.bincount(sets.pixel_index, column, sets.pixel_count)
-            square[:, channel] = np.bincount(sets.pixel_index, column * column, sets.pixel_count)
-        return cls(np.asarray(sets.counts, np.int64), value, square)
+        """From host samples: values (T, 3) float64 with non-finite rows already zeroed (summed
+        in sample order, as the estimators and the device sums do)."""
+        counts = np.asarray(sets.counts, np.int64)
+        return cls(counts, pixel_sums(sets, values), pixel_sums(sets, values * values))
 
     def subset(self, rows: np.ndarray) -> PixelMoments:
         return PixelMoments(self.counts[rows], self.value[rows], self.square[rows])
