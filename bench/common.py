@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clrender import compare
 from clrender.imageio import read_exr, srgb_encode, write_atomically, write_exr
 from clrender.pipeline import RenderResult, RenderSettings, render
 from clrender.radiance import PathTracerSource
@@ -213,17 +214,17 @@ def image_errors(image: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray) -
     top_share (the share of the squared error in the worst 0.1 % of pixel channels), and
     bright_share (its share in the pixels brighter than display white, reference RGB mean > 1:
     the light and pixels its outline crosses) with bright_fraction (how many pixels those are)."""
+    # MSE and the reference noise as the renderer reports them (clrender.compare)
+    measured = compare.image_errors(image, ref, float(ref_variance.mean()))
     sq = (image - ref) ** 2
     flat = np.sort(sq.ravel())[::-1]
     top = max(1, len(flat) // 1000)
     total = max(float(flat.sum()), 1e-300)
     bright = ref.mean(axis=-1) > 1.0
-    mse = float(sq.mean())
-    noise = float(ref_variance.mean())
     return {
-        "mse": mse,
-        "ref_noise": noise,
-        "mse_minus_ref_noise": mse - noise,
+        "mse": measured.mse,
+        "ref_noise": measured.reference_noise,
+        "mse_minus_ref_noise": measured.mse_minus_noise,
         "mse_clamped": float(((np.clip(image, 0, 1) - np.clip(ref, 0, 1)) ** 2).mean()),
         "mse_srgb": float(((srgb_encode(image) - srgb_encode(ref)) ** 2).mean()),
         "top_share": float(flat[:top].sum() / total),

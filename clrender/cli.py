@@ -265,7 +265,8 @@ def output_paths(
 
 def estimator_names(text: str | None, sampler: str) -> list[str]:
     """The estimators of --estimator NAME[,NAME...], each checked against the sampler (the
-    sampler's default estimator without the option)."""
+    sampler's default estimator without the option; a name given twice is refused by
+    RenderSettings)."""
     from clrender.api import default_estimator
     from clrender.estimators import check_compatible
 
@@ -274,9 +275,6 @@ def estimator_names(text: str | None, sampler: str) -> list[str]:
     names = [name.strip() for name in text.split(",")]
     if not all(names):
         raise ParameterError(f"--estimator {text!r} has an empty name: give NAME[,NAME...]")
-    twice = sorted({name for name in names if names.count(name) > 1})
-    if twice:
-        raise ParameterError(f"--estimator names {twice[0]!r} twice: name each once")
     return [check_compatible(name, sampler).name for name in names]
 
 

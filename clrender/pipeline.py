@@ -472,9 +472,15 @@ def sppp_box(sampler: SamplerConfig) -> float:
 
 def zero_nonfinite(values: np.ndarray) -> np.ndarray:
     """float64 copy of (T, 3) radiance with non-finite rows set to 0 (as the sums kernel)."""
+    return finite_values(values)[0]
+
+
+def finite_values(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(zero_nonfinite(values), the (T,) mask of the rows that were not finite)."""
     values = values.astype(np.float64)
-    values[~np.isfinite(values).all(axis=1)] = 0.0
-    return values
+    bad = ~np.isfinite(values).all(axis=1)
+    values[bad] = 0.0
+    return values, bad
 
 
 def estimator_groups(settings: RenderSettings) -> list[tuple[Estimator, ...]]:
@@ -493,9 +499,9 @@ def estimate_tile(
     estimators as 0 and flag their pixel. host_runtime serves the image-level estimators,
     which draw their guard nuclei on the device."""
     count = len(tile.pixels)
-    values = None if tile.radiance is None else zero_nonfinite(tile.radiance)
+    values = None
     if tile.sets is not None:
-        bad_samples = ~np.isfinite(tile.radiance).all(axis=1)
+        values, bad_samples = finite_values(tile.radiance)
         flagged = np.bincount(tile.sets.pixel_index, bad_samples, count) > 0
         nonfinite = int(np.count_nonzero(bad_samples))
     else:
