@@ -34,10 +34,10 @@ from common import command_line, machine, write_json  # noqa: E402
 from mitsuba_peer import MitsubaPeer  # noqa: E402
 
 import clrender  # noqa: E402
+from clrender.pipeline import DEVICE_STAGES as STAGES  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "throughput"
 DEFAULT_CONFIGS = ("independent/mc", "sobol/mc", "sppp/vor_sn")
-STAGES = ("sample_sets", "tracing", "voronoi", "readback")
 
 
 def parse_args(argv=None):

@@ -81,6 +81,7 @@ from clrender.estimators.device_cells import (
     TORUS_COPIES,
     DeviceSums,
     device_periodic_sums,
+    device_plain_sums,
     device_sppp_sums,
     resolve_precision,
     settle_undecided,
@@ -111,7 +112,7 @@ MIN_TILE_PIXELS = 256
 REDRAWS_BEFORE_ENLARGE = 3 - 1
 MAX_REDRAW_ROUNDS = 12 - 1
 # The device stages a render times on its main thread (RenderStats.stage_seconds).
-DEVICE_STAGES = ("sample_sets", "tracing", "voronoi", "readback")
+DEVICE_STAGES = ("sample_sets", "tracing", "voronoi", "moments", "readback")
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -204,6 +205,16 @@ class RenderSettings:
         return tuple(dict.fromkeys(kinds))
 
     @property
+    def device_sum_kinds(self) -> tuple[str, ...]:
+        """What the device sums per pixel after tracing: the device cell kinds, or "plain"
+        (sum f and sum f^2 alone) when every estimator needs no cells (mc, mc_n): then no
+        per-sample array leaves the device either."""
+        kinds = self.device_cell_kinds
+        if not kinds and all(entry.cells == "none" for entry in self.estimators):
+            return ("plain",)
+        return kinds
+
+    @property
     def device_cells(self) -> bool:
         """Whether the tiles' cells come from the device kernel (the SPPP cells of vor, vor_sn,
         fvor; pvor's torus cells)."""
@@ -213,7 +224,7 @@ class RenderSettings:
     def needs_host_samples(self) -> bool:
         """Whether the tiles' sample sets and radiance come back to the host: for an estimator
         the device sums do not serve (mc and mc_n are served by any device sums)."""
-        kinds = self.device_cell_kinds
+        kinds = self.device_sum_kinds
         return any(
             not (entry.cells in kinds or (entry.cells == "none" and kinds))
             for entry in self.estimators
@@ -421,8 +432,9 @@ def trace_tile(
     device_kinds ("sppp", "periodic"), that kind of Voronoi cells and each pixel's weighted
     sums are formed on the device after the tracing, and only the sums come back (if the kernel
     left pixels undecided, the samples come back too and the host settles those pixels with
-    Qhull); with host_samples (or without device kinds) the sample sets and radiance come to
-    the host as well."""
+    Qhull); "plain" forms each pixel's sum f and sum f^2 alone (RenderSettings.
+    device_sum_kinds). With host_samples (or without device kinds) the sample sets and radiance
+    come to the host as well."""
     clock = clock or StageClock(RenderStats())
     with clock.stage("sample_sets"):
         device_sets = generate_sample_sets(
@@ -434,8 +446,10 @@ def trace_tile(
         radiance = pending.to_device(runtime)  # reads the ray counters: waits for the trace
     sums: dict[str, DeviceSums] = {}
     for kind in device_kinds:
-        with clock.stage("voronoi"):
-            if kind == "periodic":
+        with clock.stage("moments" if kind == "plain" else "voronoi"):
+            if kind == "plain":
+                sums[kind] = device_plain_sums(runtime, device_sets, radiance.buffer)
+            elif kind == "periodic":
                 sums[kind] = device_periodic_sums(runtime, device_sets, radiance.buffer)
             else:
                 sums[kind] = device_sppp_sums(
@@ -608,8 +622,11 @@ class TilePipeline:
         self.first_draw_layers = PixelLayers(settings.width, settings.height) if both else None
         # Without double precision the device's plain sums are float32: mc, mc_n and the
         # variance layer then come from the host samples (float64, as every other render)
-        single = bool(settings.device_cell_kinds) and resolve_precision(runtime, "auto") == "single"
+        single = resolve_precision(runtime, "auto") == "single"
         self.host_samples = settings.needs_host_samples or single
+        # What the device sums for the tiles (the plain sums only when the host lacks samples)
+        kinds = settings.device_sum_kinds
+        self.device_kinds = () if kinds == ("plain",) and self.host_samples else kinds
         self.stats = RenderStats()
         self.clock = StageClock(self.stats)
         self.in_flight: Future | None = None  # the estimate of the previous tile
@@ -632,7 +649,7 @@ class TilePipeline:
             self.settings.seed,
             pixels,
             redraws,
-            () if redraw else self.settings.device_cell_kinds,
+            () if redraw else self.device_kinds,
             redraw or self.host_samples,
             self.clock,
         )

@@ -11,8 +11,9 @@
 //   SUMS_REDRAW     a traced nucleus has an unbounded cell: the pixel must be redrawn
 //   SUMS_FALLBACK   a cell the device could not decide: the host recomputes the pixel
 // and the number of samples whose radiance was NaN or infinite (they count as 0 here).
-// Samples are summed in sample order.
+// Samples are summed in sample order. pixel_moments (at the end) forms the plain sums alone.
 
+#include "vecmath.h"
 #include "voronoi_common.h"
 
 #define SUMS_PER_PIXEL 14
@@ -21,6 +22,32 @@
 
 // x - x is 0 for every finite x and NaN otherwise (no builtin call: see kernels/vecmath.h)
 #define SUMS_FINITE(x) ((x) - (x) == 0)
+// pixel_moments: count of the pixel's non-finite samples, then sum f, sum f^2 (R, G, B each)
+#define MOMENTS_PER_PIXEL 6
+
+// Sample s's radiance, or 0 if a channel is not finite; returns 1 for a non-finite sample.
+CL_INLINE uint Sums_LoadFinite(__global const float *radiance, uint s, float *r, float *g,
+                               float *b)
+{
+    *r = radiance[3 * (size_t)s];
+    *g = radiance[3 * (size_t)s + 1];
+    *b = radiance[3 * (size_t)s + 2];
+    if (SUMS_FINITE(*r) && SUMS_FINITE(*g) && SUMS_FINITE(*b))
+        return 0u;
+    *r = *g = *b = 0.0f;
+    return 1u;
+}
+
+// sum f and sum f^2 of one sample added to plain[0..2] and plain[3..5], in the area precision
+CL_INLINE void Sums_AddPlain(area_real *plain, float r, float g, float b)
+{
+    plain[0] += r;
+    plain[1] += g;
+    plain[2] += b;
+    plain[3] += (area_real)r * r;
+    plain[4] += (area_real)g * g;
+    plain[5] += (area_real)b * b;
+}
 
 __kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_offsets,
                                  __global const float *radiance,
@@ -35,19 +62,10 @@ __kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_o
     uchar flag = 0;
     uint bad = 0;
     for (uint s = traced_offsets[p]; s < traced_offsets[p + 1]; ++s) {
-        float r = radiance[3 * (size_t)s], g = radiance[3 * (size_t)s + 1];
-        float b = radiance[3 * (size_t)s + 2];
-        if (!(SUMS_FINITE(r) && SUMS_FINITE(g) && SUMS_FINITE(b))) {
-            bad += 1;
-            r = g = b = 0.0f;
-        }
+        float r, g, b;
+        bad += Sums_LoadFinite(radiance, s, &r, &g, &b);
         // Plain sums and sums of squares, every sample (in the area precision, as on the host)
-        total[8] += r;
-        total[9] += g;
-        total[10] += b;
-        total[11] += (area_real)r * r;
-        total[12] += (area_real)g * g;
-        total[13] += (area_real)b * b;
+        Sums_AddPlain(total + 8, r, g, b);
         // Cells that are not exact bounded ones only flag the pixel
         uchar cell = status[s];
         if (!(cell & VORONOI_BOUNDED)) {
@@ -70,5 +88,28 @@ __kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_o
     for (int k = 0; k < SUMS_PER_PIXEL; ++k)
         sums[(size_t)p * SUMS_PER_PIXEL + k] = total[k];
     flags[p] = flag;
+    nonfinite[p] = bad;
+}
+
+// The plain sums alone, one work-item per pixel, for renders whose estimators need no cells
+// (mc, mc_n and the per-pixel variance layer): per pixel MOMENTS_PER_PIXEL values, the same
+// arithmetic and order as voronoi_pixel_sums' plain sums, and the non-finite sample count.
+__kernel void pixel_moments(uint pixel_count, __global const uint *traced_offsets,
+                            __global const float *radiance, __global area_real *moments,
+                            __global uint *nonfinite)
+{
+    uint p = get_global_id(0);
+    if (p >= pixel_count)
+        return;
+    area_real total[MOMENTS_PER_PIXEL] = {0, 0, 0, 0, 0, 0};
+    uint bad = 0;
+    // Sum the pixel's samples in sample order
+    for (uint s = traced_offsets[p]; s < traced_offsets[p + 1]; ++s) {
+        float r, g, b;
+        bad += Sums_LoadFinite(radiance, s, &r, &g, &b);
+        Sums_AddPlain(total, r, g, b);
+    }
+    for (int k = 0; k < MOMENTS_PER_PIXEL; ++k)
+        moments[(size_t)p * MOMENTS_PER_PIXEL + k] = total[k];
     nonfinite[p] = bad;
 }

@@ -313,6 +313,41 @@ def test_device_sums_match_host_sums(runtime, eps):
         )
 
 
+# 12. The plain sums alone (device_plain_sums: mc, mc_n and the variance layer without cells)
+# are each pixel's sum f and sum f^2 in sample order, non-finite samples counted and taken as
+# 0, and bit-identical to the plain sums the Voronoi sums kernel forms for the same samples
+@pytest.mark.parametrize("sampler", ["sppp", "independent"])
+def test_device_plain_sums_match_sequential_sums(runtime, sampler):
+    config = make_sampler(sampler, 48)
+    sets = generate_sample_sets(runtime, config, 5, np.arange(300, dtype=np.uint32))
+    host = sets.to_host(runtime.queue)
+    rng = np.random.default_rng(8)
+    radiance = rng.lognormal(0, 2, (sets.traced_total, 3)).astype(np.float32)
+    poisoned = rng.choice(sets.traced_total, 30, replace=False)
+    radiance[poisoned[:15], 1] = np.nan
+    radiance[poisoned[15:], 0] = -np.inf
+    device = device_cells.device_plain_sums(runtime, sets, runtime.upload(radiance))
+
+    bad = ~np.isfinite(radiance).all(axis=1)
+    clean = np.where(bad[:, None], 0.0, radiance.astype(np.float64))
+    value, square = np.zeros((300, 3)), np.zeros((300, 3))
+    for p in range(300):  # one pixel at a time, sample after sample, as the kernel
+        for s in range(host.offsets[p], host.offsets[p + 1]):
+            value[p] += clean[s]
+            square[p] += clean[s] * clean[s]
+    np.testing.assert_array_equal(device.counts, np.diff(host.offsets))
+    np.testing.assert_array_equal(device.nonfinite, np.bincount(host.pixel_index, bad, 300))
+    np.testing.assert_allclose(device.sums.value, value, rtol=1e-14, atol=0)
+    np.testing.assert_allclose(device.sums.square, square, rtol=1e-14, atol=0)
+    assert not device.redraw.any() and not device.fallback.any()
+    if sampler == "sppp":
+        voronoi = device_cells.device_sppp_sums(
+            runtime, sets, runtime.upload(radiance), 0.5 + config.eps
+        )
+        np.testing.assert_array_equal(device.sums.value, voronoi.sums.value)
+        np.testing.assert_array_equal(device.sums.square, voronoi.sums.square)
+
+
 def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
     monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
     config = make_sampler("sppp", 64)

@@ -21,6 +21,9 @@ Entry points:
                                                    the cells and then each pixel's sums of
                                                    vor, vor_sn and fvor (registry.PixelSums)
                                                    on the device: only the sums come back
+  device_plain_sums(runtime, sample_sets, radiance, precision)
+                                                   no cells: each pixel's sum f and sum f^2
+                                                   alone (mc, mc_n, the variance layer)
   device_periodic_cells_from_arrays(runtime, positions, offsets)
   device_periodic_sums(runtime, sample_sets, radiance)
                                                    the same for pvor's cells on the torus W
@@ -74,6 +77,7 @@ KERNEL_FILE = "voronoi_cells.cl"
 SUMS_KERNEL_FILE = "voronoi_sums.cl"
 # kernels/voronoi_sums.cl: per-pixel values and flag bits
 SUMS_PER_PIXEL = 14
+MOMENTS_PER_PIXEL = 6  # pixel_moments: sum f, sum f^2
 SUMS_REDRAW, SUMS_FALLBACK = 1, 2
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
@@ -251,6 +255,44 @@ def device_periodic_sums(
     sums = replace(device.sums, kept_area=nan, kept_weighted=np.full((len(nan), 3), np.nan))
     fallback = device.fallback | device.redraw
     return replace(device, sums=sums, redraw=np.zeros_like(fallback), fallback=fallback)
+
+
+def device_plain_sums(
+    runtime: Runtime, sample_sets: DeviceSampleSets, radiance, precision: str = "auto"
+) -> DeviceSums:
+    """Each pixel's sum f and sum f^2 (PixelSums value and square) and non-finite count, from a
+    launch's radiance ((T, 3) float32 device buffer, traced-sample order) left on the device:
+    the plain sums of device_sppp_sums, the same arithmetic (bit-identical), without cells. No
+    pixel is redrawn or recomputed."""
+    pixels = sample_sets.pixel_count
+    defines, real = _precision_setup(runtime, precision)
+    moments = np.zeros((pixels, MOMENTS_PER_PIXEL), real)
+    nonfinite = np.zeros(pixels, np.uint32)
+    if sample_sets.traced_total and pixels:
+        moments_buf = runtime.allocate(moments.nbytes)
+        nonfinite_buf = runtime.allocate(nonfinite.nbytes)
+        kernel = runtime.kernel(SUMS_KERNEL_FILE, "pixel_moments", defines)
+        runtime.launch_1d(
+            kernel,
+            pixels,
+            np.uint32(pixels),
+            sample_sets.offsets_buffer,
+            radiance,
+            moments_buf,
+            nonfinite_buf,
+        )
+        # One wait: the in-order queue finishes the copies in order
+        cl.enqueue_copy(runtime.queue, moments, moments_buf, is_blocking=False)
+        cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
+    moments = moments.astype(np.float64)
+    none = np.zeros(pixels, bool)
+    sums = PixelSums(
+        np.diff(np.asarray(sample_sets.traced_offsets, np.int64)),
+        sample_sets.config.n,
+        value=moments[:, 0:3],
+        square=moments[:, 3:6],
+    )
+    return DeviceSums(sums, none, none.copy(), nonfinite.astype(np.int64))
 
 
 def _device_sums(
