@@ -23,7 +23,6 @@ from typing import Protocol
 
 import numpy as np
 import pyopencl as cl
-from scipy.integrate import quad
 
 from clrender.errors import ParameterError
 from clrender.radiance import DeviceRadiance, SampleRadiance
@@ -133,6 +132,7 @@ class Disc:
     def covered_area(self, x: float, y: float) -> float:
         """Area of the disc inside [x, x+1] x [y, y+1]: a 1-D integral of the chord length,
         split where the integrand has kinks so quad converges to ~1e-13."""
+        from scipy.integrate import quad  # here: scipy.integrate takes ~0.1 s to import
 
         def half_chord(t: float) -> float:
             return math.sqrt(max(self.r * self.r - (t - self.cx) ** 2, 0.0))

@@ -14,7 +14,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
 from clrender.errors import ParameterError
 from clrender.samples import SampleSets
@@ -41,6 +40,8 @@ def check_alpha(alpha: float) -> None:
 def sppp_eps(n: float, alpha: float = DEFAULT_ALPHA) -> float:
     """The stretch eps of W' for intensity n: the root of 4 pi n^2 eps^2 exp(-pi n eps^2) =
     alpha on the decreasing branch (u = pi n eps^2 > 1). n = 10 000 gives 0.0256."""
+    from scipy.optimize import brentq  # here: scipy.optimize takes ~0.3 s to import
+
     check_intensity(n)
     check_alpha(alpha)
     # With u = pi n eps^2 the equation reads u - ln u = ln(4 n / alpha); u - ln u grows for u > 1.

@@ -415,3 +415,15 @@ def test_toroidal_shift_is_recorded_when_applied(capsys, tmp_path, sampler, esti
     assert status == 0, err
     assert ("toroidal_shift" in read_exr(out)[1]) == shifted
     assert ("(toroidal shift)" in summary) == shifted
+
+
+def test_the_command_line_starts_without_importing_scipy():
+    """Start-up time: scipy's optimize, spatial and integrate take about 2 s to import together;
+    the command line imports them only where a render uses them."""
+    code = (
+        "import sys; import clrender.cli, clrender.api; "
+        "print(sorted(m for m in sys.modules if m.split('.')[:2] in "
+        "(['scipy', 'spatial'], ['scipy', 'optimize'], ['scipy', 'integrate'])))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -62,11 +62,14 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from clrender.estimators.delaunay import as_complex
+
+if TYPE_CHECKING:  # scipy.spatial is imported where used: it takes ~1 s to import
+    from scipy.spatial import cKDTree
 
 # Neighbours asked of the k-d tree at first (more when an open cell has used them up).
 FIRST_NEIGHBOURS = 16
@@ -109,6 +112,8 @@ class SpppCells:
 
 def sppp_cell_areas(nuclei: np.ndarray, aux: np.ndarray, box: float | None = None) -> SpppCells:
     """Cells of the W nuclei ((K, 2)) among themselves and the auxiliary nuclei ((A, 2))."""
+    from scipy.spatial import cKDTree
+
     nuclei = np.asarray(nuclei, np.float64).reshape(-1, 2)
     points = np.concatenate([nuclei, np.asarray(aux, np.float64).reshape(-1, 2)])
     count = len(nuclei)
@@ -156,6 +161,8 @@ def cells_among(
     any point set that holds its neighbours, and whatever other cells are computed with it
     (module docstring, "Reproducibility").
     """
+    from scipy.spatial import cKDTree
+
     points = np.asarray(points, np.float64).reshape(-1, 2)
     which = np.asarray(which, np.int64)
     if which.size == 0:
@@ -434,6 +441,8 @@ def _clipped_areas(
 ) -> np.ndarray:
     """Areas of the nuclei's cells among the points, clipped from the boxes [lo, hi] (relative
     corners), shared equally between coincident nuclei."""
+    from scipy.spatial import cKDTree
+
     if len(nuclei) == 0:
         return np.zeros(0)
     tree = cKDTree(points)

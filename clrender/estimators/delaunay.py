@@ -18,8 +18,12 @@ settle their cells by clipping).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial import Delaunay
+
+if TYPE_CHECKING:  # scipy.spatial is imported where used: it takes ~1 s to import
+    from scipy.spatial import Delaunay
 
 # SciPy's default for 2-D Delaunay ("Qt" is always added by SciPy). No "QJ": joggling moves the
 # points and so changes the cells.

@@ -78,9 +78,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from clrender.errors import ParameterError
 from clrender.estimators.clip_cells import cells_among
@@ -98,6 +98,9 @@ from clrender.estimators.qhull_cells import NEAR_COINCIDENT
 from clrender.estimators.registry import ESTIMATORS, PixelSums
 from clrender.samples import SampleSets
 from clrender.sppp import DEFAULT_ALPHA, sppp_eps
+
+if TYPE_CHECKING:  # scipy.spatial is imported where used: it takes ~1 s to import
+    from scipy.spatial import Delaunay
 
 BLOCK_POINTS = 6000  # nuclei per Qhull call (block pixels only, guard excluded)
 MAX_GUARD = 16.0  # widest guard (pixels) the fallback tries
@@ -145,6 +148,8 @@ def region_cells(
     Nuclei closer than near_length (at least NEAR_COINCIDENT times the extent of Qhull's
     coordinates) and their neighbours are settled by clipping (module docstring).
     """
+    from scipy.spatial import Delaunay, QhullError
+
     t = traced_count
     if t == 0:
         return RegionCells(np.zeros(0), np.zeros(0, bool))
@@ -233,6 +238,8 @@ def _settle_near_coincident(
     clipped cells, or in Qhull's triangles, which may be wrong there), written over areas and
     bad; returns how many. The near points are found by a k-d tree, not from Qhull's edges,
     so that they do not depend on Qhull's errors."""
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(points)
     pairs = tree.query_pairs(near_length, output_type="ndarray")
     near = np.union1d(pairs.ravel(), _dropped_apart(tri, points))

@@ -64,14 +64,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import Delaunay, QhullError
 
 from clrender.errors import ClrenderError, ParameterError
 from clrender.estimators.clip_cells import clipped_cell_areas, sppp_cell_areas, torus_cell_areas
 from clrender.estimators.delaunay import QHULL_OPTIONS, TriangleTerms, as_complex, share_coincident
 from clrender.samples import segments
+
+if TYPE_CHECKING:  # scipy.spatial is imported where used: it takes ~1 s to import
+    from scipy.spatial import Delaunay
 
 # Points per Qhull call: the cost per point is flat over a range around this size and rises
 # with one pixel per call (per-call overhead) and with larger calls (bench/voronoi_speed.py).
@@ -486,6 +489,8 @@ def _cells(
     Each Qhull call's triangles are processed right after the call, while they are in cache,
     into the call's contiguous range of the laid-out arrays.
     """
+    from scipy.spatial import Delaunay, QhullError
+
     stats = TessellationStats()
     layout = _call_layout(point_set, one_pixel_per_call)
     total = len(layout.z)
