@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,6 +31,24 @@ from clrender.package_data import shipped_dir
 KERNELS_DIR_VARIABLE = "CLRENDER_KERNELS_DIR"
 # One fixed local size: PoCL JIT-compiles a work-group function per new local size.
 LOCAL_SIZE = 64
+# The render's kernels: with every scalar argument 0, each one's work-item count is 0 and every
+# work-item returns at once. Runtime.kernel launches each so once (a launch that does nothing),
+# so that a device that generates a kernel's code at its first launch (PoCL, for each local
+# size) does it then, and the time counts as compile time, not render time.
+WARM_UP_FILES = frozenset({"sampling.cl", "integrator.cl", "voronoi_cells.cl", "voronoi_sums.cl"})
+# The render launches at least this many work-items (the extra ones return at once: about
+# 0.15 ms per launch on PoCL): PoCL generates a second version of each kernel for grids of up to
+# 32 768 work-items ("smallgrid"), which would double a cold start's code generation.
+MIN_LAUNCH_SIZE = 1 << 16
+# OpenCL C scalar types of those kernels' arguments
+SCALAR_TYPES = {
+    "uint": np.uint32,
+    "int": np.int32,
+    "float": np.float32,
+    "ulong": np.uint64,
+    "long": np.int64,
+    "uchar": np.uint8,
+}
 
 # Per thread: a render's estimator thread builds on its own context (clrender.pipeline).
 _THREAD_BUILD_TIME = threading.local()
@@ -133,13 +152,39 @@ class Runtime:
     ) -> cl.Kernel:
         """One kernel of a built program, retrieved once per process (retrieval is costly)."""
         items = tuple(sorted((defines or {}).items()))
-        return _kernel_cached(self.context, source_file, items, name)
+        kernel = _kernel_cached(self.context, source_file, items, name)
+        if source_file in WARM_UP_FILES:
+            self.warm_up(kernel, source_file, items, name)
+        return kernel
+
+    def warm_up(
+        self,
+        kernel: cl.Kernel,
+        source_file: str,
+        defines: tuple[tuple[str, object], ...],
+        name: str,
+    ) -> None:
+        """Launch a kernel of WARM_UP_FILES with every scalar argument 0 (no work-item does
+        anything) and a small dummy buffer for each pointer, as the render launches it
+        (launch_global_size), once per (context, kernel, local size); the time counts as build
+        time (thread_build_seconds)."""
+        key = (self.context.int_ptr, source_file, defines, name, self.local_size)
+        if key in _WARMED:
+            return
+        start = time.perf_counter()
+        try:
+            args = warm_up_arguments(source_file, name, self.allocate(64))
+            global_size = launch_global_size(0, self.local_size)
+            kernel(self.queue, (global_size,), (self.local_size,), *args).wait()
+            _WARMED.add(key)
+        finally:
+            _count_build_time(start)
 
     def launch_1d(self, kernel: cl.Kernel, count: int, *args) -> cl.Event:
-        """Enqueue kernel over count work-items (the global size padded to the local size;
-        the kernel skips the padding itself) on this runtime's queue."""
+        """Enqueue kernel over count work-items (launch_global_size: padded; the kernel skips
+        the padding itself) on this runtime's queue."""
         local = self.local_size
-        return kernel(self.queue, (padded_global_size(count, local),), (local,), *args)
+        return kernel(self.queue, (launch_global_size(count, local),), (local,), *args)
 
     def allocate(self, nbytes: int) -> cl.MemoryObjectHolder:
         """A read-write device buffer of at least nbytes (at least 16) from the pool; it goes
@@ -197,10 +242,51 @@ def _c_literal(value: object) -> str:
 
 def thread_build_seconds() -> float:
     """Seconds the calling thread has spent building OpenCL programs and creating kernels
-    (first uses only: both are cached). A render reports them apart from its stages. PoCL
-    finishes a kernel's code generation at its first launch (for each local size), which this
-    does not see: on a cold cache that lands in the stage of the first launch."""
+    (first uses only: both are cached), and warming up the render's kernels (Runtime.warm_up:
+    PoCL generates a kernel's code at its first launch for each local size). A render reports
+    them apart from its stages."""
     return getattr(_THREAD_BUILD_TIME, "seconds", 0.0)
+
+
+_WARMED: set[tuple] = set()
+
+
+@functools.cache
+def kernel_parameters(path: Path, name: str) -> tuple[str, ...]:
+    """Each parameter of kernel `name` in the source file: "global" or "local" for a pointer,
+    else its scalar type (a key of SCALAR_TYPES). KernelBuildError if the kernel is not there or
+    a parameter's type is not one of those."""
+    text = path.read_text()
+    match = re.search(rf"__kernel\s+void\s+{name}\s*\(([^)]*)\)", text)
+    if match is None:
+        raise KernelBuildError(f"{path}: no __kernel void {name}(...) to warm up")
+    kinds = []
+    for parameter in match.group(1).split(","):
+        words = parameter.replace("*", " * ").split()
+        if "*" in words:
+            kinds.append("local" if "__local" in words or "local" in words else "global")
+            continue
+        scalar = [word for word in words[:-1] if word not in ("const", "__private")]
+        if len(scalar) != 1 or scalar[0] not in SCALAR_TYPES:
+            raise KernelBuildError(
+                f"{path}: kernel {name} parameter {parameter.strip()!r}: expected a pointer or "
+                f"one of {', '.join(SCALAR_TYPES)}"
+            )
+        kinds.append(scalar[0])
+    return tuple(kinds)
+
+
+def warm_up_arguments(source_file: str, name: str, dummy: cl.MemoryObjectHolder) -> list:
+    """The arguments of a warm-up launch: 0 for each scalar, `dummy` for each global pointer."""
+    arguments: list[object] = []
+    for kind in kernel_parameters(kernels_dir() / source_file, name):
+        if kind == "global":
+            arguments.append(dummy)
+        elif kind == "local":
+            arguments.append(cl.LocalMemory(16))
+        else:
+            arguments.append(SCALAR_TYPES[kind](0))
+    return arguments
 
 
 def _count_build_time(start: float) -> None:
@@ -244,6 +330,14 @@ def _build_log(err: cl.RuntimeError) -> str:
     text = str(err)
     marker = "Build on <pyopencl.Device"
     return text[text.find(marker) :] if marker in text else text
+
+
+def launch_global_size(count: int, local_size: int = LOCAL_SIZE) -> int:
+    """The global size of a render kernel's launch over count work-items: padded to the local
+    size, and at least MIN_LAUNCH_SIZE (one version of each kernel's code)."""
+    return max(
+        padded_global_size(count, local_size), padded_global_size(MIN_LAUNCH_SIZE, local_size)
+    )
 
 
 def padded_global_size(count: int, local_size: int = LOCAL_SIZE) -> int:

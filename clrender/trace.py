@@ -22,7 +22,7 @@ import numpy as np
 import pyopencl as cl
 
 from clrender.errors import ParameterError
-from clrender.runtime import Runtime, padded_global_size
+from clrender.runtime import Runtime, launch_global_size
 from clrender.sampling import PATHS_ZSOBOL, DeviceSampleSets, check_seed
 from clrender.scene import Scene
 from clrender.scene_device import QUAD_BLOCK_WIDTH
@@ -158,7 +158,7 @@ class PathTracer:
         runtime = self.runtime
         queue = runtime.queue
         count = sample_sets.traced_total
-        global_size = padded_global_size(count, runtime.local_size)
+        global_size = launch_global_size(count, runtime.local_size)
         groups = global_size // runtime.local_size
         radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(1 + groups, np.uint32))

@@ -419,9 +419,11 @@ def test_toroidal_shift_is_recorded_when_applied(capsys, tmp_path, sampler, esti
 
 def test_the_command_line_starts_without_importing_scipy():
     """Start-up time: scipy's optimize, spatial and integrate take about 2 s to import together;
-    the command line imports them only where a render uses them."""
+    the command line, and the settings of the default (SPPP) render, import none of them."""
     code = (
         "import sys; import clrender.cli, clrender.api; "
+        "from clrender.cli import build_parser, settings_from_args; "
+        "settings_from_args(build_parser().parse_args(['render']), 8, 8); "
         "print(sorted(m for m in sys.modules if m.split('.')[:2] in "
         "(['scipy', 'spatial'], ['scipy', 'optimize'], ['scipy', 'integrate'])))"
     )

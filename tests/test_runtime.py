@@ -2,16 +2,19 @@
 
 import importlib.util
 import os
+import re
 import subprocess
 import sys
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pyopencl as cl
 import pytest
 
 from clrender import runtime as rt
 from clrender.errors import DeviceError, KernelBuildError
+from clrender.estimators.device_cells import _defines
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -97,9 +100,63 @@ def test_programs_are_built_once_per_process(runtime):
     )
 
 
+# Build options the kernels need (the single-precision ones: any device has them)
+DEFINES_OF = {name: _defines("single") for name in ("voronoi_cells.cl", "voronoi_sums.cl")}
+WARMED_KERNELS = [
+    (source_file, name)
+    for source_file in sorted(rt.WARM_UP_FILES)
+    for name in re.findall(r"__kernel\s+void\s+(\w+)", (rt.kernels_dir() / source_file).read_text())
+]
+
+
+@pytest.mark.parametrize("source_file, name", WARMED_KERNELS)
+def test_warm_up_launches_do_nothing(runtime, source_file, name):
+    """Every kernel of the render is launched once with all scalars 0 (Runtime.warm_up): each
+    work-item must return before touching memory, so a sentinel buffer stays as it was."""
+    program = runtime.build(source_file, DEFINES_OF.get(source_file))
+    kernel = cl.Kernel(program, name)
+    sentinel = np.full(16, 0xA5A5A5A5, np.uint32)
+    dummy = runtime.upload(sentinel)
+    arguments = rt.warm_up_arguments(source_file, name, dummy)
+    kernel(runtime.queue, (runtime.local_size,), (runtime.local_size,), *arguments).wait()
+    after = np.empty_like(sentinel)
+    cl.enqueue_copy(runtime.queue, after, dummy)
+    assert np.array_equal(after, sentinel)
+
+
+def test_warm_up_is_counted_as_build_time_once(runtime):
+    defines = {"CLRENDER_WARM_UP_TEST": 1}  # a program of its own, built for this test only
+    before = rt.thread_build_seconds()
+    runtime.kernel("voronoi_sums.cl", "pixel_moments", defines)
+    key = (runtime.context.int_ptr, "voronoi_sums.cl", (("CLRENDER_WARM_UP_TEST", 1),))
+    assert any(entry[:3] == key for entry in rt._WARMED)
+    first = rt.thread_build_seconds() - before
+    assert first > 0
+    again = rt.thread_build_seconds()
+    runtime.kernel("voronoi_sums.cl", "pixel_moments", defines)
+    assert rt.thread_build_seconds() - again < first / 10
+
+
+def test_kernel_parameters_are_read_from_the_source(tmp_path):
+    source = tmp_path / "k.cl"
+    source.write_text(
+        "__kernel void k(uint count, const float x, __global float *out,\n"
+        "                __local uint *scratch)\n{}\n"
+        "__kernel void bad(float3 v) {}\n"
+    )
+    assert rt.kernel_parameters(source, "k") == ("uint", "float", "global", "local")
+    with pytest.raises(KernelBuildError, match="float3 v"):
+        rt.kernel_parameters(source, "bad")
+    with pytest.raises(KernelBuildError, match="no __kernel void missing"):
+        rt.kernel_parameters(source, "missing")
+
+
 @pytest.mark.parametrize("count, padded", [(1, 64), (64, 64), (65, 128), (0, 64), (1000, 1024)])
 def test_global_sizes_are_padded_to_the_local_size(count, padded):
     assert rt.padded_global_size(count) == padded
+    assert rt.launch_global_size(count) == max(padded, rt.MIN_LAUNCH_SIZE)
+    if count:
+        assert rt.launch_global_size(rt.MIN_LAUNCH_SIZE + count) == rt.MIN_LAUNCH_SIZE + padded
 
 
 def test_kernels_are_found_from_the_source_checkout():

@@ -185,6 +185,21 @@ def test_eps_follows_alpha():
     assert sppp_eps(256, 1e-6) > sppp_eps(256, 1e-3) > sppp_eps(256, 0.5)
 
 
+def test_eps_root_matches_brent_on_the_decreasing_branch():
+    """sppp_eps solves u - ln u = ln(4 n / alpha) by Newton's method; SciPy's brentq on the
+    same bracket is the reference."""
+    from scipy.optimize import brentq
+
+    for n in (0.5, 1, 3, 16, 256, 4096, 10_000, 1e6):
+        for alpha in (1e-9, 1e-3, 0.1, 0.9):
+            target = math.log(4 * n / alpha)
+            if target <= 1:
+                assert sppp_eps(n, alpha) == 0.0
+                continue
+            u = brentq(lambda u, t=target: u - math.log(u) - t, 1, target + math.log(target) + 2)
+            assert sppp_eps(n, alpha) == pytest.approx(math.sqrt(u / (math.pi * n)), rel=1e-13)
+
+
 @pytest.mark.parametrize(
     "sampler, n",
     [
