@@ -413,3 +413,17 @@ def test_08_render_throughput_splits_the_render_and_compares_in_one_run(tmp_path
     assert points["sppp/vor_sn"]["voronoi_s"] > 0 and points["independent/mc"]["voronoi_s"] == 0
     renders = [row for row in data["renders"] if row["renderer"] == "clrender"]
     assert len(renders) == 4 and data["command"].startswith("python bench/render_throughput.py")
+
+
+def test_09_cold_start_times_the_command_line_in_new_processes(tmp_path):
+    import cold_start
+
+    data = cold_start.main(
+        ["--repeats", "1", "--kinds", "warm", "help", "--args", "render --res 8 --spp 2"]
+        + ["--user-cache", "--output", str(tmp_path)]
+    )
+    warm = data["summary"]["warm"]
+    assert warm["runs"] == 1 and 0 < warm["render_wall_s"] < warm["wall_s"] <= warm["cpu_s"] * 50
+    assert warm["outside_render_s"] == pytest.approx(warm["wall_s"] - warm["render_wall_s"])
+    assert data["summary"]["help"]["wall_s"] > 0
+    assert json.loads((tmp_path / "results.json").read_text())["clrender_args"][-1] == "--json"
