@@ -85,14 +85,12 @@ typedef char WavefrontShadowRay_size_is_64[sizeof(WavefrontShadowRay) == 64 ? 1 
     {quads,     quad_blocks, spheres,    materials,    emitters,                               \
      quad_count, quad_block_count, sphere_count, emitter_count}
 
-// Store a float3 into a float[3] of any address space (vstore3 is a call on pip's PoCL).
-#define WAVEFRONT_STORE3(dst, v)                                                               \
-    do {                                                                                       \
-        float3 stored_ = (v);                                                                  \
-        (dst)[0] = stored_.x;                                                                  \
-        (dst)[1] = stored_.y;                                                                  \
-        (dst)[2] = stored_.z;                                                                  \
-    } while (0)
+CL_INLINE void Wavefront_Store3(__global float *p, float3 v)
+{
+    p[0] = v.x;
+    p[1] = v.y;
+    p[2] = v.z;
+}
 
 // integrator.cl's Integrator_PowerHeuristic.
 CL_INLINE float Wavefront_PowerHeuristic(float pdf_a, float pdf_b)
@@ -119,12 +117,13 @@ CL_INLINE Sampler Wavefront_Sampler(__global const WavefrontPath *path, int kind
 }
 
 // Next event estimation at a non-specular vertex (integrator.cl's Integrator_SampleDirect up
-// to its occlusion test): fills *shadow and returns true, or returns false where the
+// to its occlusion test): queues the shadow ray and returns true, or returns false where the
 // megakernel's term is zero without a shadow ray (the caller then adds beta * 0, as it does).
-CL_INLINE bool Wavefront_SampleDirect(const SceneData *scene, Surface *surface, Frame frame,
-                                      __global const Material *material, float3 wo_local,
-                                      float3 u, float3 beta, uint path,
-                                      WavefrontShadowRay *shadow)
+CL_INLINE bool Wavefront_QueueDirect(const SceneData *scene, Surface *surface, Frame frame,
+                                     __global const Material *material, float3 wo_local,
+                                     float3 u, float3 beta, uint path,
+                                     __global WavefrontShadowRay *shadow_rays,
+                                     __global uint *shadow_count)
 {
     float3 wi;
     float dist, light_pdfW;
@@ -140,113 +139,14 @@ CL_INLINE bool Wavefront_SampleDirect(const SceneData *scene, Surface *surface, 
     float light_error = SURFACE_ERROR_SCALE * MaxAbs3(surface->p + dist * wi);
     float weight =
         Wavefront_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
-    WAVEFRONT_STORE3(shadow->origin, origin);
-    WAVEFRONT_STORE3(shadow->dir, wi);
+    __global WavefrontShadowRay *shadow = &shadow_rays[atomic_inc(shadow_count)];
+    Wavefront_Store3(shadow->origin, origin);
+    Wavefront_Store3(shadow->dir, wi);
     shadow->tmax = dist - 2.0f * (surface->error + light_error);
     shadow->path = path;
-    WAVEFRONT_STORE3(shadow->beta, beta);
-    WAVEFRONT_STORE3(shadow->contribution, f * Le * (weight / light_pdfW));
+    Wavefront_Store3(shadow->beta, beta);
+    Wavefront_Store3(shadow->contribution, f * Le * (weight / light_pdfW));
     return true;
-}
-
-// Which queues a shaded vertex pushes its path to.
-#define PUSH_NEXT 1
-#define PUSH_SHADOW 2
-
-// One vertex of path p (the body of integrator.cl's Integrator_Li loop at depth `depth`, past
-// the intersection): updates the path's state; returns PUSH_NEXT if it goes on, PUSH_SHADOW if
-// *shadow holds a light sample to test.
-CL_INLINE int Wavefront_ShadeVertex(const SceneData *scene, uint p, int depth, int max_depth,
-                                    int nee, int russian_roulette, int paths_kind, uint seed,
-                                    uint fixed_count, uint strata, uint zsobol_bits,
-                                    __global WavefrontRay *ray, __global WavefrontPath *path,
-                                    WavefrontShadowRay *shadow)
-{
-    // A ray that found no surface ends its path
-    int prim = ray->prim;
-    if (prim < 0)
-        return 0;
-    float3 dir = Load3(ray->dir);
-    float t = ray->t;
-    Surface surface = Scene_Surface(scene, Load3(ray->origin), dir, t, prim);
-    float3 wo = -dir;
-    float3 beta = Load3(path->beta);
-    float3 L = Load3(path->L);
-    bool specularBounce = path->specular != 0u;
-
-    // Add emission found by the ray, MIS-weighted unless it came from the camera or a
-    // specular bounce (NEE cannot sample those paths)
-    if (surface.emitter >= 0 && Dot3(surface.ng, wo) > 0.0f) {
-        __global const Emitter *emitter = &scene->emitters[surface.emitter];
-        float3 Le = Load3(emitter->radiance);
-        if (depth == 0 || specularBounce || !nee) {
-            L += beta * Le;
-        } else {
-            float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
-            L += beta * Le * Wavefront_PowerHeuristic(path->prev_pdfW, light_pdfW);
-        }
-        WAVEFRONT_STORE3(path->L, L);
-    }
-
-    // End the path at the maximum depth or on a surface that only emits
-    if (depth == max_depth || surface.material < 0)
-        return 0;
-    __global const Material *material = &scene->materials[surface.material];
-
-    // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
-    float3 n = surface.ng;
-    if (!BSDF_IsSpecular(material) && Dot3(n, wo) < 0.0f) {
-        if (!material->two_sided)
-            return 0;
-        n = -n;
-    }
-    Frame frame = Frame_FromNormal(n);
-    float3 wo_local = Frame_ToLocal(frame, wo);
-    Sampler sampler = Wavefront_Sampler(path, paths_kind, seed, fixed_count, strata, zsobol_bits);
-    BounceSamples u = Sampler_Bounce(&sampler, (uint)depth);
-
-    // Sample direct illumination from the emitters (skipped at specular vertices) for the
-    // shadow queue; a sample with no shadow ray adds beta * 0 here, as the megakernel does
-    int pushes = 0;
-    if (nee && !BSDF_IsSpecular(material) && scene->emitter_count > 0u) {
-        if (Wavefront_SampleDirect(scene, &surface, frame, material, wo_local,
-                                   (float3)(u.emitter_choice, u.emitter_point), beta, p,
-                                   shadow)) {
-            pushes = PUSH_SHADOW;
-        } else {
-            L += beta * (float3)(0.0f);
-            WAVEFRONT_STORE3(path->L, L);
-        }
-    }
-
-    // Sample the BSDF to get the new path direction
-    float3 wi_local;
-    float pdfW;
-    float3 weight = BSDF_Sample(material, wo_local, (float3)(u.direction, u.lobe), &wi_local,
-                                &pdfW);
-    if (!AnyPositive3(weight))
-        return pushes;
-    beta *= weight;
-    specularBounce = BSDF_IsSpecular(material);
-    float3 new_dir = Frame_ToWorld(frame, wi_local);
-    float3 origin = Surface_OffsetOrigin(surface.p, surface.ng, new_dir, surface.error);
-
-    // Possibly terminate the path with Russian roulette
-    float beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
-    if (russian_roulette && depth >= 1 && beta_max < 1.0f) {
-        float q = Fmax(0.0f, 1.0f - beta_max);
-        if (u.roulette < q)
-            return pushes;
-        beta /= 1.0f - q;
-    }
-
-    // The path's next ray
-    WAVEFRONT_STORE3(ray->origin, origin);
-    WAVEFRONT_STORE3(ray->dir, new_dir);
-    WAVEFRONT_STORE3(path->beta, beta);
-    path->prev_pdfW = pdfW;
-    path->specular = specularBounce ? 1u : 0u;
-    return pushes | PUSH_NEXT;
 }
 
 // Stage (a): the camera ray of path p = sample path_base + p of the launch; queue[p] = p.
@@ -278,11 +178,11 @@ __kernel void wavefront_generate(uint path_base, uint path_count, uint pixel_cou
     Sampler sampler = Sampler_Make(paths_kind, seed, pixel, sample, redraw, fixed_count, strata,
                                    image_width, zsobol_log2_count, zsobol_bits);
     __global WavefrontRay *ray = &rays[p];
-    WAVEFRONT_STORE3(ray->origin, Load3(camera->origin));
-    WAVEFRONT_STORE3(ray->dir, dir);
+    Wavefront_Store3(ray->origin, Load3(camera->origin));
+    Wavefront_Store3(ray->dir, dir);
     __global WavefrontPath *path = &paths[p];
-    WAVEFRONT_STORE3(path->beta, (float3)(1.0f));
-    WAVEFRONT_STORE3(path->L, (float3)(0.0f));
+    Wavefront_Store3(path->beta, (float3)(1.0f));
+    Wavefront_Store3(path->L, (float3)(0.0f));
     path->prev_pdfW = 0.0f;
     path->specular = 0u;
     path->pixel = pixel;
@@ -308,11 +208,8 @@ __kernel void wavefront_intersect(uint ray_count, __global const uint *queue,
     ray->prim = prim;
 }
 
-// Stage (c): one vertex of each queued path: emission, a light sample to the shadow queue, a
-// BSDF sample to the next queue (each push one global atomic).
-// WAVEFRONT_GROUP_PUSHES (a variant for bench/kernel_structure.py): pushes are counted per
-// work-group (local atomics) and one global atomic per queue and group reserves the group's
-// range, as GPU wavefront tracers aggregate theirs; it needs two barriers.
+// Stage (c): one vertex of each queued path (the body of integrator.cl's Integrator_Li loop at
+// depth `depth`): emission, a light sample to the shadow queue, a BSDF sample to the next queue.
 __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_roulette,
                               uint ray_count, int paths_kind, uint seed, uint fixed_count,
                               uint strata, uint zsobol_bits, __global const uint *queue,
@@ -320,58 +217,96 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
                               __global uint *next_queue, __global WavefrontShadowRay *shadow_rays,
                               __global uint *counters, uint count_slot, WAVEFRONT_SCENE_PARAMS)
 {
-    SceneData scene = WAVEFRONT_SCENE;
-    __global uint *queue_counts = &counters[count_slot];
     uint q = get_global_id(0);
-#ifndef WAVEFRONT_GROUP_PUSHES
     if (q >= ray_count)
         return;
+    SceneData scene = WAVEFRONT_SCENE;
+    __global uint *queue_counts = &counters[count_slot];
     uint p = queue[q];
-    WavefrontShadowRay shadow;
-    int pushes = Wavefront_ShadeVertex(&scene, p, depth, max_depth, nee, russian_roulette,
-                                       paths_kind, seed, fixed_count, strata, zsobol_bits,
-                                       &rays[p], &paths[p], &shadow);
-    // Join the queues
-    if (pushes & PUSH_SHADOW)
-        shadow_rays[atomic_inc(&queue_counts[QUEUE_SHADOW])] = shadow;
-    if (pushes & PUSH_NEXT)
-        next_queue[atomic_inc(&queue_counts[QUEUE_NEXT])] = p;
-#else
-    __local uint group_counts[2];
-    __local uint group_bases[2];
-    uint lid = get_local_id(0);
-    if (lid == 0u) {
-        group_counts[QUEUE_NEXT] = 0u;
-        group_counts[QUEUE_SHADOW] = 0u;
+    __global WavefrontRay *ray = &rays[p];
+    __global WavefrontPath *path = &paths[p];
+
+    // A ray that found no surface ends its path
+    int prim = ray->prim;
+    if (prim < 0)
+        return;
+    float3 dir = Load3(ray->dir);
+    float t = ray->t;
+    Surface surface = Scene_Surface(&scene, Load3(ray->origin), dir, t, prim);
+    float3 wo = -dir;
+    float3 beta = Load3(path->beta);
+    float3 L = Load3(path->L);
+    bool specularBounce = path->specular != 0u;
+
+    // Add emission found by the ray, MIS-weighted unless it came from the camera or a
+    // specular bounce (NEE cannot sample those paths)
+    if (surface.emitter >= 0 && Dot3(surface.ng, wo) > 0.0f) {
+        __global const Emitter *emitter = &scene.emitters[surface.emitter];
+        float3 Le = Load3(emitter->radiance);
+        if (depth == 0 || specularBounce || !nee) {
+            L += beta * Le;
+        } else {
+            float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
+            L += beta * Le * Wavefront_PowerHeuristic(path->prev_pdfW, light_pdfW);
+        }
+        Wavefront_Store3(path->L, L);
     }
-    barrier(CLK_LOCAL_MEM_FENCE);
 
-    // Shade the vertex and take a place in the work-group's share of each queue it joins
-    uint p = q < ray_count ? queue[q] : 0u;
-    WavefrontShadowRay shadow;
-    int pushes = q < ray_count ? Wavefront_ShadeVertex(&scene, p, depth, max_depth, nee,
-                                                       russian_roulette, paths_kind, seed,
-                                                       fixed_count, strata, zsobol_bits,
-                                                       &rays[p], &paths[p], &shadow)
-                               : 0;
-    uint next_slot = (pushes & PUSH_NEXT) ? atomic_inc(&group_counts[QUEUE_NEXT]) : 0u;
-    uint shadow_slot = (pushes & PUSH_SHADOW) ? atomic_inc(&group_counts[QUEUE_SHADOW]) : 0u;
-    barrier(CLK_LOCAL_MEM_FENCE);
+    // End the path at the maximum depth or on a surface that only emits
+    if (depth == max_depth || surface.material < 0)
+        return;
+    __global const Material *material = &scene.materials[surface.material];
 
-    // Reserve the work-group's range of each queue
-    if (lid == 0u) {
-        group_bases[QUEUE_NEXT] = atomic_add(&queue_counts[QUEUE_NEXT], group_counts[QUEUE_NEXT]);
-        group_bases[QUEUE_SHADOW] =
-            atomic_add(&queue_counts[QUEUE_SHADOW], group_counts[QUEUE_SHADOW]);
+    // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
+    float3 n = surface.ng;
+    if (!BSDF_IsSpecular(material) && Dot3(n, wo) < 0.0f) {
+        if (!material->two_sided)
+            return;
+        n = -n;
     }
-    barrier(CLK_LOCAL_MEM_FENCE);
+    Frame frame = Frame_FromNormal(n);
+    float3 wo_local = Frame_ToLocal(frame, wo);
+    Sampler sampler = Wavefront_Sampler(path, paths_kind, seed, fixed_count, strata, zsobol_bits);
+    BounceSamples u = Sampler_Bounce(&sampler, (uint)depth);
 
-    // Write the queue entries
-    if (pushes & PUSH_NEXT)
-        next_queue[group_bases[QUEUE_NEXT] + next_slot] = p;
-    if (pushes & PUSH_SHADOW)
-        shadow_rays[group_bases[QUEUE_SHADOW] + shadow_slot] = shadow;
-#endif
+    // Sample direct illumination from the emitters (skipped at specular vertices): queue the
+    // shadow ray; a sample with no shadow ray adds beta * 0 here, as the megakernel does
+    if (nee && !BSDF_IsSpecular(material) && scene.emitter_count > 0u &&
+        !Wavefront_QueueDirect(&scene, &surface, frame, material, wo_local,
+                               (float3)(u.emitter_choice, u.emitter_point), beta, p,
+                               shadow_rays, &queue_counts[QUEUE_SHADOW])) {
+        L += beta * (float3)(0.0f);
+        Wavefront_Store3(path->L, L);
+    }
+
+    // Sample the BSDF to get the new path direction
+    float3 wi_local;
+    float pdfW;
+    float3 weight = BSDF_Sample(material, wo_local, (float3)(u.direction, u.lobe), &wi_local,
+                                &pdfW);
+    if (!AnyPositive3(weight))
+        return;
+    beta *= weight;
+    specularBounce = BSDF_IsSpecular(material);
+    float3 new_dir = Frame_ToWorld(frame, wi_local);
+    float3 origin = Surface_OffsetOrigin(surface.p, surface.ng, new_dir, surface.error);
+
+    // Possibly terminate the path with Russian roulette
+    float beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
+    if (russian_roulette && depth >= 1 && beta_max < 1.0f) {
+        float q_end = Fmax(0.0f, 1.0f - beta_max);
+        if (u.roulette < q_end)
+            return;
+        beta /= 1.0f - q_end;
+    }
+
+    // Queue the path's next ray
+    Wavefront_Store3(ray->origin, origin);
+    Wavefront_Store3(ray->dir, new_dir);
+    Wavefront_Store3(path->beta, beta);
+    path->prev_pdfW = pdfW;
+    path->specular = specularBounce ? 1u : 0u;
+    next_queue[atomic_inc(&queue_counts[QUEUE_NEXT])] = p;
 }
 
 // Stage (d): the occlusion test of every queued light sample; an unblocked one adds its term
@@ -393,7 +328,7 @@ __kernel void wavefront_shadow(uint shadow_count,
     __global WavefrontPath *path = &paths[shadow->path];
     float3 L = Load3(path->L);
     L += Load3(shadow->beta) * contribution;
-    WAVEFRONT_STORE3(path->L, L);
+    Wavefront_Store3(path->L, L);
 }
 
 // Stage (e): each path's radiance to radiance[3 (path_base + p) ...]; a non-finite value is
