@@ -61,6 +61,8 @@ class QueueRecord:
     sample_count: int
     rays: list[np.ndarray] = field(default_factory=list)
     shadow_rays: list[np.ndarray] = field(default_factory=list)
+    # (chunk, depth, ray queue length, shadow queue length) of every bounce traced
+    queue_lengths: list[tuple[int, int, int, int]] = field(default_factory=list)
 
     def _append(self, kind: str, depth: int, ids: np.ndarray) -> None:
         lists = self.rays if kind == "rays" else self.shadow_rays
@@ -147,6 +149,9 @@ class WavefrontPathTracer(PathTracer):
             )
         super().__init__(runtime, scene, max_depth, russian_roulette, next_event_estimation)
         self.wave_paths = int(wave_paths)
+        # A list to collect (stage name, event) of every launch in (for stage timings on a
+        # profiling queue); None: nothing kept
+        self.stage_events: list[tuple[str, cl.Event]] | None = None
         # Profiling builds only, e.g. {"PROFILE_SKIP_SHADOW_RAYS": True} (as PathTracer's)
         self._stages = {
             name: runtime.kernel("wavefront.cl", f"wavefront_{name}", profile_defines)
@@ -237,6 +242,10 @@ class WavefrontPathTracer(PathTracer):
         paths_kind, fixed_count, strata, zsobol_log2_count, zsobol_bits = path_args
         local = runtime.local_size
         stages = self._stages
+        if self.stage_events is not None:
+            stages = {
+                name: _Recorded(name, kernel, self.stage_events) for name, kernel in stages.items()
+            }
         lengths = np.empty(2, np.uint32)
         event = None
         for k, (base, size) in enumerate(chunks):
@@ -298,6 +307,8 @@ class WavefrontPathTracer(PathTracer):
                 )
                 # The one read-back per bounce: the lengths of the next and the shadow queues
                 cl.enqueue_copy(queue, lengths, counters, src_offset=4 * slot)
+                if record is not None:
+                    record.queue_lengths.append((k, depth, ray_count, int(lengths[1])))
                 ray_count, shadow_count = int(lengths[0]), int(lengths[1])
                 if record is not None and shadow_count:
                     words = _read_uints(queue, shadow_rays, shadow_count * SHADOW_RAY_WORDS)
@@ -325,6 +336,18 @@ class WavefrontPathTracer(PathTracer):
                 counters,
             )
         return TraceResult(radiance, count, queue, counters, len(counts), event)
+
+
+class _Recorded:
+    """A kernel whose launches append (stage name, event) to a list."""
+
+    def __init__(self, name: str, kernel: cl.Kernel, events: list):
+        self.name, self.kernel, self.events = name, kernel, events
+
+    def __call__(self, *args) -> cl.Event:
+        event = self.kernel(*args)
+        self.events.append((self.name, event))
+        return event
 
 
 def _read_uints(queue: cl.CommandQueue, buffer: cl.Buffer, count: int) -> np.ndarray:
