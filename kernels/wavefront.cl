@@ -331,6 +331,172 @@ __kernel void wavefront_shadow(uint shadow_count,
     Wavefront_Store3(path->L, L);
 }
 
+// ----------------------------------------------------------------------------- SIMD stages
+
+// Stages (b) and (d) again, written for SIMD across work-items (the `simd_stages` option of
+// clrender/wavefront.py): PoCL vectorises a work-item loop only when no loop is left inside
+// it, so every loop over the scene here holds a barrier, around which PoCL runs its loop over
+// the work-items one quad block (or sphere) at a time, and the work-items' part is scalar,
+// branch-free code it can widen (8 rays at a time in AVX2). The results are
+// Scene_Intersect's and Scene_Occluded's bit for bit: the same expressions, contracted alike,
+// the same bounding-box culling, and the first of equal distances kept.
+
+// Whether the ray (o, inv_d: 1 / d) can meet a block's box before tmax: QuadBlock_BoundsHit,
+// one coordinate at a time.
+CL_INLINE bool Simd_BoundsHit(__global const QuadBlock *block, float ox, float oy, float oz,
+                              float ix, float iy, float iz, float tmax)
+{
+    float t0x = (block->lower[0] - ox) * ix;
+    float t0y = (block->lower[1] - oy) * iy;
+    float t0z = (block->lower[2] - oz) * iz;
+    float t1x = (block->upper[0] - ox) * ix;
+    float t1y = (block->upper[1] - oy) * iy;
+    float t1z = (block->upper[2] - oz) * iz;
+    float nx = t0x < t1x ? t0x : t1x;
+    float ny = t0y < t1y ? t0y : t1y;
+    float nz = t0z < t1z ? t0z : t1z;
+    float fx = t0x < t1x ? t1x : t0x;
+    float fy = t0y < t1y ? t1y : t0y;
+    float fz = t0z < t1z ? t1z : t0z;
+    float t_enter = nx > ny ? nx : ny;
+    t_enter = t_enter > nz ? t_enter : nz;
+    float t_exit = fx < fy ? fx : fy;
+    t_exit = t_exit < fz ? t_exit : fz;
+    bool hit = !(t_enter > t_exit || t_exit < 0.0f || t_enter > tmax);
+    return block->lower[3] != 0.0f || hit;
+}
+
+// Lane j of QuadBlock_Hits: whether the ray meets quad j of the block before tmax (*t: where).
+CL_INLINE bool Simd_QuadHit(__global const QuadBlock *block, uint j, float ox, float oy,
+                            float oz, float dx, float dy, float dz, float tmax, float *t_out)
+{
+    float nx = block->normal[0][j];
+    float ny = block->normal[1][j];
+    float nz = block->normal[2][j];
+    float t = (block->plane_d[j] - (nx * ox + ny * oy + nz * oz)) / (nx * dx + ny * dy + nz * dz);
+    float rx = ox + t * dx - block->corner[0][j];
+    float ry = oy + t * dy - block->corner[1][j];
+    float rz = oz + t * dz - block->corner[2][j];
+    float a = rx * block->u_dual[0][j] + ry * block->u_dual[1][j] + rz * block->u_dual[2][j];
+    float b = rx * block->v_dual[0][j] + ry * block->v_dual[1][j] + rz * block->v_dual[2][j];
+    *t_out = t;
+    return (t > 0.0f) & (t < tmax) & (a >= 0.0f) & (a <= 1.0f) & (b >= 0.0f) & (b <= 1.0f);
+}
+
+// Sphere_Intersect one coordinate at a time (Dot3 as (x + y) + z of separate products).
+CL_INLINE float Simd_Sphere(__global const Sphere *s, float ox, float oy, float oz, float dx,
+                            float dy, float dz, float tmax)
+{
+    float ocx = ox - s->center[0];
+    float ocy = oy - s->center[1];
+    float ocz = oz - s->center[2];
+    float r = s->radius;
+    float px = ocx * dx, py = ocy * dy, pz = ocz * dz;
+    float b = (px + py) + pz;
+    float fx = ocx - b * dx;
+    float fy = ocy - b * dy;
+    float fz = ocz - b * dz;
+    float ffx = fx * fx, ffy = fy * fy, ffz = fz * fz;
+    float ff = (ffx + ffy) + ffz;
+    float disc = r * r - ff;
+    float oox = ocx * ocx, ooy = ocy * ocy, ooz = ocz * ocz;
+    float oo = (oox + ooy) + ooz;
+    float c = oo - r * r;
+    float q = -b - Copysign(Sqrt(disc), b);
+    float t0 = c / q;
+    float t1 = q;
+    float tnear = Fmin(t0, t1);
+    float tfar = Fmax(t0, t1);
+    float t = tnear > 0.0f ? tnear : tfar;
+    return (disc >= 0.0f && t > 0.0f && t < tmax) ? t : tmax;
+}
+
+// Stage (b), SIMD: the closest surface along the ray of every queued path (Scene_Intersect).
+__kernel void wavefront_intersect_simd(uint ray_count, __global const uint *queue,
+                                       __global WavefrontRay *rays, WAVEFRONT_SCENE_PARAMS)
+{
+    // Load the ray (work-items past the queue's end trace its last ray and store nothing)
+    uint q = get_global_id(0);
+    bool active = q < ray_count;
+    __global WavefrontRay *ray = &rays[queue[active ? q : ray_count - 1u]];
+    float ox = ray->origin[0], oy = ray->origin[1], oz = ray->origin[2];
+    float dx = ray->dir[0], dy = ray->dir[1], dz = ray->dir[2];
+    float ix = 1.0f / dx, iy = 1.0f / dy, iz = 1.0f / dz;
+    float t = INFINITY;
+    int id = -1;
+
+    // Each quad block in turn for all the work-group's rays; the first of equal hits is kept
+    for (uint blk = 0; blk < quad_block_count; ++blk) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        __global const QuadBlock *block = &quad_blocks[blk];
+        bool in_box = Simd_BoundsHit(block, ox, oy, oz, ix, iy, iz, t);
+#pragma unroll
+        for (uint j = 0; j < QUAD_BLOCK_WIDTH; ++j) {
+            float tj;
+            bool hit = in_box & Simd_QuadHit(block, j, ox, oy, oz, dx, dy, dz, t, &tj);
+            id = hit ? block->quad[j] : id;
+            t = hit ? tj : t;
+        }
+    }
+
+    // Then each sphere
+    for (uint i = 0; i < sphere_count; ++i) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        float ti = Simd_Sphere(&spheres[i], ox, oy, oz, dx, dy, dz, t);
+        id = ti < t ? (int)(quad_count + i) : id;
+        t = ti;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (active) {
+        ray->t = t;
+        ray->prim = id;
+    }
+}
+
+// Stage (d), SIMD: the occlusion test of every queued light sample (Scene_Occluded: whether
+// anything blocks the ray, so every primitive is tested and the answers or-ed); an unblocked
+// one adds its term to its path's radiance (a blocked one beta * 0, as the megakernel does).
+__kernel void wavefront_shadow_simd(uint shadow_count,
+                                    __global const WavefrontShadowRay *shadow_rays,
+                                    __global WavefrontPath *paths, WAVEFRONT_SCENE_PARAMS)
+{
+    // Load the shadow ray (work-items past the queue's end test its last one, add nothing)
+    uint q = get_global_id(0);
+    bool active = q < shadow_count;
+    __global const WavefrontShadowRay *shadow = &shadow_rays[active ? q : shadow_count - 1u];
+    float ox = shadow->origin[0], oy = shadow->origin[1], oz = shadow->origin[2];
+    float dx = shadow->dir[0], dy = shadow->dir[1], dz = shadow->dir[2];
+    float ix = 1.0f / dx, iy = 1.0f / dy, iz = 1.0f / dz;
+    float tmax = shadow->tmax;
+    bool occluded = false;
+
+    // Each sphere, then each quad block, for all the work-group's shadow rays
+    for (uint i = 0; i < sphere_count; ++i) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        occluded |= Simd_Sphere(&spheres[i], ox, oy, oz, dx, dy, dz, tmax) < tmax;
+    }
+    for (uint blk = 0; blk < quad_block_count; ++blk) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        __global const QuadBlock *block = &quad_blocks[blk];
+        bool in_box = Simd_BoundsHit(block, ox, oy, oz, ix, iy, iz, tmax);
+#pragma unroll
+        for (uint j = 0; j < QUAD_BLOCK_WIDTH; ++j) {
+            float tj;
+            occluded |= in_box & Simd_QuadHit(block, j, ox, oy, oz, dx, dy, dz, tmax, &tj);
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+
+    // Add the light sample's term to its path
+    if (active) {
+        float3 contribution = occluded ? (float3)(0.0f) : Load3(shadow->contribution);
+        __global WavefrontPath *path = &paths[shadow->path];
+        float3 L = Load3(path->L);
+        L += Load3(shadow->beta) * contribution;
+        Wavefront_Store3(path->L, L);
+    }
+}
+
 // Stage (e): each path's radiance to radiance[3 (path_base + p) ...]; a non-finite value is
 // counted and stored as 0 (as pbrt does).
 __kernel void wavefront_finish(uint path_base, uint path_count,
