@@ -127,9 +127,7 @@ def queue_efficiency(queue_lengths, width: int) -> float:
 
 class WavefrontPathTracer(PathTracer):
     """A scene uploaded once to the device, and the wavefront kernels for it (a PathTracer:
-    same parameters, same results). wave_paths: paths traced together (state memory).
-    simd_stages: the intersect and shadow stages written for SIMD across work-items (one
-    quad block at a time for the whole work-group, which PoCL's vectoriser can widen)."""
+    same parameters, same results). wave_paths: paths traced together (state memory)."""
 
     def __init__(
         self,
@@ -139,7 +137,6 @@ class WavefrontPathTracer(PathTracer):
         russian_roulette: bool = False,
         next_event_estimation: bool = True,
         wave_paths: int = DEFAULT_WAVE_PATHS,
-        simd_stages: bool = False,
         profile_defines: dict[str, object] | None = None,
     ):
         if (
@@ -152,18 +149,12 @@ class WavefrontPathTracer(PathTracer):
             )
         super().__init__(runtime, scene, max_depth, russian_roulette, next_event_estimation)
         self.wave_paths = int(wave_paths)
-        self.simd_stages = bool(simd_stages)
         # A list to collect (stage name, event) of every launch in (for stage timings on a
         # profiling queue); None: nothing kept
         self.stage_events: list[tuple[str, cl.Event]] | None = None
         # Profiling builds only, e.g. {"PROFILE_SKIP_SHADOW_RAYS": True} (as PathTracer's)
-        simd = ("intersect", "shadow") if self.simd_stages else ()
         self._stages = {
-            name: runtime.kernel(
-                "wavefront.cl",
-                f"wavefront_{name}_simd" if name in simd else f"wavefront_{name}",
-                profile_defines,
-            )
+            name: runtime.kernel("wavefront.cl", f"wavefront_{name}", profile_defines)
             for name in STAGES
         }
 
