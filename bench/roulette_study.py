@@ -22,16 +22,20 @@ builds met on its thread), CPU seconds (time.process_time over the call: PoCL's 
 this process), rays and paths (the kernel's counters), and the MSE against the reference (mean
 over pixels and RGB, less the reference's own mean variance: clrender.compare.image_errors).
 
-Efficiency = 1 / (MSE x seconds). Per seed the cost MSE x seconds is one number; the
-efficiency ratio of a variant to "off" is mean cost(off) / mean cost(variant) over the seeds,
-with a 95 % percentile bootstrap interval (seeds resampled in pairs: the same seed draws the
-same sample positions with and without roulette), in CPU and in wall seconds. At high spp MSE
-x seconds is about constant (MSE ~ 1/spp, time ~ spp), so the ratio at the highest spp is the
-ratio of times to any MSE reached there. Time to a target MSE directly: the (median time, mean
-MSE) points of a pair joined on log-log axes and interpolated at the target (efficiency_report.
-time_to_mse); the target of a configuration is the largest of its variants' MSEs at the highest
-spp, so every variant reaches it within the measured spp. A verdict per ratio: gain when the
-interval lies above 1, loss below, else tie.
+Efficiency = 1 / (MSE x seconds), with the MSE a mean over the seeds and the seconds a median
+(a render slowed by another process's burst does not decide it). The efficiency ratio of a
+variant to "off" is (mean MSE x median seconds) of off / the same of the variant, with a 95 %
+percentile bootstrap interval (seeds resampled in pairs: the same seed draws the same sample
+positions with and without roulette), in CPU and in wall seconds. Where MSE x seconds is
+constant (MSE ~ 1/spp, time ~ spp: independent samples at high spp) that ratio is the ratio
+of times to any MSE; where it is not (Sobol points: MSE falls faster than 1/spp), times to a
+target MSE say more: the (median time, mean MSE) points of a pair joined on log-log axes and
+read at the target (efficiency_report.time_to_mse: interpolated between the spp that bracket
+it, else the last segment extended, with its own measured slope, and said so). Two targets per
+configuration: A, the MSE without roulette at the highest spp (the roulette variants usually
+need a little more than that spp: extrapolated along their last segment), and B, the largest
+variant MSE at the highest spp (every variant interpolated). A verdict per ratio: gain when
+the interval lies above 1, loss below, else tie.
 
 Outputs (OUT = bench/results/roulette/): results.json (every render, the summaries, ratios,
 times to target, the conclusion), efficiency.png (ratios against spp with their intervals),
@@ -41,6 +45,7 @@ mse_time.png (MSE against CPU time), report.md (tables, charts, conclusion).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import statistics
@@ -55,7 +60,6 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from bootstrap import ratio_interval  # noqa: E402
 from common import (  # noqa: E402
     MAX_DEPTH,
     REFERENCE_PARTS,
@@ -73,9 +77,9 @@ from figures import (  # noqa: E402
     caption,
     decade_log_axis,
     draw_caption,
-    legend_beside,
     report_caption,
 )
+from scipy.stats import bootstrap  # noqa: E402
 
 from clrender.api import runtime_for  # noqa: E402
 from clrender.compare import image_errors  # noqa: E402
@@ -97,7 +101,7 @@ VARIANTS = {
     "rr-from-4": (
         True,
         {"RUSSIAN_ROULETTE_MIN_DEPTH": 4},
-        "the same rule from the fifth vertex (Mitsuba's rr_depth 5)",
+        "the same rule from the fifth vertex (where Mitsuba's rr_depth 5 starts)",
     ),
     "rr-beta": (
         True,
@@ -128,6 +132,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--reference-spp", type=int, default=None, help="default 4096")
     parser.add_argument("--device", default=None)
     parser.add_argument("--out", type=Path, default=RESULTS / "roulette")
+    parser.add_argument(
+        "--rebuild",
+        action="store_true",
+        help="no renders: summaries, charts and report again from OUT/results.json's rows",
+    )
     args = parser.parse_args(argv)
     args.scenes = args.scenes or (["cornell-box"] if args.quick else SCENES)
     quick_variants = ["off", "rr", "rr-beta"]
@@ -290,8 +299,10 @@ def summarise(entry: dict) -> list[dict]:
                         else float("nan"),
                         "wall_s": wall,
                         "cpu_s": statistics.median(r["cpu_s"] for r in group),
-                        "paths_per_s": paths / sum(r["wall_s"] for r in group),
-                        "paths_per_cpu_s": paths / sum(r["cpu_s"] for r in group),
+                        "paths_per_s": paths / len(group) / wall,
+                        "paths_per_cpu_s": paths
+                        / len(group)
+                        / statistics.median(r["cpu_s"] for r in group),
                         "rays_per_path": sum(r["rays"] for r in group) / paths,
                     }
                 )
@@ -303,16 +314,35 @@ def verdict(low: float, high: float) -> str:
 
 
 def cost_ratio(rows_a: list[dict], rows_b: list[dict], key: str, rng) -> dict:
-    """Efficiency of b over a: mean (MSE x seconds) of a / that of b, with its 95 % interval
-    (seeds resampled in pairs)."""
+    """Efficiency of b over a: (mean MSE x median seconds) of a / the same of b, with its 95 %
+    percentile bootstrap interval (seeds resampled in pairs). The median time keeps a render
+    slowed by another process's burst from deciding the ratio; the MSE is a mean, as an
+    expectation must be."""
     assert [r["seed"] for r in rows_a] == [r["seed"] for r in rows_b]
-    cost_a = np.array([r["mse"] * r[key] for r in rows_a])
-    cost_b = np.array([r["mse"] * r[key] for r in rows_b])
-    if len(cost_a) < 2 or min(cost_a.min(), cost_b.min()) <= 0:
-        return {"ratio": None, "ci": None, "verdict": "undefined (MSE <= 0 or one seed)"}
-    ratio, low, high = ratio_interval(
-        cost_a, cost_b, np.mean, rng, paired=True, resamples=RESAMPLES
+    samples = tuple(
+        np.array([r[k] for r in rows]) for rows in (rows_a, rows_b) for k in ("mse", key)
     )
+    if len(rows_a) < 2 or min(samples[0].min(), samples[2].min()) <= 0:
+        return {"ratio": None, "ci": None, "verdict": "undefined (MSE <= 0 or one seed)"}
+
+    def statistic(mse_a, time_a, mse_b, time_b, axis=-1):
+        cost_a = np.mean(mse_a, axis=axis) * np.median(time_a, axis=axis)
+        cost_b = np.mean(mse_b, axis=axis) * np.median(time_b, axis=axis)
+        return cost_a / np.maximum(cost_b, 1e-300)
+
+    result = bootstrap(
+        samples,
+        statistic,
+        n_resamples=RESAMPLES,
+        paired=True,
+        vectorized=True,
+        axis=-1,
+        confidence_level=0.95,
+        method="percentile",
+        rng=rng,
+    )
+    low, high = float(result.confidence_interval.low), float(result.confidence_interval.high)
+    ratio = float(statistic(*samples))
     return {"ratio": ratio, "ci": [low, high], "verdict": verdict(low, high)}
 
 
@@ -341,9 +371,19 @@ def ratios(entry: dict, rng) -> list[dict]:
     return out
 
 
+TARGETS = {
+    # off's MSE at the highest spp: "off" is measured there; a variant that did not reach it
+    # is extrapolated along its last segment (its own measured slope), said so
+    "off_at_top": "the MSE without roulette at the highest spp",
+    # the largest variant MSE at the highest spp: every variant interpolated between spp
+    "reached_by_all": "the largest variant MSE at the highest spp",
+}
+
+
 def times_to_target(entry: dict) -> dict:
-    """Per configuration: the target MSE (the largest variant MSE at the highest spp) and each
-    variant's time to it (log-log interpolation between spp), and its ratio to "off"'s."""
+    """Per configuration and target (TARGETS): the target MSE, each variant's time to it
+    (efficiency_report.time_to_mse: log-log interpolation between spp, or the last segment
+    extended), how it was found, and its speed-up over "off" (off's time / the variant's)."""
     out = {}
     for config in dict.fromkeys(p["config"] for p in entry["summary"]):
         series = {
@@ -351,24 +391,32 @@ def times_to_target(entry: dict) -> dict:
             for v in entry["variants"]
         }
         finals = [pts[-1]["mse"] for pts in series.values()]
-        if min(finals) <= 0:
-            out[config] = {"target_mse": None}
-            continue
-        target = max(finals)
-        times = {
-            v: {clock: time_to_mse(pts, target, key) for clock, key in CLOCKS.items()}
-            for v, pts in series.items()
-        }
-        speedups = {}
-        for v, t in times.items():
-            base = times[BASELINE]
-            speedups[v] = {
-                clock: base[clock]["seconds"] / t[clock]["seconds"]
-                if base[clock]["seconds"] and t[clock]["seconds"]
-                else None
-                for clock in CLOCKS
+        out[config] = {}
+        for name, target in (
+            ("off_at_top", series[BASELINE][-1]["mse"]),
+            ("reached_by_all", max(finals)),
+        ):
+            if min(finals) <= 0:
+                out[config][name] = {"target_mse": None}
+                continue
+            times = {
+                v: {clock: time_to_mse(pts, target, key) for clock, key in CLOCKS.items()}
+                for v, pts in series.items()
             }
-        out[config] = {"target_mse": target, "times": times, "speedup_over_off": speedups}
+            speedups = {}
+            for v, t in times.items():
+                base = times[BASELINE]
+                speedups[v] = {
+                    clock: base[clock]["seconds"] / t[clock]["seconds"]
+                    if base[clock]["seconds"] and t[clock]["seconds"]
+                    else None
+                    for clock in CLOCKS
+                }
+            out[config][name] = {
+                "target_mse": target,
+                "times": times,
+                "speedup_over_off": speedups,
+            }
     return out
 
 
@@ -392,7 +440,11 @@ def headline(results: dict) -> list[dict]:
                 if (p["config"], p["variant"], p["spp"]) == (r["config"], BASELINE, top)
             )
             speed = entry["time_to_target"][r["config"]]
-            speedup = speed.get("speedup_over_off", {}).get(r["variant"], {})
+            speedup = {
+                name: speed[name].get("speedup_over_off", {}).get(r["variant"], {}).get("cpu")
+                for name in TARGETS
+            }
+            how = speed["off_at_top"].get("times", {}).get(r["variant"], {}).get("cpu", {})
             table.append(
                 {
                     "scene": scene,
@@ -409,8 +461,11 @@ def headline(results: dict) -> list[dict]:
                     "rays_per_path_off": off["rays_per_path"],
                     "paths_per_cpu_s": point["paths_per_cpu_s"],
                     "paths_per_cpu_s_off": off["paths_per_cpu_s"],
-                    "target_mse": speed.get("target_mse"),
-                    "time_speedup_cpu": speedup.get("cpu"),
+                    "target_mse": speed["off_at_top"]["target_mse"],
+                    "time_speedup_cpu": speedup["off_at_top"],
+                    "time_how": how.get("how"),
+                    "target_mse_all": speed["reached_by_all"]["target_mse"],
+                    "time_speedup_cpu_all": speedup["reached_by_all"],
                 }
             )
     return table
@@ -460,6 +515,27 @@ def conclusion(results: dict) -> list[str]:
                 for s, r in better + worse
             )
         )
+    # Where does any roulette pay, and is the shipped rule then the best one?
+    paying = {}
+    for r in table:
+        if r["verdict"] == "gain":
+            key = (r["scene"], r["config"])
+            if key not in paying or r["efficiency_ratio"] > paying[key]["efficiency_ratio"]:
+                paying[key] = r
+    if paying:
+        best_shipped = sum(r["variant"] == SHIPPED for r in paying.values())
+        lines.append(
+            f"Where some roulette beats none ({len(paying)} scene/configuration pairs of "
+            f"{len({(r['scene'], r['config']) for r in table})}), the best rule is the shipped "
+            f"one in {best_shipped}: "
+            + "; ".join(
+                f"{scene} {config} {r['variant']} {r['efficiency_ratio']:.2f}"
+                for (scene, config), r in paying.items()
+            )
+            + "."
+        )
+    else:
+        lines.append("No roulette rule beats none anywhere at the highest spp.")
     return lines
 
 
@@ -511,6 +587,22 @@ def scene_grid(count: int):
     return fig, axes[:count]
 
 
+def legend_of_all(fig, axes) -> None:
+    """One legend beside the axes with every labelled series of any panel (a variant that only
+    some scenes have, rr-beta, is listed too), in order of first appearance."""
+    entries = {}
+    for ax in axes:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    fig.legend(
+        list(entries.values()),
+        list(entries),
+        loc="outside right upper",
+        fontsize=7,
+        frameon=False,
+    )
+
+
 def efficiency_figure(results: dict):
     scenes = list(results["scenes"])
     fig, axes = scene_grid(len(scenes))
@@ -555,14 +647,14 @@ def efficiency_figure(results: dict):
     for ax in axes:
         decade_log_axis(ax.yaxis, min(positive + [0.9]), max(positive + [1.1]))
         decade_log_axis(ax.xaxis, min(spps) * 0.8, max(spps) * 1.25)
-    legend_beside(fig, axes)
+    legend_of_all(fig, axes)
     text = caption(
         "Russian roulette: efficiency 1 / (MSE x CPU seconds) of each roulette variant over "
         "no roulette, against spp",
         {
             **settings_caption(results),
-            "points": "mean over seeds of MSE x CPU seconds without roulette / the same with "
-            "the variant (MSE less the reference's variance), above 1: roulette pays",
+            "points": "(mean MSE x median CPU seconds) over the seeds without roulette / the "
+            "same with the variant (MSE less the reference's variance); above 1: roulette pays",
             "error bars": f"95 % percentile bootstrap over the seeds, resampled in pairs "
             f"({RESAMPLES} resamples)",
             "variants": "; ".join(f"{k}: {VARIANTS[k][2]}" for k in results["variants"]),
@@ -610,7 +702,7 @@ def mse_time_figure(results: dict):
             decade_log_axis(ax.yaxis, min(ys), max(ys))
         ax.set(title=scene, xlabel="CPU seconds per render (median)", ylabel="MSE")
         ax.grid(which="major", color="0.9", lw=0.6)
-    legend_beside(fig, axes)
+    legend_of_all(fig, axes)
     text = caption(
         "Russian roulette: whole-image MSE against CPU time per render",
         {
@@ -648,9 +740,13 @@ def report(results: dict, captions: dict) -> str:
         "",
         f"## Efficiency ratio to no roulette at {max(s['spp'])} spp",
         "",
-        "Efficiency = 1 / (MSE x seconds); ratio = mean over seeds of MSE x seconds without "
-        "roulette / with the variant, 95 % bootstrap interval over seeds (pairs); the time "
-        "speed-up is that of reaching the target MSE (log-log interpolation over spp).",
+        "Efficiency = 1 / (MSE x seconds); ratio = (mean MSE x median CPU seconds) over the "
+        "seeds without roulette / the same with the variant, with its 95 % bootstrap interval "
+        "over seeds (resampled in pairs); wall: the same in wall seconds. Speed-up: the CPU "
+        "time without roulette to a target MSE / the variant's, each time found on the "
+        "log-log line through the (median CPU time, mean MSE) points of successive spp "
+        f"(interpolated, or the last segment extended: 'how'). Target A: {TARGETS['off_at_top']}; "
+        f"target B: {TARGETS['reached_by_all']}. Paths per CPU second: per render, median.",
         "",
         markdown_table(
             [
@@ -666,8 +762,11 @@ def report(results: dict, captions: dict) -> str:
                 "rays/path off",
                 "paths/CPU s",
                 "paths/CPU s off",
-                "target MSE",
-                "time speed-up (CPU)",
+                "target A",
+                "speed-up to A (CPU)",
+                "how",
+                "target B",
+                "speed-up to B (CPU)",
             ],
             [
                 [
@@ -687,6 +786,9 @@ def report(results: dict, captions: dict) -> str:
                     fmt(r["paths_per_cpu_s_off"]),
                     fmt(r["target_mse"]),
                     fmt(r["time_speedup_cpu"]),
+                    r["time_how"] or "-",
+                    fmt(r["target_mse_all"]),
+                    fmt(r["time_speedup_cpu_all"]),
                 ]
                 for r in results["summary"]
             ],
@@ -709,8 +811,18 @@ def report(results: dict, captions: dict) -> str:
 
 def main(argv=None) -> dict:
     args = parse_args(argv)
+    if args.rebuild:
+        results = json.loads((args.out / "results.json").read_text())
+    else:
+        results = run(args, argv)
+    analyse(results, args.out)
+    print("\n".join(results["conclusion"]))
+    return results
+
+
+def run(args, argv) -> dict:
+    """Every render of the study; results.json written after each scene."""
     runtime = runtime_for(args.device)  # the process's runtime: programs built once
-    rng = np.random.default_rng(20240613)
     results = {
         "settings": {
             "size": args.size,
@@ -727,24 +839,29 @@ def main(argv=None) -> dict:
         "scenes": {},
     }
     for scene in args.scenes:
-        entry = study_scene(runtime, scene, args)
+        results["scenes"][scene] = study_scene(runtime, scene, args)
+        write_json(args.out / "results.json", results)
+    return results
+
+
+def analyse(results: dict, out: Path) -> None:
+    """Summaries, ratios, times to target, the conclusion, the charts and the report, from the
+    renders' rows (again with --rebuild)."""
+    rng = np.random.default_rng(20240613)
+    for entry in results["scenes"].values():
         entry["summary"] = summarise(entry)
         entry["ratios"] = ratios(entry, rng)
         entry["time_to_target"] = times_to_target(entry)
-        results["scenes"][scene] = entry
-        write_json(args.out / "results.json", results)
     results["references"] = [e["reference"] for e in results["scenes"].values()]
     results["summary"] = headline(results)
     results["conclusion"] = conclusion(results)
     captions = {}
     for name, make in (("efficiency", efficiency_figure), ("mse_time", mse_time_figure)):
         fig, captions[name] = make(results)
-        fig.savefig(args.out / f"{name}.png", dpi=100, **SAVE_OPTIONS)
+        fig.savefig(out / f"{name}.png", dpi=100, **SAVE_OPTIONS)
         plt.close(fig)
-    write_json(args.out / "results.json", results)
-    (args.out / "report.md").write_text(report(results, captions))
-    print("\n".join(results["conclusion"]))
-    return results
+    write_json(out / "results.json", results)
+    (out / "report.md").write_text(report(results, captions))
 
 
 if __name__ == "__main__":

@@ -13,11 +13,11 @@
 // 0 shows emitters only, 1 adds direct lighting, ... Specular vertices count too.
 //
 // Russian roulette (russian_roulette set) is pbrt-v4's: after the BSDF sample of vertex
-// depth >= RUSSIAN_ROULETTE_MIN_DEPTH (1: from the second vertex on; Mitsuba's rr_depth 5 is
-// 4 here) the path ends with probability q = max(0, 1 - max(beta * eta_scale)), where
-// eta_scale undoes the 1 / eta'^2 radiance scaling of the refractions so far (a path inside
-// glass is not culled for it). bench/roulette_study.py builds the kernel with other values
-// (RUSSIAN_ROULETTE_ETA_SCALE 0: beta alone) to measure them.
+// depth >= RUSSIAN_ROULETTE_MIN_DEPTH (1: from the second vertex on; 4 is the vertex where
+// Mitsuba's rr_depth 5 starts) the path ends with probability q = max(0, 1 - max(beta *
+// eta_scale)), where eta_scale undoes the 1 / eta'^2 radiance scaling of the refractions so
+// far (a path inside glass is not culled for it). bench/roulette_study.py builds the kernel
+// with other values (RUSSIAN_ROULETTE_ETA_SCALE 0: beta alone) to measure them.
 #ifndef RUSSIAN_ROULETTE_MIN_DEPTH
 #define RUSSIAN_ROULETTE_MIN_DEPTH 1
 #endif
