@@ -75,6 +75,7 @@ def render(
     seed: int = 0,
     device: str | None = None,
     max_depth: int = DEFAULT_MAX_DEPTH,
+    russian_roulette: bool = False,
     tile_samples: int = DEFAULT_TILE_SAMPLES,
     overlap: bool = True,
     voronoi_backend: str = "device",
@@ -88,7 +89,10 @@ def render(
     samples (`.images[name]`, one image each; see clrender.pipeline for redrawn pixels);
     resolution: None for the scene's own size, a width N (the scene's aspect ratio) or (width,
     height); device: an index or name substring of an OpenCL device (default PYOPENCL_CTX,
-    else the first device); progress(done_pixels, total_pixels) is called after each tile.
+    else the first device); max_depth: scattering vertices per path; russian_roulette: end
+    paths at random from their second vertex on (pbrt-v4's rule, unbiased; off by default, as
+    in the paper; refused for analytic images, which have no paths); progress(done_pixels,
+    total_pixels) is called after each tile.
     Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB of the (first) estimator,
     `.images`, `.layers` (per-pixel sample counts, redraws, variance), `.stats` (with times per
     stage and per estimator), `.settings`. Bad arguments raise ParameterError (a ClrenderError)
@@ -110,9 +114,10 @@ def render(
             "render takes a Scene (clrender.load_scene), a scene name or a path, got "
             f"{type(scene).__name__} {scene!r}"
         )
+    check_russian_roulette(russian_roulette, scene)
     runtime = runtime_for(device)
     built = thread_build_seconds()
-    source = radiance_source(runtime, scene, resolution, max_depth)
+    source = radiance_source(runtime, scene, resolution, max_depth, russian_roulette)
     setup_compile = thread_build_seconds() - built
     settings = RenderSettings(
         source.width,
@@ -163,18 +168,35 @@ def runtime_for(device: str | None) -> Runtime:
     return create_runtime(device)
 
 
+def check_russian_roulette(russian_roulette: object, scene: Scene | str) -> None:
+    """russian_roulette is a bool, and True only for a scene with paths (not an analytic
+    image)."""
+    if not isinstance(russian_roulette, bool):
+        raise ParameterError(f"russian_roulette must be True or False, got {russian_roulette!r}")
+    if russian_roulette and isinstance(scene, str):
+        raise ParameterError(
+            f"Russian roulette needs a path-traced scene: {scene} is an analytic image "
+            "without paths"
+        )
+
+
 def radiance_source(
-    runtime: Runtime, scene: Scene | str, resolution: Resolution, max_depth: int
+    runtime: Runtime,
+    scene: Scene | str,
+    resolution: Resolution,
+    max_depth: int,
+    russian_roulette: bool = False,
 ) -> RadianceSource:
     """The path tracer of a scene (or the analytic image of an `analytic[:KIND]` name) at the
-    requested resolution."""
+    requested resolution; russian_roulette (paths only) as clrender.trace.PathTracer's."""
+    check_russian_roulette(russian_roulette, scene)
     width, height = _resolution(resolution)
     if isinstance(scene, str):
         if width is None:
             width, height = DEFAULT_RESOLUTION
         height = width if height is None else height
         return AnalyticSource.for_scene(scene, runtime.queue, width, height)
-    tracer = PathTracer(runtime, scene, max_depth=max_depth)
+    tracer = PathTracer(runtime, scene, max_depth=max_depth, russian_roulette=russian_roulette)
     return PathTracerSource(tracer, *tracer.image_size(width, height))
 
 

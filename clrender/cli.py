@@ -182,6 +182,13 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         help="scattering vertices per path (default: 8)",
     )
     add(
+        "--russian-roulette",
+        action="store_true",
+        help="end paths at random from their second vertex on, continuing with probability "
+        "max(throughput) (pbrt-v4's rule; unbiased, fewer rays per path; default: off, as in "
+        "the paper; not for analytic images)",
+    )
+    add(
         "--tile-samples",
         type=int,
         default=None,
@@ -327,6 +334,7 @@ def settings_from_args(args: argparse.Namespace, width: int, height: int):
 
 def check_render_args(args: argparse.Namespace) -> None:
     """Everything checkable without a device, so mistakes fail fast."""
+    from clrender.analytic import is_analytic_scene
     from clrender.film import check_image_memory
     from clrender.sampling import check_seed
 
@@ -337,6 +345,11 @@ def check_render_args(args: argparse.Namespace) -> None:
         check_image_memory(*size)
     if args.max_depth < 0:
         raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
+    if args.russian_roulette and is_analytic_scene(args.scene):
+        raise ParameterError(
+            f"--russian-roulette needs a path-traced scene: {args.scene} is an analytic image "
+            "without paths"
+        )
 
 
 def load_scene_arg(args: argparse.Namespace):
@@ -361,13 +374,18 @@ def load_scene_arg(args: argparse.Namespace):
 
 
 def make_source(args: argparse.Namespace, runtime, scene):
-    """(radiance source, max depth or None) for the scene (None: the analytic image named by
-    the argument) at the requested size."""
+    """(radiance source, max depth, Russian roulette) for the scene at the requested size;
+    for the analytic image named by the argument (scene None) the last two are None: it has
+    no paths."""
     from clrender.api import radiance_source
 
     size = parse_resolution(args.res)
-    source = radiance_source(runtime, scene or args.scene, size, args.max_depth)
-    return source, None if scene is None else args.max_depth
+    source = radiance_source(
+        runtime, scene or args.scene, size, args.max_depth, args.russian_roulette
+    )
+    if scene is None:
+        return source, None, None
+    return source, args.max_depth, args.russian_roulette
 
 
 def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:
@@ -464,11 +482,11 @@ def command_render(args: argparse.Namespace) -> int:
                 print(f"clrender: warning: {advice}", file=sys.stderr)
         runtime = create_runtime(args.device)
         built = thread_build_seconds()
-        source, max_depth = make_source(args, runtime, scene)
+        source, max_depth, roulette = make_source(args, runtime, scene)
         setup_compile = thread_build_seconds() - built
         settings = settings_from_args(args, source.width, source.height)
         reference = load_reference(args, source, settings)
-        labels = RenderLabels(label, runtime.describe(), max_depth)
+        labels = RenderLabels(label, runtime.describe(), max_depth, roulette)
     progress = ProgressBar(
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
     )

@@ -21,6 +21,7 @@ class RenderLabels:
     scene: str
     device: str
     max_depth: int | None  # None for sources without paths (analytic images)
+    russian_roulette: bool | None = None  # likewise None without paths
 
 
 def render_metadata(
@@ -77,6 +78,8 @@ def render_metadata(
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
+    if labels.russian_roulette is not None:
+        metadata["russian_roulette"] = int(labels.russian_roulette)
     for key, value in (errors or {}).items():
         if value is not None and key != "summary":
             metadata[f"error_{key}"] = value
