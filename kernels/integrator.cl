@@ -12,18 +12,7 @@
 // max_depth counts scattering vertices (pbrt's maxdepth; Mitsuba's max_depth minus 1):
 // 0 shows emitters only, 1 adds direct lighting, ... Specular vertices count too.
 //
-// Russian roulette (russian_roulette set) is pbrt-v4's: after the BSDF sample of vertex
-// depth >= RUSSIAN_ROULETTE_MIN_DEPTH (1: from the second vertex on; 4 is the vertex where
-// Mitsuba's rr_depth 5 starts) the path ends with probability q = max(0, 1 - max(beta *
-// eta_scale)), where eta_scale undoes the 1 / eta'^2 radiance scaling of the refractions so
-// far (a path inside glass is not culled for it). bench/roulette_study.py builds the kernel
-// with other values (RUSSIAN_ROULETTE_ETA_SCALE 0: beta alone) to measure them.
-#ifndef RUSSIAN_ROULETTE_MIN_DEPTH
-#define RUSSIAN_ROULETTE_MIN_DEPTH 1
-#endif
-#ifndef RUSSIAN_ROULETTE_ETA_SCALE
-#define RUSSIAN_ROULETTE_ETA_SCALE 1
-#endif
+// Russian roulette (russian_roulette set) is pbrt-v4's (kernels/roulette.h).
 // Philox inlined at its call sites (a call spills the path state held in vector registers)
 #pragma clang attribute push(__attribute__((always_inline)), apply_to = function)
 #include "sampler.h"
@@ -34,6 +23,7 @@
 #include "bsdf.h"
 #include "lights.h"
 #include "camera.h"
+#include "roulette.h"
 
 // counters[0]: samples whose radiance was not finite (stored as 0);
 // counters[1 + work-group id]: rays traced by that work-group (camera, bounce and shadow).
@@ -139,21 +129,14 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
             break;
         beta *= weight;
         specularBounce = BSDF_IsSpecular(material);
-        // Track the radiance scaling of a refraction (wi on the other side of the surface)
-        if (material->type == MATERIAL_DIELECTRIC && wi_local.z * wo_local.z < 0.0f) {
-            float eta_rel = wo_local.z > 0.0f ? material->eta[0] : 1.0f / material->eta[0];
-            eta_scale *= eta_rel * eta_rel;
-        }
+        eta_scale = Roulette_EtaScale(eta_scale, material, wo_local, wi_local);
         prev_pdfW = pdfW;
         dir = Frame_ToWorld(frame, wi_local);
         origin = Surface_OffsetOrigin(surface.p, surface.ng, dir, surface.error);
 
         // Possibly terminate the path with Russian roulette
-        float rr_beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
-        if (RUSSIAN_ROULETTE_ETA_SCALE)
-            rr_beta_max *= eta_scale;
-        if (russian_roulette && depth >= RUSSIAN_ROULETTE_MIN_DEPTH && rr_beta_max < 1.0f) {
-            float q = Fmax(0.0f, 1.0f - rr_beta_max);
+        float q = Roulette_EndProbability(russian_roulette, depth, beta, eta_scale);
+        if (q > 0.0f) {
             if (u.roulette < q)
                 break;
             beta /= 1.0f - q;

@@ -30,6 +30,7 @@
 #include "bsdf.h"
 #include "lights.h"
 #include "camera.h"
+#include "roulette.h"
 
 // counters[0]: paths whose radiance was not finite (stored as 0); then the ray counts: per
 // chunk its camera rays (set by the host), then per bounce the lengths of the two queues that
@@ -55,7 +56,8 @@ typedef struct {
     uint pixel, sample, redraw;
     uint key[2];       // the sampler's Philox key of (seed, pixel, redraw): drawn once
     uint zsobol_index; // zsobol's image-wide index of the sample
-    uint pad[2];
+    float eta_scale;   // product of eta'^2 over the refractions (for Russian roulette)
+    uint pad;
 } WavefrontPath;
 
 // A light sample waiting for its occlusion test: if nothing lies along the ray before tmax,
@@ -184,6 +186,7 @@ __kernel void wavefront_generate(uint path_base, uint path_count, uint pixel_cou
     Wavefront_Store3(path->beta, (float3)(1.0f));
     Wavefront_Store3(path->L, (float3)(0.0f));
     path->prev_pdfW = 0.0f;
+    path->eta_scale = 1.0f;
     path->specular = 0u;
     path->pixel = pixel;
     path->sample = sample;
@@ -288,13 +291,13 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
         return;
     beta *= weight;
     specularBounce = BSDF_IsSpecular(material);
+    float eta_scale = Roulette_EtaScale(path->eta_scale, material, wo_local, wi_local);
     float3 new_dir = Frame_ToWorld(frame, wi_local);
     float3 origin = Surface_OffsetOrigin(surface.p, surface.ng, new_dir, surface.error);
 
     // Possibly terminate the path with Russian roulette
-    float beta_max = Fmax(beta.x, Fmax(beta.y, beta.z));
-    if (russian_roulette && depth >= 1 && beta_max < 1.0f) {
-        float q_end = Fmax(0.0f, 1.0f - beta_max);
+    float q_end = Roulette_EndProbability(russian_roulette, depth, beta, eta_scale);
+    if (q_end > 0.0f) {
         if (u.roulette < q_end)
             return;
         beta /= 1.0f - q_end;
@@ -304,6 +307,7 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
     Wavefront_Store3(ray->origin, origin);
     Wavefront_Store3(ray->dir, new_dir);
     Wavefront_Store3(path->beta, beta);
+    path->eta_scale = eta_scale;
     path->prev_pdfW = pdfW;
     path->specular = specularBounce ? 1u : 0u;
     next_queue[atomic_inc(&queue_counts[QUEUE_NEXT])] = p;
