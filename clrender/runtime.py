@@ -28,7 +28,11 @@ from clrender.errors import DeviceError, KernelBuildError
 from clrender.package_data import shipped_dir
 
 KERNELS_DIR_VARIABLE = "CLRENDER_KERNELS_DIR"
-# One fixed local size: PoCL JIT-compiles a work-group function per new local size.
+# Set (not empty): every device is treated as lacking cl_khr_fp64, so the single-precision
+# paths run on a device that has double precision (tests, bench/portability.py --no-fp64).
+NO_FP64_VARIABLE = "CLRENDER_NO_FP64"
+# One fixed local size per kernel: PoCL JIT-compiles a work-group function per new local size.
+# The largest wanted; a device or kernel that allows fewer work-items per group gets fewer.
 LOCAL_SIZE = 64
 
 # Per thread: a render's estimator thread builds on its own context (clrender.pipeline).
@@ -61,6 +65,18 @@ def list_devices() -> list[cl.Device]:
     if not devices:
         raise DeviceError(INSTALL_HINT)
     return devices
+
+
+def has_fp64(device: cl.Device) -> bool:
+    """Whether the device has double precision (cl_khr_fp64), unless $CLRENDER_NO_FP64 is set."""
+    if os.environ.get(NO_FP64_VARIABLE, ""):
+        return False
+    return "cl_khr_fp64" in device.extensions.split()
+
+
+def device_local_size(device: cl.Device) -> int:
+    """The local size for the device: LOCAL_SIZE, or its largest work-group if smaller."""
+    return max(1, min(LOCAL_SIZE, int(device.max_work_group_size)))
 
 
 def describe_device(device: cl.Device) -> str:
@@ -115,6 +131,7 @@ class Runtime:
     device: cl.Device
     context: cl.Context
     queue: cl.CommandQueue
+    # queried: LOCAL_SIZE within the device's work-group limit (kernel_local_size: the kernel's)
     local_size: int = LOCAL_SIZE
     pool: cl_tools.MemoryPool = field(init=False, repr=False)
     # a second context on the device, for another thread (clrender.pipeline.sibling_runtime)
@@ -135,10 +152,16 @@ class Runtime:
         items = tuple(sorted((defines or {}).items()))
         return _kernel_cached(self.context, source_file, items, name)
 
+    def kernel_local_size(self, kernel: cl.Kernel) -> int:
+        """The local size a kernel runs with here: local_size, or fewer where the device
+        cannot run this kernel with that many work-items per group (its registers or local
+        memory: a GPU may limit a large kernel below the device's maximum)."""
+        return min(self.local_size, _kernel_work_group_size(kernel, self.device))
+
     def launch_1d(self, kernel: cl.Kernel, count: int, *args) -> cl.Event:
         """Enqueue kernel over count work-items (the global size padded to the local size;
         the kernel skips the padding itself) on this runtime's queue."""
-        local = self.local_size
+        local = self.kernel_local_size(kernel)
         return kernel(self.queue, (padded_global_size(count, local),), (local,), *args)
 
     def allocate(self, nbytes: int) -> cl.MemoryObjectHolder:
@@ -171,7 +194,7 @@ class Runtime:
 def create_runtime(request: str | None = None) -> Runtime:
     device = select_device(request)
     context = cl.Context([device])
-    return Runtime(device, context, cl.CommandQueue(context))
+    return Runtime(device, context, cl.CommandQueue(context), device_local_size(device))
 
 
 @functools.cache
@@ -238,6 +261,12 @@ def _kernel_cached(
         return cl.Kernel(program, name)
     finally:
         _count_build_time(start)
+
+
+@functools.cache
+def _kernel_work_group_size(kernel: cl.Kernel, device: cl.Device) -> int:
+    """The kernel's largest work-group on the device (CL_KERNEL_WORK_GROUP_SIZE)."""
+    return int(kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
 
 
 def _build_log(err: cl.RuntimeError) -> str:

@@ -1,8 +1,39 @@
-"""Shared fixtures: one OpenCL runtime per test session (PYOPENCL_CTX or the first device)."""
+"""Shared fixtures: one OpenCL runtime per test session (PYOPENCL_CTX or the first device).
+
+Every test that touches an OpenCL device carries the `device` marker (bench/portability.py
+--kernel-tests-only runs `-m device` on each device): added here to each test that uses the
+`runtime` fixture, and by hand (@pytest.mark.device) where a test reaches a device another way (a
+render through the command line or clrender.render). The header names the device under test.
+"""
+
+import os
 
 import pytest
 
-from clrender.runtime import create_runtime
+from clrender.errors import ClrenderError
+from clrender.runtime import create_runtime, describe_device, select_device
+
+DEVICE_HEADER = "clrender device: "
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "device: the test runs OpenCL kernels on a device")
+
+
+def pytest_report_header(config):
+    """The device the runtime fixture will use, as bench/portability.py checks it."""
+    selection = os.environ.get("PYOPENCL_CTX", "") or "unset"
+    try:
+        device = describe_device(select_device())
+    except ClrenderError as err:
+        device = f"none ({err})"
+    return f"{DEVICE_HEADER}{device} (PYOPENCL_CTX={selection})"
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if "runtime" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.device)
 
 
 @pytest.fixture(scope="session")

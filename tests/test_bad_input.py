@@ -147,6 +147,7 @@ def test_scene_errors_are_one_line_naming_the_file(capsys, tmp_path, old, new, f
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.device
 @pytest.mark.parametrize(
     "text, message",
     [
@@ -248,6 +249,7 @@ __kernel void fill_traced(__global float *out) {
 """
 
 
+@pytest.mark.device
 def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path):
     kernels = tmp_path / "kernels"
     kernels.mkdir()
@@ -269,6 +271,7 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     assert "KernelBuildError" in debug.stderr
 
 
+@pytest.mark.device
 def test_kernels_dir_override_must_be_a_directory(tmp_path):
     env = {"CLRENDER_KERNELS_DIR": str(tmp_path / "nowhere")}
     child = run_child("render", "analytic", "--res", "4", "-o", str(tmp_path / "o.exr"), env=env)
@@ -279,6 +282,7 @@ def test_kernels_dir_override_must_be_a_directory(tmp_path):
 # --- determinism -------------------------------------------------------------------------
 
 
+@pytest.mark.device
 def test_two_runs_give_byte_identical_pixels_whatever_the_tile_size(tmp_path):
     """Path-traced Cornell box, separate processes: pixels equal bit for bit across runs and
     tilings (with and without overlap); the render time in the metadata differs."""
@@ -351,6 +355,7 @@ def peak_rss_mb(tmp_path: Path, width: int, tile_samples: int) -> float:
     return int(line.split()[1]) / 1024
 
 
+@pytest.mark.device
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc")
 def test_peak_memory_is_bounded_by_the_tile_not_the_image(tmp_path):
     tile_samples = 4096

@@ -154,6 +154,7 @@ def source_of_size(runtime, width, height):
     return AnalyticSource.for_scene("analytic:mix", runtime.queue, width, height)
 
 
+@pytest.mark.device
 def test_program_builds_are_timed_apart_once_per_process():
     # A runtime of its own: its programs are built in the first render, not in the second
     fresh = create_runtime()

@@ -132,7 +132,9 @@ def test_an_installed_wheel_carries_the_kernels(tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     assert (site / "clrender" / "kernels" / "sampling.cl").is_file()
+    # the packaged kernels are under test, not a developer's override of them
     env = {**os.environ, "PYTHONPATH": str(site)}
+    env.pop(rt.KERNELS_DIR_VARIABLE, None)
     probe = subprocess.run(
         [sys.executable, "-c", "import clrender.runtime as r; print(r.kernels_dir())"],
         capture_output=True,

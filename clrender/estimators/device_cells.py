@@ -66,7 +66,7 @@ from clrender.estimators.qhull_cells import (
     sppp_cells,
 )
 from clrender.estimators.registry import PixelSums
-from clrender.runtime import Runtime
+from clrender.runtime import Runtime, has_fp64
 from clrender.samples import SampleSets, segments
 from clrender.sampling import DeviceSampleSets
 
@@ -349,10 +349,10 @@ def resolve_precision(runtime: Runtime, precision: str) -> str:
     """ "single", "mixed" or "double"; DeviceError if double is asked of a device without it."""
     if precision not in PRECISIONS:
         raise ParameterError(f"unknown precision {precision!r}; accepted: {', '.join(PRECISIONS)}")
-    has_fp64 = "cl_khr_fp64" in runtime.device.extensions.split()
+    fp64 = has_fp64(runtime.device)
     if precision == "auto":
-        return "mixed" if has_fp64 else "single"
-    if precision != "single" and not has_fp64:
+        return "mixed" if fp64 else "single"
+    if precision != "single" and not fp64:
         raise DeviceError(
             f"device {runtime.describe()} has no cl_khr_fp64 (double precision), "
             f"which precision={precision!r} needs: use 'single' or 'auto'"
