@@ -454,6 +454,7 @@ def main(argv=None) -> int:
         "devices": devices,
         "ok": False,
     }
+    args.out.mkdir(parents=True, exist_ok=True)
     for device in devices:
         slug = device["selector"].replace(":", "-")
         print(f"portability: {device['selector']} {device['identity']} ...", file=sys.stderr)
