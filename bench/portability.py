@@ -255,12 +255,14 @@ def parse_summary(text: str) -> dict[str, int] | None:
 
 
 def failed_tests(text: str) -> list[str]:
-    """Ids of the tests in the short summary's FAILED and ERROR lines (pytest -ra)."""
+    """Ids of the tests in the short summary's FAILED and ERROR lines (pytest -ra): 'FAILED
+    tests/t.py::test[param id, spaces and all] - message', 'ERROR tests/t.py - message' for a
+    module that failed to import."""
     ids = []
     for line in text.splitlines():
-        match = re.match(r"(FAILED|ERROR) (\S+::\S*?|\S+)(?: - .*)?$", line)
-        if match and match.group(2) not in ids:
-            ids.append(match.group(2))
+        match = re.match(r"(?:FAILED|ERROR) (\S+?(?:::[^\s\[]+(?:\[.*?\])?)?)(?: - |$)", line)
+        if match and match.group(1) not in ids:
+            ids.append(match.group(1))
     return ids
 
 

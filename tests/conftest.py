@@ -11,7 +11,8 @@ import os
 import pytest
 
 from clrender.errors import ClrenderError
-from clrender.runtime import create_runtime, describe_device, select_device
+from clrender.estimators.device_cells import resolve_precision
+from clrender.runtime import NO_FP64_VARIABLE, create_runtime, describe_device, select_device
 
 DEVICE_HEADER = "clrender device: "
 
@@ -39,3 +40,16 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture(scope="session")
 def runtime():
     return create_runtime()
+
+
+@pytest.fixture(scope="session")
+def single_precision(runtime) -> bool:
+    """Whether the device cells and sums run in float32 here (a device without cl_khr_fp64, or
+    CLRENDER_NO_FP64 set): tests of them then hold to their stated single-precision bounds."""
+    return resolve_precision(runtime, "auto") == "single"
+
+
+@pytest.fixture
+def no_fp64(monkeypatch):
+    """Run the test as on a device without double precision (the single-precision paths)."""
+    monkeypatch.setenv(NO_FP64_VARIABLE, "1")
