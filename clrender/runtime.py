@@ -8,6 +8,10 @@ keep their file:line, and each (source, options) pair is built once per process.
 The CLRENDER_KERNELS_DIR environment variable, when set and not empty, replaces the kernels
 folder (sources and ``-I`` path): for kernel development, and for tests that give the command
 line a broken kernel to check how build failures are reported.
+
+Nothing about the device is assumed: the local size is LOCAL_SIZE within the device's and each
+kernel's work-group limits (queried), and double precision is used only where the device has
+cl_khr_fp64 (has_fp64; CLRENDER_NO_FP64 set makes every device count as without it).
 """
 
 from __future__ import annotations

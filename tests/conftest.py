@@ -17,10 +17,6 @@ from clrender.runtime import NO_FP64_VARIABLE, create_runtime, describe_device, 
 DEVICE_HEADER = "clrender device: "
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "device: the test runs OpenCL kernels on a device")
-
-
 def pytest_report_header(config):
     """The device the runtime fixture will use, as bench/portability.py checks it."""
     selection = os.environ.get("PYOPENCL_CTX", "") or "unset"
@@ -42,7 +38,7 @@ def runtime():
     return create_runtime()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def single_precision(runtime) -> bool:
     """Whether the device cells and sums run in float32 here (a device without cl_khr_fp64, or
     CLRENDER_NO_FP64 set): tests of them then hold to their stated single-precision bounds."""

@@ -4,6 +4,7 @@ the device listing, which a child process, clrender's PYOPENCL_CTX parsing and p
 must all agree on (seconds: one real pytest child runs a single test)."""
 
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -147,3 +148,73 @@ def test_listing_selectors_and_header_agree(tmp_path, monkeypatch):
     )
     assert run["pytest"]["counts"]["passed"] == 1 and run["ok"], run
     assert run["pytest"]["tested_device"] == last["identity"]
+
+
+# --- the kernels need no double precision outside their precision switches ------------------
+
+KERNELS = Path(__file__).resolve().parents[1] / "kernels"
+# -D options clrender.estimators.device_cells sets only where the device has cl_khr_fp64
+DOUBLE_SWITCHES = ("VORONOI_DOUBLE", "VORONOI_AREA_DOUBLE")
+DOUBLE_TOKEN = re.compile(r"\b(?:double\d*|convert_double\w*|as_double\d*|cl_khr_fp64)\b")
+# A floating literal without the f suffix is a double where the device has fp64
+UNSUFFIXED = re.compile(
+    r"(?<![\w.])(?:(?:\d+\.\d*|\.\d+)(?:[eE][-+]?\d+)?|\d+[eE][-+]?\d+)(?![\w.])"
+)
+
+
+def fp64_uses(source: str) -> list[tuple[int, str]]:
+    """(line, text) of every double type, double builtin or unsuffixed floating literal outside
+    an #if/#ifdef block on a DOUBLE_SWITCHES macro (its #else branch is the single path)."""
+    code = re.sub(
+        r"//[^\n]*|/\*.*?\*/", lambda m: re.sub(r"[^\n]", " ", m.group()), source, flags=re.S
+    )
+    found, guarded = [], []
+    for number, line in enumerate(code.splitlines(), 1):
+        directive = re.match(r"\s*#\s*(ifdef|ifndef|if|elif|else|endif)\b(.*)", line)
+        if directive:
+            kind, condition = directive.groups()
+            if kind in ("if", "ifdef"):
+                guarded.append(any(name in condition for name in DOUBLE_SWITCHES))
+            elif kind == "ifndef":
+                guarded.append(False)
+            elif kind in ("elif", "else"):
+                guarded[-1] = False
+            else:
+                guarded.pop()
+            continue
+        if any(guarded) or line.lstrip().startswith("#include"):
+            continue
+        found += [(number, hit) for hit in DOUBLE_TOKEN.findall(line) + UNSUFFIXED.findall(line)]
+    return found
+
+
+def test_the_fp64_scan_finds_what_it_looks_for():
+    source = """float a = 0.5f * 2.0f + 1e-3f;  // 0.5 in a comment
+#ifdef VORONOI_DOUBLE
+typedef double real;
+#else
+typedef float real;
+float b = 0.25;
+#endif
+/* 1.5 */ float c = 1.5 + 1e-7 + x2.5f;
+double d = as_double(0x7ff0000000000000L);
+"""
+    assert fp64_uses(source) == [
+        (6, "0.25"),
+        (8, "1.5"),
+        (8, "1e-7"),
+        (9, "double"),
+        (9, "as_double"),
+    ]
+
+
+def test_kernels_need_no_fp64_outside_the_precision_switches():
+    # The tracing, sampling and Voronoi kernels run on devices without cl_khr_fp64: double
+    # appears only where device_cells asks for it (mixed or double precision, fp64 devices)
+    sources = [p for p in sorted(KERNELS.iterdir()) if p.suffix in (".cl", ".h")]
+    sources = [p for p in sources if not p.name.endswith("_test.cl")]  # test-only kernels
+    assert {"integrator.cl", "sampling.cl", "voronoi_cells.cl", "voronoi_sums.cl"} <= {
+        p.name for p in sources
+    }
+    uses = {p.name: fp64_uses(p.read_text()) for p in sources}
+    assert {name: hits for name, hits in uses.items() if hits} == {}

@@ -44,7 +44,8 @@ float32 on upload, and host fallbacks use the rounded values, so every pixel's c
 of one point set. precision: "single" (all float32: areas within ~1e-5 relative of Qhull's on
 the worst cells), "mixed" (float32 clipping, final vertices and areas in float64 from the input
 coordinates: ~1e-14), "double" (all float64), "auto" (mixed where the device has cl_khr_fp64,
-else single). On PoCL mixed costs the same as single. Sums are accumulated in the area
+else single; CLRENDER_NO_FP64 set: single everywhere, to test that path on any device). On
+PoCL mixed costs the same as single. Sums are accumulated in the area
 precision, sample by sample in sample order (so they do not depend on the launch).
 """
 
