@@ -20,6 +20,7 @@ import functools
 import os
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -244,7 +245,13 @@ def _build_cached(
     source = f'#include "{path.name}"\n'
     options = build_options(defines)
     try:
-        with interrupts.signals_blocked():  # a signal mid-build failed the compiler's calls
+        # Signals blocked: a signal mid-build failed the compiler's calls. A successful build's
+        # log is no warning: Intel's CPU runtime logs every build (its stages, vectorisation
+        # remarks), which pyopencl reports as a CompilerWarning on every render (two lines on
+        # stderr); PYOPENCL_COMPILER_OUTPUT=1 still shows it. A failed build's log is the error.
+        with interrupts.signals_blocked(), warnings.catch_warnings():
+            if not os.environ.get("PYOPENCL_COMPILER_OUTPUT", ""):
+                warnings.simplefilter("ignore", cl.CompilerWarning)
             return cl.Program(context, source).build(options=options)
     except cl.RuntimeError as err:
         log = _build_log(err)
