@@ -167,4 +167,5 @@ def test_a_successful_build_log_is_shown_only_when_asked(runtime, tmp_path, monk
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         runtime.build("chatty.cl", {"ASKED": asked})  # its own defines: built, not cached
-    assert [w.category for w in caught] == ([cl.CompilerWarning] if asked else [])
+    # (asked, the device's own log may come too: Intel's does)
+    assert (cl.CompilerWarning in [w.category for w in caught]) == asked
