@@ -326,7 +326,7 @@ def gib(nbytes) -> str:
 def markdown(report: dict) -> str:
     header = [
         "device (PYOPENCL_CTX)",
-        "platform / driver",
+        "platform, driver",
         "fp64",
         "max WG",
         "vec float/double",
@@ -345,7 +345,7 @@ def markdown(report: dict) -> str:
         rows.append(
             [
                 f"{d['device']} ({d['selector']})",
-                f"{d['platform_version']} / {d['driver_version']}",
+                f"{d['platform']} {d['driver_version']}",
                 "yes" if d["fp64"] else "no",
                 d["max_work_group_size"],
                 f"{widths.get('float')}/{widths.get('double')}",
@@ -368,6 +368,12 @@ def markdown(report: dict) -> str:
         f"`{report['command']}`",
         "",
         *lines,
+        "",
+    ]
+    loads = [report.get("load_before"), report.get("load_after")]
+    text += [
+        "Load average (1, 5, 15 min) before and after: "
+        + " / ".join(", ".join(f"{x:.1f}" for x in load) for load in loads if load),
         "",
     ]
     if report["no_fp64"]:
@@ -447,7 +453,7 @@ def main(argv=None) -> int:
     pytest_args = (["-m", "device"] if args.kernel_tests_only else []) + args.pytest_args
     selection = "kernel tests (-m device)" if args.kernel_tests_only else "whole suite"
     report = {
-        "command": "python bench/portability.py " + " ".join(argv),
+        "command": " ".join(["python bench/portability.py", *argv]),
         "selection": selection,
         "pytest_args": pytest_args,
         "no_fp64": args.no_fp64,
