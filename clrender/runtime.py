@@ -8,6 +8,10 @@ keep their file:line, and each (source, options) pair is built once per process.
 The CLRENDER_KERNELS_DIR environment variable, when set and not empty, replaces the kernels
 folder (sources and ``-I`` path): for kernel development, and for tests that give the command
 line a broken kernel to check how build failures are reported.
+
+Nothing about the device is assumed: the local size is LOCAL_SIZE within the device's and each
+kernel's work-group limits (queried), and double precision is used only where the device has
+cl_khr_fp64 (has_fp64; CLRENDER_NO_FP64 set makes every device count as without it).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import os
 import re
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +34,11 @@ from clrender.errors import DeviceError, KernelBuildError
 from clrender.package_data import shipped_dir
 
 KERNELS_DIR_VARIABLE = "CLRENDER_KERNELS_DIR"
-# One fixed local size: PoCL JIT-compiles a work-group function per new local size.
+# Set (not empty): every device is treated as lacking cl_khr_fp64, so the single-precision
+# paths run on a device that has double precision (tests, bench/portability.py --no-fp64).
+NO_FP64_VARIABLE = "CLRENDER_NO_FP64"
+# One fixed local size per kernel: PoCL JIT-compiles a work-group function per new local size.
+# The largest wanted; a device or kernel that allows fewer work-items per group gets fewer.
 LOCAL_SIZE = 64
 # The render's kernels: with every scalar argument 0, each one's work-item count is 0 and every
 # work-item returns at once. Runtime.kernel launches each so once (a launch that does nothing),
@@ -80,6 +89,18 @@ def list_devices() -> list[cl.Device]:
     if not devices:
         raise DeviceError(INSTALL_HINT)
     return devices
+
+
+def has_fp64(device: cl.Device) -> bool:
+    """Whether the device has double precision (cl_khr_fp64), unless $CLRENDER_NO_FP64 is set."""
+    if os.environ.get(NO_FP64_VARIABLE, ""):
+        return False
+    return "cl_khr_fp64" in device.extensions.split()
+
+
+def device_local_size(device: cl.Device) -> int:
+    """The local size for the device: LOCAL_SIZE, or its largest work-group if smaller."""
+    return max(1, min(LOCAL_SIZE, int(device.max_work_group_size)))
 
 
 def describe_device(device: cl.Device) -> str:
@@ -134,6 +155,7 @@ class Runtime:
     device: cl.Device
     context: cl.Context
     queue: cl.CommandQueue
+    # queried: LOCAL_SIZE within the device's work-group limit (kernel_local_size: the kernel's)
     local_size: int = LOCAL_SIZE
     pool: cl_tools.MemoryPool = field(init=False, repr=False)
     # a second context on the device, for another thread (clrender.pipeline.sibling_runtime)
@@ -166,24 +188,31 @@ class Runtime:
     ) -> None:
         """Launch a kernel of WARM_UP_FILES with every scalar argument 0 (no work-item does
         anything) and a small dummy buffer for each pointer, as the render launches it
-        (launch_global_size), once per (context, kernel, local size); the time counts as build
+        (launch_global_size), once per (context, kernel, its local size); the time counts as build
         time (thread_build_seconds)."""
-        key = (self.context.int_ptr, source_file, defines, name, self.local_size)
+        local = self.kernel_local_size(kernel)
+        key = (self.context.int_ptr, source_file, defines, name, local)
         if key in _WARMED:
             return
         start = time.perf_counter()
         try:
             args = warm_up_arguments(source_file, name, self.allocate(64))
-            global_size = launch_global_size(0, self.local_size)
-            kernel(self.queue, (global_size,), (self.local_size,), *args).wait()
+            global_size = launch_global_size(0, local)
+            kernel(self.queue, (global_size,), (local,), *args).wait()
             _WARMED.add(key)
         finally:
             _count_build_time(start)
 
+    def kernel_local_size(self, kernel: cl.Kernel) -> int:
+        """The local size a kernel runs with here: local_size, or fewer where the device
+        cannot run this kernel with that many work-items per group (its registers or local
+        memory: a GPU may limit a large kernel below the device's maximum)."""
+        return min(self.local_size, _kernel_work_group_size(kernel, self.device))
+
     def launch_1d(self, kernel: cl.Kernel, count: int, *args) -> cl.Event:
         """Enqueue kernel over count work-items (launch_global_size: padded; the kernel skips
         the padding itself) on this runtime's queue."""
-        local = self.local_size
+        local = self.kernel_local_size(kernel)
         return kernel(self.queue, (launch_global_size(count, local),), (local,), *args)
 
     def allocate(self, nbytes: int) -> cl.MemoryObjectHolder:
@@ -216,7 +245,7 @@ class Runtime:
 def create_runtime(request: str | None = None) -> Runtime:
     device = select_device(request)
     context = cl.Context([device])
-    return Runtime(device, context, cl.CommandQueue(context))
+    return Runtime(device, context, cl.CommandQueue(context), device_local_size(device))
 
 
 @functools.cache
@@ -303,7 +332,13 @@ def _build_cached(
     source = f'#include "{path.name}"\n'
     options = build_options(defines)
     try:
-        with interrupts.signals_blocked():  # a signal mid-build failed the compiler's calls
+        # Signals blocked: a signal mid-build failed the compiler's calls. A successful build's
+        # log is no warning: Intel's CPU runtime logs every build (its stages, vectorisation
+        # remarks), which pyopencl reports as a CompilerWarning on every render (two lines on
+        # stderr); PYOPENCL_COMPILER_OUTPUT=1 still shows it. A failed build's log is the error.
+        with interrupts.signals_blocked(), warnings.catch_warnings():
+            if not os.environ.get("PYOPENCL_COMPILER_OUTPUT", ""):
+                warnings.simplefilter("ignore", cl.CompilerWarning)
             return cl.Program(context, source).build(options=options)
     except cl.RuntimeError as err:
         log = _build_log(err)
@@ -324,6 +359,12 @@ def _kernel_cached(
         return cl.Kernel(program, name)
     finally:
         _count_build_time(start)
+
+
+@functools.cache
+def _kernel_work_group_size(kernel: cl.Kernel, device: cl.Device) -> int:
+    """The kernel's largest work-group on the device (CL_KERNEL_WORK_GROUP_SIZE)."""
+    return int(kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, device))
 
 
 def _build_log(err: cl.RuntimeError) -> str:

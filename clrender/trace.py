@@ -158,8 +158,9 @@ class PathTracer:
         runtime = self.runtime
         queue = runtime.queue
         count = sample_sets.traced_total
-        global_size = launch_global_size(count, runtime.local_size)
-        groups = global_size // runtime.local_size
+        local = runtime.kernel_local_size(self._kernel)
+        global_size = launch_global_size(count, local)
+        groups = global_size // local
         radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(1 + groups, np.uint32))
         if count == 0:
@@ -168,7 +169,7 @@ class PathTracer:
         event = self._kernel(
             queue,
             (global_size,),
-            (runtime.local_size,),
+            (local,),
             np.uint32(count),
             np.uint32(sample_sets.pixel_count),
             np.uint32(seed),

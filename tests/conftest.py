@@ -1,10 +1,51 @@
-"""Shared fixtures: one OpenCL runtime per test session (PYOPENCL_CTX or the first device)."""
+"""Shared fixtures: one OpenCL runtime per test session (PYOPENCL_CTX or the first device).
+
+Every test that touches an OpenCL device carries the `device` marker (bench/portability.py
+--kernel-tests-only runs `-m device` on each device): added here to each test that uses the
+`runtime` fixture, and by hand (@pytest.mark.device) where a test reaches a device another way (a
+render through the command line or clrender.render). The header names the device under test.
+"""
+
+import os
 
 import pytest
 
-from clrender.runtime import create_runtime
+from clrender.errors import ClrenderError
+from clrender.estimators.device_cells import resolve_precision
+from clrender.runtime import NO_FP64_VARIABLE, create_runtime, describe_device, select_device
+
+DEVICE_HEADER = "clrender device: "
+
+
+def pytest_report_header(config):
+    """The device the runtime fixture will use, as bench/portability.py checks it."""
+    selection = os.environ.get("PYOPENCL_CTX", "") or "unset"
+    try:
+        device = describe_device(select_device())
+    except ClrenderError as err:
+        device = f"none ({err})"
+    return f"{DEVICE_HEADER}{device} (PYOPENCL_CTX={selection})"
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if "runtime" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.device)
 
 
 @pytest.fixture(scope="session")
 def runtime():
     return create_runtime()
+
+
+@pytest.fixture
+def single_precision(runtime) -> bool:
+    """Whether the device cells and sums run in float32 here (a device without cl_khr_fp64, or
+    CLRENDER_NO_FP64 set): tests of them then hold to their stated single-precision bounds."""
+    return resolve_precision(runtime, "auto") == "single"
+
+
+@pytest.fixture
+def no_fp64(monkeypatch):
+    """Run the test as on a device without double precision (the single-precision paths)."""
+    monkeypatch.setenv(NO_FP64_VARIABLE, "1")

@@ -172,6 +172,7 @@ def snippet_case(label: str, body: str, image: bool = False) -> Case:
     return catalog.api_case(label, label, body, ANY, image=image)
 
 
+@pytest.mark.device
 def test_known_cases_land_in_their_classes(tmp_path, every_case):
     runner = adv.Runner(adv.REPO, tmp_path, timeout=60, memory_gb=6)
     known = {c.id: c for c in every_case}
@@ -191,6 +192,7 @@ def test_known_cases_land_in_their_classes(tmp_path, every_case):
     assert list(tmp_path.iterdir()) == []  # every case directory removed
 
 
+@pytest.mark.device
 def test_main_writes_json_and_tables(tmp_path, capsys):
     # SIGTERM mid-render (after the first tile): the finished pixels written, exit 143. (An
     # early signal's outcome depends on what is loading at that moment: not a smoke test.)

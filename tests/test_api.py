@@ -16,6 +16,7 @@ from clrender.estimators.registry import Estimator, EstimatorWarning, PixelSums
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
+@pytest.mark.device
 def test_readme_python_example_runs_as_a_notebook_cell(capsys):
     # The README's Python section, run as written; its last line is the cell's value
     text = README.read_text(encoding="utf-8")
@@ -36,12 +37,14 @@ def test_readme_python_example_runs_as_a_notebook_cell(capsys):
     assert shown.width > 3 * shown.height * 0.9  # three images side by side
 
 
+@pytest.mark.device
 def test_a_poor_estimator_sampler_pair_warns_once_with_advice():
     with pytest.warns(EstimatorWarning, match="use --estimator mc_n") as caught:
         clrender.render("analytic:edge", spp=4, estimators=["mc", "vor_sn"], resolution=(8, 6))
     assert len(caught) == 1
 
 
+@pytest.mark.device
 def test_render_returns_the_image_as_float32_array():
     result = clrender.render("analytic:edge", spp=4, sampler="independent", resolution=(8, 6))
     assert result.image.shape == (6, 8, 3)
@@ -63,6 +66,7 @@ def test_render_equals_the_pipeline_with_the_same_settings(runtime):
     assert np.array_equal(front.image, direct.image)
 
 
+@pytest.mark.device
 @pytest.mark.parametrize(
     "arguments, message",
     [
@@ -98,6 +102,7 @@ def half_self_normalised(sums: PixelSums) -> np.ndarray:
     return 0.5 * registry.self_normalised(sums)
 
 
+@pytest.mark.device
 def test_a_new_estimator_is_one_registry_entry(monkeypatch):
     """An entry and its formula are all a new estimator needs: the command line's validation,
     the sampler check, the device sums and the redraws all follow from the entry."""

@@ -147,6 +147,7 @@ def test_scene_errors_are_one_line_naming_the_file(capsys, tmp_path, old, new, f
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.device
 @pytest.mark.parametrize(
     "text, message",
     [
@@ -248,6 +249,7 @@ __kernel void fill_traced(__global float *out) {
 """
 
 
+@pytest.mark.device
 def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path):
     kernels = tmp_path / "kernels"
     kernels.mkdir()
@@ -269,6 +271,7 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     assert "KernelBuildError" in debug.stderr
 
 
+@pytest.mark.device
 def test_kernels_dir_override_must_be_a_directory(tmp_path):
     env = {"CLRENDER_KERNELS_DIR": str(tmp_path / "nowhere")}
     child = run_child("render", "analytic", "--res", "4", "-o", str(tmp_path / "o.exr"), env=env)
@@ -279,6 +282,7 @@ def test_kernels_dir_override_must_be_a_directory(tmp_path):
 # --- determinism -------------------------------------------------------------------------
 
 
+@pytest.mark.device
 def test_two_runs_give_byte_identical_pixels_whatever_the_tile_size(tmp_path):
     """Path-traced Cornell box, separate processes: pixels equal bit for bit across runs and
     tilings (with and without overlap); the render time in the metadata differs."""
@@ -314,10 +318,12 @@ peak_kb = next(line for line in open("/proc/self/status") if line.startswith("Vm
 print("peak_kb", int(peak_kb.split()[1]), file=sys.stderr)
 sys.exit(status)
 """
-# Measured here (PoCL 3.0 CPU, 2 cores), 4096-sample tiles: 172 MB at 512^2 and 276 MB at
-# 1024^2 with the per-pixel layers and the error against the exact pixel integrals (144 and
-# 158 MB before both; 246 MB at 1024^2 before the sRGB preview was encoded in blocks).
-PEAK_BOUND_MB = 400
+# Measured here (pip PoCL 3.0 and Debian PoCL 3.1 CPU, 2 cores, warm kernel cache),
+# 4096-sample tiles: 196 MB for a 16 x 16 render, the baseline (Python, NumPy, every registered
+# OpenCL platform's libraries, whichever device renders: 87 MB more with Intel's CPU runtime
+# registered; and the program builds), 232 MB at 512^2 and 336 MB at 1024^2 with the per-pixel
+# layers and the error against the exact pixel integrals: 140 MB above the baseline at 1024^2.
+RENDER_BOUND_MB = 200
 # Per pixel: the film's float32 RGB and two flags (14 B), the layers (samples, redraws, RGB
 # variance: 20 B), the EXR's channels as the bindings copy them to write and read them back
 # (2 x 36 B) and the flags as a uint32 channel (4 B), the PNG rows and their compressed copy
@@ -351,14 +357,16 @@ def peak_rss_mb(tmp_path: Path, width: int, tile_samples: int) -> float:
     return int(line.split()[1]) / 1024
 
 
+@pytest.mark.device
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc")
 def test_peak_memory_is_bounded_by_the_tile_not_the_image(tmp_path):
     tile_samples = 4096
-    small = peak_rss_mb(tmp_path, 512, tile_samples)
+    small = peak_rss_mb(tmp_path, 512, tile_samples)  # builds the kernels if the cache is cold
     large = peak_rss_mb(tmp_path, 1024, tile_samples)
+    baseline = peak_rss_mb(tmp_path, 16, tile_samples)
     extra_pixels = 1024 * 1024 - 512 * 512
     allowance = extra_pixels * BYTES_PER_PIXEL / 2**20 + SLACK_MB
-    assert large < PEAK_BOUND_MB, (small, large)
+    assert large - baseline < RENDER_BOUND_MB, (baseline, small, large)
     assert large - small < allowance, (small, large, allowance)
 
 

@@ -26,6 +26,7 @@ def private_references(tmp_path, monkeypatch):
     monkeypatch.setattr(common, "REFERENCE_DIR", tmp_path / "references")
 
 
+@pytest.mark.device
 def test_01_pixel_study(tmp_path):
     import pixel_study
 
@@ -60,6 +61,7 @@ def test_01_pixel_study(tmp_path):
         assert all(words in line for line in captions), words
 
 
+@pytest.mark.device
 def test_02_image_study(tmp_path):
     import image_study
 
@@ -86,6 +88,7 @@ def test_02_image_study(tmp_path):
     assert re.search(r"vor_sn/sppp = \d+\.\d+ \[-?\d+\.\d+, \d+\.\d+\]", report)
 
 
+@pytest.mark.device
 def test_03_efficiency_study_and_perf_ratio(tmp_path):
     import efficiency_study
 
@@ -137,6 +140,7 @@ def test_03_efficiency_study_and_perf_ratio(tmp_path):
     assert ratio["ratio_wall"] > 0 and ratio["repeats"] == 1
 
 
+@pytest.mark.device
 def test_03a_efficiency_study_resumes_after_a_kill(tmp_path, monkeypatch):
     """A run killed mid-study keeps its whole (spp, seed) rounds in results.json; the same
     command then renders only the missing rounds and finishes the entry."""
@@ -175,6 +179,7 @@ def test_03a_efficiency_study_resumes_after_a_kill(tmp_path, monkeypatch):
     assert {p["label"] for p in final["summary"]} == {"mc/sobol", "mc/stratified"}
 
 
+@pytest.mark.device
 def test_03b_efficiency_study_peer(tmp_path):
     """mitsuba-cbox with the Mitsuba peer: rendered when mitsuba imports, else the report says
     it was not run."""
@@ -195,6 +200,7 @@ def test_03b_efficiency_study_peer(tmp_path):
         assert "Mitsuba peer: not run" in report
 
 
+@pytest.mark.device
 def test_04_cells_figure(tmp_path):
     import cells_figure
 
@@ -392,6 +398,7 @@ def test_07_help_texts_name_no_tracker_issue(monkeypatch, capsys):
         assert not re.search(r"\bissues?\b|#\d+", text, re.IGNORECASE), (script.name, text)
 
 
+@pytest.mark.device
 def test_08_render_throughput_splits_the_render_and_compares_in_one_run(tmp_path):
     import render_throughput
 

@@ -24,6 +24,11 @@ from clrender.sampling import generate_sample_sets, make_sampler
 
 SAME_SET_RTOL = 1e-9
 EXACT_TORUS_ATOL = 1e-7
+# Single precision (a device without cl_khr_fp64, or CLRENDER_NO_FP64): float32 areas, within
+# 1e-4 relative of the same set's (as tests/test_device_cells.py) and SINGLE_ATOL of the exact
+# torus, a pixel's areas summing to 1 within SINGLE_ATOL (measured: 1.5e-6 relative at worst)
+SINGLE_RTOL = 1e-4
+SINGLE_ATOL = 1e-5
 SHIFTS = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dx, dy) != (0, 0)])
 
 
@@ -41,18 +46,27 @@ def random_pixels(counts, seed):
     return traced.astype(np.float32).astype(np.float64), offsets
 
 
+def single(runtime, precision="auto") -> bool:
+    return device_cells.resolve_precision(runtime, precision) == "single"
+
+
+def exact_atol(runtime) -> float:
+    return SINGLE_ATOL if single(runtime) else EXACT_TORUS_ATOL
+
+
 def assert_torus_cells(runtime, traced, offsets):
     device = device_periodic_cells_from_arrays(runtime, traced, offsets)
     assert device.bounded.all() and device.inside_box is None
     nuclei, translates, translate_offsets = float32_torus_copies(traced, offsets)
     same_set = sppp_cells(nuclei, offsets, translates, translate_offsets)
-    np.testing.assert_allclose(device.areas, same_set.areas, rtol=SAME_SET_RTOL, atol=0)
+    rtol = SINGLE_RTOL if single(runtime) else SAME_SET_RTOL
+    np.testing.assert_allclose(device.areas, same_set.areas, rtol=rtol, atol=0)
     exact = periodic_cells(traced, offsets)
-    np.testing.assert_allclose(device.areas, exact.areas, rtol=0, atol=EXACT_TORUS_ATOL)
+    np.testing.assert_allclose(device.areas, exact.areas, rtol=0, atol=exact_atol(runtime))
     counts = np.diff(offsets)
     # The torus cells of a non-empty pixel tile W: their areas sum to 1
     totals = np.add.reduceat(device.areas, offsets[:-1][counts > 0]) if counts.any() else []
-    np.testing.assert_allclose(totals, 1.0, atol=1e-6)
+    np.testing.assert_allclose(totals, 1.0, atol=SINGLE_ATOL if single(runtime) else 1e-6)
     return device
 
 
@@ -82,7 +96,7 @@ def test_random_pixels_match_qhull(runtime, mean, pixels):
 def test_exact_torus_cells(runtime, nuclei, areas):
     traced = np.array(nuclei, np.float64)
     device = assert_torus_cells(runtime, traced, np.array([0, len(traced)]))
-    np.testing.assert_allclose(device.areas, areas, atol=EXACT_TORUS_ATOL)
+    np.testing.assert_allclose(device.areas, areas, atol=exact_atol(runtime))
 
 
 def test_lattice_cells_are_its_squares(runtime):
@@ -106,7 +120,9 @@ def test_low_discrepancy_sets_match_qhull(runtime, sampler):
 
 # 4. Per-pixel sums from the sampler's device buffers equal the host's sums over the same
 # cells; no pixel is redrawn; non-finite radiance is counted and enters as 0
-def test_device_sums_match_host_sums(runtime):
+# (precision "single" forced on every device: the sums of a device without cl_khr_fp64)
+@pytest.mark.parametrize("precision", ["auto", "single"])
+def test_device_sums_match_host_sums(runtime, precision):
     config = make_sampler("sobol", 64, toroidal_shift=True)
     pixels = np.arange(300, dtype=np.uint32)
     sets = generate_sample_sets(runtime, config, 8, pixels, image_size=(20, 15))
@@ -114,7 +130,7 @@ def test_device_sums_match_host_sums(runtime):
     rng = np.random.default_rng(3)
     radiance = rng.uniform(0, 2, (sets.traced_total, 3)).astype(np.float32)
     radiance[rng.choice(sets.traced_total, 10, replace=False), 1] = np.nan
-    device = device_periodic_sums(runtime, sets, runtime.upload(radiance))
+    device = device_periodic_sums(runtime, sets, runtime.upload(radiance), precision)
 
     traced = host.traced.astype(np.float64)
     nuclei, translates, translate_offsets = float32_torus_copies(traced, host.offsets)
@@ -124,9 +140,11 @@ def test_device_sums_match_host_sums(runtime):
     expected = cell_sums(SampleSets(traced, host.offsets, 64.0), clean, cells)
     assert not device.redraw.any() and not device.fallback.any()
     np.testing.assert_array_equal(device.nonfinite, np.bincount(host.pixel_index, bad, 300))
+    # float64: the cells' areas to 1e-9 of the exact torus'; float32: to SINGLE_RTOL
+    rtol = SINGLE_RTOL if single(runtime, precision) else 1e-9
     for name in ("area", "weighted"):
         np.testing.assert_allclose(
-            getattr(device.sums, name), getattr(expected, name), rtol=1e-9, err_msg=name
+            getattr(device.sums, name), getattr(expected, name), rtol=rtol, err_msg=name
         )
     assert np.isnan(device.sums.kept_area).all()  # pvor has no W' filter (as on the host)
 

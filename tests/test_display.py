@@ -40,6 +40,7 @@ def test_named_images_sit_side_by_side_under_their_names():
     assert (pixels[:LABEL_HEIGHT, :40] < 255).any()  # the name is drawn
 
 
+@pytest.mark.device
 def test_a_render_result_displays_itself_in_a_notebook():
     result = clrender.render("analytic:mix", spp=4, estimators=["mc_n", "vor_sn"], resolution=8)
     png = PIL.Image.open(io.BytesIO(result._repr_png_()))

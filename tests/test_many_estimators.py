@@ -154,6 +154,7 @@ def source_of_size(runtime, width, height):
     return AnalyticSource.for_scene("analytic:mix", runtime.queue, width, height)
 
 
+@pytest.mark.device
 def test_program_builds_are_timed_apart_once_per_process():
     # A runtime of its own: its programs are built in the first render, not in the second
     fresh = create_runtime()
@@ -187,13 +188,17 @@ def test_bad_estimator_lists_are_one_line_errors(estimators, message):
     assert "\n" not in str(error.value)
 
 
-def test_without_double_precision_mc_and_the_layers_come_from_the_host(runtime, monkeypatch):
+def test_without_double_precision_mc_and_the_layers_come_from_the_host(
+    runtime, single_precision, monkeypatch
+):
     # The device's plain sums would be float32 there: the samples come back instead
     from clrender import pipeline
+    from clrender.runtime import NO_FP64_VARIABLE
 
     config = settings(["vor_sn", "mc"])
-    assert not pipeline.TilePipeline(runtime, source(runtime), config).host_samples
-    monkeypatch.setattr(pipeline, "resolve_precision", lambda runtime, precision: "single")
+    host_samples = pipeline.TilePipeline(runtime, source(runtime), config).host_samples
+    assert host_samples == single_precision
+    monkeypatch.setenv(NO_FP64_VARIABLE, "1")  # as a device without cl_khr_fp64
     assert pipeline.TilePipeline(runtime, source(runtime), config).host_samples
     many = render(runtime, source(runtime), config)
     alone = render(runtime, source(runtime), settings("mc"))

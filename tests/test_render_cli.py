@@ -31,6 +31,7 @@ def run_cli(capsys, *argv):
     return status, captured.out, captured.err
 
 
+@pytest.mark.device
 def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_path):
     out = tmp_path / "mix.exr"
     status, stdout, _ = run_cli(
@@ -60,6 +61,7 @@ def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mix.exr", "mix.png"]
 
 
+@pytest.mark.device
 def test_default_output_name_is_the_scene_name_in_the_current_directory(
     capsys, tmp_path, monkeypatch
 ):
@@ -69,6 +71,7 @@ def test_default_output_name_is_the_scene_name_in_the_current_directory(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["analytic-edge.exr", "analytic-edge.png"]
 
 
+@pytest.mark.device
 @pytest.mark.parametrize("estimator", list(ESTIMATORS))
 def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
     out = tmp_path / "e.exr"
@@ -89,6 +92,7 @@ def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
     assert read_exr(out)[1]["estimator"] == estimator
 
 
+@pytest.mark.device
 @pytest.mark.parametrize("sampler", ["independent", "stratified"])
 def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
     out = tmp_path / "s.exr"
@@ -160,6 +164,7 @@ def test_output_under_a_file_fails_before_any_device_work(capsys, tmp_path, monk
     )
 
 
+@pytest.mark.device
 def test_missing_output_folders_are_created(capsys, tmp_path):
     """The README's `-o out/cbox.exr` on a fresh clone: before, 'directory out does not exist'."""
     target = tmp_path / "out" / "deeper" / "cbox.exr"
@@ -254,6 +259,7 @@ def slow_render_on_a_terminal(tmp_path, preexec) -> tuple[subprocess.Popen, int]
     return child, controller
 
 
+@pytest.mark.device
 @pytest.mark.parametrize(
     "signum, status",
     [(signal.SIGINT, 130), (signal.SIGTERM, 128 + 15), (signal.SIGHUP, 128 + 1)],
@@ -284,6 +290,7 @@ def test_an_ending_signal_writes_the_partial_image_and_exits_128_plus_it(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["slow.exr", "slow.png"]
 
 
+@pytest.mark.device
 def test_under_nohup_a_closed_terminal_does_not_end_the_render(tmp_path):
     """SIGHUP ignored at start (nohup) stays ignored: the render finishes whole (before: the
     SIGHUP handler replaced nohup's and ended it with a partial image)."""
@@ -362,6 +369,7 @@ PATCHES = {
 }
 
 
+@pytest.mark.device
 @pytest.mark.parametrize("moment", list(PATCHES))
 def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment):
     (tmp_path / "old.exr").write_bytes(b"a previous image")
@@ -378,6 +386,7 @@ def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment
     assert (tmp_path / "old.exr").read_bytes() == b"a previous image"
 
 
+@pytest.mark.device
 def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monkeypatch):
     import OpenEXR
 
@@ -392,6 +401,7 @@ def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monk
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
+@pytest.mark.device
 @pytest.mark.parametrize("estimator, drawn", [("vor_sn", True), ("mc", False), ("ivor", False)])
 def test_auxiliary_nuclei_are_drawn_only_for_estimators_that_use_them(
     capsys, tmp_path, estimator, drawn
@@ -405,6 +415,7 @@ def test_auxiliary_nuclei_are_drawn_only_for_estimators_that_use_them(
     assert metadata["sppp_eps"] > 0
 
 
+@pytest.mark.device
 @pytest.mark.parametrize(
     "sampler, estimator, shifted", [("sobol", "pvor", True), ("sobol", "mc", False)]
 )

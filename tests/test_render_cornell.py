@@ -65,6 +65,7 @@ def test_cornell_render_is_bit_identical_across_tilings_and_overlap(runtime, cor
         assert np.array_equal(image, reference)
 
 
+@pytest.mark.device
 def test_default_command_renders_the_cornell_box(capsys, tmp_path):
     out = tmp_path / "cb.exr"
     status = cli.main(["render", "--res", "12x8", "--spp", "4", "--max-depth", "3", "-o", str(out)])

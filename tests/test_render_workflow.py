@@ -21,6 +21,7 @@ def run_cli(capsys, *argv):
     return status, out, err
 
 
+@pytest.mark.device
 def test_several_estimators_write_one_pair_each_from_one_trace(capsys, tmp_path):
     out = tmp_path / "many.exr"
     status, stdout, _ = run_cli(
@@ -42,6 +43,7 @@ def test_several_estimators_write_one_pair_each_from_one_trace(capsys, tmp_path)
         assert read_exr(single)[0].tobytes() == images[name].tobytes(), name
 
 
+@pytest.mark.device
 def test_layers_beside_rgb_hold_counts_redraws_flags_and_variance(capsys, tmp_path):
     out = tmp_path / "layers.exr"
     status, _, _ = run_cli(
@@ -58,6 +60,7 @@ def test_layers_beside_rgb_hold_counts_redraws_flags_and_variance(capsys, tmp_pa
     assert "noise_mse" not in read_exr(out)[1]
 
 
+@pytest.mark.device
 def test_a_reference_gives_errors_in_summary_metadata_and_json(capsys, tmp_path):
     # A reference rendered with mc over independent samples carries its own noise
     reference = tmp_path / "ref.exr"
@@ -108,6 +111,7 @@ def test_a_reference_gives_errors_in_summary_metadata_and_json(capsys, tmp_path)
     assert summary["images"]["mc"]["metadata"]["spp"] == 16
 
 
+@pytest.mark.device
 def test_one_sample_per_pixel_writes_no_noise_and_valid_json(capsys, tmp_path):
     # The variance of one sample is unknown (NaN layer): no noise_mse, and JSON stays strict
     out = tmp_path / "one.exr"
@@ -133,6 +137,7 @@ def test_one_sample_per_pixel_writes_no_noise_and_valid_json(capsys, tmp_path):
     assert "noise_mse" not in read_exr(tmp_path / "one.mc.exr")[1]
 
 
+@pytest.mark.device
 def test_a_partial_image_gets_no_error_against_the_reference(capsys, tmp_path, monkeypatch):
     # ivor records a tile at once, vor_sn after its redraws: an interrupt in a redraw leaves
     # ivor complete and vor_sn partial; only the complete image is compared
@@ -182,6 +187,7 @@ def narrow_eps(make_settings):
     return made
 
 
+@pytest.mark.device
 def test_analytic_images_report_their_error_against_the_exact_integrals(capsys, tmp_path):
     out = tmp_path / "exact.exr"
     status, stdout, _ = run_cli(capsys, "render", "analytic:edge", *FAST, "-o", str(out))
@@ -192,6 +198,7 @@ def test_analytic_images_report_their_error_against_the_exact_integrals(capsys, 
     assert metadata["error_mse"] > 0 and metadata["error_reference_noise"] == 0.0
 
 
+@pytest.mark.device
 def test_a_reference_of_another_size_is_refused_before_rendering(capsys, tmp_path):
     reference = tmp_path / "small.exr"
     write_exr(reference, np.zeros((8, 8, 3), np.float32))
@@ -209,6 +216,7 @@ def test_a_reference_of_another_size_is_refused_before_rendering(capsys, tmp_pat
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.device
 def test_quiet_prints_nothing_but_warnings(capsys, tmp_path):
     status, stdout, err = run_cli(
         capsys,
@@ -227,6 +235,7 @@ def test_quiet_prints_nothing_but_warnings(capsys, tmp_path):
     assert "mc_n" in err and "--sampler sobol" in err
 
 
+@pytest.mark.device
 def test_good_pairs_get_no_warning(capsys, tmp_path):
     status, _, err = run_cli(
         capsys,

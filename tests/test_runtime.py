@@ -5,6 +5,7 @@ import os
 import re
 import subprocess
 import sys
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -189,7 +190,9 @@ def test_an_installed_wheel_carries_the_kernels(tmp_path):
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     assert (site / "clrender" / "kernels" / "sampling.cl").is_file()
+    # the packaged kernels are under test, not a developer's override of them
     env = {**os.environ, "PYTHONPATH": str(site)}
+    env.pop(rt.KERNELS_DIR_VARIABLE, None)
     probe = subprocess.run(
         [sys.executable, "-c", "import clrender.runtime as r; print(r.kernels_dir())"],
         capture_output=True,
@@ -199,3 +202,27 @@ def test_an_installed_wheel_carries_the_kernels(tmp_path):
     )
     assert probe.returncode == 0, probe.stderr
     assert Path(probe.stdout.strip()) == site / "clrender" / "kernels"
+
+
+@pytest.mark.parametrize("asked", [False, True])
+def test_a_successful_build_log_is_shown_only_when_asked(runtime, tmp_path, monkeypatch, asked):
+    # Intel's CPU runtime logs every build ("Compilation started ... Done."), which pyopencl
+    # reports as a CompilerWarning: two stray lines on stderr in every render
+    (tmp_path / "chatty.cl").write_text("__kernel void chatty(__global int *out) { *out = 1; }\n")
+    monkeypatch.setattr(rt, "kernels_dir", lambda: tmp_path)
+    build = cl.Program.build
+
+    def chatty_build(self, *args, **kwargs):
+        warnings.warn("Non-empty compiler output encountered.", cl.CompilerWarning, stacklevel=2)
+        return build(self, *args, **kwargs)
+
+    monkeypatch.setattr(cl.Program, "build", chatty_build)
+    if asked:
+        monkeypatch.setenv("PYOPENCL_COMPILER_OUTPUT", "1")
+    else:
+        monkeypatch.delenv("PYOPENCL_COMPILER_OUTPUT", raising=False)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        runtime.build("chatty.cl", {"ASKED": asked})  # its own defines: built, not cached
+    # (asked, the device's own log may come too: Intel's does)
+    assert (cl.CompilerWarning in [w.category for w in caught]) == asked

@@ -47,7 +47,8 @@ float32 on upload, and host fallbacks use the rounded values, so every pixel's c
 of one point set. precision: "single" (all float32: areas within ~1e-5 relative of Qhull's on
 the worst cells), "mixed" (float32 clipping, final vertices and areas in float64 from the input
 coordinates: ~1e-14), "double" (all float64), "auto" (mixed where the device has cl_khr_fp64,
-else single). On PoCL mixed costs the same as single. Sums are accumulated in the area
+else single; CLRENDER_NO_FP64 set: single everywhere, to test that path on any device). On
+PoCL mixed costs the same as single. Sums are accumulated in the area
 precision, sample by sample in sample order (so they do not depend on the launch).
 """
 
@@ -69,7 +70,7 @@ from clrender.estimators.qhull_cells import (
     sppp_cells,
 )
 from clrender.estimators.registry import PixelSums
-from clrender.runtime import Runtime
+from clrender.runtime import Runtime, has_fp64
 from clrender.samples import SampleSets, segments
 from clrender.sampling import DeviceSampleSets
 
@@ -391,10 +392,10 @@ def resolve_precision(runtime: Runtime, precision: str) -> str:
     """ "single", "mixed" or "double"; DeviceError if double is asked of a device without it."""
     if precision not in PRECISIONS:
         raise ParameterError(f"unknown precision {precision!r}; accepted: {', '.join(PRECISIONS)}")
-    has_fp64 = "cl_khr_fp64" in runtime.device.extensions.split()
+    fp64 = has_fp64(runtime.device)
     if precision == "auto":
-        return "mixed" if has_fp64 else "single"
-    if precision != "single" and not has_fp64:
+        return "mixed" if fp64 else "single"
+    if precision != "single" and not fp64:
         raise DeviceError(
             f"device {runtime.describe()} has no cl_khr_fp64 (double precision), "
             f"which precision={precision!r} needs: use 'single' or 'auto'"
