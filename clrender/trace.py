@@ -132,15 +132,14 @@ class PathTracer:
                 raise ParameterError(f"{name} must be a positive integer, got {value!r}")
         return int(width), int(height)
 
-    def trace(
+    def check_launch(
         self,
         sample_sets: DeviceSampleSets,
         seed: int,
-        image_width: int | None = None,
-        image_height: int | None = None,
-    ) -> TraceResult:
-        """Enqueue the paths of every traced sample of `sample_sets` (never the auxiliary
-        nuclei); pixel indices are y * image_width + x."""
+        image_width: int | None,
+        image_height: int | None,
+    ) -> tuple[int, int]:
+        """ParameterError for a launch trace cannot make; the image's (width, height)."""
         check_seed(seed)
         width, height = self.image_size(image_width, image_height)
         pixels = sample_sets.pixels
@@ -155,6 +154,18 @@ class PathTracer:
                 f"zsobol sample sets drawn for {drawn} cannot be traced at {width} x {height}: "
                 f"draw them with image_size=({width}, {height})"
             )
+        return width, height
+
+    def trace(
+        self,
+        sample_sets: DeviceSampleSets,
+        seed: int,
+        image_width: int | None = None,
+        image_height: int | None = None,
+    ) -> TraceResult:
+        """Enqueue the paths of every traced sample of `sample_sets` (never the auxiliary
+        nuclei); pixel indices are y * image_width + x."""
+        width, height = self.check_launch(sample_sets, seed, image_width, image_height)
         runtime = self.runtime
         queue = runtime.queue
         count = sample_sets.traced_total

@@ -29,7 +29,7 @@ import pyopencl as cl
 
 from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
-from clrender.sampling import PATHS_ZSOBOL, DeviceSampleSets, check_seed
+from clrender.sampling import DeviceSampleSets
 from clrender.scene import Scene
 from clrender.trace import PathTracer, TraceResult
 
@@ -182,24 +182,6 @@ class WavefrontPathTracer(PathTracer):
         result = self._trace(sample_sets, seed, image_width, image_height, record)
         return result, record
 
-    def _check(self, sample_sets: DeviceSampleSets, seed: int, width, height) -> tuple[int, int]:
-        """PathTracer.trace's checks of a launch; (width, height)."""
-        check_seed(seed)
-        width, height = self.image_size(width, height)
-        pixels = sample_sets.pixels
-        if len(pixels) and int(pixels.max()) >= width * height:
-            raise ParameterError(
-                f"pixel index {int(pixels.max())} outside the {width} x {height} image"
-            )
-        drawn_for = sample_sets.image_size
-        if sample_sets.config.kind.paths == PATHS_ZSOBOL and drawn_for != (width, height):
-            drawn = "no image size" if drawn_for is None else f"{drawn_for[0]} x {drawn_for[1]}"
-            raise ParameterError(
-                f"zsobol sample sets drawn for {drawn} cannot be traced at {width} x {height}: "
-                f"draw them with image_size=({width}, {height})"
-            )
-        return width, height
-
     def _scene_arguments(self) -> tuple:
         scene = self.scene
         return (
@@ -215,7 +197,7 @@ class WavefrontPathTracer(PathTracer):
         )
 
     def _trace(self, sample_sets, seed, image_width, image_height, record) -> TraceResult:
-        width, height = self._check(sample_sets, seed, image_width, image_height)
+        width, height = self.check_launch(sample_sets, seed, image_width, image_height)
         runtime = self.runtime
         queue = runtime.queue
         count = sample_sets.traced_total
