@@ -371,8 +371,16 @@ def test_device_plain_sums_match_sequential_sums(runtime, sampler):
         voronoi = device_cells.device_sppp_sums(
             runtime, sets, runtime.upload(radiance), 0.5 + config.eps
         )
-        np.testing.assert_array_equal(device.sums.value, voronoi.sums.value)
-        np.testing.assert_array_equal(device.sums.square, voronoi.sums.square)
+        # Bit-identical on PoCL; Intel's CPU runtime rounds the pixels of a launch's last,
+        # partial group of 8 work-items differently in either kernel (README: portability):
+        # a few units in the last place there
+        for name in ("value", "square"):
+            np.testing.assert_allclose(
+                getattr(device.sums, name), getattr(voronoi.sums, name), rtol=1e-15, atol=0
+            )
+        if "Portable Computing Language" in runtime.device.platform.name:
+            np.testing.assert_array_equal(device.sums.value, voronoi.sums.value)
+            np.testing.assert_array_equal(device.sums.square, voronoi.sums.square)
 
 
 def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
