@@ -24,17 +24,12 @@
 #include "lights.h"
 #include "camera.h"
 #include "roulette.h"
+#include "path_vertex.h"
 
 // counters[0]: samples whose radiance was not finite (stored as 0);
 // counters[1 + work-group id]: rays traced by that work-group (camera, bounce and shadow).
 #define COUNTER_NONFINITE 0
 #define COUNTER_RAYS 1
-
-CL_INLINE float Integrator_PowerHeuristic(float pdf_a, float pdf_b)
-{
-    float a2 = pdf_a * pdf_a;
-    return a2 / (a2 + pdf_b * pdf_b);
-}
 
 // Next event estimation at a non-specular vertex: one emitter point, a shadow ray, and the
 // power-heuristic weight against the BSDF's pdf for the same direction.
@@ -60,7 +55,7 @@ CL_INLINE float3 Integrator_SampleDirect(const SceneData *scene, Surface *surfac
         return (float3)(0.0f);
 #endif
     float weight =
-        Integrator_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
+        PathVertex_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
     return f * Le * (weight / light_pdfW);
 }
 
@@ -94,7 +89,7 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
                 L += beta * Le;
             } else {
                 float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
-                L += beta * Le * Integrator_PowerHeuristic(prev_pdfW, light_pdfW);
+                L += beta * Le * PathVertex_PowerHeuristic(prev_pdfW, light_pdfW);
             }
         }
 
@@ -104,12 +99,9 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
         __global const Material *material = &scene->materials[surface.material];
 
         // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
-        float3 n = surface.ng;
-        if (!BSDF_IsSpecular(material) && Dot3(n, wo) < 0.0f) {
-            if (!material->two_sided)
-                break;
-            n = -n;
-        }
+        float3 n;
+        if (!PathVertex_ShadingNormal(material, surface.ng, wo, &n))
+            break;
         Frame frame = Frame_FromNormal(n);
         float3 wo_local = Frame_ToLocal(frame, wo);
         BounceSamples u = Sampler_Bounce(sampler, (uint)depth);

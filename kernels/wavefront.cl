@@ -31,6 +31,7 @@
 #include "lights.h"
 #include "camera.h"
 #include "roulette.h"
+#include "path_vertex.h"
 
 // counters[0]: paths whose radiance was not finite (stored as 0); then the ray counts: per
 // chunk its camera rays (set by the host), then per bounce the lengths of the two queues that
@@ -94,13 +95,6 @@ CL_INLINE void Wavefront_Store3(__global float *p, float3 v)
     p[2] = v.z;
 }
 
-// integrator.cl's Integrator_PowerHeuristic.
-CL_INLINE float Wavefront_PowerHeuristic(float pdf_a, float pdf_b)
-{
-    float a2 = pdf_a * pdf_a;
-    return a2 / (a2 + pdf_b * pdf_b);
-}
-
 // The path's sampler as Sampler_Make built it at the camera (its Philox key kept, not redrawn).
 CL_INLINE Sampler Wavefront_Sampler(__global const WavefrontPath *path, int kind, uint seed,
                                     uint count, uint strata, uint zsobol_bits)
@@ -140,7 +134,7 @@ CL_INLINE bool Wavefront_QueueDirect(const SceneData *scene, Surface *surface, F
     // The shadow ray stops short of the emitter point by both points' rounding bounds
     float light_error = SURFACE_ERROR_SCALE * MaxAbs3(surface->p + dist * wi);
     float weight =
-        Wavefront_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
+        PathVertex_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
     __global WavefrontShadowRay *shadow = &shadow_rays[atomic_inc(shadow_count)];
     Wavefront_Store3(shadow->origin, origin);
     Wavefront_Store3(shadow->dir, wi);
@@ -250,7 +244,7 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
             L += beta * Le;
         } else {
             float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
-            L += beta * Le * Wavefront_PowerHeuristic(path->prev_pdfW, light_pdfW);
+            L += beta * Le * PathVertex_PowerHeuristic(path->prev_pdfW, light_pdfW);
         }
         Wavefront_Store3(path->L, L);
     }
@@ -261,12 +255,9 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
     __global const Material *material = &scene.materials[surface.material];
 
     // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
-    float3 n = surface.ng;
-    if (!BSDF_IsSpecular(material) && Dot3(n, wo) < 0.0f) {
-        if (!material->two_sided)
-            return;
-        n = -n;
-    }
+    float3 n;
+    if (!PathVertex_ShadingNormal(material, surface.ng, wo, &n))
+        return;
     Frame frame = Frame_FromNormal(n);
     float3 wo_local = Frame_ToLocal(frame, wo);
     Sampler sampler = Wavefront_Sampler(path, paths_kind, seed, fixed_count, strata, zsobol_bits);
