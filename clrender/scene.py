@@ -16,6 +16,9 @@ look_at        [x, y, z]     required   point at the image centre
 up             [x, y, z]     [0, 1, 0]  up direction (need not be orthogonal to the view)
 fov            degrees       required   vertical field of view, in (0, 180)
 resolution     [w, h]        required   default image size in pixels
+handedness     string        "right"    "left": image right is cross(up, forward), the
+                                        mirror image, as pbrt's left-handed camera draws
+                                        a scene (the pbrt importer writes it)
 =============  ============  =========  =====================================================
 
 ``[materials.NAME]``, selected by ``type``:
@@ -143,11 +146,14 @@ class Camera:
     up: tuple[float, float, float]
     fov: float  # vertical field of view, degrees
     resolution: tuple[int, int]  # (width, height)
+    handedness: str = "right"  # "left": pbrt's camera, image right = cross(up, forward)
 
     def basis(self, width: int, height: int) -> np.ndarray:
         """The kernel's CAMERA_DTYPE record for a width x height image (see
         scene_device.pack_camera): ray direction forward + sx * right + sy * up."""
-        return pack_camera(self.look_from, self.look_at, self.up, self.fov, width, height)
+        return pack_camera(
+            self.look_from, self.look_at, self.up, self.fov, width, height, self.handedness
+        )
 
 
 @dataclass
@@ -380,7 +386,8 @@ MATERIAL_FIELDS = {
     "dielectric": ("type", "ior"),
     "roughconductor": ("type", "alpha", "eta", "k", "two_sided"),
 }
-CAMERA_FIELDS = ("look_from", "look_at", "up", "fov", "resolution")
+CAMERA_FIELDS = ("look_from", "look_at", "up", "fov", "resolution", "handedness")
+CAMERA_HANDEDNESS = ("right", "left")
 TOP_FIELDS = ("description", "camera", "materials", "shapes")
 
 
@@ -444,7 +451,13 @@ class SceneBuilder:
             np.linalg.norm(up), 1e-300
         ):
             table.fail("up", f"must not be zero or parallel to the view direction, got {list(up)}")
-        return Camera(look_from, look_at, up, fov, (resolution[0], resolution[1]))
+        handedness = table.string("handedness", "right")
+        if handedness not in CAMERA_HANDEDNESS:
+            table.fail(
+                "handedness",
+                f"expected one of {', '.join(map(repr, CAMERA_HANDEDNESS))}, got {handedness!r}",
+            )
+        return Camera(look_from, look_at, up, fov, (resolution[0], resolution[1]), handedness)
 
     # -- materials
     def read_material(self, name: str, table: _Table) -> None:

@@ -102,14 +102,19 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def pack_camera(look_from, look_at, up, fov: float, width: int, height: int) -> np.ndarray:
+def pack_camera(
+    look_from, look_at, up, fov: float, width: int, height: int, handedness: str = "right"
+) -> np.ndarray:
     """CAMERA_DTYPE record of a pinhole camera (fov: vertical, degrees) for a width x height
     image: origin, unit forward, and right/up scaled so that the ray through normalised image
-    coordinates (sx, sy) in [-1, 1]^2 (sx right, sy up) is forward + sx * right + sy * up."""
+    coordinates (sx, sy) in [-1, 1]^2 (sx right, sy up) is forward + sx * right + sy * up.
+    Image right is cross(forward, up), or its opposite for handedness "left" (pbrt's camera)."""
     origin = np.array(look_from, np.float64)
     forward = _unit(np.array(look_at, np.float64) - origin)
     right = _unit(np.cross(forward, np.array(up, np.float64)))
     true_up = np.cross(right, forward)
+    if handedness == "left":
+        right = -right
     half_height = math.tan(math.radians(fov) / 2.0)
     record = np.zeros((), CAMERA_DTYPE)
     record["origin"] = origin

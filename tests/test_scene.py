@@ -1,5 +1,6 @@
 """Scene files: the shipped scenes, their exact geometry, and the error messages."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -113,6 +114,20 @@ def test_green_wall_is_on_the_left_of_the_image():
     assert np.dot(centre - basis["origin"], basis["right"]) < 0
 
 
+def test_left_handed_camera_mirrors_the_image_horizontally(tmp_path):
+    # pbrt's camera: the ray through image point (sx, sy) is the right-handed camera's ray
+    # through (-sx, sy); origin, forward and up are unchanged.
+    scene = load_scene("cornell-box")
+    right_handed = scene.camera.basis(256, 128)
+    path = write(tmp_path, MINIMAL.replace("fov = 40.0", 'fov = 40.0\nhandedness = "left"'))
+    left_camera = load_scene(path).camera
+    assert left_camera.handedness == "left"
+    mirrored = dataclasses.replace(scene.camera, handedness="left").basis(256, 128)
+    for key in ("origin", "forward", "up"):
+        np.testing.assert_array_equal(mirrored[key], right_handed[key])
+    np.testing.assert_array_equal(mirrored["right"], -right_handed["right"])
+
+
 def test_mitsuba_geometry_is_exactly_the_json():
     """Every triangle of Mitsuba's Cornell box is half of one of our quads, same winding."""
     source = json.loads((DATA / "mitsuba-cbox.json").read_text())
@@ -182,6 +197,7 @@ ERROR_CASES = [
     ("fov = 40.0", "fov = 200.0", ["[camera]", "'fov'", "(0, 180)"]),
     ("fov = 40.0", "fovy = 40.0", ["[camera]", "'fovy'", "did you mean 'fov'"]),
     ("resolution = [8, 8]", "resolution = [8, 0]", ["[camera]", "'resolution'"]),
+    ("fov = 40.0", 'fov = 40.0\nhandedness = "lefty"', ["'handedness'", "'left'", "'lefty'"]),
     ("emission = [1.0, 1.0, 1.0]", "emission = [1.0, -1.0, 1.0]", ["'lamp'", "'emission'"]),
 ]
 
