@@ -209,6 +209,21 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "kernel, exact, default) or qhull (SciPy's Qhull on the host)",
     )
     add(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="render on a Dask LocalCluster of N worker processes on this machine (needs "
+        "pip install 'dask[distributed]'); the image is bit-identical to a local render",
+    )
+    add(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="render on the existing Dask cluster whose scheduler is at ADDRESS (e.g. "
+        "tcp://host:8786); each worker uses --device, else its own PYOPENCL_CTX",
+    )
+    add(
         "--strict",
         action="store_true",
         help="exit with status 3 if any sample's radiance was NaN or infinite",
@@ -345,6 +360,10 @@ def check_render_args(args: argparse.Namespace) -> None:
         check_image_memory(*size)
     if args.max_depth < 0:
         raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
+    if args.workers is not None and args.workers <= 0:
+        raise ParameterError(f"--workers must be a positive integer, got {args.workers}")
+    if args.workers is not None and args.scheduler is not None:
+        raise ParameterError("give --workers or --scheduler, not both")
     if args.russian_roulette and is_analytic_scene(args.scene):
         raise ParameterError(
             f"--russian-roulette needs a path-traced scene: {args.scene} is an analytic image "
@@ -491,7 +510,10 @@ def command_render(args: argparse.Namespace) -> int:
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
     )
     try:
-        result = render(runtime, source, settings, progress)
+        if args.workers is None and args.scheduler is None:
+            result = render(runtime, source, settings, progress)
+        else:
+            result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
     finally:
         progress.close()
     result.stats.setup_compile_seconds = setup_compile
@@ -520,6 +542,23 @@ def command_render(args: argparse.Namespace) -> int:
         for pair in outputs.values():
             print(f"wrote {pair.exr} and {pair.png}")
     return exit_status(args, result, held)
+
+
+def render_on_cluster(args: argparse.Namespace, scene, settings, max_depth, roulette, progress):
+    """The render on the Dask cluster of --workers / --scheduler (clrender.cluster): the same
+    image as a local render."""
+    from clrender.cluster import RenderJob, make_executor, render_on
+
+    with interrupts.signals_blocked():
+        executor = make_executor(args.workers, args.scheduler)
+    try:
+        job = RenderJob.of(
+            scene or args.scene, settings, max_depth or 0, bool(roulette), args.device
+        )
+        return render_on(executor, job, progress)
+    finally:
+        with interrupts.signals_blocked():
+            executor.close()
 
 
 def command_scenes(args: argparse.Namespace) -> int:
