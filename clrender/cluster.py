@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
@@ -138,10 +139,11 @@ class DaskExecutor:
         KeyboardInterrupt cancels the tasks not yet finished."""
         from distributed import as_completed
 
+        task = shipped(function)
         token = uuid.uuid4().hex[:12]
         futures = [
             self.client.submit(
-                _run_task, function, item, *common, key=f"clrender-{token}-{index}", pure=False
+                _run_task, task, item, *common, key=f"clrender-{token}-{index}", pure=False
             )
             for index, item in enumerate(items)
         ]
@@ -166,13 +168,37 @@ class DaskExecutor:
         self.close()
 
 
+def shipped(function: Callable) -> Callable | bytes:
+    """The function as the tasks take it: itself when the workers can import it (clrender's
+    own functions, installed libraries), else pickled by value here (cloudpickle), as for a
+    function of a bench script imported from its folder, which a worker cannot import."""
+    import cloudpickle
+
+    name = getattr(function, "__module__", None) or "__main__"
+    module = sys.modules.get(name)
+    path = getattr(module, "__file__", None) or ""
+    importable = name.split(".")[0] == "clrender" or "-packages" in path
+    if module is None or name == "__main__" or importable:
+        return function
+    cloudpickle.register_pickle_by_value(module)
+    try:
+        return cloudpickle.dumps(function)
+    finally:
+        cloudpickle.unregister_pickle_by_value(module)
+
+
 def _identity(value: Any) -> Any:
     return value
 
 
-def _run_task(function: Callable, item: Any, *common: Any) -> Any:
-    """function(item, *common) on a worker; any exception becomes one line naming the worker."""
+def _run_task(function: Callable | bytes, item: Any, *common: Any) -> Any:
+    """function(item, *common) on a worker (function pickled by value: see `shipped`); any
+    exception becomes one line naming the worker."""
     try:
+        if isinstance(function, bytes):
+            import cloudpickle
+
+            function = cloudpickle.loads(function)
         return function(item, *common)
     except Exception as err:  # noqa: BLE001 (reported whole, in one line, to the client)
         from distributed import get_worker

@@ -4,6 +4,7 @@ the split into tasks, a worker killed mid-render, an interrupt; errors in one li
 import os
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,3 +157,21 @@ def test_command_line_render_on_two_workers_matches_the_local_one(tmp_path, caps
     assert np.array_equal(local, distributed)
     assert main([*common, "--workers", "0"]) == 2
     assert "--workers must be a positive integer" in capsys.readouterr().err
+
+
+def test_analytic_study_slice_gives_the_same_numbers_locally_and_on_the_cluster(cluster):
+    bench = str(Path(__file__).resolve().parents[1] / "bench")
+    if bench not in sys.path:
+        sys.path.insert(0, bench)
+    import analytic_study
+
+    # 3 batches of 5 runs at n = 16 (80 points a batch); the cluster runs them as 3 tasks
+    local, local_stats = analytic_study.run_estimates(16, 13, (9, 2), None, 80)
+    remote, remote_stats = analytic_study.run_estimates(16, 13, (9, 2), cluster, 80)
+    assert local_stats == remote_stats
+    for name, values in local.items():
+        assert values.shape == (13, 6)
+        assert np.array_equal(remote[name], values, equal_nan=True), name
+    # The stream decides the numbers: another one gives others
+    other, _ = analytic_study.run_estimates(16, 13, (9, 3), None, 80)
+    assert not np.array_equal(other["mc"], local["mc"])
