@@ -47,8 +47,8 @@ samplers (spp each takes):
 estimators:
 {estimators}
 
-SCENE is a shipped scene name, a .toml or pbrt-v4 .pbrt path, or analytic[:edge|smooth|disc|bowl|mix]
-(images with exact pixel integrals).
+SCENE is a shipped scene name, a .toml or pbrt-v4 .pbrt path, or
+analytic[:edge|smooth|disc|bowl|mix] (images with exact pixel integrals).
 exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 128 + signal when
 interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: the pixels done so far are written, with
 partial=1 in the EXR metadata)."""
