@@ -599,6 +599,7 @@ class PbrtReader:
         self.resolution = DEFAULT_RESOLUTION
         self.materials: dict[str, dict] = {}  # document materials, by name
         self.named: set[str] = set()
+        self.anonymous: dict[str, dict] = {}  # Material directives: in the document once used
         self.shapes: list[dict] = []
         self.notes: list[str] = []
         self.warned: set[str] = set()
@@ -834,7 +835,7 @@ class PbrtReader:
         kind = cursor.string(where, "a material type in quotes")
         params = self.parameters(cursor, where, "material")
         name = f"Material at {where.path.name}:{where.line}"
-        self.materials[name] = self.material(kind, params, where)
+        self.anonymous[name] = self.material(kind, params, where)
         self.state.material = name
 
     def material(self, kind: str, params: Parameters, where: Location) -> dict:
@@ -937,12 +938,13 @@ class PbrtReader:
             material = "pbrt default diffuse"
             self.materials.setdefault(material, {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]})
         emission = self.state.area_light
-        record = self.materials[material]
+        record = self.materials.get(material) or self.anonymous[material]
         if emission is not None:
             shape["emission"] = emission
             if record["type"] == "diffuse" and record["albedo"] == [0.0, 0.0, 0.0]:
                 material = None  # pbrt's black "Null" material: the shape only emits
         if material is not None:
+            self.materials.setdefault(material, record)
             shape["material"] = material
         self.shapes.append(shape)
 
