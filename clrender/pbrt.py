@@ -299,9 +299,6 @@ class Parameters:
             parameter.used = True
         return parameter
 
-    def has(self, name: str) -> bool:
-        return name in self.own or name in self.defaults
-
     def fail(self, name: str, message: str):
         self.where.fail(message, self.find(name))
 
