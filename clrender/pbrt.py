@@ -625,8 +625,9 @@ class PbrtReader:
         try:
             text = path.read_bytes().decode("utf-8")
         except OSError as err:
-            message = f"cannot read {path}: {err.strerror}"
-            raise SceneError(f"{path}: {message}" if where is None else message) from None
+            if where is not None:
+                where.fail(f"cannot read {path}: {err.strerror}")
+            raise SceneError(f"{path}: cannot read: {err.strerror}") from None
         except UnicodeDecodeError as err:
             raise SceneError(f"{path}: not UTF-8 text (offset {err.start})") from None
         self.includes.append(path.resolve())
