@@ -488,13 +488,26 @@ def pair_quads(
     _, canonical = np.unique(positions, axis=0, return_inverse=True)
     ids = canonical.reshape(-1)[triangles]
     first, second = ids[0::2], ids[1::2]
-    quads = []
-    for k in range(len(first)):
-        quad = _pair_quad(first[k], second[k], triangles[2 * k], triangles[2 * k + 1])
-        if quad is None:
-            return None
-        quads.append(quad)
-    corners = positions[np.array(quads)]
+    pairs = np.arange(len(first))
+    # Each tri1 edge x -> y (edge e: from vertex e) met as y -> x in tri2 (from its vertex t)
+    matches = np.zeros((len(first), 3, 3), bool)
+    for e in range(3):
+        for t in range(3):
+            matches[:, e, t] = (second[:, t] == first[:, (e + 1) % 3]) & (
+                second[:, (t + 1) % 3] == first[:, e]
+            )
+    if np.any(matches.sum(axis=(1, 2)) != 1):
+        return None
+    edge, turn = np.unravel_index(matches.reshape(len(first), 9).argmax(axis=1), (3, 3))
+    d_id = second[pairs, (turn + 2) % 3]
+    if np.any(first == d_id[:, None]):
+        return None
+    # tri1's cyclic order from a, d inserted after the edge's first vertex
+    d_index = triangles[1::2][pairs, (turn + 2) % 3]
+    tri1 = triangles[0::2]
+    order = np.array([[0, 3, 1, 2], [0, 1, 3, 2], [0, 1, 2, 3]])[edge]
+    quads = np.take_along_axis(np.c_[tri1, d_index], order, axis=1)
+    corners = positions[quads]
     v0, v1, v2, v3 = (corners[:, i] for i in range(4))
     scale = np.maximum(
         np.abs(corners).max(axis=(1, 2)), np.maximum(np.linalg.norm(v1 - v0, axis=1), 1e-30)
@@ -507,31 +520,12 @@ def pair_quads(
     if not np.all((area > 1e-9 * sides) & (area > 0.0)):
         return None
     if normals is not None:
-        unit_normals = normals[np.array(quads)]
+        unit_normals = normals[quads]
         unit_normals = unit_normals / np.linalg.norm(unit_normals, axis=2, keepdims=True)
         cosines = np.einsum("qj,qvj->qv", face / area[:, None], unit_normals)
         if np.any(cosines < FLAT_NORMAL_COSINE):
             return None
-    return quads
-
-
-def _pair_quad(ids1, ids2, tri1, tri2) -> list[int] | None:
-    """The quad (file indices) of one triangle pair by the rule of pair_quads, or None."""
-    found = None
-    for edge in range(3):
-        x, y = ids1[edge], ids1[(edge + 1) % 3]
-        for turn in range(3):
-            if ids2[turn] == y and ids2[(turn + 1) % 3] == x:
-                d = (turn + 2) % 3
-                if ids2[d] in ids1 or found is not None:
-                    return None
-                found = (edge, tri2[d])
-    if found is None:
-        return None
-    edge, d_index = found
-    quad = [int(v) for v in tri1]
-    quad.insert(edge + 1, int(d_index))
-    return quad
+    return quads.tolist()
 
 
 def transform_points(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -548,27 +542,28 @@ def transform_normals(matrix: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 
 def load_ply(where: Location, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(positions, triangles, vertex normals or None) of a PLY file, read with trimesh."""
+    """(positions, triangles, vertex normals or None) of a PLY file, read with plyfile (the
+    meshes' reader; once clrender.mesh_files is merged, its read_mesh_file can serve here)."""
     try:
-        from trimesh.exchange.ply import load_ply as trimesh_load_ply
+        from plyfile import PlyData
     except ImportError:
-        where.fail(f"reading {path.name} under a transform needs trimesh (pip install trimesh)")
+        where.fail(f"reading {path.name} under a transform needs plyfile (pip install plyfile)")
     try:
-        with open(path, "rb") as stream:
-            data = trimesh_load_ply(stream)
+        data = PlyData.read(str(path))
+        vertex = data["vertex"]
+        positions = np.stack([vertex[axis] for axis in "xyz"], axis=1).astype(np.float64)
+        faces = list(data["face"]["vertex_indices"])
     except OSError as err:
         where.fail(f"cannot read {path}: {err.strerror}")
-    except Exception as err:  # trimesh raises many kinds on a malformed file
-        where.fail(f"cannot read {path} as PLY: {err}")
-    faces = np.asarray(data.get("faces", np.zeros((0, 3))))
-    if faces.ndim != 2 or faces.shape[1] != 3:
+    except Exception as err:  # plyfile raises several types for a malformed file
+        where.fail(f"cannot read {path} as PLY with vertex x, y, z and face vertex_indices: {err}")
+    if not faces or any(len(face) != 3 for face in faces):
         where.fail(f"{path.name}: only triangle faces are supported")
-    normals = data.get("vertex_normals")
-    return (
-        np.asarray(data["vertices"], np.float64),
-        faces.astype(np.int64),
-        None if normals is None else np.asarray(normals, np.float64),
-    )
+    names = vertex.data.dtype.names
+    normals = None
+    if all(axis in names for axis in ("nx", "ny", "nz")):
+        normals = np.stack([vertex[axis] for axis in ("nx", "ny", "nz")], axis=1).astype(float)
+    return positions, np.array(faces, np.int64), normals
 
 
 # --------------------------------------------------------------------------- the reader
