@@ -47,8 +47,8 @@ samplers (spp each takes):
 estimators:
 {estimators}
 
-SCENE is a shipped scene name, a .toml path, or analytic[:edge|smooth|disc|bowl|mix]
-(images with exact pixel integrals).
+SCENE is a shipped scene name, a .toml or pbrt-v4 .pbrt path, or
+analytic[:edge|smooth|disc|bowl|mix] (images with exact pixel integrals).
 exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 128 + signal when
 interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: the pixels done so far are written, with
 partial=1 in the EXR metadata)."""
@@ -123,7 +123,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "scene",
         nargs="?",
         default=DEFAULT_SCENE,
-        help=f"scene name, .toml file or analytic[:KIND] (default: {DEFAULT_SCENE})",
+        help=f"scene name, .toml or .pbrt file or analytic[:KIND] (default: {DEFAULT_SCENE})",
     )
     add(
         "-o",
@@ -321,7 +321,7 @@ def scene_label(scene: str) -> str:
 
     if is_analytic_scene(scene):
         return analytic_image(scene, 1, 1).name
-    return Path(scene).stem if scene.endswith(".toml") else scene
+    return Path(scene).stem if scene.endswith((".toml", ".pbrt")) else scene
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
@@ -384,7 +384,7 @@ def load_scene_arg(args: argparse.Namespace):
             warnings.simplefilter("ignore", SceneWarning)
             scene = load_scene(args.scene)
     except SceneError as err:
-        if "/" in args.scene or args.scene.endswith(".toml"):  # a file, not a scene name
+        if "/" in args.scene or args.scene.endswith((".toml", ".pbrt")):  # a file, not a name
             raise
         raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
     for note in scene.warnings:

@@ -221,7 +221,7 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
             return path
         what = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a FIFO or device)"
         raise SceneError(f"scene file {text!r} is {what}: give a .toml file or a scene name")
-    if "/" not in text and "\\" not in text:
+    if "/" not in text and "\\" not in text and not text.endswith(".pbrt"):
         shipped = scenes_dir() / (text if text.endswith(".toml") else f"{text}.toml")
         if shipped.is_file():
             return shipped
@@ -235,8 +235,13 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
 
 
 def load_scene(path_or_name: str | Path) -> Scene:
-    """Read and validate a scene file (or a shipped scene by name)."""
+    """Read and validate a scene file (or a shipped scene by name); a .pbrt file is read by
+    clrender.pbrt (pbrt-v4's format, a subset)."""
     path = resolve_scene_path(path_or_name)
+    if path.suffix == ".pbrt":
+        from clrender.pbrt import load_pbrt_scene
+
+        return load_pbrt_scene(path)
     try:
         data = path.read_bytes()
     except OSError as err:
