@@ -175,3 +175,12 @@ def test_analytic_study_slice_gives_the_same_numbers_locally_and_on_the_cluster(
     # The stream decides the numbers: another one gives others
     other, _ = analytic_study.run_estimates(16, 13, (9, 3), None, 80)
     assert not np.array_equal(other["mc"], local["mc"])
+
+
+def test_the_python_api_renders_on_an_executor(cluster):
+    import clrender
+
+    kwargs = dict(spp=8, estimators=["vor_sn", "mc_n"], resolution=(16, 12), seed=4)
+    local = clrender.render("cornell-box", **kwargs)
+    distributed = clrender.render("cornell-box", executor=cluster, **kwargs)
+    assert_same_render(local, distributed)
