@@ -13,13 +13,15 @@ Where work runs is an `Executor`:
 Why Dask distributed: it is the well-kept engine for NumPy work in Python (scheduling, data
 movement, worker restarts, progress); clrender adds only the split of a render into tasks.
 
-A distributed render (`render_on`) splits the image's tiles (clrender.pipeline.plan_tiles,
-the same tiles a local render uses) into runs of consecutive tiles, one task each. Every random
+A distributed render (`render_on`) splits the image's pixels (scanline order) into ranges of
+consecutive pixels, one task each; a task renders its range in tiles of the render's sample
+budget (clrender.pipeline.pixels_per_tile), overlapping tracing with its host stage as a local
+render does. Every random
 number is keyed by (seed, pixel, sample, dimension, redraw), and a task redraws its own
 rejected pixels, so each pixel's estimate is the one a local render gives, whatever the number
 of workers or which worker runs a task. What travels: the `RenderJob` (the loaded Scene's NumPy
 records or an analytic image's name, the sampler's settings, estimator names), sent once
-to the cluster as one task's result; results come back as NumPy arrays (`TilesResult`); no
+to the cluster as one task's result; results come back as NumPy arrays (`PixelRangeResult`); no
 OpenCL object is ever pickled. Each worker process keeps its runtime (compiled programs) for
 its lifetime (clrender.api.runtime_for) and the radiance source of the job it last ran.
 
@@ -55,8 +57,8 @@ from clrender.pipeline import (
     RenderSettings,
     RenderStats,
     TilePipeline,
+    pixels_per_tile,
     plan_tiles,
-    tile_pixels,
 )
 from clrender.sampling import SamplerConfig
 from clrender.scene import Scene
@@ -283,8 +285,9 @@ class RenderJob:
 
 
 @dataclass
-class TilesResult:
-    """A task's pixels (global indices) and what the films and layers hold for them."""
+class PixelRangeResult:
+    """A task's pixels (global indices) and what the films and layers hold for them, and the
+    task's stats (its tiles, stage times, samples)."""
 
     pixels: np.ndarray
     values: dict[str, np.ndarray]  # estimator -> (P, 3) float32, as on its film
@@ -313,21 +316,22 @@ def _source_for(job: RenderJob):
     return source
 
 
-def render_tiles(starts: Sequence[int], job: RenderJob) -> TilesResult:
-    """Render the tiles starting at `starts` (pixel indices from plan_tiles) of a job; the
-    pixels' estimates are those of a local render of the whole image."""
+def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeResult:
+    """Render pixels [first, end) of a job, in tiles of its sample budget; their estimates are
+    those of a local render of the whole image."""
     from clrender.api import runtime_for
 
+    first, end = pixel_range
     source = _source_for(job)
     settings = job.settings()
     pipeline = TilePipeline(runtime_for(job.device), source, settings)
     start = time.perf_counter()
-    pipeline.run(list(starts), None)
+    pipeline.run(range(first, end, pixels_per_tile(settings)), None, end)
     pipeline.stats.wall_seconds = time.perf_counter() - start
-    pixels = np.concatenate([tile_pixels(settings, s) for s in starts]).astype(np.int64)
+    pixels = np.arange(first, end, dtype=np.int64)
     layers = pipeline.layers
     first = pipeline.first_draw_layers
-    return TilesResult(
+    return PixelRangeResult(
         pixels,
         {name: film.pixels[pixels] for name, film in pipeline.films.items()},
         {name: film.flagged[pixels] for name, film in pipeline.films.items()},
@@ -341,10 +345,11 @@ def render_tiles(starts: Sequence[int], job: RenderJob) -> TilesResult:
     )
 
 
-def split_tiles(tiles: Sequence[int], tasks: int) -> list[list[int]]:
-    """Runs of consecutive tiles, `tasks` of them at most, as even as can be."""
-    tasks = max(1, min(tasks, len(tiles)))
-    return [list(part) for part in np.array_split(np.asarray(tiles, np.int64), tasks) if len(part)]
+def split_pixels(pixel_count: int, tasks: int) -> list[tuple[int, int]]:
+    """[first, end) ranges of consecutive pixels, `tasks` of them at most, as even as can be."""
+    tasks = max(1, min(tasks, pixel_count))
+    bounds = [pixel_count * k // tasks for k in range(tasks + 1)]
+    return [(bounds[k], bounds[k + 1]) for k in range(tasks) if bounds[k + 1] > bounds[k]]
 
 
 def add_stats(total: RenderStats, part: RenderStats) -> None:
@@ -372,8 +377,8 @@ def render_on(
     says), bit-identical to clrender.pipeline.render of the same settings. Ctrl-C returns the
     finished pixels with stats.interrupted set."""
     settings = job.settings()
-    tiles = plan_tiles(settings)
-    runs = split_tiles(tiles, tasks or TASKS_PER_WORKER * executor.workers)
+    plan_tiles(settings)  # checks the tile budget before any task starts
+    ranges = split_pixels(settings.pixel_count, tasks or TASKS_PER_WORKER * executor.workers)
     films = {name: Film(job.width, job.height) for name in job.estimators}
     layers = PixelLayers(job.width, job.height)
     image_level = any(entry.image_level for entry in settings.estimators)
@@ -383,7 +388,7 @@ def render_on(
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
     start = time.perf_counter()
     try:
-        for _, part in executor.map(render_tiles, runs, shared):
+        for _, part in executor.map(render_pixels, ranges, shared):
             for name, film in films.items():
                 film.record(part.pixels, part.values[name], part.flagged[name])
             layers.record(part.pixels, part.samples, part.redraws, part.variance)
