@@ -31,7 +31,7 @@ from clrender.runtime import Runtime
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, generate_sample_sets
 from clrender.scene import Scene
-from clrender.scene_device import MATERIAL_TYPES
+from clrender.scene_device import EMITTER_SHAPES, MATERIAL_TYPES
 from clrender.trace import PathTracer
 
 NO_HIT = -1
@@ -157,16 +157,24 @@ def pixel_hits(scene: Scene, width: int, height: int) -> tuple[np.ndarray, np.nd
     return shape, o + np.where(np.isfinite(t), t, 0.0)[..., None] * d
 
 
+def emitting_quad(scene: Scene, emitter: int) -> np.ndarray:
+    """The QUAD_DTYPE record of emitter number `emitter`, which must be a quad."""
+    record = scene.emitters[emitter]
+    if record["shape"] != EMITTER_SHAPES["quad"]:
+        raise ValueError(f"{scene.name}: emitter {emitter} is not a quad")
+    return scene.quads[record["index"]]
+
+
 def light_points(scene: Scene, emitter: int = 0) -> np.ndarray:
     """The corners and centre of an emitting quad (5, 3)."""
-    quad = scene.quads[scene.emitters["quad"][emitter]]
+    quad = emitting_quad(scene, emitter)
     c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
     return np.array([c, c + e1, c + e2, c + e1 + e2, c + 0.5 * (e1 + e2)])
 
 
 def light_grid(scene: Scene, emitter: int = 0, cells: int = LIGHT_GRID_CELLS) -> np.ndarray:
     """The centres of a cells x cells grid over an emitting quad (cells * cells, 3)."""
-    quad = scene.quads[scene.emitters["quad"][emitter]]
+    quad = emitting_quad(scene, emitter)
     c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
     s = (np.arange(cells) + 0.5) / cells
     return (c + s[:, None, None] * e1 + s[None, :, None] * e2).reshape(-1, 3)

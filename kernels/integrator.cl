@@ -88,7 +88,8 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
             if (depth == 0 || specularBounce || !nee) {
                 L += beta * Le;
             } else {
-                float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
+                float light_pdfW =
+                    Light_HitPdfW(scene, emitter, origin, t, Dot3(surface.ng, wo));
                 L += beta * Le * PathVertex_PowerHeuristic(prev_pdfW, light_pdfW);
             }
         }

@@ -243,7 +243,8 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
         if (depth == 0 || specularBounce || !nee) {
             L += beta * Le;
         } else {
-            float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
+            float light_pdfW = Light_HitPdfW(&scene, emitter, Load3(ray->origin), t,
+                                              Dot3(surface.ng, wo));
             L += beta * Le * PathVertex_PowerHeuristic(path->prev_pdfW, light_pdfW);
         }
         Wavefront_Store3(path->L, L);
