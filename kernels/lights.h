@@ -13,6 +13,7 @@
 #define CLRENDER_LIGHTS_H
 
 #include "bsdf.h"
+#include "geometry.h"
 #include "scene_types.h"
 #include "vecmath.h"
 
@@ -103,11 +104,13 @@ CL_INLINE float Light_SampleSphereCone(__global const Sphere *sphere, float3 p, 
 }
 
 // Sample an emitter point seen from p: returns its radiance towards p (zero if p is behind
-// the emitter), the unit direction *wi to it, its distance and the solid-angle pdf.
+// the emitter), the unit direction *wi to it, its distance, the solid-angle pdf and the
+// emitter's index (for Light_ShadowDistance).
 CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, float3 *wi,
-                                float *dist, float *pdfW)
+                                float *dist, float *pdfW, uint *picked)
 {
-    __global const Emitter *emitter = &scene->emitters[Light_Pick(scene, u.x)];
+    *picked = Light_Pick(scene, u.x);
+    __global const Emitter *emitter = &scene->emitters[*picked];
     if (emitter->shape == EMITTER_SPHERE) {
         float cone_pdfW = Light_SampleSphereCone(&scene->spheres[emitter->index], p,
                                                  (float2)(u.y, u.z), wi, dist);
@@ -127,6 +130,21 @@ CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, floa
     }
     *pdfW = Light_PdfW(emitter, *dist, cos_light);
     return Load3(emitter->radiance);
+}
+
+// Where the shadow ray of a light sample (at distance dist from the receiving point, along
+// wi) meets the emitter, measured from the ray's origin (the receiver's offset point); the
+// caller stops the ray short of it by the points' rounding bounds. A quad: dist. A sphere:
+// where this very ray meets it (Sphere_Intersect, as the occlusion test will compute it), at
+// most dist: the offset origin moves the crossing of rays that graze the sphere's rim by many
+// times the offset, and a shadow ray ending at dist would find the emitter itself there.
+CL_INLINE float Light_ShadowDistance(const SceneData *scene, uint picked, float3 origin,
+                                     float3 wi, float dist)
+{
+    __global const Emitter *emitter = &scene->emitters[picked];
+    if (emitter->shape != EMITTER_SPHERE)
+        return dist;
+    return Fmin(Sphere_Intersect(&scene->spheres[emitter->index], origin, wi, INFINITY), dist);
 }
 
 #endif
