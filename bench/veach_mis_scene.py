@@ -255,8 +255,8 @@ def camera_text(camera: dict, fov: str, resolution) -> str:
 
 
 def header(source: str, film, resolution) -> str:
-    return f'''# Veach's multiple importance sampling scene (E. Veach's thesis, figure 9.2, as converted
-# to pbrt-v4 by B. Bitterli), written by bench/veach_mis_scene.py from
+    return f'''# Veach's multiple importance sampling scene (E. Veach's thesis, figure 9.2, as
+# converted to pbrt-v4 by B. Bitterli), written by bench/veach_mis_scene.py from
 # {source}.
 # Conversion: every pbrt triangle mesh's triangles 2k and 2k+1 become one quad, its vertices
 # tri1's cyclic order from its first index with tri2's other vertex inserted inside the edge
