@@ -52,7 +52,9 @@ def assert_same_trace(mega, wave, sets, seed, size=SIZE):
     return radiance_a, a
 
 
-@pytest.fixture(scope="module", params=["cornell-box", "mitsuba-cbox", "cornell-box-glossy"])
+@pytest.fixture(
+    scope="module", params=["cornell-box", "mitsuba-cbox", "cornell-box-glossy", "veach-mis"]
+)
 def tracers(request, runtime):
     scene = load_scene(request.param)
     return PathTracer(runtime, scene), WavefrontPathTracer(runtime, scene, wave_paths=WAVE)
