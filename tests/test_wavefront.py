@@ -62,11 +62,13 @@ def tracers(request, runtime):
 
 @pytest.mark.parametrize("sampler", ["independent", "sppp", "sobol", "zsobol", "stratified"])
 def test_radiance_is_the_megakernels(runtime, tracers, sampler):
-    """The shipped Cornell boxes (glass, diffuse and, in the glossy one, a rough conductor):
-    every sample bit-identical at depth 8 with NEE."""
+    """The shipped Cornell boxes (glass, diffuse and, in the glossy one, a rough conductor) and
+    veach-mis (spherical lights, four rough conductors): every sample bit-identical at depth 8
+    with NEE."""
     sets = draw(runtime, sampler, 16, 41)
     radiance, result = assert_same_trace(*tracers, sets, 41)
-    assert len(radiance) > 4000 and result.rays > 5 * len(radiance)
+    # Paths bounce (veach-mis is open: its paths escape sooner than the boxes' 5 rays each)
+    assert len(radiance) > 4000 and result.rays > 4 * len(radiance)
     assert np.count_nonzero(radiance.sum(axis=1)) > len(radiance) // 2
 
 
