@@ -180,7 +180,7 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
         s.ng = Normalize3(o + t * d - center);
         s.p = center + sp->radius * s.ng;
         s.material = sp->material;
-        s.emitter = -1;
+        s.emitter = sp->emitter;
         s.error = SURFACE_ERROR_SCALE * (MaxAbs3(center) + sp->radius);
     }
     return s;
