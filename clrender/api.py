@@ -35,9 +35,7 @@ from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
 from clrender.scene import Scene
 from clrender.scene import load_scene as load_scene_file
-from clrender.trace import PathTracer
-
-DEFAULT_MAX_DEPTH = 8
+from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer
 
 
 def default_estimator(sampler: str) -> str:

@@ -26,6 +26,7 @@ import pyopencl as cl
 from clrender import interrupts
 from clrender.errors import ClrenderError, ParameterError
 from clrender.runtime import create_runtime, describe_device, list_devices
+from clrender.trace import DEFAULT_MAX_DEPTH
 
 EXIT_USAGE = 2
 EXIT_STRICT = 3
@@ -177,9 +178,10 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     add(
         "--max-depth",
         type=int,
-        default=8,
+        default=None,
         metavar="D",
-        help="scattering vertices per path (default: 8)",
+        help=f"scattering vertices per path (default: {DEFAULT_MAX_DEPTH}; not for analytic "
+        "images)",
     )
     add(
         "--russian-roulette",
@@ -358,8 +360,13 @@ def check_render_args(args: argparse.Namespace) -> None:
     size = parse_resolution(args.res)
     if isinstance(size, tuple):  # else known only with the scene: checked by RenderSettings
         check_image_memory(*size)
-    if args.max_depth < 0:
+    if args.max_depth is not None and args.max_depth < 0:
         raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
+    if args.max_depth is not None and is_analytic_scene(args.scene):
+        raise ParameterError(
+            f"--max-depth needs a path-traced scene: {args.scene} is an analytic image "
+            "without paths"
+        )
     if args.workers is not None and args.workers <= 0:
         raise ParameterError(f"--workers must be a positive integer, got {args.workers}")
     if args.workers is not None and args.scheduler is not None:
@@ -400,11 +407,16 @@ def make_source(args: argparse.Namespace, runtime, scene):
 
     size = parse_resolution(args.res)
     source = radiance_source(
-        runtime, scene or args.scene, size, args.max_depth, args.russian_roulette
+        runtime, scene or args.scene, size, path_depth(args), args.russian_roulette
     )
     if scene is None:
         return source, None, None
-    return source, args.max_depth, args.russian_roulette
+    return source, path_depth(args), args.russian_roulette
+
+
+def path_depth(args: argparse.Namespace) -> int:
+    """--max-depth, or the default depth when it was not given."""
+    return DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
 
 
 def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:

@@ -62,6 +62,7 @@ from clrender.pipeline import (
 )
 from clrender.sampling import SamplerConfig
 from clrender.scene import Scene
+from clrender.trace import DEFAULT_MAX_DEPTH
 
 # Tasks per worker: enough that a slow or lost worker delays the render by a fraction of it,
 # few enough that each task's overhead (scheduling, source set-up) stays small beside its work.
@@ -242,7 +243,7 @@ class RenderJob:
     tile_samples: int = DEFAULT_TILE_SAMPLES
     overlap: bool = True
     voronoi_backend: str = "device"
-    max_depth: int = 8
+    max_depth: int = DEFAULT_MAX_DEPTH
     russian_roulette: bool = False
     device: str | None = None
     token: str = field(default_factory=lambda: uuid.uuid4().hex)
