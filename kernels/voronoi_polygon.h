@@ -220,10 +220,12 @@ CL_INLINE bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, i
     return true;
 }
 
-// Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
-// [-inside_box, inside_box]^2.
-CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
-                                        area_real inside_box, bool *inside)
+// Shoelace area over the recomputed corners, skipping those of collinear edges; inside: all
+// corners (absolute) lie in [-inside_box, inside_box]^2.
+__attribute__((noinline)) area_real VoronoiPolygon_AreaSkipping(const VoronoiPolygon *poly,
+                                                                float2 nucleus,
+                                                                area_real inside_box,
+                                                                bool *inside)
 {
     area_real2 x = AREA_REAL2(nucleus);
     area_real twice_area = 0;
@@ -242,6 +244,41 @@ CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucle
         prev = cur;
     }
     twice_area += prev.x * first.y - prev.y * first.x;
+    *inside = in_box;
+    return 0.5f * twice_area;
+}
+
+// Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
+// [-inside_box, inside_box]^2. The corners are computed first, in a loop without branches
+// (the compiler vectorises it), then summed in order: the same arithmetic as
+// VoronoiPolygon_AreaSkipping, which takes over when two edges are collinear.
+CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
+                                        area_real inside_box, bool *inside)
+{
+    area_real2 x = AREA_REAL2(nucleus);
+    int count = poly->count;
+    area_real cx[VORONOI_MAX_VERTICES], cy[VORONOI_MAX_VERTICES];
+    bool parallel = false, in_box = true;
+    for (int k = 0; k < count; ++k) {
+        // Vertex k: the bisectors of edges k - 1 and k (VoronoiPolygon_Vertex)
+        int prev = k == 0 ? count - 1 : k - 1;
+        area_real ax = (area_real)poly->ex[prev] - x.x, ay = (area_real)poly->ey[prev] - x.y;
+        area_real bx = (area_real)poly->ex[k] - x.x, by = (area_real)poly->ey[k] - x.y;
+        area_real ca = 0.5f * (ax * ax + ay * ay), cb = 0.5f * (bx * bx + by * by);
+        area_real det = ax * by - ay * bx;
+        area_real vx = (ca * by - cb * ay) / det, vy = (ax * cb - bx * ca) / det;
+        cx[k] = vx;
+        cy[k] = vy;
+        parallel |= det == 0;
+        area_real absolute_x = x.x + vx, absolute_y = x.y + vy;
+        in_box &= (VORONOI_ABS(absolute_x) <= inside_box) & (VORONOI_ABS(absolute_y) <= inside_box);
+    }
+    if (parallel)
+        return VoronoiPolygon_AreaSkipping(poly, nucleus, inside_box, inside);
+    area_real twice_area = 0;
+    for (int k = 1; k < count; ++k)
+        twice_area += cx[k - 1] * cy[k] - cy[k - 1] * cx[k];
+    twice_area += cx[count - 1] * cy[0] - cy[count - 1] * cx[0];
     *inside = in_box;
     return 0.5f * twice_area;
 }
