@@ -202,6 +202,14 @@ CL_INLINE bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
     return touches;
 }
 
+// The determinant a.x b.y - a.y b.x, without fused multiply-adds: exactly 0 for a = b (with an
+// fma, single precision leaves a rounding residue; products of floats are exact in double).
+CL_INLINE area_real VoronoiPolygon_Det(area_real ax, area_real ay, area_real bx, area_real by)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    return ax * by - ay * bx;
+}
+
 // Vertex k (relative to x) recomputed from the bisectors of edges k - 1 and k, in area_real
 // from the input coordinates. False when the two bisectors are parallel: the edges are then
 // collinear (the same neighbour twice, or a coincident one), and the vertex, lying on a
@@ -213,7 +221,7 @@ CL_INLINE bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, i
     area_real2 a = (area_real2)(poly->ex[prev], poly->ey[prev]) - x;
     area_real2 b = (area_real2)(poly->ex[k], poly->ey[k]) - x;
     area_real ca = 0.5f * (a.x * a.x + a.y * a.y), cb = 0.5f * (b.x * b.x + b.y * b.y);
-    area_real det = a.x * b.y - a.y * b.x;
+    area_real det = VoronoiPolygon_Det(a.x, a.y, b.x, b.y);
     if (det == 0)
         return false;
     *vertex = (area_real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
@@ -265,7 +273,7 @@ CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucle
         area_real ax = (area_real)poly->ex[prev] - x.x, ay = (area_real)poly->ey[prev] - x.y;
         area_real bx = (area_real)poly->ex[k] - x.x, by = (area_real)poly->ey[k] - x.y;
         area_real ca = 0.5f * (ax * ax + ay * ay), cb = 0.5f * (bx * bx + by * by);
-        area_real det = ax * by - ay * bx;
+        area_real det = VoronoiPolygon_Det(ax, ay, bx, by);
         area_real vx = (ca * by - cb * ay) / det, vy = (ax * cb - bx * ca) / det;
         cx[k] = vx;
         cy[k] = vy;
