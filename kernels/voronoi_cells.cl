@@ -341,9 +341,13 @@ typedef struct {
 
 // The lane of the smallest value of 8 (the lowest index among equal ones), from per-lane
 // values and indices: three halvings, all as vector selects (a branch on the comparison
-// would mispredict half the time).
-CL_INLINE int VoronoiLanes_ArgMin(real8 value, lane_index8 index, real *smallest)
+// would mispredict half the time). Vectors by pointer: a double8 argument by value changes
+// the ABI without AVX-512 (a compiler warning), even inlined.
+CL_INLINE int VoronoiLanes_ArgMin(const real8 *values, const lane_index8 *indices,
+                                  real *smallest)
 {
+    real8 value = *values;
+    lane_index8 index = *indices;
     lane_index4 take4 = (value.hi < value.lo) | ((value.hi == value.lo) & (index.hi < index.lo));
     real4 v4 = take4 ? value.hi : value.lo;
     lane_index4 i4 = take4 ? index.hi : index.lo;
@@ -411,7 +415,7 @@ CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbour
         nearest = closer ? index : nearest;
     }
     real nearest_value;
-    int first = VoronoiLanes_ArgMin(nearest_dist2, nearest, &nearest_value);
+    int first = VoronoiLanes_ArgMin(&nearest_dist2, &nearest, &nearest_value);
     *coincident += (int)(same.s0 + same.s1 + same.s2 + same.s3 + same.s4 + same.s5 + same.s6
                          + same.s7);
     block->count = count;
@@ -453,7 +457,7 @@ CL_INLINE int VoronoiBlock_FirstCrossing(const VoronoiBlock *block, real ax, rea
     lane_index8 take = (best_t1 < best_t0) | ((best_t1 == best_t0) & (best_index1 < best_index0));
     best_t0 = take ? best_t1 : best_t0;
     best_index0 = take ? best_index1 : best_index0;
-    return VoronoiLanes_ArgMin(best_t0, best_index0, best);
+    return VoronoiLanes_ArgMin(&best_t0, &best_index0, best);
 }
 
 // The cell of x among the block's nuclei, walked counter-clockwise: the nearest nucleus is

@@ -24,6 +24,7 @@ from clrender.estimators.device_cells import (
 )
 from clrender.estimators.pixel import cell_sums
 from clrender.estimators.qhull_cells import sppp_cells
+from clrender.runtime import has_fp64
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 from clrender.sppp import draw_sppp
@@ -102,6 +103,19 @@ def test_single_precision_close_to_qhull(runtime):
     assert_same_cells(device, host, rtol=SINGLE_RTOL)
     ok = host.bounded
     assert np.median(np.abs(device.areas[ok] / host.areas[ok] - 1)) < 1e-6
+
+
+# 2b. Float64 throughout (precision "double": the walk over lanes of doubles) matches Qhull
+@pytest.mark.parametrize("n", [16, 256])
+def test_double_precision_matches_qhull(runtime, n):
+    if not has_fp64(runtime.device):
+        pytest.skip("no cl_khr_fp64 on this device")
+    batch, box = sppp_batch(n, 3000 // n, seed=11 + n)
+    device, host = both(
+        runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box, precision="double"
+    )
+    assert_same_cells(device, host, rtol=AREA_RTOL)
+    assert device.stats.walked_cells > 0.95 * len(device.areas)
 
 
 # 3. Mirror frame: with every nucleus mirrored across the four edges of W as auxiliary nuclei,
@@ -430,12 +444,14 @@ def bisector_polygon_area(nucleus: np.ndarray, neighbours: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
 
-@pytest.mark.parametrize("precision", ["single", "auto"])
+@pytest.mark.parametrize("precision", ["single", "auto", "double"])
 def test_polygon_area_skips_corners_of_parallel_edges(runtime, precision):
     import pyopencl as cl
 
     from clrender.runtime import build_options
 
+    if precision == "double" and not has_fp64(runtime.device):
+        pytest.skip("no cl_khr_fp64 on this device")
     defines = device_cells.kernel_defines(runtime, precision)
     program = cl.Program(runtime.context, POLYGON_AREA_KERNEL).build(
         options=build_options(tuple(sorted(defines.items())))
