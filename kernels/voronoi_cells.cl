@@ -250,8 +250,8 @@ CL_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, int2 g
     float cell = 2.0f * extent / (float)grid_side;
     // Most cells lie well inside the block: a nucleus that cuts lies within 2 R of x (in a disc
     // through x centred on a vertex), so none is beyond a block side farther than 2 R (a side
-    // at the grid's border has no cell beyond). Narrowed by the grid's misplacement (~1e-6
-    // cell) and the radius by the slack
+    // at the grid's border has no cell beyond). The margin narrowed by the grid's misplacement
+    // (~1e-6 cell), the radius widened by the slack
     float fx = (float)x.x, fy = (float)x.y;
     float margin = INFINITY;
     if (g.x > 1)
@@ -391,7 +391,8 @@ CL_INLINE bool VoronoiNeighbourhood_Gather(VoronoiNeighbourhood *hood, int2 g,
     return true;
 }
 
-// The neighbourhood relative to x: distances, coincident count and nearest nucleus.
+// The neighbourhood relative to x: distances, coincident count and nearest nucleus. Lanes
+// past the count are zero vectors: never the nearest, never bounding an edge.
 CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbourhood *hood,
                                      real2 x, int *coincident)
 {
@@ -427,6 +428,7 @@ CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbour
 CL_INLINE void VoronoiBlock_CrossGroup(const VoronoiBlock *block, int j, real ax, real ay,
                                        real8 *best_t, lane_index8 *best_index)
 {
+    // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
 #pragma OPENCL FP_CONTRACT OFF
     const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
     real8 bx = block->vx.group[j], by = block->vy.group[j];
@@ -470,6 +472,7 @@ CL_INLINE int VoronoiBlock_FirstCrossing(const VoronoiBlock *block, real ax, rea
 CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
                                  VoronoiPolygon *poly)
 {
+    // No fused multiply-adds (the vertices as computed before the walk ran over vectors)
 #pragma OPENCL FP_CONTRACT OFF
     int first = block->nearest, a = first;
     real radius2 = 0;
@@ -546,20 +549,29 @@ CL_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
 // ---------------------------------------------------------------------------------------------
 // The cell of one traced nucleus
 
-// The cell of traced nucleus i (position x in the pixel's grid cell g) from its walked
-// polygon (walked) or else the clipping search: the nuclei beyond the block, the unbounded and
-// undecided cells, the area; writes areas[i] and status[i].
-CL_INLINE void VoronoiCell_Finish(uint i, float2 nucleus, int2 g, VoronoiPolygon *poly,
-                                  bool walked, int coincident, uint count, int grid_side,
-                                  float half_extent, float start_box, float inside_box,
-                                  __global const uint *start, uint base,
-                                  __global const float2 *sorted_points,
-                                  __global area_real *areas, __global uchar *status)
+// The cell of traced nucleus i (position x in the pixel's grid cell g): the walk when the
+// neighbourhood was gathered, else the clipping search; writes areas[i] and status[i].
+CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
+                                   const VoronoiNeighbourhood *hood, bool have_hood,
+                                   uint count, int grid_side, float half_extent,
+                                   float start_box, float inside_box,
+                                   __global const uint *start, uint base,
+                                   __global const float2 *sorted_points,
+                                   __global area_real *areas, __global uchar *status)
 {
     real2 x = REAL2(nucleus);
+    // The walk around the cell among the block's nuclei, then the nuclei beyond the block
+    VoronoiPolygon poly;
+    VoronoiBlock block;
+    int coincident = 0;
+    bool walked = false;
+    if (have_hood) {
+        VoronoiBlock_Relative(&block, hood, x, &coincident);
+        walked = VoronoiBlock_Walk(&block, hood, &poly);
+    }
     bool ok;
     if (walked) {
-        ok = VoronoiCell_ClipBeyondBlock(poly, x, g, grid_side, half_extent, start, base,
+        ok = VoronoiCell_ClipBeyondBlock(&poly, x, g, grid_side, half_extent, start, base,
                                          sorted_points, &coincident);
     } else {
         // The clipping search, from a box of a few mean spacings around the nucleus (it keeps
@@ -567,14 +579,14 @@ CL_INLINE void VoronoiCell_Finish(uint i, float2 nucleus, int2 g, VoronoiPolygon
         real reach = VORONOI_FIRST_BOX_SPACINGS * 2 * half_extent / Sqrt((float)count);
         bool small_box = reach < start_box;
         if (small_box)
-            VoronoiPolygon_InitBox(poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
+            VoronoiPolygon_InitBox(&poly, nucleus, (real2)(-reach, -reach), (real2)(reach, reach));
         else
-            VoronoiPolygon_InitBox(poly, nucleus, -start_box - x, start_box - x);
-        ok = VoronoiCell_Search(poly, x, grid_side, half_extent, start, base, sorted_points,
+            VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
+        ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
                                 &coincident);
-        if (ok && small_box && VoronoiPolygon_TouchesBox(poly, nucleus)) {
-            VoronoiPolygon_InitBox(poly, nucleus, -start_box - x, start_box - x);
-            ok = VoronoiCell_Search(poly, x, grid_side, half_extent, start, base, sorted_points,
+        if (ok && small_box && VoronoiPolygon_TouchesBox(&poly, nucleus)) {
+            VoronoiPolygon_InitBox(&poly, nucleus, -start_box - x, start_box - x);
+            ok = VoronoiCell_Search(&poly, x, grid_side, half_extent, start, base, sorted_points,
                                     &coincident);
         }
     }
@@ -587,7 +599,7 @@ CL_INLINE void VoronoiCell_Finish(uint i, float2 nucleus, int2 g, VoronoiPolygon
     // A box edge left: the cell is unbounded, or reaches beyond the box (host decides). A
     // walked polygon has none: its edges lie on bisectors of other nuclei, as do the edges
     // clips add
-    if (!walked && VoronoiPolygon_TouchesBox(poly, nucleus)) {
+    if (!walked && VoronoiPolygon_TouchesBox(&poly, nucleus)) {
         int unbounded = VoronoiCell_Unbounded(x, base, base + count, sorted_points);
         areas[i] = NAN;
         status[i] = unbounded == 1 ? 0 : VORONOI_FALLBACK;
@@ -596,32 +608,9 @@ CL_INLINE void VoronoiCell_Finish(uint i, float2 nucleus, int2 g, VoronoiPolygon
 
     // Exact cell: its area, shared equally with coincident nuclei
     bool inside;
-    area_real area = VoronoiPolygon_Area(poly, nucleus, inside_box, &inside);
+    area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
     areas[i] = area / VORONOI_MAX(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0);
-}
-
-// The cell of traced nucleus i (position x in the pixel's grid cell g): the walk when the
-// neighbourhood was gathered, else the clipping search; writes areas[i] and status[i].
-CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
-                                   const VoronoiNeighbourhood *hood, bool have_hood,
-                                   uint count, int grid_side, float half_extent,
-                                   float start_box, float inside_box,
-                                   __global const uint *start, uint base,
-                                   __global const float2 *sorted_points,
-                                   __global area_real *areas, __global uchar *status)
-{
-    // The walk around the cell among the block's nuclei, then the nuclei beyond the block
-    VoronoiPolygon poly;
-    VoronoiBlock block;
-    int coincident = 0;
-    bool walked = false;
-    if (have_hood) {
-        VoronoiBlock_Relative(&block, hood, REAL2(nucleus), &coincident);
-        walked = VoronoiBlock_Walk(&block, hood, &poly);
-    }
-    VoronoiCell_Finish(i, nucleus, g, &poly, walked, coincident, count, grid_side, half_extent,
-                       start_box, inside_box, start, base, sorted_points, areas, status);
 }
 
 // One work-item per (pixel, grid cell): the cells of the grid cell's traced nuclei, which
