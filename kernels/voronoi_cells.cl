@@ -247,6 +247,24 @@ CL_INLINE bool VoronoiCell_ClipBeyondBlock(VoronoiPolygon *poly, real2 x, int2 g
 {
     float extent = (float)half_extent;
     float inv_cell = (float)grid_side / (2.0f * extent);
+    float cell = 2.0f * extent / (float)grid_side;
+    // Most cells lie well inside the block: a nucleus that cuts lies within 2 R of x (in a disc
+    // through x centred on a vertex), so none is beyond a block side farther than 2 R (a side
+    // at the grid's border has no cell beyond). The margin narrowed by the grid's misplacement
+    // (~1e-6 cell), the radius widened by the slack
+    float fx = (float)x.x, fy = (float)x.y;
+    float margin = INFINITY;
+    if (g.x > 1)
+        margin = VORONOI_MIN(margin, fx - (-extent + (float)(g.x - 1) * cell));
+    if (g.x < grid_side - 2)
+        margin = VORONOI_MIN(margin, -extent + (float)(g.x + 2) * cell - fx);
+    if (g.y > 1)
+        margin = VORONOI_MIN(margin, fy - (-extent + (float)(g.y - 1) * cell));
+    if (g.y < grid_side - 2)
+        margin = VORONOI_MIN(margin, -extent + (float)(g.y + 2) * cell - fy);
+    margin -= 1e-5f * cell;
+    if (margin > 0 && 4.0f * VORONOI_RADIUS_SLACK * (float)poly->radius2 < margin * margin)
+        return true;
     // Widened for rounding: of the box (relative error ~1e-6 of the radius, with the slack)
     // and of the grid, which may misplace a nucleus by ~1e-6 cell
     float4 box = VoronoiPolygon_CutBox(poly);
@@ -283,52 +301,67 @@ CL_INLINE bool VoronoiCell_Search(VoronoiPolygon *poly, real2 x, int grid_side, 
 // The walk around a cell
 
 // The nuclei of the 3 x 3 block of grid cells around a grid cell, as copied once for all the
-// traced nuclei of that cell: positions and slots.
+// traced nuclei of that cell, and the same nuclei relative to one nucleus of the cell, are
+// held in groups of 8 lanes: the walk runs over whole groups as 8-wide vectors (written out,
+// so that it does not depend on the compiler's loop vectoriser).
+#ifdef VORONOI_DOUBLE
+typedef double8 real8;
+typedef double4 real4;
+typedef long8 lane_index8;  // lane indices and masks of the width of real
+typedef long4 lane_index4;
+typedef long2 lane_index2;
+#else
+typedef float8 real8;
+typedef float4 real4;
+typedef int8 lane_index8;
+typedef int4 lane_index4;
+typedef int2 lane_index2;
+#endif
+#define VORONOI_GROUPS (VORONOI_BLOCK_CAPACITY / 8)
+
+typedef union {
+    real8 group[VORONOI_GROUPS];
+    real lane[VORONOI_BLOCK_CAPACITY];
+} VoronoiLanes;
+
+// The block's nuclei (absolute), padded to a whole group with zeros.
 typedef struct {
-    real x[VORONOI_BLOCK_CAPACITY];
-    real y[VORONOI_BLOCK_CAPACITY];
-    uint slot[VORONOI_BLOCK_CAPACITY];
+    VoronoiLanes x, y;
     int count;
 } VoronoiNeighbourhood;
 
-// The same nuclei relative to one nucleus x of the cell, with their squared distances, padded
-// to whole groups of 8 with zero vectors; those coincident with x (itself included) are only
-// counted.
+// The block's nuclei relative to one nucleus x of the cell, with their squared distances,
+// padded to a whole group with zero vectors; those coincident with x (itself included) are
+// only counted.
 typedef struct {
-    real vx[VORONOI_BLOCK_CAPACITY];
-    real vy[VORONOI_BLOCK_CAPACITY];
-    real dist2[VORONOI_BLOCK_CAPACITY];
+    VoronoiLanes vx, vy, dist2;
     int count;
     int nearest;
 } VoronoiBlock;
 
-// Reals as integers of the same order (sign-magnitude to two's complement), so that a minimum
-// over them is an integer minimum.
-#ifdef VORONOI_DOUBLE
-typedef long real_bits;
-#define VORONOI_KEY_INFINITY 0x7ff0000000000000L
-CL_INLINE real_bits VoronoiKey_FromReal(real t)
+// The lane of the smallest value of 8 (the lowest index among equal ones), from per-lane
+// values and indices: three halvings, all as vector selects (a branch on the comparison
+// would mispredict half the time). Vectors by pointer: a double8 argument by value changes
+// the ABI without AVX-512 (a compiler warning), even inlined.
+CL_INLINE int VoronoiLanes_ArgMin(const real8 *values, const lane_index8 *indices,
+                                  real *smallest)
 {
-    long bits = as_long(t);
-    return bits ^ ((bits >> 63) & 0x7fffffffffffffffL);
+    real8 value = *values;
+    lane_index8 index = *indices;
+    lane_index4 take4 = (value.hi < value.lo) | ((value.hi == value.lo) & (index.hi < index.lo));
+    real4 v4 = take4 ? value.hi : value.lo;
+    lane_index4 i4 = take4 ? index.hi : index.lo;
+    lane_index2 take2 = (v4.hi < v4.lo) | ((v4.hi == v4.lo) & (i4.hi < i4.lo));
+    real2 v2 = take2 ? v4.hi : v4.lo;
+    lane_index2 i2 = take2 ? i4.hi : i4.lo;
+    real2 v1 = v2.yx;
+    lane_index2 i1 = i2.yx;
+    lane_index2 take1 = (v1 < v2) | ((v1 == v2) & (i1 < i2));
+    v2 = take1 ? v1 : v2;
+    i2 = take1 ? i1 : i2;
+    *smallest = v2.x;
+    return (int)i2.x;
 }
-CL_INLINE real VoronoiKey_ToReal(real_bits key)
-{
-    return as_double(key ^ ((key >> 63) & 0x7fffffffffffffffL));
-}
-#else
-typedef int real_bits;
-#define VORONOI_KEY_INFINITY 0x7f800000
-CL_INLINE real_bits VoronoiKey_FromReal(real t)
-{
-    int bits = as_int(t);
-    return bits ^ ((bits >> 31) & 0x7fffffff);
-}
-CL_INLINE real VoronoiKey_ToReal(real_bits key)
-{
-    return as_float(key ^ ((key >> 31) & 0x7fffffff));
-}
-#endif
 
 // Copy the nuclei of the 3 x 3 block of grid cells around g (one contiguous slot range per
 // grid row); false when they are more than the buffer holds.
@@ -347,49 +380,86 @@ CL_INLINE bool VoronoiNeighbourhood_Gather(VoronoiNeighbourhood *hood, int2 g,
             return false;
         for (int k = 0; k < n; ++k) {
             float2 point = sorted_points[s0 + k];
-            hood->x[count + k] = point.x;
-            hood->y[count + k] = point.y;
-            hood->slot[count + k] = s0 + k;
+            hood->x.lane[count + k] = point.x;
+            hood->y.lane[count + k] = point.y;
         }
         count += n;
     }
     for (int k = count; k < ((count + 7) & ~7); ++k)
-        hood->x[k] = hood->y[k] = 0;
+        hood->x.lane[k] = hood->y.lane[k] = 0;
     hood->count = count;
     return true;
 }
 
-// The neighbourhood relative to x: distances, coincident count and nearest nucleus, over
-// whole groups of 8 (the compiler vectorises it; a branch per nucleus would mispredict).
-// Padding entries are copies of x: they count as coincident and never bound an edge.
+// The neighbourhood relative to x: distances, coincident count and nearest nucleus. Lanes
+// past the count are zero vectors: never the nearest, never bounding an edge.
 CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbourhood *hood,
                                      real2 x, int *coincident)
 {
-    int count = hood->count, padded = (count + 7) & ~7;
-    int same = 0;
-    real_bits nearest_key = VORONOI_KEY_INFINITY;
-    for (int k = 0; k < padded; ++k) {
-        bool real_nucleus = k < count;
-        real vx = real_nucleus ? hood->x[k] - x.x : 0;
-        real vy = real_nucleus ? hood->y[k] - x.y : 0;
-        real dist2 = vx * vx + vy * vy;
-        block->vx[k] = vx;
-        block->vy[k] = vy;
-        block->dist2[k] = dist2;
-        same += dist2 == 0;
-        real_bits key = dist2 > 0 ? VoronoiKey_FromReal(dist2) : VORONOI_KEY_INFINITY;
-        nearest_key = key < nearest_key ? key : nearest_key;
+    int count = hood->count, groups = (count + 7) / 8;
+    const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
+    lane_index8 same = 0;
+    real8 nearest_dist2 = INFINITY;
+    lane_index8 nearest = VORONOI_BLOCK_CAPACITY;
+    for (int j = 0; j < groups; ++j) {
+        lane_index8 index = lanes + 8 * j;
+        lane_index8 real_nucleus = index < count;
+        real8 vx = real_nucleus ? hood->x.group[j] - x.x : (real8)0;
+        real8 vy = real_nucleus ? hood->y.group[j] - x.y : (real8)0;
+        real8 dist2 = vx * vx + vy * vy;
+        block->vx.group[j] = vx;
+        block->vy.group[j] = vy;
+        block->dist2.group[j] = dist2;
+        same -= real_nucleus & (dist2 == 0);  // masks are -1
+        lane_index8 closer = (dist2 > 0) & (dist2 < nearest_dist2);
+        nearest_dist2 = closer ? dist2 : nearest_dist2;
+        nearest = closer ? index : nearest;
     }
-    int nearest = padded;
-    for (int k = 0; k < padded; ++k) {
-        real dist2 = block->dist2[k];
-        bool is_nearest = dist2 > 0 && VoronoiKey_FromReal(dist2) == nearest_key;
-        int candidate = is_nearest ? k : padded;
-        nearest = candidate < nearest ? candidate : nearest;
-    }
-    *coincident += same - (padded - count);
+    real nearest_value;
+    int first = VoronoiLanes_ArgMin(&nearest_dist2, &nearest, &nearest_value);
+    *coincident += (int)(same.s0 + same.s1 + same.s2 + same.s3 + same.s4 + same.s5 + same.s6
+                         + same.s7);
     block->count = count;
-    block->nearest = nearest < padded ? nearest : -1;
+    block->nearest = nearest_value < INFINITY ? first : -1;
+}
+
+// The crossing t of a's bisector (a = (ax, ay)) by the bisectors of group j's nuclei, kept
+// lane by lane where it is the first so far among the nuclei on a's left (best_t, best_index).
+CL_INLINE void VoronoiBlock_CrossGroup(const VoronoiBlock *block, int j, real ax, real ay,
+                                       real8 *best_t, lane_index8 *best_index)
+{
+    // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
+#pragma OPENCL FP_CONTRACT OFF
+    const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
+    real8 bx = block->vx.group[j], by = block->vy.group[j];
+    real8 cross = ax * by - ay * bx;
+    real8 num = block->dist2.group[j] - (ax * bx + ay * by);
+    real8 t = num / cross;
+    lane_index8 better = (cross > 0) & (t < *best_t);
+    *best_t = better ? t : *best_t;
+    *best_index = better ? lanes + 8 * j : *best_index;
+}
+
+// The first crossing of a's bisector by the bisector of a nucleus on its left: its t
+// (INFINITY if none) and that nucleus (the lowest index on ties). Even and odd groups go to
+// two sets of lanes (two shorter chains of dependent selects), merged at the end.
+CL_INLINE int VoronoiBlock_FirstCrossing(const VoronoiBlock *block, real ax, real ay,
+                                         real *best)
+{
+    int groups = (block->count + 7) / 8;
+    real8 best_t0 = INFINITY, best_t1 = INFINITY;
+    lane_index8 best_index0 = VORONOI_BLOCK_CAPACITY, best_index1 = VORONOI_BLOCK_CAPACITY;
+    int j = 0;
+    for (; j + 1 < groups; j += 2) {
+        VoronoiBlock_CrossGroup(block, j, ax, ay, &best_t0, &best_index0);
+        VoronoiBlock_CrossGroup(block, j + 1, ax, ay, &best_t1, &best_index1);
+    }
+    if (j < groups)
+        VoronoiBlock_CrossGroup(block, j, ax, ay, &best_t0, &best_index0);
+    lane_index8 take = (best_t1 < best_t0) | ((best_t1 == best_t0) & (best_index1 < best_index0));
+    best_t0 = take ? best_t1 : best_t0;
+    best_index0 = take ? best_index1 : best_index0;
+    return VoronoiLanes_ArgMin(&best_t0, &best_index0, best);
 }
 
 // The cell of x among the block's nuclei, walked counter-clockwise: the nearest nucleus is
@@ -399,39 +469,20 @@ CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbour
 // is the next neighbour. The walk ends back at the nearest nucleus. Returns false when it
 // cannot decide (a cell unbounded within the block, more than VORONOI_MAX_VERTICES edges from
 // a rounding-degenerate configuration): the clipping search then does the cell.
-CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block,
-                                 const VoronoiNeighbourhood *hood, VoronoiPolygon *poly,
-                                 __global const float2 *sorted_points)
+CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
+                                 VoronoiPolygon *poly)
 {
-    // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
+    // No fused multiply-adds (the vertices as computed before the walk ran over vectors)
 #pragma OPENCL FP_CONTRACT OFF
     int first = block->nearest, a = first;
-    int padded = (block->count + 7) & ~7;
     real radius2 = 0;
     if (first < 0)
         return false;
     for (int m = 0; m < VORONOI_MAX_VERTICES; ++m) {
-        real ax = block->vx[a], ay = block->vy[a];
-        // The crossing of every left nucleus, as an ordered integer key (integer minima
-        // vectorise, float ones do not without fast math; a branch per nucleus mispredicts)
-        real_bits keys[VORONOI_BLOCK_CAPACITY];
-        real_bits best_key = VORONOI_KEY_INFINITY;
-        for (int b = 0; b < padded; ++b) {
-            real cross = ax * block->vy[b] - ay * block->vx[b];
-            real num = block->dist2[b] - (ax * block->vx[b] + ay * block->vy[b]);
-            real_bits key = VoronoiKey_FromReal(cross > 0 ? num / cross : (real)INFINITY);
-            keys[b] = key;
-            best_key = key < best_key ? key : best_key;
-        }
-        int next = padded;
-        for (int b = 0; b < padded; ++b) {
-            int candidate = keys[b] == best_key ? b : padded;
-            next = candidate < next ? candidate : next;
-        }
-        if (best_key >= VORONOI_KEY_INFINITY)
-            next = -1;
-        real best = VoronoiKey_ToReal(best_key);
-        if (next < 0)
+        real ax = block->vx.lane[a], ay = block->vy.lane[a];
+        real best;
+        int next = VoronoiBlock_FirstCrossing(block, ax, ay, &best);
+        if (!(best < INFINITY))
             return false;
         // Edge m lies on a's bisector; its end (t = best / 2) is vertex m + 1, or vertex 0
         // when the walk closes
@@ -443,9 +494,8 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block,
         real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
         poly->vx[end] = px;
         poly->vy[end] = py;
-        float2 neighbour = sorted_points[hood->slot[a]];
-        poly->ex[m] = neighbour.x;
-        poly->ey[m] = neighbour.y;
+        poly->ex[m] = (float)hood->x.lane[a];  // the input coordinates (exact in real)
+        poly->ey[m] = (float)hood->y.lane[a];
         real r2 = px * px + py * py;
         radius2 = r2 > radius2 ? r2 : radius2;
         if (closes) {
@@ -517,7 +567,7 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     bool walked = false;
     if (have_hood) {
         VoronoiBlock_Relative(&block, hood, x, &coincident);
-        walked = VoronoiBlock_Walk(&block, hood, &poly, sorted_points);
+        walked = VoronoiBlock_Walk(&block, hood, &poly);
     }
     bool ok;
     if (walked) {
@@ -546,8 +596,10 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
         return;
     }
 
-    // A box edge left: the cell is unbounded, or reaches beyond the box (host decides)
-    if (VoronoiPolygon_TouchesBox(&poly, nucleus)) {
+    // A box edge left: the cell is unbounded, or reaches beyond the box (host decides). A
+    // walked polygon has none: its edges lie on bisectors of other nuclei, as do the edges
+    // clips add
+    if (!walked && VoronoiPolygon_TouchesBox(&poly, nucleus)) {
         int unbounded = VoronoiCell_Unbounded(x, base, base + count, sorted_points);
         areas[i] = NAN;
         status[i] = unbounded == 1 ? 0 : VORONOI_FALLBACK;

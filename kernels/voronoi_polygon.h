@@ -202,6 +202,14 @@ CL_INLINE bool VoronoiPolygon_TouchesBox(const VoronoiPolygon *poly, float2 x)
     return touches;
 }
 
+// The determinant a.x b.y - a.y b.x, without fused multiply-adds: exactly 0 for a = b (with an
+// fma, single precision leaves a rounding residue; products of floats are exact in double).
+CL_INLINE area_real VoronoiPolygon_Det(area_real ax, area_real ay, area_real bx, area_real by)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    return ax * by - ay * bx;
+}
+
 // Vertex k (relative to x) recomputed from the bisectors of edges k - 1 and k, in area_real
 // from the input coordinates. False when the two bisectors are parallel: the edges are then
 // collinear (the same neighbour twice, or a coincident one), and the vertex, lying on a
@@ -213,17 +221,19 @@ CL_INLINE bool VoronoiPolygon_Vertex(const VoronoiPolygon *poly, area_real2 x, i
     area_real2 a = (area_real2)(poly->ex[prev], poly->ey[prev]) - x;
     area_real2 b = (area_real2)(poly->ex[k], poly->ey[k]) - x;
     area_real ca = 0.5f * (a.x * a.x + a.y * a.y), cb = 0.5f * (b.x * b.x + b.y * b.y);
-    area_real det = a.x * b.y - a.y * b.x;
+    area_real det = VoronoiPolygon_Det(a.x, a.y, b.x, b.y);
     if (det == 0)
         return false;
     *vertex = (area_real2)(ca * b.y - cb * a.y, a.x * cb - b.x * ca) / det;
     return true;
 }
 
-// Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
-// [-inside_box, inside_box]^2.
-CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
-                                        area_real inside_box, bool *inside)
+// Shoelace area over the recomputed corners, skipping those of collinear edges; inside: all
+// corners (absolute) lie in [-inside_box, inside_box]^2.
+__attribute__((noinline)) area_real VoronoiPolygon_AreaSkipping(const VoronoiPolygon *poly,
+                                                                float2 nucleus,
+                                                                area_real inside_box,
+                                                                bool *inside)
 {
     area_real2 x = AREA_REAL2(nucleus);
     area_real twice_area = 0;
@@ -242,6 +252,41 @@ CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucle
         prev = cur;
     }
     twice_area += prev.x * first.y - prev.y * first.x;
+    *inside = in_box;
+    return 0.5f * twice_area;
+}
+
+// Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
+// [-inside_box, inside_box]^2. The corners are computed first, in a loop without branches
+// (the compiler vectorises it), then summed in order: the same arithmetic as
+// VoronoiPolygon_AreaSkipping, which takes over when two edges are collinear.
+CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
+                                        area_real inside_box, bool *inside)
+{
+    area_real2 x = AREA_REAL2(nucleus);
+    int count = poly->count;
+    area_real cx[VORONOI_MAX_VERTICES], cy[VORONOI_MAX_VERTICES];
+    bool parallel = false, in_box = true;
+    for (int k = 0; k < count; ++k) {
+        // Vertex k: the bisectors of edges k - 1 and k (VoronoiPolygon_Vertex)
+        int prev = k == 0 ? count - 1 : k - 1;
+        area_real ax = (area_real)poly->ex[prev] - x.x, ay = (area_real)poly->ey[prev] - x.y;
+        area_real bx = (area_real)poly->ex[k] - x.x, by = (area_real)poly->ey[k] - x.y;
+        area_real ca = 0.5f * (ax * ax + ay * ay), cb = 0.5f * (bx * bx + by * by);
+        area_real det = VoronoiPolygon_Det(ax, ay, bx, by);
+        area_real vx = (ca * by - cb * ay) / det, vy = (ax * cb - bx * ca) / det;
+        cx[k] = vx;
+        cy[k] = vy;
+        parallel |= det == 0;
+        area_real absolute_x = x.x + vx, absolute_y = x.y + vy;
+        in_box &= (VORONOI_ABS(absolute_x) <= inside_box) & (VORONOI_ABS(absolute_y) <= inside_box);
+    }
+    if (parallel)
+        return VoronoiPolygon_AreaSkipping(poly, nucleus, inside_box, inside);
+    area_real twice_area = 0;
+    for (int k = 1; k < count; ++k)
+        twice_area += cx[k - 1] * cy[k] - cy[k - 1] * cx[k];
+    twice_area += cx[count - 1] * cy[0] - cy[count - 1] * cx[0];
     *inside = in_box;
     return 0.5f * twice_area;
 }

@@ -24,6 +24,7 @@ from clrender.estimators.device_cells import (
 )
 from clrender.estimators.pixel import cell_sums
 from clrender.estimators.qhull_cells import sppp_cells
+from clrender.runtime import has_fp64
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 from clrender.sppp import draw_sppp
@@ -102,6 +103,19 @@ def test_single_precision_close_to_qhull(runtime):
     assert_same_cells(device, host, rtol=SINGLE_RTOL)
     ok = host.bounded
     assert np.median(np.abs(device.areas[ok] / host.areas[ok] - 1)) < 1e-6
+
+
+# 2b. Float64 throughout (precision "double": the walk over lanes of doubles) matches Qhull
+@pytest.mark.parametrize("n", [16, 256])
+def test_double_precision_matches_qhull(runtime, n):
+    if not has_fp64(runtime.device):
+        pytest.skip("no cl_khr_fp64 on this device")
+    batch, box = sppp_batch(n, 3000 // n, seed=11 + n)
+    device, host = both(
+        runtime, batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box, precision="double"
+    )
+    assert_same_cells(device, host, rtol=AREA_RTOL)
+    assert device.stats.walked_cells > 0.95 * len(device.areas)
 
 
 # 3. Mirror frame: with every nucleus mirrored across the four edges of W as auxiliary nuclei,
@@ -394,3 +408,81 @@ def test_device_sums_flag_undecided_cells_for_the_host(runtime, monkeypatch):
         runtime, sets, runtime.upload(radiance), 0.5 + config.eps
     )
     assert device.fallback.sum() > 30
+
+
+# 11. VoronoiPolygon_Area (kernels/voronoi_polygon.h) against the cell's exact area: its fast
+# path (every corner in one branch-free loop) and, when two consecutive edges lie on parallel
+# bisectors (the same neighbour twice: the clipping may leave such a pair), its fallback that
+# skips their corner, which lies on a straight side
+POLYGON_AREA_KERNEL = """
+#include "voronoi_polygon.h"
+__kernel void polygon_area(int count, float2 nucleus, __global const float2 *edges,
+                           __global area_real *area, __global int *inside)
+{
+    VoronoiPolygon poly;
+    for (int k = 0; k < count; ++k) {
+        poly.ex[k] = edges[k].x;
+        poly.ey[k] = edges[k].y;
+    }
+    poly.count = count;
+    bool in_box;
+    area[0] = VoronoiPolygon_Area(&poly, nucleus, 0.5f, &in_box);
+    inside[0] = in_box;
+    area[1] = VoronoiPolygon_AreaSkipping(&poly, nucleus, 0.5f, &in_box);
+    inside[1] = in_box;
+}
+"""
+
+
+def bisector_polygon_area(nucleus: np.ndarray, neighbours: np.ndarray) -> float:
+    """Shoelace area of the polygon whose consecutive edges lie on the bisectors of the nucleus
+    and each neighbour (counter-clockwise), corners solved in float64."""
+    corners = []
+    for a, b in zip(np.roll(neighbours, 1, axis=0), neighbours, strict=True):
+        normals = np.array([a - nucleus, b - nucleus])
+        levels = 0.5 * (normals * (np.array([a, b]) + nucleus)).sum(axis=1)
+        corners.append(np.linalg.solve(normals, levels))
+    x, y = np.array(corners).T
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+@pytest.mark.parametrize("precision", ["single", "auto", "double"])
+def test_polygon_area_skips_corners_of_parallel_edges(runtime, precision):
+    import pyopencl as cl
+
+    from clrender.runtime import build_options
+
+    if precision == "double" and not has_fp64(runtime.device):
+        pytest.skip("no cl_khr_fp64 on this device")
+    defines = device_cells.kernel_defines(runtime, precision)
+    program = cl.Program(runtime.context, POLYGON_AREA_KERNEL).build(
+        options=build_options(tuple(sorted(defines.items())))
+    )
+    polygon_area = cl.Kernel(program, "polygon_area")
+    single = device_cells.resolve_precision(runtime, precision) == "single"
+    real = np.float32 if single else np.float64
+    nucleus = np.array([0.1, 0.2], np.float32)
+    angles = np.radians([5.0, 70.0, 130.0, 185.0, 250.0, 310.0])
+    distances = np.array([0.11, 0.09, 0.12, 0.1, 0.13, 0.08])
+    neighbours = (nucleus + distances[:, None] * np.c_[np.cos(angles), np.sin(angles)]).astype(
+        np.float32
+    )
+    expected = bisector_polygon_area(nucleus.astype(np.float64), neighbours.astype(np.float64))
+    for edges in (neighbours, np.insert(neighbours, 3, neighbours[2], axis=0)):
+        area = np.zeros(2, real)
+        inside = np.zeros(2, np.int32)
+        polygon_area(
+            runtime.queue,
+            (1,),
+            (1,),
+            np.int32(len(edges)),
+            cl.cltypes.make_float2(*nucleus),
+            runtime.upload(np.ascontiguousarray(edges)),
+            area_buf := runtime.allocate(area.nbytes),
+            inside_buf := runtime.allocate(inside.nbytes),
+        )
+        cl.enqueue_copy(runtime.queue, area, area_buf)
+        cl.enqueue_copy(runtime.queue, inside, inside_buf)
+        np.testing.assert_allclose(area, expected, rtol=SINGLE_RTOL if single else AREA_RTOL)
+        assert area[0] == area[1]  # the same arithmetic on both paths
+        assert inside.tolist() == [1, 1]
