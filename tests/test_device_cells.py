@@ -486,3 +486,33 @@ def test_polygon_area_skips_corners_of_parallel_edges(runtime, precision):
         np.testing.assert_allclose(area, expected, rtol=SINGLE_RTOL if single else AREA_RTOL)
         assert area[0] == area[1]  # the same arithmetic on both paths
         assert inside.tolist() == [1, 1]
+
+
+# 15. Coincident nuclei share their cell equally, as on the host: every nucleus of a batch
+# twice, through the walk (the default block) and through the clipping search (a block of 8
+# nuclei, too small for any walk)
+@pytest.mark.parametrize("block", [None, 8])
+def test_duplicated_nuclei_share_their_cells_as_on_the_host(runtime, area_rtol, block, monkeypatch):
+    if block is not None:
+        defines = device_cells._defines
+        monkeypatch.setattr(
+            device_cells,
+            "_defines",
+            lambda precision: {**defines(precision), "VORONOI_BLOCK_CAPACITY": block},
+        )
+    batch = draw_sppp(np.random.default_rng(3), 64, 200)
+
+    def twice(points):
+        return np.repeat(np.asarray(points, np.float32).astype(np.float64).reshape(-1, 2), 2, 0)
+
+    traced, aux = twice(batch.traced), twice(batch.aux)
+    offsets, aux_offsets = 2 * batch.offsets, 2 * batch.aux_offsets
+    box = float(np.float32(0.5 + batch.eps))
+    host = sppp_cells(traced, offsets, aux, aux_offsets, box)
+    device = device_sppp_cells_from_arrays(runtime, traced, offsets, aux, aux_offsets, box)
+    assert (device.stats.walked_cells > 0) == (block is None)
+    np.testing.assert_array_equal(device.bounded, host.bounded)
+    bounded = host.bounded
+    np.testing.assert_allclose(device.areas[bounded], host.areas[bounded], rtol=area_rtol)
+    # the two copies of a nucleus got the same half of its cell
+    np.testing.assert_array_equal(device.areas[0::2], device.areas[1::2])
