@@ -51,6 +51,36 @@ typedef struct {
     int material;
 } Sphere;
 
+// A triangle p0, p1, p2; its front side is counter-clockwise: geometric normal along
+// cross(p1 - p0, p2 - p0) (pbrt's convention). normals indexes its three per-vertex shading
+// normals in the TriangleNormals array, or is -1 (shading normal = geometric normal).
+typedef struct {
+    float p0[3];
+    float p1[3];
+    float p2[3];
+    int material; // index into the materials, or MATERIAL_NONE
+    int normals;  // index into the triangle normals, or -1
+} Triangle;
+
+// Unit shading normals at a triangle's p0, p1, p2.
+typedef struct {
+    float n[3][3];
+} TriangleNormals;
+
+// A node of the bounding volume hierarchy over every primitive (clrender/bvh.py), nodes in
+// breadth-first order, the root first. A leaf (count > 0) holds the primitive ids
+// bvh_prims[offset .. offset + count - 1]; an interior node (count = -1 - split axis) has its
+// children at offset and offset + 1. Bounds are rounded outwards to float.
+// Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: the builder never makes a
+// deeper tree.
+#define BVH_STACK_SIZE 64
+typedef struct {
+    float lower[3];
+    int offset;
+    float upper[3];
+    int count;
+} BVHNode;
+
 // One record for every material type; each type reads its own members.
 typedef struct {
     int type;
@@ -81,16 +111,23 @@ typedef struct {
 } Camera;
 
 // The scene as the device functions see it (private; built in the kernel from its arguments).
+// Primitive ids: quads 0 .. quad_count - 1, then spheres, then triangles.
 typedef struct {
     __global const Quad *quads;
     __global const QuadBlock *quad_blocks;
     __global const Sphere *spheres;
     __global const Material *materials;
     __global const Emitter *emitters;
+    __global const Triangle *triangles;
+    __global const TriangleNormals *triangle_normals;
+    __global const BVHNode *bvh_nodes;
+    __global const uint *bvh_prims;
     uint quad_count;
     uint quad_block_count;
     uint sphere_count;
     uint emitter_count;
+    uint triangle_count;
+    uint bvh_node_count; // 0: brute force over every primitive (small scenes)
 } SceneData;
 
 #endif
