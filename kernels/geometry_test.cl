@@ -68,3 +68,11 @@ __kernel void surface_rays(uint count, GEOMETRY_TEST_SCENE_PARAMS,
     vstore3(s.ns, 3 * i + 2, frames);
     errors[i] = s.error;
 }
+
+// sizeof of the mesh and BVH structs shared with the host, to check the NumPy dtypes.
+__kernel void struct_sizes(__global uint *sizes)
+{
+    sizes[0] = sizeof(Triangle);
+    sizes[1] = sizeof(TriangleNormals);
+    sizes[2] = sizeof(BVHNode);
+}
