@@ -116,7 +116,7 @@ def compare(runtime, scene, sets, size, repeats, label):
     row = {
         "scene": label,
         "primitives": scene.primitive_count,
-        "default_uses_bvh": len(tracers["default"].bvh_nodes) > 0,
+        "default_uses_bvh": scene.primitive_count > BVH_MIN_PRIMITIVES,
     }
     for name in tracers:
         row[f"{name}_rays_per_s"] = statistics.median(rates[name])

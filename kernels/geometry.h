@@ -233,37 +233,60 @@ CL_INLINE float Primitive_Intersect(const SceneData *scene, uint id, float3 o, f
     return Triangle_Intersect(&scene->triangles[s - scene->sphere_count], r, tmax);
 }
 
-// Whether the ray should visit an interior node's second child (offset + 1) first: the ray
-// runs towards decreasing coordinates along the node's split axis.
-CL_INLINE bool BVHNode_SecondFirst(__global const BVHNode *node, float3 d)
+// Distance at which the ray o + t d (inv_d = 1 / d) enters the box [lower, upper] if it meets
+// it within [0, tmax], else INFINITY (the slab test of Bounds_Hit).
+CL_INLINE float Bounds_Enter(__global const float *lower, __global const float *upper, float3 o,
+                             float3 inv_d, float tmax)
 {
-    int axis = -1 - node->count;
-    return (axis == 0 ? d.x : (axis == 1 ? d.y : d.z)) < 0.0f;
+    float3 t0 = (Load3(lower) - o) * inv_d;
+    float3 t1 = (Load3(upper) - o) * inv_d;
+    float3 t_near = t0 < t1 ? t0 : t1;
+    float3 t_far = t0 < t1 ? t1 : t0;
+    float t_enter = t_near.x > t_near.y ? t_near.x : t_near.y;
+    t_enter = t_enter > t_near.z ? t_enter : t_near.z;
+    float t_exit = t_far.x < t_far.y ? t_far.x : t_far.y;
+    t_exit = t_exit < t_far.z ? t_exit : t_far.z;
+    return (t_enter > t_exit || t_exit < 0.0f || t_enter > tmax) ? INFINITY : t_enter;
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
-// with any_hit, the first one found (shadow rays). Depth-first, nearer child first, with a
-// private stack of the children left to visit.
+// with any_hit, the first one found (shadow rays). Depth-first: at an interior node both
+// children's boxes are tested, the nearer one hit is visited next and the other kept on a
+// private stack with its entry distance (skipped when popped if a closer hit was found since).
 CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
                               bool any_hit, int *prim)
 {
     float3 inv_d = 1.0f / d;
     TriangleRay r = TriangleRay_Make(o, d);
     uint stack[BVH_STACK_SIZE];
+    float stack_enter[BVH_STACK_SIZE];
     int top = 0;
-    uint node_id = 0;
     float t = tmax;
     int id = -1;
-    for (;;) {
+    __global const BVHNode *root = &scene->bvh_nodes[0];
+    uint node_id = 0;
+    bool visit = Bounds_Enter(root->lower, root->upper, o, inv_d, t) < INFINITY;
+    while (visit) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
-        if (Bounds_Hit(node->lower, node->upper, o, inv_d, t)) {
-            if (node->count < 0) {
-                // Interior: descend into the nearer child, keep the other for later
-                bool second_first = BVHNode_SecondFirst(node, d);
-                stack[top++] = (uint)node->offset + (second_first ? 0u : 1u);
-                node_id = (uint)node->offset + (second_first ? 1u : 0u);
+        visit = false;
+        if (node->count < 0) {
+            // Interior: test both children, descend into the nearer hit one
+            __global const BVHNode *first = &scene->bvh_nodes[node->offset];
+            float enter0 = Bounds_Enter(first[0].lower, first[0].upper, o, inv_d, t);
+            float enter1 = Bounds_Enter(first[1].lower, first[1].upper, o, inv_d, t);
+            bool second_nearer = enter1 < enter0;
+            float near = second_nearer ? enter1 : enter0;
+            float far = second_nearer ? enter0 : enter1;
+            if (far < INFINITY) {
+                stack[top] = (uint)node->offset + (second_nearer ? 0u : 1u);
+                stack_enter[top++] = far;
+            }
+            if (near < INFINITY) {
+                node_id = (uint)node->offset + (second_nearer ? 1u : 0u);
+                visit = true;
                 continue;
             }
+        } else {
             // Leaf: test its primitives
             for (int k = 0; k < node->count; ++k) {
                 uint p = scene->bvh_prims[node->offset + k];
@@ -276,9 +299,12 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
             if (any_hit && id >= 0)
                 break;
         }
-        if (top == 0)
-            break;
-        node_id = stack[--top];
+        // Next: the most recently kept node the ray can still reach before the closest hit
+        while (top > 0 && !visit) {
+            --top;
+            node_id = stack[top];
+            visit = stack_enter[top] <= t;
+        }
     }
     *prim = id;
     return t;
