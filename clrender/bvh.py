@@ -60,9 +60,9 @@ def _segment_prefix_min(values: np.ndarray, segment: np.ndarray, direction: int)
     while step < BVH_BINS:
         late, early = (slice(step, None), slice(None, -step))
         target, source = (late, early) if direction > 0 else (early, late)
-        same = segment[step:] == segment[:-step]
-        merged = np.minimum(result[:, target], result[:, source])
-        result[:, target] = np.where(same, merged, result[:, target])
+        # +inf where the neighbour `step` away is in another segment
+        barrier = np.where(segment[step:] == segment[:-step], 0.0, np.inf).astype(values.dtype)
+        np.minimum(result[:, target], result[:, source] + barrier, out=result[:, target])
         step *= 2
     return result
 
@@ -170,12 +170,13 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         goes_right = bins > best[node_of]
         n_left = left_counts[best_group]
         next_first = np.cumsum(np.where(split, size, 0)) - np.where(split, size, 0)
-        rank = np.empty(total, np.int64)
-        for side in (False, True):
-            flags = moving & (goes_right == side)
-            before = np.cumsum(flags) - flags
-            rank = np.where(flags, before - before[first][node_of], rank)
-        dest = (next_first[node_of] + rank + np.where(goes_right, n_left[node_of], 0))[moving]
+        # Rank of each moving primitive among its node's primitives going the same way
+        right = goes_right & moving
+        right_before = np.cumsum(right) - right
+        right_before -= right_before[first][node_of]
+        left_before = np.arange(total) - first[node_of] - right_before
+        side_rank = np.where(goes_right, n_left[node_of] + right_before, left_before)
+        dest = (next_first[node_of] + side_rank)[moving]
         source = np.empty(len(dest), np.int64)
         source[dest] = np.flatnonzero(moving)
         work_ids_next = work_ids[source]
