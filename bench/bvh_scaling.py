@@ -122,9 +122,9 @@ def compare(runtime, scene, sets, size, repeats, label):
         row[f"{name}_rays_per_s"] = statistics.median(rates[name])
     row["bvh_over_brute"] = row["bvh_rays_per_s"] / row["brute_rays_per_s"]
     print(
-        f"{label:>22s} ({row['primitives']:6d} prims): default "
-        f"{row['default_rays_per_s'] / 1e6:6.2f} M rays/s, BVH "
-        f"{row['bvh_rays_per_s'] / 1e6:6.2f} M rays/s (x{row['bvh_over_default']:.2f})",
+        f"{label:>22s} ({row['primitives']:6d} prims): brute force "
+        f"{row['brute_rays_per_s'] / 1e6:6.2f} M rays/s, BVH "
+        f"{row['bvh_rays_per_s'] / 1e6:6.2f} M rays/s (x{row['bvh_over_brute']:.2f})",
         flush=True,
     )
     return row

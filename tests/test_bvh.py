@@ -2,6 +2,9 @@
 against a float64 NumPy reference, the BVH against brute force on random scenes, watertight
 edges, surface records, the BVH's structure, and a mesh rendering like the quad it replaces."""
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -297,3 +300,22 @@ def test_two_triangle_meshes_render_like_their_quads(runtime, tmp_path):
     # Noise of the image mean (64 paths per pixel, 256 pixels) is about 2 %: demand 0.5 %
     assert mesh_image.mean() == pytest.approx(quad_image.mean(), rel=0.005)
     assert np.abs(mesh_image - quad_image).mean() < 0.02 * quad_image.mean()
+
+
+def test_bvh_scaling_bench_runs_and_reports_every_figure(runtime, tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "bench"))
+    import bvh_scaling
+
+    output = tmp_path / "bvh.json"
+    bvh_scaling.main(
+        ["--triangles", "20", "2000", "--quads", "66", "--size", "8", "--spp", "2"]
+        + ["--repeats", "1", "--output", str(output)]
+    )
+    data = json.loads(output.read_text())
+    counts = [row["triangles"] for row in data["triangles"]]
+    assert counts[0] == 20 and abs(counts[1] - 2000) < 50
+    assert all(row["rays_per_s"] > 0 and row["build_wall_s"] > 0 for row in data["triangles"])
+    assert [row["scene"] for row in data["cornell"]][0] == "cornell-box"
+    row = data["quads"][0]
+    assert row["primitives"] == 66 and row["default_uses_bvh"]
+    assert row["brute_rays_per_s"] > 0 and row["bvh_rays_per_s"] > 0
