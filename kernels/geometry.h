@@ -146,9 +146,16 @@ CL_INLINE float Quad_Intersect(__global const Quad *q, float3 o, float3 d, float
 // shear taking the direction to +z.
 typedef struct {
     float3 o;
-    uint4 axes; // (kx, ky, kz, 3): shuffle mask of the permutation
+    uint kz;      // the permuted z axis; x and y follow it cyclically
     float3 shear; // (-dx / dz, -dy / dz, 1 / dz) after permutation
 } TriangleRay;
+
+// v with its axes permuted so that axis kz comes last (kx = kz + 1, ky = kz + 2, cyclically):
+// swizzles and selects, no shuffle() (a builtin PoCL does not inline: see vecmath.h).
+CL_INLINE float3 TriangleRay_Permute(float3 v, uint kz)
+{
+    return kz == 0u ? v.yzx : (kz == 1u ? v.zxy : v);
+}
 
 CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
 {
@@ -158,11 +165,9 @@ CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
     float ay = Fabs(d.y);
     float az = Fabs(d.z);
     uint kz = ax > ay ? (ax > az ? 0u : 2u) : (ay > az ? 1u : 2u);
-    uint kx = kz == 2u ? 0u : kz + 1u;
-    uint ky = kx == 2u ? 0u : kx + 1u;
-    r.axes = (uint4)(kx, ky, kz, 3u);
-    float4 dp = shuffle((float4)(d, 0.0f), r.axes);
+    float3 dp = TriangleRay_Permute(d, kz);
     r.o = o;
+    r.kz = kz;
     r.shear = (float3)(-dp.x / dp.z, -dp.y / dp.z, 1.0f / dp.z);
     return r;
 }
@@ -171,7 +176,7 @@ CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
 // z is left unscaled.
 CL_INLINE float3 TriangleRay_Vertex(const TriangleRay *r, __global const float *p)
 {
-    float4 v = shuffle((float4)(Load3(p) - r->o, 0.0f), r->axes);
+    float3 v = TriangleRay_Permute(Load3(p) - r->o, r->kz);
     return (float3)(v.x + r->shear.x * v.z, v.y + r->shear.y * v.z, v.z);
 }
 
