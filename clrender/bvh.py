@@ -20,11 +20,26 @@ from __future__ import annotations
 
 import numpy as np
 
-BVH_NODE_DTYPE = np.dtype(
+# The binary tree as built (host only): a leaf (count > 0) holds prims[offset .. offset +
+# count - 1], an interior node (count = -1 - split axis) has its children at offset, offset + 1.
+BINARY_NODE_DTYPE = np.dtype(
     [("lower", "<f4", 3), ("offset", "<i4"), ("upper", "<f4", 3), ("count", "<i4")]
 )
-BVH_STACK_SIZE = 64  # fixed in kernels/scene_types.h
-BVH_MAX_DEPTH = BVH_STACK_SIZE  # a leaf at depth D leaves at most D nodes on the stack
+BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
+# The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
+# arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
+# child + count - 1]) or empty (count -1).
+BVH_NODE_DTYPE = np.dtype(
+    [
+        ("lower", "<f4", (3, BVH_WIDTH)),
+        ("upper", "<f4", (3, BVH_WIDTH)),
+        ("child", "<i4", BVH_WIDTH),
+        ("count", "<i4", BVH_WIDTH),
+    ]
+)
+# Depth cap of the binary tree (fixed in kernels/scene_types.h): the device's traversal keeps at
+# most BVH_WIDTH - 1 nodes on its stack per level, so BVH_STACK_SIZE = 7 x BVH_MAX_DEPTH.
+BVH_MAX_DEPTH = 40
 BVH_BINS = 16
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
@@ -67,14 +82,65 @@ def _segment_prefix_min(values: np.ndarray, segment: np.ndarray, direction: int)
     return result
 
 
+def build_wide_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The device's BVH over N primitives with bounds lower[i], upper[i]: (BVH_NODE_DTYPE nodes,
+    uint32 primitive ids): build_bvh's binary tree collapsed to BVH_WIDTH children a node."""
+    binary, prims = build_bvh(lower, upper)
+    return collapse_bvh(binary), prims
+
+
+def collapse_bvh(binary: np.ndarray) -> np.ndarray:
+    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first): each wide node
+    starts as one binary node and repeatedly opens the interior child of largest surface area
+    until it has BVH_WIDTH children (Wald et al. 2008); vectorised over the nodes of a level."""
+    if len(binary) == 0:
+        return np.zeros(0, BVH_NODE_DTYPE)
+    size = (binary["upper"] - binary["lower"]).astype(np.float64)
+    area = size[:, 0] * size[:, 1] + size[:, 1] * size[:, 2] + size[:, 2] * size[:, 0]
+    interior = binary["count"] < 0
+    levels = []
+    roots = np.array([0])  # the binary node each wide node of the level starts from
+    next_index = 1
+    while len(roots):
+        count = len(roots)
+        rows = np.arange(count)
+        slots = np.full((count, BVH_WIDTH), -1)
+        slots[:, 0] = roots
+        for _ in range(BVH_WIDTH - 1):
+            filled = slots >= 0
+            opened = np.maximum(slots, 0)
+            score = np.where(filled & interior[opened], area[opened], -1.0)
+            widest = np.argmax(score, axis=1)
+            empty = np.argmax(~filled, axis=1)
+            grow = np.flatnonzero((score[rows, widest] >= 0.0) & (~filled).any(axis=1))
+            parent = slots[grow, widest[grow]]
+            slots[grow, widest[grow]] = binary["offset"][parent]
+            slots[grow, empty[grow]] = binary["offset"][parent] + 1
+        filled = slots >= 0
+        member = np.maximum(slots, 0)
+        is_node = filled & interior[member]
+        rank = (np.cumsum(is_node.reshape(-1)) - 1).reshape(slots.shape)
+        wide = np.zeros(count, BVH_NODE_DTYPE)
+        wide["child"] = np.where(is_node, next_index + rank, binary["offset"][member])
+        wide["child"][~filled] = -1
+        wide["count"] = np.where(is_node, 0, binary["count"][member])
+        wide["count"][~filled] = -1
+        wide["lower"] = np.where(filled[:, None, :], binary["lower"][member].transpose(0, 2, 1), 0)
+        wide["upper"] = np.where(filled[:, None, :], binary["upper"][member].transpose(0, 2, 1), 0)
+        levels.append(wide)
+        roots = slots[is_node]
+        next_index += len(roots)
+    return np.concatenate(levels)
+
+
 def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """BVH over N primitives with bounds lower[i], upper[i]: (nodes, prims), nodes a
-    BVH_NODE_DTYPE array (the root first), prims the uint32 primitive ids the leaves point into.
-    Bounds are padded (padded_bounds) and rounded outwards to float32."""
+    """Binary BVH over N primitives with bounds lower[i], upper[i]: (nodes, prims), nodes a
+    BINARY_NODE_DTYPE array (the root first), prims the uint32 primitive ids the leaves point
+    into. Bounds are padded (padded_bounds) and rounded outwards to float32."""
     lower, upper = padded_bounds(lower, upper)
     count = len(lower)
     if count == 0:
-        return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
+        return np.zeros(0, BINARY_NODE_DTYPE), np.zeros(0, np.uint32)
     # Structure of arrays (one row per coordinate): gathers and reductions run along rows
     # (float32, rounded outwards: half the memory traffic of float64)
     lower32 = np.nextafter(lower.astype(np.float32), np.float32(-np.inf))
@@ -198,7 +264,7 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
 def _flatten(levels: list) -> np.ndarray:
     """BVH_NODE_DTYPE records of every level's nodes."""
     box = np.concatenate([level[0] for level in levels], axis=1).T
-    nodes = np.zeros(len(box), BVH_NODE_DTYPE)
+    nodes = np.zeros(len(box), BINARY_NODE_DTYPE)
     nodes["lower"] = box[:, :3]
     nodes["upper"] = -box[:, 3:]
     nodes["offset"] = np.concatenate([level[1] for level in levels])

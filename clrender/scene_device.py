@@ -13,7 +13,7 @@ quad_block_dtype   QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arr
 SPHERE_DTYPE       Sphere               sphere
 TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, normals index)
 NORMALS_DTYPE      TriangleNormals      mesh triangle with per-vertex shading normals
-BVH_NODE_DTYPE     BVHNode              node of the BVH over every primitive (clrender/bvh.py)
+BVH_NODE_DTYPE     BVHNode              8-wide node of the BVH over every primitive (bvh.py)
 MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
 EMITTER_DTYPE      Emitter              emitting quad, with its light-selection pdf and cdf
 CAMERA_DTYPE       Camera               camera at one image size
@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from clrender.bvh import BVH_NODE_DTYPE, build_bvh
+from clrender.bvh import BVH_NODE_DTYPE, build_wide_bvh
 
 # Material type tags: MATERIAL_DIFFUSE, ... in kernels/scene_types.h.
 MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
@@ -268,7 +268,7 @@ def pack_bvh(
     for a scene of at most min_primitives primitives (the kernels then use brute force)."""
     if len(quads) + len(spheres) + len(triangles) <= min_primitives:
         return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
-    return build_bvh(*primitive_bounds(quads, spheres, triangles))
+    return build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
 
 
 def scene_bounds(

@@ -238,26 +238,38 @@ CL_INLINE float Primitive_Intersect(const SceneData *scene, uint id, float3 o, f
     return Triangle_Intersect(&scene->triangles[s - scene->sphere_count], r, tmax);
 }
 
-// Distance at which the ray o + t d (inv_d = 1 / d) enters the box [lower, upper] if it meets
-// it within [0, tmax], else INFINITY (the slab test of Bounds_Hit).
-CL_INLINE float Bounds_Enter(__global const float *lower, __global const float *upper, float3 o,
-                             float3 inv_d, float tmax)
+// Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
+// meets it within [0, tmax] (finite), else INFINITY (the slab test of Bounds_Hit, 8 boxes at
+// once).
+CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 inv_d, float tmax)
 {
-    float3 t0 = (Load3(lower) - o) * inv_d;
-    float3 t1 = (Load3(upper) - o) * inv_d;
-    float3 t_near = t0 < t1 ? t0 : t1;
-    float3 t_far = t0 < t1 ? t1 : t0;
-    float t_enter = t_near.x > t_near.y ? t_near.x : t_near.y;
-    t_enter = t_enter > t_near.z ? t_enter : t_near.z;
-    float t_exit = t_far.x < t_far.y ? t_far.x : t_far.y;
-    t_exit = t_exit < t_far.z ? t_exit : t_far.z;
-    return (t_enter > t_exit || t_exit < 0.0f || t_enter > tmax) ? INFINITY : t_enter;
+    float8 t0x = (Load8(node->lower[0]) - o.x) * inv_d.x;
+    float8 t1x = (Load8(node->upper[0]) - o.x) * inv_d.x;
+    float8 t0y = (Load8(node->lower[1]) - o.y) * inv_d.y;
+    float8 t1y = (Load8(node->upper[1]) - o.y) * inv_d.y;
+    float8 t0z = (Load8(node->lower[2]) - o.z) * inv_d.z;
+    float8 t1z = (Load8(node->upper[2]) - o.z) * inv_d.z;
+    float8 near_x = t0x < t1x ? t0x : t1x;
+    float8 far_x = t0x < t1x ? t1x : t0x;
+    float8 near_y = t0y < t1y ? t0y : t1y;
+    float8 far_y = t0y < t1y ? t1y : t0y;
+    float8 near_z = t0z < t1z ? t0z : t1z;
+    float8 far_z = t0z < t1z ? t1z : t0z;
+    float8 t_enter = near_x > near_y ? near_x : near_y;
+    t_enter = t_enter > near_z ? t_enter : near_z;
+    float8 t_exit = far_x < far_y ? far_x : far_y;
+    t_exit = t_exit < far_z ? t_exit : far_z;
+    int8 miss = (t_enter > t_exit) | (t_exit < 0.0f) | (t_enter > tmax);
+    // A hit's entry is finite (a NaN entry, which never rejects, becomes -FLT_MAX)
+    float8 finite_enter = t_enter > -FLT_MAX ? t_enter : (float8)(-FLT_MAX);
+    return miss ? (float8)(INFINITY) : finite_enter;
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
-// with any_hit, the first one found (shadow rays). Depth-first: at an interior node both
-// children's boxes are tested, the nearer one hit is visited next and the other kept on a
-// private stack with its entry distance (skipped when popped if a closer hit was found since).
+// with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
+// at once; the leaves among them are tested right away, the nearest child node is visited next
+// and the others kept on a private stack with their entry distances (skipped when popped if a
+// closer hit was found since).
 CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
                               bool any_hit, int *prim)
 {
@@ -268,43 +280,57 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
     int top = 0;
     float t = tmax;
     int id = -1;
-    __global const BVHNode *root = &scene->bvh_nodes[0];
     uint node_id = 0;
-    bool visit = Bounds_Enter(root->lower, root->upper, o, inv_d, t) < INFINITY;
+    bool visit = true;
     while (visit) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
+        union {
+            float8 v;
+            float s[BVH_WIDTH];
+        } enter;
+        enter.v = BVHNode_Enter(node, o, inv_d, t);
         visit = false;
-        if (node->count < 0) {
-            // Interior: test both children, descend into the nearer hit one
-            __global const BVHNode *first = &scene->bvh_nodes[node->offset];
-            float enter0 = Bounds_Enter(first[0].lower, first[0].upper, o, inv_d, t);
-            float enter1 = Bounds_Enter(first[1].lower, first[1].upper, o, inv_d, t);
-            bool second_nearer = enter1 < enter0;
-            float near = second_nearer ? enter1 : enter0;
-            float far = second_nearer ? enter0 : enter1;
-            if (far < INFINITY) {
-                stack[top] = (uint)node->offset + (second_nearer ? 0u : 1u);
-                stack_enter[top++] = far;
-            }
-            if (near < INFINITY) {
-                node_id = (uint)node->offset + (second_nearer ? 1u : 0u);
-                visit = true;
+        float next_enter = INFINITY;
+        for (int j = 0; j < BVH_WIDTH; ++j) {
+            int count = node->count[j];
+            float e = enter.s[j];
+            if (count < 0 || e == INFINITY || e > t)
+                continue;
+            if (count > 0) {
+                // A leaf: test its primitives
+                for (int k = 0; k < count; ++k) {
+                    uint p = scene->bvh_prims[node->child[j] + k];
+                    float tp = Primitive_Intersect(scene, p, o, d, &r, t);
+                    if (tp < t) {
+                        t = tp;
+                        id = (int)p;
+                    }
+                }
+                if (any_hit && id >= 0)
+                    break;
                 continue;
             }
-        } else {
-            // Leaf: test its primitives
-            for (int k = 0; k < node->count; ++k) {
-                uint p = scene->bvh_prims[node->offset + k];
-                float tp = Primitive_Intersect(scene, p, o, d, &r, t);
-                if (tp < t) {
-                    t = tp;
-                    id = (int)p;
+            // A node: the nearest so far is visited next, the others wait on the stack
+            uint child = (uint)node->child[j];
+            if (e < next_enter) {
+                if (visit) {
+                    stack[top] = node_id;
+                    stack_enter[top++] = next_enter;
                 }
+                node_id = child;
+                next_enter = e;
+                visit = true;
+            } else {
+                stack[top] = child;
+                stack_enter[top++] = e;
             }
-            if (any_hit && id >= 0)
-                break;
         }
+        if (any_hit && id >= 0)
+            break;
+        if (visit && next_enter <= t)
+            continue;
         // Next: the most recently kept node the ray can still reach before the closest hit
+        visit = false;
         while (top > 0 && !visit) {
             --top;
             node_id = stack[top];

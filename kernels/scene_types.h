@@ -67,18 +67,21 @@ typedef struct {
     float n[3][3];
 } TriangleNormals;
 
-// A node of the bounding volume hierarchy over every primitive (clrender/bvh.py), nodes in
-// breadth-first order, the root first. A leaf (count > 0) holds the primitive ids
-// bvh_prims[offset .. offset + count - 1]; an interior node (count = -1 - split axis) has its
-// children at offset and offset + 1. Bounds are rounded outwards to float.
-// Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: the builder never makes a
-// deeper tree.
-#define BVH_STACK_SIZE 64
+// A node of the bounding volume hierarchy over every primitive (clrender/bvh.py: a binary SAH
+// tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
+// as structure of arrays (one vector slab test for all of them), rounded outwards to float.
+// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf holding the
+// primitive ids bvh_prims[child[j] .. child[j] + count[j] - 1]; count[j] = -1, no child.
+// Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
+// a tree the builder never makes deeper than BVH_MAX_DEPTH.
+#define BVH_WIDTH 8
+#define BVH_MAX_DEPTH 40
+#define BVH_STACK_SIZE ((BVH_WIDTH - 1) * BVH_MAX_DEPTH)
 typedef struct {
-    float lower[3];
-    int offset;
-    float upper[3];
-    int count;
+    float lower[3][BVH_WIDTH];
+    float upper[3][BVH_WIDTH];
+    int child[BVH_WIDTH];
+    int count[BVH_WIDTH];
 } BVHNode;
 
 // One record for every material type; each type reads its own members.

@@ -10,7 +10,14 @@ import pyopencl as cl
 import pytest
 from geometry_device import device_intersect, device_occluded, device_surface
 
-from clrender.bvh import BVH_MAX_DEPTH, BVH_NODE_DTYPE, build_bvh
+from clrender.bvh import (
+    BINARY_NODE_DTYPE,
+    BVH_MAX_DEPTH,
+    BVH_NODE_DTYPE,
+    BVH_WIDTH,
+    build_bvh,
+    build_wide_bvh,
+)
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.scene_device import NORMALS_DTYPE, TRIANGLE_DTYPE
@@ -221,7 +228,7 @@ def test_bvh_structure_covers_every_primitive_once():
     lower = rng.uniform(-1, 1, (5000, 3))
     upper = lower + rng.uniform(0, 0.05, (5000, 3))
     nodes, prims = build_bvh(lower, upper)
-    assert nodes.dtype == BVH_NODE_DTYPE
+    assert nodes.dtype == BINARY_NODE_DTYPE
     np.testing.assert_array_equal(np.sort(prims), np.arange(5000))
     leaves = nodes[nodes["count"] > 0]
     covered = np.zeros(5000, int)
@@ -244,6 +251,36 @@ def test_bvh_structure_covers_every_primitive_once():
     # Deterministic: the same bounds give the same tree
     again_nodes, again_prims = build_bvh(lower, upper)
     assert again_nodes.tobytes() == nodes.tobytes() and np.array_equal(again_prims, prims)
+
+
+def test_wide_bvh_reaches_every_primitive_once_inside_its_boxes():
+    rng = np.random.default_rng(12)
+    lower = rng.uniform(-1, 1, (3000, 3))
+    upper = lower + rng.uniform(0, 0.05, (3000, 3))
+    nodes, prims = build_wide_bvh(lower, upper)
+    assert nodes.dtype == BVH_NODE_DTYPE
+    reached = np.zeros(3000, int)
+    seen_nodes = np.zeros(len(nodes), int)
+    seen_nodes[0] = 1
+    for index, node in enumerate(nodes):
+        for lane in range(BVH_WIDTH):
+            count, child = node["count"][lane], node["child"][lane]
+            box_low, box_high = node["lower"][:, lane], node["upper"][:, lane]
+            if count == 0:
+                assert child > index
+                seen_nodes[child] += 1
+                # The child's own children lie inside this box
+                inner = nodes[child]
+                used = inner["count"] >= 0
+                assert np.all(inner["lower"][:, used] >= box_low[:, None])
+                assert np.all(inner["upper"][:, used] <= box_high[:, None])
+            elif count > 0:
+                members = prims[child : child + count]
+                reached[members] += 1
+                assert np.all(lower[members] >= box_low) and np.all(upper[members] <= box_high)
+    assert np.all(reached == 1) and np.all(seen_nodes == 1)
+    # Nodes are well filled (a binary tree would use 2 lanes)
+    assert (nodes["count"] >= 0).sum(axis=1).mean() > 5.0
 
 
 def test_bvh_depth_is_capped_for_a_pathological_scene():
