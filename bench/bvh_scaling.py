@@ -1,17 +1,17 @@
-"""How the BVH scales: rays/s against triangle count, BVH build time, and the Cornell boxes and
-the quad scenes of primitive_scaling.py traced with and without the BVH.
+"""How the BVH scales: rays/s against triangle count, BVH build time, and small meshes, the
+Cornell boxes and the quad scenes of primitive_scaling.py traced with and without the BVH.
 
     python bench/bvh_scaling.py [--triangles 20 1000 10000 100000 1000000] [--size 64]
                                 [--spp 16] [--repeats 3] [--skip-render]
 
 Triangles: a sphere of radius 0.5 tessellated in latitude/longitude (two triangles per cell,
 none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, traced at depth 8
-through the BVH (every scene here is above the brute-force threshold but the Cornell boxes).
-Build: clrender.bvh.build_bvh on the whole scene's primitive bounds, wall and CPU time, median
-of --repeats. Cornell boxes and quad scenes: the same launch by brute force and through the BVH,
-alternating, so the two rates come from the same stretch of machine load (the renderer uses the
-BVH above scene_device.BVH_MIN_PRIMITIVES primitives). Rates are per CPU-second x compute
-units (as trace_throughput.py), robust to a shared machine.
+as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: clrender.bvh's
+binary build and its collapse to 8-wide nodes on the whole scene's primitive bounds, wall and
+CPU time, median of --repeats. Small meshes, Cornell boxes and quad scenes: the same launch by
+brute force and through the BVH, alternating, so the two rates come from the same stretch of
+machine load. Rates are per CPU-second x compute units (as trace_throughput.py), robust to a
+shared machine.
 Output: JSON (default bench/results/bvh_scaling.json).
 """
 
@@ -33,12 +33,17 @@ from clrender.bvh import build_bvh
 from clrender.runtime import create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
-from clrender.scene_device import BVH_MIN_PRIMITIVES, pack_triangles, primitive_bounds
+from clrender.scene_device import (
+    BRUTE_FORCE_LIMIT,
+    brute_force_cost,
+    pack_triangles,
+    primitive_bounds,
+)
 from clrender.trace import PathTracer
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "bvh_scaling.json"
-FORCE_BVH = 0  # bvh_min_primitives that builds a BVH for every scene
-NEVER_BVH = 2**62  # bvh_min_primitives that keeps brute force for every scene
+FORCE_BVH = -1  # brute_force_limit that builds a BVH for every scene
+NEVER_BVH = 2**62  # brute_force_limit that keeps brute force for every scene
 
 
 def sphere_mesh(triangles: int, radius: float = 0.5) -> dict:
@@ -106,8 +111,8 @@ def build_times(scene, repeats):
 def compare(runtime, scene, sets, size, repeats, label):
     """Brute force and the BVH, alternating; and which of the two the renderer picks."""
     tracers = {
-        "brute": PathTracer(runtime, scene, max_depth=8, bvh_min_primitives=NEVER_BVH),
-        "bvh": PathTracer(runtime, scene, max_depth=8, bvh_min_primitives=FORCE_BVH),
+        "brute": PathTracer(runtime, scene, max_depth=8, brute_force_limit=NEVER_BVH),
+        "bvh": PathTracer(runtime, scene, max_depth=8, brute_force_limit=FORCE_BVH),
     }
     rates = {name: [] for name in tracers}
     for _ in range(repeats):
@@ -116,7 +121,10 @@ def compare(runtime, scene, sets, size, repeats, label):
     row = {
         "scene": label,
         "primitives": scene.primitive_count,
-        "default_uses_bvh": scene.primitive_count > BVH_MIN_PRIMITIVES,
+        "default_uses_bvh": brute_force_cost(
+            len(scene.quads), len(scene.spheres), len(scene.triangles)
+        )
+        > BRUTE_FORCE_LIMIT,
     }
     for name in tracers:
         row[f"{name}_rays_per_s"] = statistics.median(rates[name])
@@ -135,7 +143,14 @@ def main(argv=None):
     parser.add_argument(
         "--triangles", type=int, nargs="+", default=[20, 1000, 10000, 100000, 1000000]
     )
-    parser.add_argument("--quads", type=int, nargs="+", default=[34, 66, 130, 258])
+    parser.add_argument("--quads", type=int, nargs="+", default=[34, 66, 130, 258, 514])
+    parser.add_argument(
+        "--compare-triangles",
+        type=int,
+        nargs="+",
+        default=[8, 20, 50, 100],
+        help="sphere meshes traced both by brute force and through the BVH",
+    )
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=3)
@@ -147,10 +162,11 @@ def main(argv=None):
     sets = generate_sample_sets(runtime, make_sampler("independent", args.spp), 1, pixels)
     out = {
         "device": runtime.describe(),
-        "bvh_min_primitives": BVH_MIN_PRIMITIVES,
+        "brute_force_limit": BRUTE_FORCE_LIMIT,
         "size": args.size,
         "spp": args.spp,
         "triangles": [],
+        "meshes": [],
         "cornell": [],
         "quads": [],
     }
@@ -168,6 +184,10 @@ def main(argv=None):
             flush=True,
         )
     if not args.skip_render:
+        for count in args.compare_triangles:
+            scene = scene_with_sphere_mesh(count)
+            label = f"{len(scene.triangles)} triangles"
+            out["meshes"].append(compare(runtime, scene, sets, args.size, args.repeats, label))
         for name in ("cornell-box", "mitsuba-cbox", "cornell-box-glossy"):
             out["cornell"].append(
                 compare(runtime, load_scene(name), sets, args.size, args.repeats, name)

@@ -80,7 +80,8 @@ mesh.file           path         (b)        alternative: a PLY or OBJ file (rela
 (b) a mesh takes either ``positions`` + ``indices`` (+ ``normals``) or ``file``. Degenerate
 triangles (zero area, or repeated indices) are skipped with a warning; a mesh left with none is
 an error. Meshes do not emit (``emission`` on a mesh is refused). Scenes of more than
-BVH_MIN_PRIMITIVES primitives are traced through a BVH (clrender/bvh.py).
+about 200 quads or 12 triangles (scene_device.BRUTE_FORCE_LIMIT) are traced through a BVH
+(clrender/bvh.py), smaller ones by brute force.
 
 Optional top-level ``description`` (string). Loading warns (`SceneWarning`, listed in
 `Scene.warnings`) when a scene will not render what one expects: no emitter (the image is
@@ -121,7 +122,7 @@ from clrender.scene_checks import (
     unresolved_shape_notes,
 )
 from clrender.scene_device import (
-    BVH_MIN_PRIMITIVES,
+    BRUTE_FORCE_LIMIT,
     MATERIAL_NONE,
     NORMALS_DTYPE,
     QUAD_BLOCK_WIDTH,
@@ -213,10 +214,10 @@ class Scene:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         return scene_bounds(self.quads, self.spheres, self.triangles)
 
-    def bvh(self, min_primitives: int = BVH_MIN_PRIMITIVES) -> tuple[np.ndarray, np.ndarray]:
-        """(BVH nodes, primitive ids) of the scene, empty at most min_primitives primitives
-        (scene_device.pack_bvh)."""
-        return pack_bvh(self.quads, self.spheres, self.triangles, min_primitives)
+    def bvh(self, brute_force_limit: int = BRUTE_FORCE_LIMIT) -> tuple[np.ndarray, np.ndarray]:
+        """(BVH nodes, primitive ids) of the scene, empty when brute force is cheaper
+        (scene_device.pack_bvh; brute_force_limit -1: always a BVH)."""
+        return pack_bvh(self.quads, self.spheres, self.triangles, brute_force_limit)
 
     def quad_blocks(self, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
         return pack_scene_quad_blocks(self.quads, self.spheres, self.quad_names, width)

@@ -79,10 +79,20 @@ TRIANGLE_DTYPE = np.dtype(
     ]
 )
 NORMALS_DTYPE = np.dtype([("n", "<f4", (3, 3))])
-# Scenes of more primitives than this are traced through the BVH; smaller ones by brute force
-# over the quad blocks, spheres and triangles, which is faster for them (measured by
-# bench/bvh_scaling.py: see README, "Performance").
-BVH_MIN_PRIMITIVES = 64
+# Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
+# triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
+# BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
+# bench/bvh_scaling.py (README, "Performance"): brute force wins up to 130 quads and loses from
+# 258, wins with 8 triangles in the Cornell box and loses from 20.
+BRUTE_FORCE_LIMIT = 192
+TRIANGLE_COST = 16
+
+
+def brute_force_cost(quad_count: int, sphere_count: int, triangle_count: int) -> int:
+    """A scene's cost of brute-force intersection, in quads (see BRUTE_FORCE_LIMIT)."""
+    return quad_count + sphere_count + TRIANGLE_COST * triangle_count
+
+
 MATERIAL_DTYPE = np.dtype(
     [
         ("type", "<i4"),
@@ -262,11 +272,12 @@ def pack_bvh(
     quads: np.ndarray,
     spheres: np.ndarray,
     triangles: np.ndarray,
-    min_primitives: int = BVH_MIN_PRIMITIVES,
+    brute_force_limit: int = BRUTE_FORCE_LIMIT,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(BVH nodes, primitive ids) over every primitive (clrender/bvh.py), or two empty arrays
-    for a scene of at most min_primitives primitives (the kernels then use brute force)."""
-    if len(quads) + len(spheres) + len(triangles) <= min_primitives:
+    for a scene whose brute_force_cost is at most brute_force_limit (the kernels then use brute
+    force; -1: always a BVH)."""
+    if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
         return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
     return build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
 

@@ -25,7 +25,7 @@ from clrender.errors import ParameterError
 from clrender.runtime import Runtime, launch_global_size
 from clrender.sampling import PATHS_ZSOBOL, DeviceSampleSets, check_seed
 from clrender.scene import Scene
-from clrender.scene_device import BVH_MIN_PRIMITIVES, QUAD_BLOCK_WIDTH
+from clrender.scene_device import BRUTE_FORCE_LIMIT, QUAD_BLOCK_WIDTH
 
 # Dimensions 1 + 2d and 2 + 2d of a 32-bit counter: any sane depth fits; this keeps a typo
 # (max_depth=10**9) from running for ever.
@@ -86,7 +86,7 @@ class PathTracer:
         russian_roulette: bool = False,
         next_event_estimation: bool = True,
         profile_defines: dict[str, object] | None = None,
-        bvh_min_primitives: int = BVH_MIN_PRIMITIVES,
+        brute_force_limit: int = BRUTE_FORCE_LIMIT,
     ):
         if (
             isinstance(max_depth, bool)
@@ -107,8 +107,8 @@ class PathTracer:
         }
         self._quad_blocks = scene.quad_blocks(QUAD_BLOCK_WIDTH)
         self._buffers["quad_blocks"] = runtime.upload(self._quad_blocks)
-        # Triangles and the BVH (none at bvh_min_primitives primitives or fewer: brute force)
-        self.bvh_nodes, self.bvh_prims = scene.bvh(bvh_min_primitives)
+        # Triangles and the BVH (none where brute force is cheaper: scene_device.pack_bvh)
+        self.bvh_nodes, self.bvh_prims = scene.bvh(brute_force_limit)
         for name, array in (
             ("triangles", scene.triangles),
             ("triangle_normals", scene.triangle_normals),

@@ -8,15 +8,15 @@ from clrender.runtime import padded_global_size
 
 def scene_arguments(runtime, scene, use_bvh: bool | None = None) -> tuple:
     """GEOMETRY_TEST_SCENE_PARAMS of a scene: through its BVH (use_bvh True), by brute force
-    (False), or as the renderer chooses (None: scene.bvh()'s threshold)."""
+    (False), or as the renderer chooses (None: scene.bvh()'s limit)."""
     upload = runtime.upload
     blocks = scene.quad_blocks()
     if use_bvh is None:
         nodes, prims = scene.bvh()
     elif use_bvh:
-        nodes, prims = scene.bvh(min_primitives=0)
+        nodes, prims = scene.bvh(brute_force_limit=-1)
     else:
-        nodes, prims = scene.bvh(min_primitives=scene.primitive_count)
+        nodes, prims = scene.bvh(brute_force_limit=2**62)
     return (
         upload(scene.quads),
         upload(blocks),

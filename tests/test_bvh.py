@@ -345,7 +345,8 @@ def test_bvh_scaling_bench_runs_and_reports_every_figure(runtime, tmp_path, monk
 
     output = tmp_path / "bvh.json"
     bvh_scaling.main(
-        ["--triangles", "20", "2000", "--quads", "66", "--size", "8", "--spp", "2"]
+        ["--triangles", "20", "2000", "--quads", "66", "--compare-triangles", "20"]
+        + ["--size", "8", "--spp", "2"]
         + ["--repeats", "1", "--output", str(output)]
     )
     data = json.loads(output.read_text())
@@ -354,5 +355,6 @@ def test_bvh_scaling_bench_runs_and_reports_every_figure(runtime, tmp_path, monk
     assert all(row["rays_per_s"] > 0 and row["build_wall_s"] > 0 for row in data["triangles"])
     assert [row["scene"] for row in data["cornell"]][0] == "cornell-box"
     row = data["quads"][0]
-    assert row["primitives"] == 66 and row["default_uses_bvh"]
+    assert row["primitives"] == 66 and not row["default_uses_bvh"]
+    assert data["meshes"][0]["default_uses_bvh"]  # 20 triangles
     assert row["brute_rays_per_s"] > 0 and row["bvh_rays_per_s"] > 0
