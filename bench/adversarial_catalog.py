@@ -2,23 +2,23 @@
 cases, each a command a user would type (or a Python snippet) with a stable id, a one-line
 description and the outcome a correct clrender gives. Built from this file and the shipped
 scenes of this repository alone, with fixed seeds: the same cases whatever checkout is tested.
-801 cases (CATALOG_COUNTS: 559 scene, 135 cli, 79 api, 21 signal, 7 disk):
+876 cases (CATALOG_COUNTS: 634 scene, 135 cli, 79 api, 21 signal, 7 disk):
 
-- scene: renders at --res 8x8 --spp 1 --max-depth 2 --sampler independent --seed 1 of a
-  mutated shipped scene. Every numeric field kind of the shipped scenes (21: camera look_from
-  ... sphere radius) x 14 values (0, -1, 1e-40, 1e-30, 1e39, 1e308, 1e-300, nan, inf, -0.0, a
-  string, a bool, an empty array, a wrong-length array): value k of a kind goes to the k-th
-  scene (in turn) that has the kind, to a seeded instance and component (294 cases). Per scene:
-  24 deleted and 16 duplicated lines, 8 misspelled keys or types, 4 unknown sections, 5
+- scene: renders at --res 8x8 --spp 1 --max-depth 2 --sampler independent --seed 1 of a mutated
+  shipped scene. Every numeric field kind of the shipped scenes (22: camera look_from ... sphere
+  radius, sphere emission) x 14 values (0, -1, 1e-40, 1e-30, 1e39, 1e308, 1e-300, nan, inf,
+  -0.0, a string, a bool, an empty array, a wrong-length array): value k of a kind goes to the
+  k-th scene (in turn) that has the kind, to a seeded instance and component (308 cases). Per
+  scene: 24 deleted and 16 duplicated lines, 8 misspelled keys or types, 4 unknown sections, 5
   whole-scene scalings (x 1e-30, 1e-40, 1e36 and the controls 1e-3, 1e3) and 3 far shapes (a
   radius-1 black sphere at y = 1e6 and 1e8, a black ground quad 2e9 wide under the scene): the
-  scalings and far shapes render at 16 x 16, 16 spp, depth 3 and must give the unchanged
-  scene's image (or be refused). Then 12 encodings (UTF-16, UTF-32, BOM, Latin-1, binary junk,
-  NUL, empty, CR line ends ...), 6 deep nestings (3000 levels of arrays, inline tables, dotted
+  scalings and far shapes render at 16 x 16, 16 spp, depth 3 and must give the unchanged scene's
+  image (or be refused). Then 12 encodings (UTF-16, UTF-32, BOM, Latin-1, binary junk, NUL,
+  empty, CR line ends ...), 6 deep nestings (3000 levels of arrays, inline tables, dotted
   headers), the camera on the furnace back wall's plane (edge2 = [0, 2, 2]: a warning is due),
-  two scenes that must warn, and each shipped scene unchanged (controls). A scene case (but
-  the encodings and nestings) has its shipped scene as base: an image all black where the
-  base's is not is wrong, unless the mutation moves the camera's aim or an emitter's geometry.
+  two scenes that must warn, and each shipped scene unchanged (controls). A scene case (but the
+  encodings and nestings) has its shipped scene as base: an image all black where the base's is
+  not is wrong, unless the mutation moves the camera's aim or an emitter's geometry.
 - cli: bad values of every render option, -o names (empty, a device, a directory, over 255
   bytes, a missing directory, a FIFO ...), scene arguments (FIFO, directory, /dev/stdin,
   missing, over 255 bytes ...), unknown commands and flags, valid renders as controls. A
@@ -64,7 +64,7 @@ REPO = Path(__file__).resolve().parents[1]
 SCENES_DIR = REPO / "scenes"
 KINDS = ("scene", "cli", "api", "signal", "disk")
 # The number of cases of each kind (the smoke test holds the catalog to these).
-CATALOG_COUNTS = {"scene": 559, "cli": 135, "api": 79, "signal": 21, "disk": 7}
+CATALOG_COUNTS = {"scene": 634, "cli": 135, "api": 79, "signal": 21, "disk": 7}
 
 # Expected outcomes: what a correct clrender does with the case.
 ANY = "any"  # judged by the outcome alone (an error or a finite image are both right)
@@ -292,7 +292,7 @@ FIELD_DOMAINS: dict[str, Callable[[float], bool]] = {
     "radius": lambda x: x > 0.0,
 }
 CAMERA_AIM = ("look_from", "look_at", "up", "fov")
-EMITTER_GEOMETRY = ("corner", "edge1", "edge2", "vertices")
+EMITTER_GEOMETRY = ("corner", "edge1", "edge2", "vertices", "center", "radius")
 SCALED_KEYS = {
     "camera.look_from",
     "camera.look_at",

@@ -37,6 +37,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from bootstrap import statistic_interval  # noqa: E402
+from common import add_executor_options, executor_from_args  # noqa: E402
 from figures import (  # noqa: E402
     SAVE_OPTIONS,
     caption,
@@ -45,6 +46,7 @@ from figures import (  # noqa: E402
     report_caption,
 )
 
+from clrender.cluster import LocalExecutor  # noqa: E402
 from clrender.estimators import ESTIMATORS, estimate, estimate_with_redraw  # noqa: E402
 from clrender.sppp import draw_sppp  # noqa: E402
 
@@ -115,26 +117,48 @@ def evaluate_all(positions: np.ndarray) -> np.ndarray:
     return np.column_stack([f(x, y) for f, _ in FUNCTIONS.values()])
 
 
-def run_estimates(
-    n: int, runs: int, rng: np.random.Generator, max_points_per_batch: int = 400_000
-) -> tuple[dict[str, np.ndarray], dict]:
-    """(runs, 6) estimates per estimator at intensity n, runs independent pixels."""
+def estimate_batch(batch: tuple[int, int, int, tuple[int, ...]]) -> tuple[dict, dict]:
+    """The estimates of runs [start, start + count) at intensity n: (count, 6) per estimator,
+    and the redraw statistics. Their random numbers come from the stream (stream..., n, start)
+    alone, so a run's estimates do not depend on which task or worker computes it."""
+    n, start, count, stream = batch
+    rng = np.random.default_rng([*stream, n, start])
 
     def draw(pixel_ids, eps):
         samples = draw_sppp(rng, n, len(pixel_ids), eps=eps)
         return samples, evaluate_all(samples.traced)
 
+    outcome = estimate_with_redraw(ESTIMATOR_NAMES, draw, count, n)
+    stats = {key: getattr(outcome.stats, key) for key in REDRAW_STATS}
+    return {name: outcome.estimates[name] for name in ESTIMATOR_NAMES}, stats
+
+
+REDRAW_STATS = ("redraws", "eps_enlargements", "empty_filtered", "recomputed_pixels")
+
+
+def run_estimates(
+    n: int,
+    runs: int,
+    stream: tuple[int, ...],
+    executor=None,
+    max_points_per_batch: int = 400_000,
+) -> tuple[dict[str, np.ndarray], dict]:
+    """(runs, 6) estimates per estimator at intensity n, runs independent pixels, in batches
+    of a fixed size (one task each on the executor: bench/common.py's --workers/--scheduler;
+    in this process by default): the same numbers whatever runs them."""
     per_batch = max(1, max_points_per_batch // (4 * n))
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in ESTIMATOR_NAMES}
-    stats = {"redraws": 0, "eps_enlargements": 0, "empty_filtered": 0, "recomputed_pixels": 0}
-    for start in range(0, runs, per_batch):
-        count = min(per_batch, runs - start)
-        outcome = estimate_with_redraw(ESTIMATOR_NAMES, draw, count, n)
-        for name in ESTIMATOR_NAMES:
-            parts[name].append(outcome.estimates[name])
-        for key in stats:
-            stats[key] += getattr(outcome.stats, key)
-    return {name: np.concatenate(p) for name, p in parts.items()}, stats
+    batches = [
+        (n, start, min(per_batch, runs - start), tuple(stream))
+        for start in range(0, runs, per_batch)
+    ]
+    results: list = [None] * len(batches)
+    for index, result in (executor or LocalExecutor()).map(estimate_batch, batches):
+        results[index] = result
+    estimates = {
+        name: np.concatenate([part[name] for part, _ in results]) for name in ESTIMATOR_NAMES
+    }
+    stats = {key: sum(part_stats[key] for _, part_stats in results) for key in REDRAW_STATS}
+    return estimates, stats
 
 
 def time_estimators(n: int, pixels: int, rng: np.random.Generator, repeats: int = 3) -> dict:
@@ -449,6 +473,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="intensities of Figures 2 and 3 (default 32 64 ... 16384; --quick: 32 ... 256)",
     )
     parser.add_argument("--seed", type=int, default=2025)
+    add_executor_options(parser)
     return parser.parse_args(argv)
 
 
@@ -467,9 +492,11 @@ def main(argv=None) -> None:
     exact = np.array([e for _, e in FUNCTIONS.values()])
     args.out.mkdir(parents=True, exist_ok=True)
 
-    # Table 2
+    executor = executor_from_args(args)
+
+    # Table 2 (its runs from stream (seed, 2), the sweep's from (seed, 3))
     start = time.perf_counter()
-    estimates, redraw_stats = run_estimates(table_n, runs, rng)
+    estimates, redraw_stats = run_estimates(table_n, runs, (args.seed, 2), executor)
     table_ms = time_estimators(table_n, timing_pixels, rng)
     table = {}
     for f_index, function in enumerate(FUNCTIONS):
@@ -484,7 +511,7 @@ def main(argv=None) -> None:
     # Figure 2 and 3 sweep
     sweep = {"n": sweep_ns, "summaries": [], "ms": [], "redraw_stats": []}
     for n in sweep_ns:
-        estimates_n, stats_n = run_estimates(n, sweep_runs, rng)
+        estimates_n, stats_n = run_estimates(n, sweep_runs, (args.seed, 3), executor)
         sweep["summaries"].append(
             {
                 name: to_lists(summarise(estimates_n[name], exact, boot_rng))
@@ -504,6 +531,7 @@ def main(argv=None) -> None:
                 "predicted": predicted_slope(function, name),
             }
     print(slopes_markdown(slopes, slope_n_min))
+    executor.close()
 
     config = {
         "table_n": table_n,

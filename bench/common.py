@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from clrender import compare
+from clrender.cluster import make_executor
 from clrender.imageio import read_exr, srgb_encode, write_atomically, write_exr
 from clrender.pipeline import RenderResult, RenderSettings, render
 from clrender.radiance import PathTracerSource
@@ -235,6 +236,28 @@ def image_errors(image: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray) -
 
 # ---------------------------------------------------------------------------------------------
 # Machine and outputs
+
+
+def add_executor_options(parser) -> None:
+    """--workers / --scheduler: where a study's tasks run (clrender.cluster; default here)."""
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run the tasks on a Dask LocalCluster of N processes (same numbers as locally)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the tasks on the existing Dask cluster at ADDRESS",
+    )
+
+
+def executor_from_args(args):
+    """The executor --workers / --scheduler name: local (this process) when neither is given."""
+    return make_executor(args.workers, args.scheduler)
 
 
 def machine() -> dict:

@@ -83,7 +83,7 @@ from mitsuba_peer import MitsubaPeer  # noqa: E402
 from clrender.estimators import ESTIMATORS, estimator_info  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 
-SCENES = ["mitsuba-cbox", "cornell-box", "cornell-box-glossy"]
+SCENES = ["mitsuba-cbox", "cornell-box", "cornell-box-glossy", "veach-mis"]
 PEER_SCENE = "mitsuba-cbox"
 FIXED_COUNT = ["independent", "stratified", "sobol", "zsobol"]
 SPPP = ["sppp", "sppp-sobol"]

@@ -1,5 +1,5 @@
-"""Single-pixel study on the authors' Cornell box and its glossy variant: the paper's
-Figures 6 and 9, over every sampler.
+"""Single-pixel study on the authors' Cornell box, its glossy variant and Veach's MIS scene:
+the paper's Figures 6 and 9, over every sampler.
 
     python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--pixels NAME ...]
                                 [--out DIR]
@@ -10,13 +10,16 @@ it), one deep inside the lit part of the back wall, one seeing the glass ball's 
 of the floor that the tall box's shadow boundary crosses (the visible share of the light
 changes most across it); in cornell-box-glossy, one on the edge of the glossy box's highlight,
 found in a short deterministic render (mc over Sobol points, SHORT_RENDER_SPP spp, seed
-SHORT_RENDER_SEED). --pixels picks some of them (default all). For each pixel and spp, R
-independent estimates of every (estimator, sampler) of GROUPS: mc, cvor and pvor over
-independent samples; mc over stratified, stratified-pixel, sobol and zsobol; pvor over
-stratified and sobol points with a random toroidal shift per run (as the render settings do
-for it); mc_n, vor, vor_sn and fvor over sppp and sppp-sobol. A sampler is skipped at a count
-it does not take (stratified: squares; zsobol: powers of two). R sample sets of a pixel are
-drawn and traced in one launch: run r is redraw number r, an independent randomisation
+SHORT_RENDER_SEED); in veach-mis, where the outlines of the large and medium spherical lights
+cross (light covering closest to half), and on the glossy reflections of the lights (the
+light's centre mirrored in a plate's plane, projected): large on the smooth plate (alpha 0.01),
+medium on the glossy one (0.05), small on both. --pixels picks some of them (default all). For
+each pixel and spp, R independent estimates of every (estimator, sampler) of GROUPS: mc, cvor
+and pvor over independent samples; mc over stratified, stratified-pixel, sobol and zsobol; pvor
+over stratified and sobol points with a random toroidal shift per run (as the render settings
+do for it); mc_n, vor, vor_sn and fvor over sppp and sppp-sobol. A sampler is skipped at a
+count it does not take (stratified: squares; zsobol: powers of two). R sample sets of a pixel
+are drawn and traced in one launch: run r is redraw number r, an independent randomisation
 (zsobol's key includes it too), then each estimator is applied to all R runs as one batch
 (estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi estimator
 rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw does; all
@@ -43,6 +46,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -71,8 +75,10 @@ from clrender.probes import (  # noqa: E402
     ProbePixel,
     diffuse_wall_pixel,
     glossy_highlight_edge_pixel,
+    glossy_reflection_pixel,
     light_edge_pixel,
     shadow_boundary_pixel,
+    sphere_light_edge_pixel,
     sphere_pixel,
     trace_pixel_runs,
 )
@@ -99,6 +105,21 @@ PROBES = {
     "shadow_boundary": Probe("cornell-box", shadow_boundary_pixel),
     "glossy_highlight_edge": Probe(
         "cornell-box-glossy", glossy_highlight_edge_pixel, reads_render=True
+    ),
+    # veach-mis: emitters 0, 1, 2 are the spheres of radius 1, 0.5, 0.05
+    "veach_large_light_edge": Probe("veach-mis", partial(sphere_light_edge_pixel, emitter=0)),
+    "veach_medium_light_edge": Probe("veach-mis", partial(sphere_light_edge_pixel, emitter=1)),
+    "veach_large_on_smooth": Probe(
+        "veach-mis", partial(glossy_reflection_pixel, emitter=0, material="Smooth")
+    ),
+    "veach_medium_on_glossy": Probe(
+        "veach-mis", partial(glossy_reflection_pixel, emitter=1, material="Glossy")
+    ),
+    "veach_small_on_smooth": Probe(
+        "veach-mis", partial(glossy_reflection_pixel, emitter=2, material="Smooth")
+    ),
+    "veach_small_on_glossy": Probe(
+        "veach-mis", partial(glossy_reflection_pixel, emitter=2, material="Glossy")
     ),
 }
 # The short render a finder reads: mc over Sobol points, a fixed seed (deterministic).

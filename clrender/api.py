@@ -35,9 +35,7 @@ from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
 from clrender.scene import Scene
 from clrender.scene import load_scene as load_scene_file
-from clrender.trace import PathTracer
-
-DEFAULT_MAX_DEPTH = 8
+from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer
 
 
 def default_estimator(sampler: str) -> str:
@@ -80,6 +78,7 @@ def render(
     overlap: bool = True,
     voronoi_backend: str = "device",
     progress: ProgressCallback | None = None,
+    executor=None,
 ) -> RenderResult:
     """Render a scene (a loaded Scene, a scene name or file, or `analytic[:KIND]`).
 
@@ -92,7 +91,9 @@ def render(
     else the first device); max_depth: scattering vertices per path; russian_roulette: end
     paths at random from their second vertex on (pbrt-v4's rule, unbiased; off by default, as
     in the paper; refused for analytic images, which have no paths); progress(done_pixels,
-    total_pixels) is called after each tile.
+    total_pixels) is called after each tile (each task on a cluster); executor: a
+    clrender.cluster.DaskExecutor (made once, reused across renders) renders on its Dask
+    cluster, bit-identical to the local render (default: this process).
     Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB of the (first) estimator,
     `.images`, `.layers` (per-pixel sample counts, redraws, variance), `.stats` (with times per
     stage and per estimator), `.settings`. Bad arguments raise ParameterError (a ClrenderError)
@@ -129,7 +130,14 @@ def render(
         overlap,
         voronoi_backend,
     )
-    result = pipeline.render(runtime, source, settings, progress)
+    if executor is None:
+        result = pipeline.render(runtime, source, settings, progress)
+    else:
+        from clrender.cluster import RenderJob, render_on
+
+        path_depth = 0 if isinstance(scene, str) else max_depth
+        job = RenderJob.of(scene, settings, path_depth, russian_roulette, device)
+        result = render_on(executor, job, progress)
     result.stats.setup_compile_seconds = setup_compile
     return result
 

@@ -26,6 +26,7 @@ import pyopencl as cl
 from clrender import interrupts
 from clrender.errors import ClrenderError, ParameterError
 from clrender.runtime import create_runtime, describe_device, list_devices
+from clrender.trace import DEFAULT_MAX_DEPTH
 
 EXIT_USAGE = 2
 EXIT_STRICT = 3
@@ -47,8 +48,8 @@ samplers (spp each takes):
 estimators:
 {estimators}
 
-SCENE is a shipped scene name, a .toml path, or analytic[:edge|smooth|disc|bowl|mix]
-(images with exact pixel integrals).
+SCENE is a shipped scene name, a .toml or pbrt-v4 .pbrt path, or
+analytic[:edge|smooth|disc|bowl|mix] (images with exact pixel integrals).
 exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 128 + signal when
 interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: the pixels done so far are written, with
 partial=1 in the EXR metadata)."""
@@ -123,7 +124,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "scene",
         nargs="?",
         default=DEFAULT_SCENE,
-        help=f"scene name, .toml file or analytic[:KIND] (default: {DEFAULT_SCENE})",
+        help=f"scene name, .toml or .pbrt file or analytic[:KIND] (default: {DEFAULT_SCENE})",
     )
     add(
         "-o",
@@ -177,9 +178,10 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
     add(
         "--max-depth",
         type=int,
-        default=8,
+        default=None,
         metavar="D",
-        help="scattering vertices per path (default: 8)",
+        help=f"scattering vertices per path (default: {DEFAULT_MAX_DEPTH}; not for analytic "
+        "images)",
     )
     add(
         "--russian-roulette",
@@ -207,6 +209,21 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="where vor, vor_sn, fvor and pvor get their Voronoi cells: device (an OpenCL "
         "kernel, exact, default) or qhull (SciPy's Qhull on the host)",
+    )
+    add(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="render on a Dask LocalCluster of N worker processes on this machine (needs "
+        "pip install 'dask[distributed]'); the image is bit-identical to a local render",
+    )
+    add(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="render on the existing Dask cluster whose scheduler is at ADDRESS (e.g. "
+        "tcp://host:8786); each worker uses --device, else its own PYOPENCL_CTX",
     )
     add(
         "--strict",
@@ -306,7 +323,7 @@ def scene_label(scene: str) -> str:
 
     if is_analytic_scene(scene):
         return analytic_image(scene, 1, 1).name
-    return Path(scene).stem if scene.endswith(".toml") else scene
+    return Path(scene).stem if scene.endswith((".toml", ".pbrt")) else scene
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
@@ -343,8 +360,17 @@ def check_render_args(args: argparse.Namespace) -> None:
     size = parse_resolution(args.res)
     if isinstance(size, tuple):  # else known only with the scene: checked by RenderSettings
         check_image_memory(*size)
-    if args.max_depth < 0:
+    if args.max_depth is not None and args.max_depth < 0:
         raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
+    if args.max_depth is not None and is_analytic_scene(args.scene):
+        raise ParameterError(
+            f"--max-depth needs a path-traced scene: {args.scene} is an analytic image "
+            "without paths"
+        )
+    if args.workers is not None and args.workers <= 0:
+        raise ParameterError(f"--workers must be a positive integer, got {args.workers}")
+    if args.workers is not None and args.scheduler is not None:
+        raise ParameterError("give --workers or --scheduler, not both")
     if args.russian_roulette and is_analytic_scene(args.scene):
         raise ParameterError(
             f"--russian-roulette needs a path-traced scene: {args.scene} is an analytic image "
@@ -365,7 +391,7 @@ def load_scene_arg(args: argparse.Namespace):
             warnings.simplefilter("ignore", SceneWarning)
             scene = load_scene(args.scene)
     except SceneError as err:
-        if "/" in args.scene or args.scene.endswith(".toml"):  # a file, not a scene name
+        if "/" in args.scene or args.scene.endswith((".toml", ".pbrt")):  # a file, not a name
             raise
         raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
     for note in scene.warnings:
@@ -381,11 +407,16 @@ def make_source(args: argparse.Namespace, runtime, scene):
 
     size = parse_resolution(args.res)
     source = radiance_source(
-        runtime, scene or args.scene, size, args.max_depth, args.russian_roulette
+        runtime, scene or args.scene, size, path_depth(args), args.russian_roulette
     )
     if scene is None:
         return source, None, None
-    return source, args.max_depth, args.russian_roulette
+    return source, path_depth(args), args.russian_roulette
+
+
+def path_depth(args: argparse.Namespace) -> int:
+    """--max-depth, or the default depth when it was not given."""
+    return DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
 
 
 def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:
@@ -491,7 +522,10 @@ def command_render(args: argparse.Namespace) -> int:
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
     )
     try:
-        result = render(runtime, source, settings, progress)
+        if args.workers is None and args.scheduler is None:
+            result = render(runtime, source, settings, progress)
+        else:
+            result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
     finally:
         progress.close()
     result.stats.setup_compile_seconds = setup_compile
@@ -520,6 +554,23 @@ def command_render(args: argparse.Namespace) -> int:
         for pair in outputs.values():
             print(f"wrote {pair.exr} and {pair.png}")
     return exit_status(args, result, held)
+
+
+def render_on_cluster(args: argparse.Namespace, scene, settings, max_depth, roulette, progress):
+    """The render on the Dask cluster of --workers / --scheduler (clrender.cluster): the same
+    image as a local render."""
+    from clrender.cluster import RenderJob, make_executor, render_on
+
+    with interrupts.signals_blocked():
+        executor = make_executor(args.workers, args.scheduler)
+    try:
+        job = RenderJob.of(
+            scene or args.scene, settings, max_depth or 0, bool(roulette), args.device
+        )
+        return render_on(executor, job, progress)
+    finally:
+        with interrupts.signals_blocked():
+            executor.close()
 
 
 def command_scenes(args: argparse.Namespace) -> int:

@@ -386,9 +386,11 @@ def plan_tiles(settings: RenderSettings) -> range:
     return range(0, settings.pixel_count, pixels_per_tile(settings))
 
 
-def tile_pixels(settings: RenderSettings, start: int) -> np.ndarray:
-    """Global indices of the tile starting at pixel `start`."""
-    stop = min(start + pixels_per_tile(settings), settings.pixel_count)
+def tile_pixels(settings: RenderSettings, start: int, end: int | None = None) -> np.ndarray:
+    """Global indices of the tile starting at pixel `start` (clipped to the image, or to `end`
+    when the tiles cover a range of it)."""
+    end = settings.pixel_count if end is None else min(end, settings.pixel_count)
+    stop = min(start + pixels_per_tile(settings), end)
     return np.arange(start, stop, dtype=np.uint32)
 
 
@@ -744,13 +746,14 @@ class TilePipeline:
         self.stats.host_seconds += host
         self.stats.redraw_host_seconds += host
 
-    def run(self, tiles: range, progress: ProgressCallback | None) -> None:
-        """Trace tile k + 1 while tile k is estimated (on a worker thread if overlapping)."""
+    def run(self, tiles: range, progress: ProgressCallback | None, end: int | None = None) -> None:
+        """Trace tile k + 1 while tile k is estimated (on a worker thread if overlapping); tiles
+        are clipped to pixel `end` when they cover a range of the image (clrender.cluster)."""
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
                 for start in tiles:
-                    pixels = tile_pixels(self.settings, start)
+                    pixels = tile_pixels(self.settings, start, end)
                     tile = self.trace(pixels, np.zeros(len(pixels), np.uint32))
                     self.finish_in_flight(progress)
                     self.in_flight = self.start_estimate(pool, tile)

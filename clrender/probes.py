@@ -20,6 +20,7 @@ dimension, redraw), so runs are independent and reproducible.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -31,7 +32,7 @@ from clrender.runtime import Runtime
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, generate_sample_sets
 from clrender.scene import Scene
-from clrender.scene_device import MATERIAL_TYPES
+from clrender.scene_device import EMITTER_SHAPES, MATERIAL_TYPES
 from clrender.trace import PathTracer
 
 NO_HIT = -1
@@ -157,16 +158,24 @@ def pixel_hits(scene: Scene, width: int, height: int) -> tuple[np.ndarray, np.nd
     return shape, o + np.where(np.isfinite(t), t, 0.0)[..., None] * d
 
 
+def emitting_quad(scene: Scene, emitter: int) -> np.ndarray:
+    """The QUAD_DTYPE record of emitter number `emitter`, which must be a quad."""
+    record = scene.emitters[emitter]
+    if record["shape"] != EMITTER_SHAPES["quad"]:
+        raise ParameterError(f"{scene.name}: emitter {emitter} is not a quad")
+    return scene.quads[record["index"]]
+
+
 def light_points(scene: Scene, emitter: int = 0) -> np.ndarray:
     """The corners and centre of an emitting quad (5, 3)."""
-    quad = scene.quads[scene.emitters["quad"][emitter]]
+    quad = emitting_quad(scene, emitter)
     c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
     return np.array([c, c + e1, c + e2, c + e1 + e2, c + 0.5 * (e1 + e2)])
 
 
 def light_grid(scene: Scene, emitter: int = 0, cells: int = LIGHT_GRID_CELLS) -> np.ndarray:
     """The centres of a cells x cells grid over an emitting quad (cells * cells, 3)."""
-    quad = scene.quads[scene.emitters["quad"][emitter]]
+    quad = emitting_quad(scene, emitter)
     c, e1, e2 = (quad[k].astype(np.float64) for k in ("corner", "edge1", "edge2"))
     s = (np.arange(cells) + 0.5) / cells
     return (c + s[:, None, None] * e1 + s[None, :, None] * e2).reshape(-1, 3)
@@ -362,6 +371,107 @@ def sphere_pixel(scene: Scene, width: int, height: int, sphere: int = 0) -> Prob
     if not (shape[y, x] == sphere_id).all():
         raise ParameterError(f"the pixel of sphere {sphere}'s centre does not see it")
     return ProbePixel(x, y, width, f"sphere ({scene.sphere_names[sphere]})", {})
+
+
+def emitting_sphere(scene: Scene, emitter: int) -> int:
+    """The sphere index of emitter number `emitter`, which must be a sphere."""
+    record = scene.emitters[emitter]
+    if record["shape"] != EMITTER_SHAPES["sphere"]:
+        raise ParameterError(f"{scene.name}: emitter {emitter} is not a sphere")
+    return int(record["index"])
+
+
+def sphere_outline(
+    scene: Scene, width: int, height: int, sphere: int, points: int = 360
+) -> np.ndarray:
+    """The image outline (points, 2) of a sphere: the projection of its silhouette circle (the
+    points whose view ray from the camera grazes it), a convex polygon."""
+    origin = camera_frame(scene, width, height)[0]
+    centre = scene.spheres["center"][sphere].astype(np.float64)
+    r = float(scene.spheres["radius"][sphere])
+    axis = centre - origin
+    dist = float(np.linalg.norm(axis))
+    if dist <= r:
+        raise ParameterError(f"the camera is inside sphere {sphere}")
+    axis /= dist
+    s = np.cross(axis, [0.0, 1.0, 0.0] if abs(axis[1]) < 0.9 else [1.0, 0.0, 0.0])
+    s /= np.linalg.norm(s)
+    t = np.cross(axis, s)
+    ring_centre = centre - (r * r / dist) * axis
+    ring_radius = r * math.sqrt(1.0 - (r / dist) ** 2)
+    phi = 2.0 * np.pi * np.arange(points) / points
+    ring = ring_centre + ring_radius * (np.cos(phi)[:, None] * s + np.sin(phi)[:, None] * t)
+    return project(scene, width, height, ring)
+
+
+def sphere_light_edge_pixel(scene: Scene, width: int, height: int, emitter: int = 0) -> ProbePixel:
+    """A pixel a spherical light's outline crosses, covered closest to half by the light (its
+    outline projected analytically), among pixels where some probe rays see the light and
+    some do not (so nothing hides that edge)."""
+    sphere = emitting_sphere(scene, emitter)
+    polygon = sphere_outline(scene, width, height, sphere)
+    candidates = _outline_pixels(polygon, width, height)
+    shape, _ = pixel_hits(scene, width, height)
+    sees = shape[candidates[:, 1], candidates[:, 0]] == len(scene.quads) + sphere
+    mixed = sees.any(axis=-1) & ~sees.all(axis=-1)
+    if not mixed.any():
+        raise ParameterError(f"the outline of light {emitter} is hidden everywhere")
+    candidates = candidates[mixed]
+    coverage = np.array([polygon_pixel_coverage(polygon, x, y) for x, y in candidates])
+    best = int(np.argmin(np.abs(coverage - 0.5)))
+    x, y = (int(v) for v in candidates[best])
+    return ProbePixel(
+        x,
+        y,
+        width,
+        f"sphere light edge ({scene.sphere_names[sphere]})",
+        {"light_coverage": float(coverage[best])},
+    )
+
+
+def glossy_reflection_pixel(
+    scene: Scene, width: int, height: int, emitter: int = 0, material: str = ""
+) -> ProbePixel:
+    """A pixel of a spherical light's reflection on a flat glossy surface of `material`: the
+    light's centre mirrored in the plane of each face of that material that faces both the
+    camera and the light, projected; of the pixels whose probe rays all see that face, the
+    one nearest that point (the point itself when the face shows it; a rough face's broad
+    highlight also reaches pixels beside a mirror point it hides). Nearest over the faces."""
+    sphere = emitting_sphere(scene, emitter)
+    centre = scene.spheres["center"][sphere].astype(np.float64)
+    origin = camera_frame(scene, width, height)[0]
+    wanted = scene.material_names.index(material)
+    shape, _ = pixel_hits(scene, width, height)
+    ys, xs = np.mgrid[0:height, 0:width]
+    best = None
+    for quad_id in np.flatnonzero(scene.quads["material"] == wanted):
+        quad = scene.quads[quad_id]
+        n = quad["normal"].astype(np.float64)
+        corner = quad["corner"].astype(np.float64)
+        light_side, camera_side = (centre - corner) @ n, (origin - corner) @ n
+        on_face = (shape == quad_id).all(axis=-1)
+        if light_side <= 0.0 or camera_side <= 0.0 or not on_face.any():
+            continue
+        mirrored = centre - 2.0 * light_side * n
+        target = project(scene, width, height, mirrored)
+        distance = np.where(on_face, np.hypot(xs + 0.5 - target[0], ys + 0.5 - target[1]), np.inf)
+        y, x = np.unravel_index(int(np.argmin(distance)), distance.shape)
+        if best is None or distance[y, x] < best[0]:
+            best = (float(distance[y, x]), int(x), int(y), quad_id, target)
+    if best is None:
+        raise ParameterError(f"no face of {material} faces both the camera and light {emitter}")
+    offset, x, y, quad_id, target = best
+    return ProbePixel(
+        x,
+        y,
+        width,
+        f"reflection of {scene.sphere_names[sphere]} on {material}",
+        {
+            "quad": scene.quad_names[quad_id],
+            "mirror_point_px": target.tolist(),
+            "offset_from_mirror_point_px": offset,
+        },
+    )
 
 
 def glossy_pixels(scene: Scene, width: int, height: int) -> np.ndarray:

@@ -64,6 +64,10 @@ box.translate       [x, y, z]    [0,0,0]    then this translation; the box becom
                                             quads with outward normals
 sphere.center       [x, y, z]    required   centre
 sphere.radius       number > 0   required   radius; the normal points outwards
+sphere.emission     RGB >= 0     none       makes the sphere a one-sided diffuse emitter of
+                                            this radiance, emitting outwards (invisible
+                                            from inside); lit points sample the cone of
+                                            directions it subtends (its visible cap)
 mesh.positions      V x [x,y,z]  (b)        vertices of a triangle mesh
 mesh.indices        T x [i,j,k]  (b)        triangles, 0-based vertex indices; the front
                                             side is counter-clockwise: geometric normal
@@ -182,8 +186,9 @@ class Scene:
     """A loaded scene: camera plus device-ready structured arrays (scene_device's dtypes).
 
     quads: every quad, boxes expanded (6 each); spheres; materials (indexed by the shapes'
-    `material`, -1 for a pure emitter); emitters (one per emitting quad, with the light
-    selection pdf proportional to power = area * mean radiance).
+    `material`, -1 for a pure emitter); emitters (one per emitting quad, then one per
+    emitting sphere, with the light selection pdf proportional to power = area * mean
+    radiance).
     """
 
     path: Path
@@ -255,7 +260,7 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
             return path
         what = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a FIFO or device)"
         raise SceneError(f"scene file {text!r} is {what}: give a .toml file or a scene name")
-    if "/" not in text and "\\" not in text:
+    if "/" not in text and "\\" not in text and not text.endswith(".pbrt"):
         shipped = scenes_dir() / (text if text.endswith(".toml") else f"{text}.toml")
         if shipped.is_file():
             return shipped
@@ -269,8 +274,13 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
 
 
 def load_scene(path_or_name: str | Path) -> Scene:
-    """Read and validate a scene file (or a shipped scene by name)."""
+    """Read and validate a scene file (or a shipped scene by name); a .pbrt file is read by
+    clrender.pbrt (pbrt-v4's format, a subset)."""
     path = resolve_scene_path(path_or_name)
+    if path.suffix == ".pbrt":
+        from clrender.pbrt import load_pbrt_scene
+
+        return load_pbrt_scene(path)
     try:
         data = path.read_bytes()
     except OSError as err:
@@ -413,7 +423,7 @@ def _describe(value: object) -> str:
 SHAPE_FIELDS = {
     "quad": ("type", "name", "material", "corner", "edge1", "edge2", "vertices", "emission"),
     "box": ("type", "name", "material", "min", "max", "rotate_y", "translate"),
-    "sphere": ("type", "name", "material", "center", "radius"),
+    "sphere": ("type", "name", "material", "center", "radius", "emission"),
     "mesh": ("type", "name", "material", "positions", "indices", "normals", "file"),
 }
 MESH_ARRAYS = ("positions", "indices", "normals")
@@ -424,6 +434,7 @@ MATERIAL_FIELDS = {
     "dielectric": ("type", "ior"),
     "roughconductor": ("type", "alpha", "eta", "k", "two_sided"),
 }
+EMITTING_SHAPES = ("quad", "sphere")  # shapes that take `emission`
 CAMERA_FIELDS = ("look_from", "look_at", "up", "fov", "resolution", "handedness")
 CAMERA_HANDEDNESS = ("right", "left")
 TOP_FIELDS = ("description", "camera", "materials", "shapes")
@@ -452,7 +463,9 @@ class SceneBuilder:
         for key in ("emitters", "emitter", "lights", "light"):
             if key in document:
                 top.fail(
-                    key, "unknown field: an emitter is a [[shapes]] quad with an `emission` field"
+                    key,
+                    "unknown field: an emitter is a [[shapes]] quad or sphere with an "
+                    "`emission` field",
                 )
         top.check_keys(TOP_FIELDS)
         description = top.string("description", "") or ""
@@ -543,12 +556,12 @@ class SceneBuilder:
             table.fail(
                 "type", f"unknown shape type {kind!r}{hint}; accepted: {', '.join(SHAPE_FIELDS)}"
             )
-        if kind != "quad" and table.has("emission"):
-            table.fail("emission", f"a {kind} cannot be an emitter: only quads emit")
+        if kind not in EMITTING_SHAPES and table.has("emission"):
+            table.fail("emission", f"a {kind} cannot be an emitter: only quads and spheres emit")
         if table.has("emitter"):  # Mitsuba's nested emitter: here a quad field, no types
             table.fail(
                 "emitter",
-                "unknown field: there are no emitter types; a quad emits "
+                "unknown field: there are no emitter types; a quad or sphere emits "
                 "with `emission = [r, g, b]`",
             )
         table.check_keys(SHAPE_FIELDS[kind])
@@ -569,7 +582,9 @@ class SceneBuilder:
             radius = table.number("radius", _REQUIRED, what=" > 0")
             if radius <= 0.0:
                 table.fail("radius", f"expected a number > 0, got {radius:g}")
-            self.spheres.append({"center": center, "radius": radius, "material": material})
+            self.spheres.append(
+                {"center": center, "radius": radius, "material": material, "emission": emission}
+            )
             self.sphere_names.append(name)
             self.geometry.append(ShapeGeometry(label, center=np.array(center), radius=radius))
             centre = np.array(center)
@@ -769,7 +784,7 @@ class SceneBuilder:
     def finish(self, camera: Camera, description: str) -> Scene:
         quads = pack_quads(self.quads)
         spheres = pack_spheres(self.spheres)
-        emitters = pack_emitters(self.quads, quads)
+        emitters = pack_emitters(self.quads, quads, self.spheres, spheres)
         materials = pack_materials(self.materials)
         triangles, triangle_normals = pack_triangles(self.meshes)
         if len(quads) + len(spheres) + len(triangles) == 0:
@@ -781,7 +796,7 @@ class SceneBuilder:
         notes = list(self.notes)
         if len(emitters) == 0:
             notes.append(
-                f"{self.path}: the scene has no emitter (no quad with emission): it renders black"
+                f"{self.path}: the scene has no emitter (no shape with emission): it renders black"
             )
             warnings.warn(notes[-1], SceneWarning, stacklevel=3)
         for label, inside in self.solids:

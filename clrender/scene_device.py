@@ -15,7 +15,8 @@ TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, norma
 NORMALS_DTYPE      TriangleNormals      mesh triangle with per-vertex shading normals
 BVH_NODE_DTYPE     BVHNode              8-wide node of the BVH over every primitive (bvh.py)
 MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
-EMITTER_DTYPE      Emitter              emitting quad, with its light-selection pdf and cdf
+EMITTER_DTYPE      Emitter              emitting quad or sphere, with its light-selection pdf
+                                        and cdf
 CAMERA_DTYPE       Camera               camera at one image size
 =================  ===================  ====================================================
 
@@ -68,7 +69,9 @@ def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:
     )
 
 
-SPHERE_DTYPE = np.dtype([("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4")])
+SPHERE_DTYPE = np.dtype(
+    [("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4"), ("emitter", "<i4")]
+)
 TRIANGLE_DTYPE = np.dtype(
     [
         ("p0", "<f4", 3),
@@ -103,9 +106,12 @@ MATERIAL_DTYPE = np.dtype(
         ("alpha", "<f4"),
     ]
 )
+# Emitter shape kinds: EMITTER_QUAD, EMITTER_SPHERE in kernels/scene_types.h.
+EMITTER_SHAPES = {"quad": 0, "sphere": 1}
 EMITTER_DTYPE = np.dtype(
     [
-        ("quad", "<i4"),
+        ("shape", "<i4"),
+        ("index", "<i4"),
         ("radiance", "<f4", 3),
         ("area", "<f4"),
         ("pick_pdf", "<f4"),
@@ -189,30 +195,44 @@ def pack_quads(quads: list[dict]) -> np.ndarray:
 
 
 def pack_spheres(spheres: list[dict]) -> np.ndarray:
-    """SPHERE_DTYPE records of spheres given as dicts (center, radius, material)."""
+    """SPHERE_DTYPE records of spheres given as dicts (center, radius, material; emitter -1:
+    pack_emitters sets it)."""
     packed = np.zeros(len(spheres), SPHERE_DTYPE)
     for record, sphere in zip(packed, spheres, strict=True):
         record["center"] = sphere["center"]
         record["radius"] = sphere["radius"]
         record["material"] = sphere["material"]
+        record["emitter"] = -1
     return packed
 
 
-def pack_emitters(quads: list[dict], packed: np.ndarray) -> np.ndarray:
-    """One EMITTER_DTYPE record per emitting quad (a quad dict whose "emission" is not None),
-    selection pdf proportional to power = area * mean radiance; sets the packed quads'
-    emitter index."""
-    indices = [i for i, quad in enumerate(quads) if quad["emission"] is not None]
-    emitters = np.zeros(len(indices), EMITTER_DTYPE)
+def pack_emitters(
+    quads: list[dict],
+    packed: np.ndarray,
+    spheres: list[dict] = (),
+    packed_spheres: np.ndarray | None = None,
+) -> np.ndarray:
+    """One EMITTER_DTYPE record per emitting shape (a quad or sphere dict whose "emission" is
+    not None; spheres without the key do not emit): the quads in order, then the spheres.
+    Selection pdf proportional to power = area * mean radiance (a sphere's area is
+    4 pi r^2); sets the packed quads' and spheres' emitter index."""
+    shapes = [("quad", i, quad, packed) for i, quad in enumerate(quads)]
+    shapes += [("sphere", i, sphere, packed_spheres) for i, sphere in enumerate(spheres)]
+    emitting = [shape for shape in shapes if shape[2].get("emission") is not None]
+    emitters = np.zeros(len(emitting), EMITTER_DTYPE)
     powers = []
-    for slot, i in enumerate(indices):
-        area = float(np.linalg.norm(np.cross(quads[i]["edge1"], quads[i]["edge2"])))
-        emitters[slot]["quad"] = i
-        emitters[slot]["radiance"] = quads[i]["emission"]
+    for slot, (kind, i, shape, records) in enumerate(emitting):
+        if kind == "quad":
+            area = float(np.linalg.norm(np.cross(shape["edge1"], shape["edge2"])))
+        else:
+            area = 4.0 * math.pi * float(shape["radius"]) ** 2
+        emitters[slot]["shape"] = EMITTER_SHAPES[kind]
+        emitters[slot]["index"] = i
+        emitters[slot]["radiance"] = shape["emission"]
         emitters[slot]["area"] = area
-        powers.append(area * float(np.mean(quads[i]["emission"])))
-        packed[i]["emitter"] = slot
-    if indices:
+        powers.append(area * float(np.mean(shape["emission"])))
+        records[i]["emitter"] = slot
+    if emitting:
         pdf = np.array(powers) / np.sum(powers)
         emitters["pick_pdf"] = pdf
         cdf = np.cumsum(pdf)

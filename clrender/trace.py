@@ -30,6 +30,8 @@ from clrender.scene_device import BRUTE_FORCE_LIMIT, QUAD_BLOCK_WIDTH
 # Dimensions 1 + 2d and 2 + 2d of a 32-bit counter: any sane depth fits; this keeps a typo
 # (max_depth=10**9) from running for ever.
 MAX_DEPTH_LIMIT = 1024
+# Scattering vertices per path unless asked otherwise (pbrt's maxdepth; Mitsuba's max_depth 9).
+DEFAULT_MAX_DEPTH = 8
 
 
 @dataclass
@@ -82,7 +84,7 @@ class PathTracer:
         self,
         runtime: Runtime,
         scene: Scene,
-        max_depth: int = 8,
+        max_depth: int = DEFAULT_MAX_DEPTH,
         russian_roulette: bool = False,
         next_event_estimation: bool = True,
         profile_defines: dict[str, object] | None = None,

@@ -31,7 +31,7 @@ from clrender.errors import ParameterError
 from clrender.runtime import Runtime, padded_global_size
 from clrender.sampling import DeviceSampleSets
 from clrender.scene import Scene
-from clrender.trace import PathTracer, TraceResult
+from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer, TraceResult
 
 # Bytes per path of each state array; kernels/wavefront.cl checks its struct sizes against them.
 RAY_BYTES = 32
@@ -133,7 +133,7 @@ class WavefrontPathTracer(PathTracer):
         self,
         runtime: Runtime,
         scene: Scene,
-        max_depth: int = 8,
+        max_depth: int = DEFAULT_MAX_DEPTH,
         russian_roulette: bool = False,
         next_event_estimation: bool = True,
         wave_paths: int = DEFAULT_WAVE_PATHS,

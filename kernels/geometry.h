@@ -434,7 +434,7 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
         s.ns = s.ng;
         s.p = center + sp->radius * s.ng;
         s.material = sp->material;
-        s.emitter = -1;
+        s.emitter = sp->emitter;
         s.error = SURFACE_ERROR_SCALE * (MaxAbs3(center) + sp->radius);
     } else {
         __global const Triangle *tri =

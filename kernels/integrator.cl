@@ -39,7 +39,8 @@ CL_INLINE float3 Integrator_SampleDirect(const SceneData *scene, Surface *surfac
 {
     float3 wi;
     float dist, light_pdfW;
-    float3 Le = Light_SampleLi(scene, surface->p, u, &wi, &dist, &light_pdfW);
+    uint picked;
+    float3 Le = Light_SampleLi(scene, surface->p, u, &wi, &dist, &light_pdfW, &picked);
     if (!(light_pdfW > 0.0f))
         return (float3)(0.0f);
     float3 wi_local = Frame_ToLocal(frame, wi);
@@ -47,11 +48,13 @@ CL_INLINE float3 Integrator_SampleDirect(const SceneData *scene, Surface *surfac
     if (!AnyPositive3(f))
         return (float3)(0.0f);
     float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, surface->error);
-    // The shadow ray stops short of the emitter point by both points' rounding bounds
+    // The shadow ray stops short of the emitter by both points' rounding bounds
     float light_error = SURFACE_ERROR_SCALE * MaxAbs3(surface->p + dist * wi);
     *rays += 1u;
 #ifndef PROFILE_SKIP_SHADOW_RAYS // profiling build: every shadow ray counts as unblocked
-    if (Scene_Occluded(scene, origin, wi, dist - 2.0f * (surface->error + light_error)))
+    float tmax = Light_ShadowDistance(scene, picked, origin, wi, dist) -
+                 2.0f * (surface->error + light_error);
+    if (Scene_Occluded(scene, origin, wi, tmax))
         return (float3)(0.0f);
 #endif
     float weight =
@@ -88,7 +91,8 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
             if (depth == 0 || specularBounce || !nee) {
                 L += beta * Le;
             } else {
-                float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
+                float light_pdfW =
+                    Light_HitPdfW(scene, emitter, origin, t, Dot3(surface.ng, wo));
                 L += beta * Le * PathVertex_PowerHeuristic(prev_pdfW, light_pdfW);
             }
         }

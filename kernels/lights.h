@@ -1,10 +1,19 @@
-// Area lights: emitting quads, one-sided (they emit on the side their normal points to).
-// An emitter is picked with probability proportional to its power, then a point uniformly by
-// area on it (pdfA = 1 / area), converted to solid angle at the receiving point:
-// pdfW = pick_pdf * pdfA * dist^2 / cos_light.
+// Area lights: emitting quads and spheres, one-sided (a quad emits on the side its normal
+// points to, a sphere outwards). An emitter is picked with probability proportional to its
+// power, then a point on it seen from the receiving point p:
+//   quad:   uniformly by area (pdfA = 1 / area), converted to solid angle at p:
+//           pdfW = pick_pdf * pdfA * dist^2 / cos_light;
+//   sphere: uniformly in the cone of directions from p that meets the sphere (the visible
+//           cap, as pbrt-v4's Sphere::Sample with a reference point outside the sphere):
+//           pdfW = pick_pdf / (2 pi (1 - cos_theta_max)), sin^2 theta_max = r^2 / d^2.
+//           From a point inside or on the sphere the outward emitter is invisible: the sample
+//           and its pdf are zero (pbrt samples by area there; nothing here can use it).
+// Both take the same two random numbers (the emitter point u.y, u.z).
 #ifndef CLRENDER_LIGHTS_H
 #define CLRENDER_LIGHTS_H
 
+#include "bsdf.h"
+#include "geometry.h"
 #include "scene_types.h"
 #include "vecmath.h"
 
@@ -18,20 +27,97 @@ CL_INLINE uint Light_Pick(const SceneData *scene, float u)
     return chosen;
 }
 
-// Solid-angle pdf of NEE producing a point of `emitter` at distance dist whose normal makes
-// cosine cos_light with the direction back to the receiver.
+// Solid-angle pdf of NEE producing a point of an emitting quad at distance dist whose normal
+// makes cosine cos_light with the direction back to the receiver.
 CL_INLINE float Light_PdfW(__global const Emitter *emitter, float dist, float cos_light)
 {
     return emitter->pick_pdf * dist * dist / (cos_light * emitter->area);
 }
 
-// Sample an emitter point seen from p: returns its radiance towards p (zero if p is behind
-// the emitter), the unit direction *wi to it, its distance and the solid-angle pdf.
-CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, float3 *wi,
-                                float *dist, float *pdfW)
+// The cone from p around the unit direction *axis to the sphere's centre that holds the
+// sphere: sin^2 and 1 - cos of its half-angle theta_max, and the distance to the centre.
+// False when p is inside or on the sphere. 1 - cos is written sin^2 / (1 + cos): no
+// cancellation for far, small spheres (the small-angle care pbrt takes below 1.5 degrees by
+// approximating 1 - cos by sin^2 / 2; here exact at every angle).
+CL_INLINE bool Light_SphereCone(__global const Sphere *sphere, float3 p, float3 *axis,
+                                float *dist_center, float *sin2_max, float *one_minus_cos_max)
 {
-    __global const Emitter *emitter = &scene->emitters[Light_Pick(scene, u.x)];
-    __global const Quad *quad = &scene->quads[emitter->quad];
+    float3 to_center = Load3(sphere->center) - p;
+    float dc2 = Dot3(to_center, to_center);
+    float r = sphere->radius;
+    if (!(dc2 > r * r))
+        return false;
+    *dist_center = Sqrt(dc2);
+    *axis = to_center / *dist_center;
+    *sin2_max = r * r / dc2;
+    *one_minus_cos_max = *sin2_max / (1.0f + Sqrt(1.0f - *sin2_max));
+    return true;
+}
+
+// Solid-angle pdf (emitter pick included) of NEE producing a direction from p that meets an
+// emitting sphere; 0 from inside or on it.
+CL_INLINE float Light_SpherePdfW(__global const Emitter *emitter,
+                                 __global const Sphere *sphere, float3 p)
+{
+    float3 axis;
+    float dist_center, sin2_max, one_minus_cos_max;
+    if (!Light_SphereCone(sphere, p, &axis, &dist_center, &sin2_max, &one_minus_cos_max))
+        return 0.0f;
+    return emitter->pick_pdf / (2.0f * M_PI_F * one_minus_cos_max);
+}
+
+// Solid-angle pdf of NEE for the emitter point a ray from origin hit at distance t, where
+// the emitter's normal makes cosine cos_light with the direction back to origin.
+CL_INLINE float Light_HitPdfW(const SceneData *scene, __global const Emitter *emitter,
+                              float3 origin, float t, float cos_light)
+{
+    if (emitter->shape == EMITTER_SPHERE)
+        return Light_SpherePdfW(emitter, &scene->spheres[emitter->index], origin);
+    return Light_PdfW(emitter, t, cos_light);
+}
+
+// A direction from p uniform in the cone of the sphere (u in [0, 1)^2), *dist the distance
+// along it to the sphere's near side; returns the cone's pdfW (no emitter pick), 0 from inside.
+CL_INLINE float Light_SampleSphereCone(__global const Sphere *sphere, float3 p, float2 u,
+                                       float3 *wi, float *dist)
+{
+    float3 axis;
+    float dist_center, sin2_max, one_minus_cos_max;
+    if (!Light_SphereCone(sphere, p, &axis, &dist_center, &sin2_max, &one_minus_cos_max))
+        return 0.0f;
+    // Uniform cos theta in [cos theta_max, 1]: 1 - cos theta = u (1 - cos theta_max), and
+    // sin^2 theta = (1 - cos)(1 + cos), both free of cancellation
+    float one_minus_cos = u.x * one_minus_cos_max;
+    float cos_theta = 1.0f - one_minus_cos;
+    float sin2_theta = one_minus_cos * (2.0f - one_minus_cos);
+    float sin_theta = Sqrt(sin2_theta);
+    float cos_phi;
+    float sin_phi = SinCos2Pi(u.y, &cos_phi);
+    Frame frame = Frame_FromNormal(axis);
+    *wi = Frame_ToWorld(frame, (float3)(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta));
+    // Near root of |p + s wi - c| = r: s = dc cos - r sqrt(1 - sin^2 / sin^2_max), written as
+    // (dc^2 - r^2) / (dc cos + r sqrt(...)) (no cancellation when p is near the sphere)
+    float r = sphere->radius;
+    float chord = r * Sqrt(Fmax(1.0f - sin2_theta / sin2_max, 0.0f));
+    *dist = (dist_center - r) * (dist_center + r) / (dist_center * cos_theta + chord);
+    return 1.0f / (2.0f * M_PI_F * one_minus_cos_max);
+}
+
+// Sample an emitter point seen from p: returns its radiance towards p (zero if p is behind
+// the emitter), the unit direction *wi to it, its distance, the solid-angle pdf and the
+// emitter's index (for Light_ShadowDistance).
+CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, float3 *wi,
+                                float *dist, float *pdfW, uint *picked)
+{
+    *picked = Light_Pick(scene, u.x);
+    __global const Emitter *emitter = &scene->emitters[*picked];
+    if (emitter->shape == EMITTER_SPHERE) {
+        float cone_pdfW = Light_SampleSphereCone(&scene->spheres[emitter->index], p,
+                                                 (float2)(u.y, u.z), wi, dist);
+        *pdfW = emitter->pick_pdf * cone_pdfW;
+        return cone_pdfW > 0.0f ? Load3(emitter->radiance) : (float3)(0.0f);
+    }
+    __global const Quad *quad = &scene->quads[emitter->index];
     float3 y = Load3(quad->corner) + u.y * Load3(quad->edge1) +
                u.z * Load3(quad->edge2);
     float3 to_light = y - p;
@@ -44,6 +130,21 @@ CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, floa
     }
     *pdfW = Light_PdfW(emitter, *dist, cos_light);
     return Load3(emitter->radiance);
+}
+
+// Where the shadow ray of a light sample (at distance dist from the receiving point, along
+// wi) meets the emitter, measured from the ray's origin (the receiver's offset point); the
+// caller stops the ray short of it by the points' rounding bounds. A quad: dist. A sphere:
+// where this very ray meets it (Sphere_Intersect, as the occlusion test will compute it), at
+// most dist: the offset origin moves the crossing of rays that graze the sphere's rim by many
+// times the offset, and a shadow ray ending at dist would find the emitter itself there.
+CL_INLINE float Light_ShadowDistance(const SceneData *scene, uint picked, float3 origin,
+                                     float3 wi, float dist)
+{
+    __global const Emitter *emitter = &scene->emitters[picked];
+    if (emitter->shape != EMITTER_SPHERE)
+        return dist;
+    return Fmin(Sphere_Intersect(&scene->spheres[emitter->index], origin, wi, INFINITY), dist);
 }
 
 #endif

@@ -49,6 +49,7 @@ typedef struct {
     float center[3];
     float radius;
     int material;
+    int emitter; // index into the emitters, or -1
 } Sphere;
 
 // A triangle p0, p1, p2; its front side is counter-clockwise: geometric normal along
@@ -94,10 +95,16 @@ typedef struct {
     float alpha;     // roughconductor: GGX alpha (the microfacet alpha itself)
 } Material;
 
-// An emitting quad; pick_pdf is its selection probability (proportional to power) and
-// pick_cdf the upper end of its interval in the selection CDF.
+// Emitter shape kinds (scene_device.EMITTER_SHAPES).
+#define EMITTER_QUAD 0
+#define EMITTER_SPHERE 1
+
+// An emitting quad or sphere; area is its surface area (a sphere's 4 pi r^2), pick_pdf its
+// selection probability (proportional to power: area x mean radiance) and pick_cdf the upper
+// end of its interval in the selection CDF.
 typedef struct {
-    int quad;
+    int shape; // EMITTER_QUAD or EMITTER_SPHERE
+    int index; // the emitting quad's or sphere's index
     float radiance[3];
     float area;
     float pick_pdf;

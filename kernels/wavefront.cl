@@ -129,7 +129,8 @@ CL_INLINE bool Wavefront_QueueDirect(const SceneData *scene, Surface *surface, F
 {
     float3 wi;
     float dist, light_pdfW;
-    float3 Le = Light_SampleLi(scene, surface->p, u, &wi, &dist, &light_pdfW);
+    uint picked;
+    float3 Le = Light_SampleLi(scene, surface->p, u, &wi, &dist, &light_pdfW, &picked);
     if (!(light_pdfW > 0.0f))
         return false;
     float3 wi_local = Frame_ToLocal(frame, wi);
@@ -137,14 +138,15 @@ CL_INLINE bool Wavefront_QueueDirect(const SceneData *scene, Surface *surface, F
     if (!AnyPositive3(f))
         return false;
     float3 origin = Surface_OffsetOrigin(surface->p, surface->ng, wi, surface->error);
-    // The shadow ray stops short of the emitter point by both points' rounding bounds
+    // The shadow ray stops short of the emitter by both points' rounding bounds
     float light_error = SURFACE_ERROR_SCALE * MaxAbs3(surface->p + dist * wi);
     float weight =
         PathVertex_PowerHeuristic(light_pdfW, BSDF_PdfW(material, wo_local, wi_local));
     __global WavefrontShadowRay *shadow = &shadow_rays[atomic_inc(shadow_count)];
     Wavefront_Store3(shadow->origin, origin);
     Wavefront_Store3(shadow->dir, wi);
-    shadow->tmax = dist - 2.0f * (surface->error + light_error);
+    shadow->tmax = Light_ShadowDistance(scene, picked, origin, wi, dist) -
+                   2.0f * (surface->error + light_error);
     shadow->path = path;
     Wavefront_Store3(shadow->beta, beta);
     Wavefront_Store3(shadow->contribution, f * Le * (weight / light_pdfW));
@@ -249,7 +251,8 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
         if (depth == 0 || specularBounce || !nee) {
             L += beta * Le;
         } else {
-            float light_pdfW = Light_PdfW(emitter, t, Dot3(surface.ng, wo));
+            float light_pdfW = Light_HitPdfW(&scene, emitter, Load3(ray->origin), t,
+                                              Dot3(surface.ng, wo));
             L += beta * Le * PathVertex_PowerHeuristic(path->prev_pdfW, light_pdfW);
         }
         Wavefront_Store3(path->L, L);

@@ -136,7 +136,7 @@ def test_catalog_sizes_and_stable_ids(every_case):
 def test_every_numeric_field_kind_gets_every_value(every_case):
     values = [c for c in every_case if c.id.startswith("scene-value-")]
     kinds = {c.id.split("-value-")[1] for c in values}
-    assert len(values) == 21 * len(catalog.VALUES) == len(kinds)
+    assert len(values) == 22 * len(catalog.VALUES) == len(kinds)
 
 
 def test_scene_mutations_parse_where_they_should(every_case):

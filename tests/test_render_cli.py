@@ -134,6 +134,7 @@ def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
         (["--seed", "-1"], "seed must be an integer in [0, 2^32)"),
         (["--tile-samples", "0"], "--tile-samples must be a positive integer"),
         (["--max-depth", "-2"], "--max-depth must be a non-negative integer"),
+        (["analytic", "--max-depth", "3"], "--max-depth needs a path-traced scene: analytic is"),
         (["analytic:plaid"], "unknown analytic scene 'analytic:plaid'; accepted:"),
         (["no-such-scene"], "no shipped scene of that name"),
         (["-o", "picture.png"], "-o/--output must name an .exr file"),

@@ -69,7 +69,7 @@ def test_authors_cornell_box_geometry():
     """NOTES.md section 3: 5 walls, the light, 6 faces of the rotated box, the glass ball."""
     scene = load_scene("cornell-box")
     assert len(scene.quads) == 12 and len(scene.spheres) == 1
-    light = scene.quads[scene.emitters["quad"][0]]
+    light = scene.quads[scene.emitters["index"][0]]
     np.testing.assert_allclose(light["normal"], [0, -1, 0], atol=1e-7)
     np.testing.assert_allclose(scene.emitters["radiance"][0], 24.0)
     np.testing.assert_allclose(scene.emitters["area"][0], 130 * 105)
@@ -157,7 +157,7 @@ def test_mitsuba_geometry_is_exactly_the_json():
     for name, albedo in source["materials"].items():
         np.testing.assert_allclose(materials[name]["albedo"], albedo, rtol=1e-6)
         assert materials[name]["two_sided"] == 0
-    assert scene.material_names[scene.quads[light["quad"]]["material"]] == "white"
+    assert scene.material_names[scene.quads[light["index"]]["material"]] == "white"
     camera = scene.camera
     assert camera.look_from == tuple(source["camera"]["origin"])
     assert camera.fov == source["camera"]["fov_deg"]

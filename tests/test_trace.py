@@ -119,7 +119,7 @@ def project(scene, point, width, height):
 def test_pixel_seeing_only_the_light_equals_its_radiance(runtime, name, depth):
     scene = load_scene(name)
     width = height = 64
-    light = scene.quads[scene.emitters["quad"][0]]
+    light = scene.quads[scene.emitters["index"][0]]
     centre = light["corner"] + 0.5 * (light["edge1"] + light["edge2"])
     x, y = (int(v) for v in project(scene, centre, width, height))
     # The whole pixel must lie inside the light's image

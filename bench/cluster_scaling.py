@@ -1,0 +1,153 @@
+"""Speed of work on a Dask LocalCluster (clrender.cluster) against the same work in this process.
+
+    python bench/cluster_scaling.py [--quick] [--repeats K] [--out FILE]
+
+Measured in one run, medians of K repeats after a warm-up (the cluster's workers build their
+OpenCL programs and radiance sources once, as they would for a long study):
+  analytic: a slice of the analytic study (bench/analytic_study.py: its estimators on SPPP draws
+            at n = 1024), in this process (one core: NumPy and Qhull), then on 1 and 2 workers;
+  render:   mitsuba-cbox 256 x 256, uniform/mc at 64 spp: clrender.pipeline.render in this
+            process (the device uses both cores), then on 1 and 2 workers (each worker's device
+            uses both cores too);
+  overhead: per task, the round trip of trivial tasks through the scheduler (submit to
+            result), and of a render split into many small tasks against few.
+Every cluster result is checked equal to the local one (bit for bit). Wall and process CPU time
+(this process only: workers are other processes) are reported; the machine is shared, so the
+load average is recorded beside. JSON goes to bench/results/cluster_scaling.json (git-ignored).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import analytic_study  # noqa: E402
+from common import machine  # noqa: E402
+
+from clrender.api import radiance_source, runtime_for  # noqa: E402
+from clrender.cluster import DaskExecutor, RenderJob, render_on  # noqa: E402
+from clrender.pipeline import RenderSettings, render  # noqa: E402
+from clrender.sampling import make_sampler  # noqa: E402
+from clrender.scene import load_scene  # noqa: E402
+
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "cluster_scaling.json"
+
+
+def timed(fn, repeats: int):
+    """Median wall seconds of fn() over repeats after one warm-up call, and the last result."""
+    result = fn()
+    walls = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        result = fn()
+        walls.append(time.perf_counter() - start)
+    return statistics.median(walls), result
+
+
+def noop(item):
+    return item
+
+
+def analytic_case(executors: dict, repeats: int, n: int, runs: int) -> dict:
+    """The analytic slice on each executor: seconds and speed-up over this process."""
+
+    def run(executor):
+        return lambda: analytic_study.run_estimates(n, runs, (7, 2), executor)
+
+    seconds, local = timed(run(None), repeats)
+    rows = {"local": {"seconds": seconds}}
+    for name, executor in executors.items():
+        seconds, result = timed(run(executor), repeats)
+        same = all(np.array_equal(result[0][k], local[0][k], equal_nan=True) for k in local[0])
+        rows[name] = {"seconds": seconds, "identical": same}
+    for row in rows.values():
+        row["speedup_vs_local"] = rows["local"]["seconds"] / row["seconds"]
+    return {"n": n, "runs": runs, "rows": rows}
+
+
+def render_case(executors: dict, repeats: int, size: int, spp: int) -> dict:
+    """The render on each executor: seconds, M paths/s and ratio to the local render."""
+    runtime = runtime_for(None)
+    scene = load_scene("mitsuba-cbox")
+    settings = RenderSettings(size, size, make_sampler("independent", spp), ["mc"], 1)
+    source = radiance_source(runtime, scene, (size, size), 8)
+    seconds, local = timed(lambda: render(runtime, source, settings), repeats)
+    paths = size * size * spp
+    rows = {"local": {"seconds": seconds}}
+    job = RenderJob.of(scene, settings, 8)
+    for name, executor in executors.items():
+        seconds, result = timed(lambda ex=executor: render_on(ex, job), repeats)
+        rows[name] = {
+            "seconds": seconds,
+            "identical": bool(np.array_equal(result.image, local.image)),
+        }
+    for row in rows.values():
+        row["mpaths_per_s"] = paths / row["seconds"] / 1e6
+        row["speed_vs_local"] = rows["local"]["seconds"] / row["seconds"]
+    return {"size": size, "spp": spp, "rows": rows}
+
+
+def overhead_case(executor: DaskExecutor, repeats: int, size: int, spp: int) -> dict:
+    """Seconds per trivial task, and per extra task of a split render."""
+    tasks = 200
+
+    def trivial():
+        for _ in executor.map(noop, list(range(tasks))):
+            pass
+
+    trivial_s, _ = timed(trivial, repeats)
+    scene = load_scene("mitsuba-cbox")
+    settings = RenderSettings(size, size, make_sampler("independent", spp), ["mc"], 1)
+    job = RenderJob.of(scene, settings, 8)
+    few, _ = timed(lambda: render_on(executor, job, tasks=2), repeats)
+    many, result = timed(lambda: render_on(executor, job, tasks=64), repeats)
+    return {
+        "trivial_tasks": tasks,
+        "seconds_per_trivial_task": trivial_s / tasks,
+        "render_size": size,
+        "render_spp": spp,
+        "render_2_tasks_s": few,
+        "render_64_tasks_s": many,
+        "seconds_per_extra_render_task": (many - few) / 62,
+    }
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="small sizes, one repeat")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = parser.parse_args(argv)
+    repeats = 1 if args.quick else args.repeats
+    n, runs = (64, 64) if args.quick else (1024, 1200)
+    size, spp = (32, 4) if args.quick else (256, 64)
+    results = {"command": " ".join(["python bench/cluster_scaling.py", *(argv or sys.argv[1:])])}
+    results["machine_before"] = machine()
+    cpu0 = time.process_time()
+    with DaskExecutor(workers=1) as one, DaskExecutor(workers=2) as two:
+        executors = {"1 worker": one, "2 workers": two}
+        results["analytic"] = analytic_case(executors, repeats, n, runs)
+        print(json.dumps(results["analytic"], indent=1), flush=True)
+        results["render"] = render_case(executors, repeats, size, spp)
+        print(json.dumps(results["render"], indent=1), flush=True)
+        results["overhead"] = overhead_case(two, repeats, size // 2, spp // 4 or 1)
+        print(json.dumps(results["overhead"], indent=1), flush=True)
+    results["this_process_cpu_s"] = time.process_time() - cpu0
+    results["machine_after"] = machine()
+    results["cpu_count"] = os.cpu_count()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=1))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,406 @@
+"""Renders on a Dask cluster: the same image as a local render, bit for bit, from tasks that
+each render a run of tiles on a worker process with its own OpenCL runtime.
+
+Where work runs is an `Executor`:
+
+- `LocalExecutor` (the default, no Dask needed): tasks run one after another in this process.
+  The render command without --workers or --scheduler does not split the render into tasks:
+  it runs clrender.pipeline.render, whose tiles overlap tracing with the host stage.
+- `DaskExecutor`: a Dask distributed client, on a LocalCluster of N worker processes on this
+  machine (``--workers N``; one thread each: a worker's OpenCL device already uses every core
+  it is given) or on an existing cluster (``--scheduler ADDRESS``).
+
+Why Dask distributed: it is the well-kept engine for NumPy work in Python (scheduling, data
+movement, worker restarts, progress); clrender adds only the split of a render into tasks.
+
+A distributed render (`render_on`) splits the image's pixels (scanline order) into ranges of
+consecutive pixels, one task each; a task renders its range in tiles of the render's sample
+budget (clrender.pipeline.pixels_per_tile), overlapping tracing with its host stage as a local
+render does. Every random
+number is keyed by (seed, pixel, sample, dimension, redraw), and a task redraws its own
+rejected pixels, so each pixel's estimate is the one a local render gives, whatever the number
+of workers or which worker runs a task. What travels: the `RenderJob` (the loaded Scene's NumPy
+records or an analytic image's name, the sampler's settings, estimator names), sent once
+to the cluster as one task's result; results come back as NumPy arrays (`PixelRangeResult`); no
+OpenCL object is ever pickled. Each worker process keeps its runtime (compiled programs) for
+its lifetime (clrender.api.runtime_for) and the radiance source of the job it last ran.
+
+The device of a worker: the job's ``device`` (``--device``) if given, else the worker's own
+PYOPENCL_CTX, else its first device. A LocalCluster's workers inherit this process's
+environment; on another machine, set PYOPENCL_CTX where the worker starts.
+
+Faults: a worker that dies mid-task has its tasks rerun elsewhere by the scheduler (a pure
+function of the job and the tiles, so the image does not change). A task that raises is
+reported in one line naming the worker and the error (`ClusterTaskError`). Ctrl-C cancels
+the outstanding tasks; the finished pixels are returned with `stats.interrupted` set, as a
+local render returns its finished tiles.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from clrender.errors import ClrenderError, ParameterError
+from clrender.film import Film, PixelLayers
+from clrender.pipeline import (
+    DEFAULT_TILE_SAMPLES,
+    RenderResult,
+    RenderSettings,
+    RenderStats,
+    TilePipeline,
+    pixels_per_tile,
+    plan_tiles,
+)
+from clrender.sampling import SamplerConfig
+from clrender.scene import Scene
+from clrender.trace import DEFAULT_MAX_DEPTH
+
+# Tasks per worker: enough that a slow or lost worker delays the render by a fraction of it,
+# few enough that each task's overhead (scheduling, source set-up) stays small beside its work.
+TASKS_PER_WORKER = 4
+# A LocalCluster worker waits this long for its scheduler; a --scheduler address as long.
+CONNECT_TIMEOUT_S = 30
+
+
+class ClusterError(ClrenderError):
+    """The cluster could not be used: Dask missing, no scheduler at the address."""
+
+
+class ClusterTaskError(ClrenderError):
+    """A task raised on a worker: the message names the worker and the error."""
+
+
+# --------------------------------------------------------------------------------- executors
+
+
+class LocalExecutor:
+    """Runs tasks in this process, in order (no Dask)."""
+
+    workers = 1
+
+    def map(self, function: Callable, items: Sequence, *common: Any) -> Iterator[tuple[int, Any]]:
+        """(index, function(item, *common)) for each item, as they finish."""
+        for index, item in enumerate(items):
+            yield index, function(item, *common)
+
+    def close(self) -> None:
+        pass
+
+
+class DaskExecutor:
+    """Tasks on a Dask cluster: a LocalCluster of `workers` processes, or the scheduler at
+    `scheduler` (an address such as tcp://host:8786)."""
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None):
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as err:
+            raise ClusterError(
+                f"--workers and --scheduler need Dask: pip install 'dask[distributed]' ({err})"
+            ) from None
+        if (workers is None) == (scheduler is None):
+            raise ParameterError("give a number of local workers or a scheduler address")
+        self.cluster = None
+        if scheduler is not None:
+            try:
+                self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+            except (OSError, TimeoutError) as err:
+                raise ClusterError(f"no Dask scheduler at {scheduler}: {err}") from None
+        else:
+            if isinstance(workers, bool) or not isinstance(workers, int) or workers <= 0:
+                raise ParameterError(f"workers must be a positive integer, got {workers!r}")
+            self.cluster = LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )
+            self.client = Client(self.cluster, timeout=CONNECT_TIMEOUT_S)
+
+    @property
+    def workers(self) -> int:
+        return max(len(self.client.nthreads()), 1)
+
+    def share(self, value: Any) -> Any:
+        """value sent to the cluster once: a future the tasks take in its place. It is a task's
+        result, not scattered data, so that the scheduler recomputes it if the worker holding
+        it dies."""
+        return self.client.submit(_identity, value, pure=False)
+
+    def map(self, function: Callable, items: Sequence, *common: Any) -> Iterator[tuple[int, Any]]:
+        """(index, result) of function(item, *common) on the cluster, as tasks finish. A
+        KeyboardInterrupt cancels the tasks not yet finished."""
+        from distributed import as_completed
+
+        task = shipped(function)
+        token = uuid.uuid4().hex[:12]
+        futures = [
+            self.client.submit(
+                _run_task, task, item, *common, key=f"clrender-{token}-{index}", pure=False
+            )
+            for index, item in enumerate(items)
+        ]
+        index_of = {future.key: index for index, future in enumerate(futures)}
+        try:
+            for future in as_completed(futures):
+                yield index_of[future.key], future.result()
+        finally:
+            pending = [future for future in futures if not future.done()]
+            if pending:
+                self.client.cancel(pending)
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+    def __enter__(self) -> DaskExecutor:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def shipped(function: Callable) -> Callable | bytes:
+    """The function as the tasks take it: itself when the workers can import it (clrender's
+    own functions, installed libraries), else pickled by value here (cloudpickle), as for a
+    function of a bench script imported from its folder, which a worker cannot import."""
+    import cloudpickle
+
+    name = getattr(function, "__module__", None) or "__main__"
+    module = sys.modules.get(name)
+    path = getattr(module, "__file__", None) or ""
+    importable = name.split(".")[0] == "clrender" or "-packages" in path
+    if module is None or name == "__main__" or importable:
+        return function
+    cloudpickle.register_pickle_by_value(module)
+    try:
+        return cloudpickle.dumps(function)
+    finally:
+        cloudpickle.unregister_pickle_by_value(module)
+
+
+def _identity(value: Any) -> Any:
+    return value
+
+
+def _run_task(function: Callable | bytes, item: Any, *common: Any) -> Any:
+    """function(item, *common) on a worker (function pickled by value: see `shipped`); any
+    exception becomes one line naming the worker."""
+    try:
+        if isinstance(function, bytes):
+            import cloudpickle
+
+            function = cloudpickle.loads(function)
+        return function(item, *common)
+    except Exception as err:  # noqa: BLE001 (reported whole, in one line, to the client)
+        from distributed import get_worker
+
+        try:
+            where = get_worker().address
+        except ValueError:
+            where = "this process"
+        text = " ".join(str(err).split()) or type(err).__name__
+        raise ClusterTaskError(
+            f"task failed on worker {where}: {type(err).__name__}: {text}"
+        ) from None
+
+
+def make_executor(workers: int | None, scheduler: str | None) -> LocalExecutor | DaskExecutor:
+    """The executor of --workers / --scheduler: local when neither is given."""
+    if workers is not None and scheduler is not None:
+        raise ParameterError("give --workers or --scheduler, not both")
+    if workers is None and scheduler is None:
+        return LocalExecutor()
+    return DaskExecutor(workers, scheduler)
+
+
+# --------------------------------------------------------------------------------- renders
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """Everything a worker needs to render tiles, as plain data: the scene (a loaded Scene, or
+    an analytic image's name), the image size, the sampler and estimators, and the path
+    settings. `token` names the job: a worker keeps the radiance source of its last job."""
+
+    scene: Scene | str
+    width: int
+    height: int
+    sampler: SamplerConfig
+    estimators: tuple[str, ...]
+    seed: int = 0
+    tile_samples: int = DEFAULT_TILE_SAMPLES
+    overlap: bool = True
+    voronoi_backend: str = "device"
+    max_depth: int = DEFAULT_MAX_DEPTH
+    russian_roulette: bool = False
+    device: str | None = None
+    token: str = field(default_factory=lambda: uuid.uuid4().hex)
+
+    @classmethod
+    def of(
+        cls,
+        scene: Scene | str,
+        settings: RenderSettings,
+        max_depth: int,
+        russian_roulette: bool = False,
+        device: str | None = None,
+    ) -> RenderJob:
+        return cls(
+            scene,
+            settings.width,
+            settings.height,
+            settings.sampler,
+            tuple(entry.name for entry in settings.estimators),
+            settings.seed,
+            settings.tile_samples,
+            settings.overlap,
+            settings.voronoi_backend,
+            max_depth,
+            russian_roulette,
+            device,
+        )
+
+    def settings(self) -> RenderSettings:
+        return RenderSettings(
+            self.width,
+            self.height,
+            self.sampler,
+            list(self.estimators),
+            self.seed,
+            self.tile_samples,
+            self.overlap,
+            self.voronoi_backend,
+        )
+
+
+@dataclass
+class PixelRangeResult:
+    """A task's pixels (global indices) and what the films and layers hold for them, and the
+    task's stats (its tiles, stage times, samples)."""
+
+    pixels: np.ndarray
+    values: dict[str, np.ndarray]  # estimator -> (P, 3) float32, as on its film
+    flagged: dict[str, np.ndarray]  # estimator -> (P,) bool
+    samples: np.ndarray
+    redraws: np.ndarray
+    variance: np.ndarray
+    first_draw: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    stats: RenderStats
+
+
+# The radiance source of the last job a worker process ran: (token, source)
+_worker_source: list = []
+
+
+def _source_for(job: RenderJob):
+    from clrender.api import radiance_source, runtime_for
+
+    if _worker_source and _worker_source[0][0] == job.token:
+        return _worker_source[0][1]
+    runtime = runtime_for(job.device)
+    source = radiance_source(
+        runtime, job.scene, (job.width, job.height), job.max_depth, job.russian_roulette
+    )
+    _worker_source[:] = [(job.token, source)]
+    return source
+
+
+def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeResult:
+    """Render pixels [first, end) of a job, in tiles of its sample budget; their estimates are
+    those of a local render of the whole image."""
+    from clrender.api import runtime_for
+
+    first, end = pixel_range
+    source = _source_for(job)
+    settings = job.settings()
+    pipeline = TilePipeline(runtime_for(job.device), source, settings)
+    start = time.perf_counter()
+    pipeline.run(range(first, end, pixels_per_tile(settings)), None, end)
+    pipeline.stats.wall_seconds = time.perf_counter() - start
+    pixels = np.arange(first, end, dtype=np.int64)
+    layers = pipeline.layers
+    first = pipeline.first_draw_layers
+    return PixelRangeResult(
+        pixels,
+        {name: film.pixels[pixels] for name, film in pipeline.films.items()},
+        {name: film.flagged[pixels] for name, film in pipeline.films.items()},
+        layers.samples[pixels],
+        layers.redraws[pixels],
+        layers.variance[pixels],
+        None
+        if first is None
+        else (first.samples[pixels], first.redraws[pixels], first.variance[pixels]),
+        pipeline.stats,
+    )
+
+
+def split_pixels(pixel_count: int, tasks: int) -> list[tuple[int, int]]:
+    """[first, end) ranges of consecutive pixels, `tasks` of them at most, as even as can be."""
+    tasks = max(1, min(tasks, pixel_count))
+    bounds = [pixel_count * k // tasks for k in range(tasks + 1)]
+    return [(bounds[k], bounds[k + 1]) for k in range(tasks) if bounds[k + 1] > bounds[k]]
+
+
+def add_stats(total: RenderStats, part: RenderStats) -> None:
+    """Sum a task's stats into the render's (its wall time aside: the render's is the client's)."""
+    for item in dataclasses.fields(RenderStats):
+        name = item.name
+        if name in ("wall_seconds", "interrupted"):
+            continue
+        value = getattr(part, name)
+        if isinstance(value, dict):
+            mine = getattr(total, name)
+            for key, seconds in value.items():
+                mine[key] = mine.get(key, 0.0) + seconds
+        else:
+            setattr(total, name, getattr(total, name) + value)
+
+
+def render_on(
+    executor: LocalExecutor | DaskExecutor,
+    job: RenderJob,
+    progress: Callable[[int, int], None] | None = None,
+    tasks: int | None = None,
+) -> RenderResult:
+    """The job's image from tasks on the executor (TASKS_PER_WORKER per worker unless `tasks`
+    says), bit-identical to clrender.pipeline.render of the same settings. Ctrl-C returns the
+    finished pixels with stats.interrupted set."""
+    settings = job.settings()
+    plan_tiles(settings)  # checks the tile budget before any task starts
+    ranges = split_pixels(settings.pixel_count, tasks or TASKS_PER_WORKER * executor.workers)
+    films = {name: Film(job.width, job.height) for name in job.estimators}
+    layers = PixelLayers(job.width, job.height)
+    image_level = any(entry.image_level for entry in settings.estimators)
+    rejecting = any(entry.needs_aux for entry in settings.estimators)
+    first_draw = PixelLayers(job.width, job.height) if image_level and rejecting else None
+    stats = RenderStats()
+    shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
+    start = time.perf_counter()
+    try:
+        for _, part in executor.map(render_pixels, ranges, shared):
+            for name, film in films.items():
+                film.record(part.pixels, part.values[name], part.flagged[name])
+            layers.record(part.pixels, part.samples, part.redraws, part.variance)
+            if first_draw is not None and part.first_draw is not None:
+                first_draw.record(part.pixels, *part.first_draw)
+            add_stats(stats, part.stats)
+            if progress is not None:
+                first = films[job.estimators[0]]
+                progress(first.rendered_count, first.pixel_count)
+    except KeyboardInterrupt:
+        stats.interrupted = True
+    stats.wall_seconds = time.perf_counter() - start
+    first_name = job.estimators[0]
+    return RenderResult(films[first_name], stats, settings, films, layers, first_draw)

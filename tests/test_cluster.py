@@ -1,0 +1,186 @@
+"""Renders on a Dask LocalCluster (clrender.cluster): bit-identical to the local render, whatever
+the split into tasks, a worker killed mid-render, an interrupt; errors in one line."""
+
+import os
+import signal
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from clrender.api import radiance_source
+from clrender.cli import main
+from clrender.cluster import (
+    ClusterError,
+    ClusterTaskError,
+    DaskExecutor,
+    LocalExecutor,
+    RenderJob,
+    make_executor,
+    render_on,
+    split_pixels,
+)
+from clrender.errors import ParameterError
+from clrender.pipeline import RenderSettings, render
+from clrender.sampling import make_sampler
+from clrender.scene import load_scene
+
+pytest.importorskip("distributed")
+
+pytestmark = pytest.mark.device  # the workers open the device PYOPENCL_CTX names
+
+MAX_DEPTH = 8
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with DaskExecutor(workers=2) as executor:
+        yield executor
+
+
+def local_and_job(runtime, scene, settings):
+    source = radiance_source(runtime, scene, (settings.width, settings.height), MAX_DEPTH)
+    return render(runtime, source, settings), RenderJob.of(scene, settings, MAX_DEPTH)
+
+
+def assert_same_render(local, distributed):
+    assert list(distributed.films) == list(local.films)
+    for name in local.films:
+        assert np.array_equal(distributed.images[name], local.images[name]), name
+        assert np.array_equal(distributed.films[name].flagged, local.films[name].flagged)
+        assert distributed.films[name].complete
+    for layer, values in local.layers.images().items():
+        assert np.array_equal(distributed.layers.images()[layer], values, equal_nan=True), layer
+    assert distributed.stats.traced_samples == local.stats.traced_samples
+    assert distributed.stats.redrawn_pixels == local.stats.redrawn_pixels
+    assert distributed.stats.tiles >= local.stats.tiles  # each task tiles its own range
+
+
+def test_analytic_render_is_bit_identical_to_the_local_one(runtime, cluster):
+    # eps 0.02 makes most pixels redraw (and widen eps): the redraws happen inside the tasks.
+    sampler = make_sampler("sppp", 16, eps=0.02)
+    settings = RenderSettings(24, 16, sampler, ["vor_sn", "mc", "ivor"], 7, 40 * 16)
+    local, job = local_and_job(runtime, "analytic:mix", settings)
+    assert local.stats.redrawn_pixels > 0 and local.first_draw_layers is not None
+    for tasks in (1, 3, 11):
+        distributed = render_on(cluster, job, tasks=tasks)
+        assert_same_render(local, distributed)
+        assert np.array_equal(
+            distributed.first_draw_layers.variance, local.first_draw_layers.variance
+        )
+
+
+def test_cornell_box_render_is_bit_identical_to_the_local_one(runtime, cluster):
+    scene = load_scene("cornell-box")
+    settings = RenderSettings(24, 24, make_sampler("sppp", 16), ["vor_sn", "mc"], 3, 64 * 34)
+    local, job = local_and_job(runtime, scene, settings)
+    assert_same_render(local, render_on(cluster, job))
+    # The local executor runs the same tasks in this process: the same image again
+    assert_same_render(local, render_on(LocalExecutor(), job, tasks=5))
+
+
+def test_a_worker_killed_mid_render_changes_nothing(runtime, cluster):
+    scene = load_scene("cornell-box")
+    settings = RenderSettings(32, 24, make_sampler("stratified", 16), ["mc"], 5, 32 * 16)
+    local, job = local_and_job(runtime, scene, settings)
+    pids = list(cluster.client.run(os.getpid).values())
+    killed = []
+
+    def kill_a_worker_after_the_first_task(done, total):
+        if not killed and done < total:
+            os.kill(pids[-1], signal.SIGKILL)  # its nanny starts a new worker process
+            killed.append(done)
+
+    distributed = render_on(cluster, job, kill_a_worker_after_the_first_task, tasks=16)
+    assert killed, "the render finished before a worker could be killed"
+    assert_same_render(local, distributed)
+    cluster.client.wait_for_workers(2, timeout=60)
+
+
+def test_interrupt_keeps_the_finished_pixels(runtime, cluster):
+    settings = RenderSettings(24, 16, make_sampler("sppp", 16), ["vor_sn"], 2, 24 * 16)
+    local, job = local_and_job(runtime, "analytic:mix", settings)
+
+    def interrupt_after_the_first_task(done, total):
+        raise KeyboardInterrupt
+
+    partial = render_on(cluster, job, interrupt_after_the_first_task, tasks=8)
+    assert partial.stats.interrupted
+    rendered = partial.film.rendered
+    assert 0 < rendered.sum() < rendered.size
+    local_pixels = local.film.pixels
+    assert np.array_equal(partial.film.pixels[rendered], local_pixels[rendered])
+    assert not partial.film.pixels[~rendered].any()
+
+
+def test_a_failing_task_names_the_worker_and_the_error_in_one_line(cluster):
+    job = RenderJob(
+        "analytic:mix", 8, 8, make_sampler("sppp", 4), ("vor_sn",), device="no-such-device"
+    )
+    with pytest.raises(ClusterTaskError) as info:
+        render_on(cluster, job, tasks=1)
+    message = str(info.value)
+    assert "\n" not in message
+    assert "task failed on worker tcp://" in message
+    assert "no-such-device" in message
+
+
+def test_pixels_split_into_consecutive_ranges():
+    assert split_pixels(100, 3) == [(0, 33), (33, 66), (66, 100)]
+    assert split_pixels(2, 5) == [(0, 1), (1, 2)]
+    assert split_pixels(7, 1) == [(0, 7)]
+
+
+def test_executor_choice_and_bad_requests(monkeypatch):
+    assert isinstance(make_executor(None, None), LocalExecutor)
+    with pytest.raises(ParameterError, match="not both"):
+        make_executor(2, "tcp://127.0.0.1:1")
+    with pytest.raises(ParameterError, match="positive integer"):
+        make_executor(0, None)
+    monkeypatch.setattr("clrender.cluster.CONNECT_TIMEOUT_S", 1)
+    with pytest.raises(ClusterError, match=r"no Dask scheduler at tcp://127.0.0.1:9"):
+        make_executor(None, "tcp://127.0.0.1:9")
+    monkeypatch.setitem(sys.modules, "distributed", None)
+    with pytest.raises(ClusterError, match=r"pip install 'dask\[distributed\]'"):
+        make_executor(2, None)
+
+
+def test_command_line_render_on_two_workers_matches_the_local_one(tmp_path, capsys):
+    from clrender.imageio import read_exr
+
+    common = ["render", "analytic:mix", "--res", "16x8", "--spp", "8", "--quiet"]
+    assert main([*common, "-o", str(tmp_path / "local.exr")]) == 0
+    assert main([*common, "--workers", "2", "-o", str(tmp_path / "cluster.exr")]) == 0
+    local, _ = read_exr(tmp_path / "local.exr")
+    distributed, metadata = read_exr(tmp_path / "cluster.exr")
+    assert np.array_equal(local, distributed)
+    assert main([*common, "--workers", "0"]) == 2
+    assert "--workers must be a positive integer" in capsys.readouterr().err
+
+
+def test_analytic_study_slice_gives_the_same_numbers_locally_and_on_the_cluster(cluster):
+    bench = str(Path(__file__).resolve().parents[1] / "bench")
+    if bench not in sys.path:
+        sys.path.insert(0, bench)
+    import analytic_study
+
+    # 3 batches of 5 runs at n = 16 (80 points a batch); the cluster runs them as 3 tasks
+    local, local_stats = analytic_study.run_estimates(16, 13, (9, 2), None, 80)
+    remote, remote_stats = analytic_study.run_estimates(16, 13, (9, 2), cluster, 80)
+    assert local_stats == remote_stats
+    for name, values in local.items():
+        assert values.shape == (13, 6)
+        assert np.array_equal(remote[name], values, equal_nan=True), name
+    # The stream decides the numbers: another one gives others
+    other, _ = analytic_study.run_estimates(16, 13, (9, 3), None, 80)
+    assert not np.array_equal(other["mc"], local["mc"])
+
+
+def test_the_python_api_renders_on_an_executor(cluster):
+    import clrender
+
+    kwargs = dict(spp=8, estimators=["vor_sn", "mc_n"], resolution=(16, 12), seed=4)
+    local = clrender.render("cornell-box", **kwargs)
+    distributed = clrender.render("cornell-box", executor=cluster, **kwargs)
+    assert_same_render(local, distributed)
