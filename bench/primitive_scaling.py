@@ -61,7 +61,9 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as folder:
         for count in args.counts:
             scene = scene_with_extra_quads(count - 18, 7, Path(folder))
-            tracer = PathTracer(runtime, scene, max_depth=8)
+            # Brute force at every count (the renderer switches to the BVH past about 200
+            # quads: bench/bvh_scaling.py compares the two)
+            tracer = PathTracer(runtime, scene, max_depth=8, brute_force_limit=2**62)
             tracer.trace(sets, 1, args.size, args.size).wait()
             cpu_times, rays = [], 0
             for _ in range(args.repeats):

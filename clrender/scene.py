@@ -68,9 +68,24 @@ sphere.emission     RGB >= 0     none       makes the sphere a one-sided diffuse
                                             this radiance, emitting outwards (invisible
                                             from inside); lit points sample the cone of
                                             directions it subtends (its visible cap)
+mesh.positions      V x [x,y,z]  (b)        vertices of a triangle mesh
+mesh.indices        T x [i,j,k]  (b)        triangles, 0-based vertex indices; the front
+                                            side is counter-clockwise: geometric normal
+                                            cross(p[j] - p[i], p[k] - p[i]) (pbrt's)
+mesh.normals        V x [x,y,z]  none       per-vertex shading normals (interpolated, turned
+                                            to the front side; the geometric normal still
+                                            decides sidedness and ray offsets)
+mesh.file           path         (b)        alternative: a PLY or OBJ file (relative to the
+                                            scene file; clrender/mesh_files.py), normals
+                                            from the file when it has them
 ==================  ===========  =========  ==================================================
 
 (a) a quad takes either ``corner`` + ``edge1`` + ``edge2`` or ``vertices``.
+(b) a mesh takes either ``positions`` + ``indices`` (+ ``normals``) or ``file``. Degenerate
+triangles (zero area, or repeated indices) are skipped with a warning; a mesh left with none is
+an error. Meshes do not emit (``emission`` on a mesh is refused). Scenes of more than
+about 200 quads or 12 triangles (scene_device.BRUTE_FORCE_LIMIT) are traced through a BVH
+(clrender/bvh.py), smaller ones by brute force.
 
 Optional top-level ``description`` (string). Loading warns (`SceneWarning`, listed in
 `Scene.warnings`) when a scene will not render what one expects: no emitter (the image is
@@ -102,6 +117,7 @@ from pathlib import Path
 import numpy as np
 
 from clrender.errors import ClrenderError
+from clrender.mesh_files import MeshFileError, read_mesh_file
 from clrender.package_data import shipped_dir
 from clrender.scene_checks import (
     ShapeGeometry,
@@ -110,14 +126,19 @@ from clrender.scene_checks import (
     unresolved_shape_notes,
 )
 from clrender.scene_device import (
+    BRUTE_FORCE_LIMIT,
     MATERIAL_NONE,
+    NORMALS_DTYPE,
     QUAD_BLOCK_WIDTH,
+    TRIANGLE_DTYPE,
+    pack_bvh,
     pack_camera,
     pack_emitters,
     pack_materials,
     pack_quads,
     pack_scene_quad_blocks,
     pack_spheres,
+    pack_triangles,
     scene_bounds,
 )
 
@@ -182,13 +203,26 @@ class Scene:
     quad_names: list[str]
     sphere_names: list[str]
     warnings: list[str] = field(default_factory=list)
+    triangles: np.ndarray = field(default_factory=lambda: np.zeros(0, TRIANGLE_DTYPE))
+    triangle_normals: np.ndarray = field(default_factory=lambda: np.zeros(0, NORMALS_DTYPE))
+    mesh_names: list[str] = field(default_factory=list)
+    mesh_first_triangle: list[int] = field(default_factory=list)  # per mesh, into triangles
 
     @property
     def resolution(self) -> tuple[int, int]:
         return self.camera.resolution
 
+    @property
+    def primitive_count(self) -> int:
+        return len(self.quads) + len(self.spheres) + len(self.triangles)
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        return scene_bounds(self.quads, self.spheres)
+        return scene_bounds(self.quads, self.spheres, self.triangles)
+
+    def bvh(self, brute_force_limit: int = BRUTE_FORCE_LIMIT) -> tuple[np.ndarray, np.ndarray]:
+        """(BVH nodes, primitive ids) of the scene, empty when brute force is cheaper
+        (scene_device.pack_bvh; brute_force_limit -1: always a BVH)."""
+        return pack_bvh(self.quads, self.spheres, self.triangles, brute_force_limit)
 
     def quad_blocks(self, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:
         return pack_scene_quad_blocks(self.quads, self.spheres, self.quad_names, width)
@@ -390,7 +424,11 @@ SHAPE_FIELDS = {
     "quad": ("type", "name", "material", "corner", "edge1", "edge2", "vertices", "emission"),
     "box": ("type", "name", "material", "min", "max", "rotate_y", "translate"),
     "sphere": ("type", "name", "material", "center", "radius", "emission"),
+    "mesh": ("type", "name", "material", "positions", "indices", "normals", "file"),
 }
+MESH_ARRAYS = ("positions", "indices", "normals")
+# A triangle is degenerate when |cross(e1, e2)| <= this times |e1| |e2| (as quads' check).
+DEGENERATE_TRIANGLE = 1e-9
 MATERIAL_FIELDS = {
     "diffuse": ("type", "albedo", "two_sided"),
     "dielectric": ("type", "ior"),
@@ -415,6 +453,10 @@ class SceneBuilder:
         self.sphere_names: list[str] = []
         self.solids: list[tuple[str, Callable[[np.ndarray], bool]]] = []  # (label, inside)
         self.geometry: list[ShapeGeometry] = []  # every quad and sphere, for scene_checks
+        self.meshes: list[dict] = []  # scene_device.pack_triangles' input
+        self.mesh_names: list[str] = []
+        self.mesh_bounds: list[ShapeGeometry] = []  # a sphere around each mesh (extent only)
+        self.notes: list[str] = []  # warnings raised while reading shapes
 
     def build(self, document: dict) -> Scene:
         top = _Table(self.path, "top level", document)
@@ -533,6 +575,8 @@ class SceneBuilder:
             self.add_quad(table, name, corner, edge1, edge2, material, emission)
         elif kind == "box":
             self.read_box(table, name, label, material)
+        elif kind == "mesh":
+            self.read_mesh(table, name, label, material)
         else:
             center = table.vector("center", _REQUIRED)
             radius = table.number("radius", _REQUIRED, what=" > 0")
@@ -642,19 +686,114 @@ class SceneBuilder:
 
         self.solids.append((f"{label} (a box)", inside))
 
+    # -- meshes
+    def read_mesh(self, table: _Table, name: str, label: str, material: int) -> None:
+        if table.has("file"):
+            inline = [key for key in MESH_ARRAYS if table.has(key)]
+            if inline:
+                table.fail(inline[0], "give either file or positions/indices/normals, not both")
+            file_path = self.path.parent / table.string("file")
+            try:
+                mesh = read_mesh_file(file_path)
+            except MeshFileError as err:
+                table.fail("file", str(err))
+            positions, indices, normals = mesh.positions, mesh.indices, mesh.normals
+            where = "file"
+        else:
+            positions = self.read_array(table, "positions", float, required=True)
+            indices = self.read_array(table, "indices", int, required=True)
+            normals = self.read_array(table, "normals", float, required=False)
+            where = None
+        self.check_mesh_numbers(table, where or "positions", positions)
+        if normals is not None:
+            self.check_mesh_numbers(table, where or "normals", normals)
+            if normals.shape != positions.shape:
+                table.fail(
+                    where or "normals",
+                    f"expected one normal per position ({len(positions)}), got {len(normals)}",
+                )
+            zero = np.flatnonzero(np.linalg.norm(normals, axis=1) == 0.0)
+            if len(zero):
+                table.fail(where or "normals", f"normal {zero[0]} is zero")
+        bad = np.flatnonzero((indices < 0) | (indices >= len(positions)))
+        if len(bad):
+            i = bad[0] if indices.ndim == 1 else np.unravel_index(bad[0], indices.shape)[0]
+            table.fail(
+                where or "indices",
+                f"triangle {i} has index {indices.reshape(-1)[bad[0]]} outside "
+                f"0..{len(positions) - 1} (the positions)",
+            )
+        # Degenerate triangles (zero area, repeated vertices) are skipped with a warning
+        p0, p1, p2 = (positions[indices[:, k]] for k in range(3))
+        e1, e2 = p1 - p0, p2 - p0
+        area = np.linalg.norm(np.cross(e1, e2), axis=1)
+        scale = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+        degenerate = ~((area > DEGENERATE_TRIANGLE * scale) & (area > 0.0))
+        if degenerate.all():
+            table.fail(where or "indices", "every triangle is degenerate (zero area)")
+        if degenerate.any():
+            first = int(np.flatnonzero(degenerate)[0])
+            self.notes.append(
+                f"{self.path}: {label}: skipped {int(degenerate.sum())} degenerate "
+                f"(zero-area) triangles of {len(indices)}, the first triangle {first}"
+            )
+            warnings.warn(self.notes[-1], SceneWarning, stacklevel=5)
+            indices = indices[~degenerate]
+        self.meshes.append(
+            {"positions": positions, "indices": indices, "normals": normals, "material": material}
+        )
+        self.mesh_names.append(name)
+        used = positions[np.unique(indices)]
+        low, high = used.min(axis=0), used.max(axis=0)
+        self.mesh_bounds.append(
+            ShapeGeometry(label, center=0.5 * (low + high), radius=0.5 * np.linalg.norm(high - low))
+        )
+
+    def read_array(self, table: _Table, key: str, kind: type, required: bool) -> np.ndarray | None:
+        """An inline mesh array of rows of 3 numbers (kind float) or integers (kind int)."""
+        value = table.get(key, _REQUIRED if required else None)
+        if value is None:
+            return None
+        what = "integers" if kind is int else "finite numbers"
+        expected = f"expected a list of [a, b, c] rows of 3 {what}"
+        allowed = (int,) if kind is int else (int, float)
+        if (
+            not isinstance(value, list)
+            or not value
+            or not all(isinstance(row, list) and len(row) == 3 for row in value)
+            or not all(type(x) in allowed for row in value for x in row)
+        ):
+            table.fail(key, f"{expected}, got {_describe(value)}")
+        return np.array(value, np.int64 if kind is int else np.float64)
+
+    def check_mesh_numbers(self, table: _Table, key: str, values: np.ndarray) -> None:
+        """Finite numbers the device's float32 holds (as _Table.check_device_range)."""
+        if values.ndim != 2 or values.shape[1] != 3:
+            table.fail(key, f"expected rows of 3 numbers, got shape {values.shape}")
+        if not np.isfinite(values).all():
+            row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
+            table.fail(key, f"row {row} has a non-finite number: {values[row].tolist()}")
+        size = np.abs(values)
+        if size.max() > SCENE_NUMBER_LIMIT:
+            table.fail(key, f"{size.max():g} is too large for the device's float32 arithmetic")
+        tiny = (size > 0.0) & (size < FLOAT32_SMALLEST)
+        if tiny.any():
+            table.fail(key, f"{size[tiny].min():g} underflows the device's float32")
+
     # -- packing
     def finish(self, camera: Camera, description: str) -> Scene:
         quads = pack_quads(self.quads)
         spheres = pack_spheres(self.spheres)
         emitters = pack_emitters(self.quads, quads, self.spheres, spheres)
         materials = pack_materials(self.materials)
-        if len(quads) + len(spheres) == 0:
+        triangles, triangle_normals = pack_triangles(self.meshes)
+        if len(quads) + len(spheres) + len(triangles) == 0:
             raise SceneError(f"{self.path}: shapes: the scene has no shapes")
         origin = np.array(camera.look_from)
-        too_small = extent_error(self.geometry, origin)
+        too_small = extent_error(self.geometry + self.mesh_bounds, origin)
         if too_small:
             raise SceneError(f"{self.path}: shapes: {too_small}")
-        notes = []
+        notes = list(self.notes)
         if len(emitters) == 0:
             notes.append(
                 f"{self.path}: the scene has no emitter (no shape with emission): it renders black"
@@ -684,6 +823,12 @@ class SceneBuilder:
             quad_names=self.quad_names,
             sphere_names=self.sphere_names,
             warnings=notes,
+            triangles=triangles,
+            triangle_normals=triangle_normals,
+            mesh_names=self.mesh_names,
+            mesh_first_triangle=list(
+                np.cumsum([0] + [len(m["indices"]) for m in self.meshes])[:-1].astype(int)
+            ),
         )
 
 

@@ -11,6 +11,9 @@ dtype              struct               one record per
 QUAD_DTYPE         Quad                 quad (a box is 6), with its dual vectors
 quad_block_dtype   QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
 SPHERE_DTYPE       Sphere               sphere
+TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, normals index)
+NORMALS_DTYPE      TriangleNormals      mesh triangle with per-vertex shading normals
+BVH_NODE_DTYPE     BVHNode              8-wide node of the BVH over every primitive (bvh.py)
 MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
 EMITTER_DTYPE      Emitter              emitting quad or sphere, with its light-selection pdf
                                         and cdf
@@ -19,7 +22,7 @@ CAMERA_DTYPE       Camera               camera at one image size
 
 The packing functions take validated plain values (what clrender/scene.py reads from a scene
 file) and return these records. Dependencies run one way: scene.py imports this module, this
-module imports nothing of clrender's.
+module imports nothing of clrender's but the BVH builder (clrender/bvh.py).
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+from clrender.bvh import BVH_NODE_DTYPE, build_wide_bvh
 
 # Material type tags: MATERIAL_DIFFUSE, ... in kernels/scene_types.h.
 MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
@@ -67,6 +72,30 @@ def quad_block_dtype(width: int = QUAD_BLOCK_WIDTH) -> np.dtype:
 SPHERE_DTYPE = np.dtype(
     [("center", "<f4", 3), ("radius", "<f4"), ("material", "<i4"), ("emitter", "<i4")]
 )
+TRIANGLE_DTYPE = np.dtype(
+    [
+        ("p0", "<f4", 3),
+        ("p1", "<f4", 3),
+        ("p2", "<f4", 3),
+        ("material", "<i4"),
+        ("normals", "<i4"),
+    ]
+)
+NORMALS_DTYPE = np.dtype([("n", "<f4", (3, 3))])
+# Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
+# triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
+# BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
+# bench/bvh_scaling.py (README, "Performance"): brute force wins up to 130 quads and loses from
+# 258, wins with 8 triangles in the Cornell box and loses from 20.
+BRUTE_FORCE_LIMIT = 192
+TRIANGLE_COST = 16
+
+
+def brute_force_cost(quad_count: int, sphere_count: int, triangle_count: int) -> int:
+    """A scene's cost of brute-force intersection, in quads (see BRUTE_FORCE_LIMIT)."""
+    return quad_count + sphere_count + TRIANGLE_COST * triangle_count
+
+
 MATERIAL_DTYPE = np.dtype(
     [
         ("type", "<i4"),
@@ -212,8 +241,75 @@ def pack_emitters(
     return emitters
 
 
-def scene_bounds(quads: np.ndarray, spheres: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Bounding box (low, high, float64) of packed quads and spheres; zeros when empty."""
+def pack_triangles(meshes: list[dict]) -> tuple[np.ndarray, np.ndarray]:
+    """TRIANGLE_DTYPE and NORMALS_DTYPE records of meshes given as dicts: "positions" (V, 3),
+    "indices" (T, 3), "normals" (V, 3) or None, "material". Triangles of all meshes in order;
+    a triangle's normals index is its row in the normals records, or -1."""
+    triangles = []
+    normals = []
+    count = 0
+    for mesh in meshes:
+        positions = np.asarray(mesh["positions"], np.float64)
+        indices = np.asarray(mesh["indices"], np.int64)
+        packed = np.zeros(len(indices), TRIANGLE_DTYPE)
+        packed["p0"], packed["p1"], packed["p2"] = (positions[indices[:, k]] for k in range(3))
+        packed["material"] = mesh["material"]
+        packed["normals"] = -1
+        if mesh.get("normals") is not None:
+            vertex_normals = np.asarray(mesh["normals"], np.float64)
+            vertex_normals = vertex_normals / np.linalg.norm(vertex_normals, axis=1)[:, None]
+            records = np.zeros(len(indices), NORMALS_DTYPE)
+            records["n"] = vertex_normals[indices]
+            packed["normals"] = count + np.arange(len(indices))
+            normals.append(records)
+            count += len(indices)
+        triangles.append(packed)
+    join = np.concatenate
+    return (
+        join(triangles) if triangles else np.zeros(0, TRIANGLE_DTYPE),
+        join(normals) if normals else np.zeros(0, NORMALS_DTYPE),
+    )
+
+
+def primitive_bounds(
+    quads: np.ndarray, spheres: np.ndarray, triangles: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bounds (lower, upper: (N, 3) float64) of every primitive in id order: quads, spheres,
+    triangles."""
+    c, e1, e2 = (quads[k].astype(np.float64).reshape(-1, 3) for k in QUAD_FRAME)
+    quad_points = np.stack([c, c + e1, c + e2, c + e1 + e2])
+    centre = spheres["center"].astype(np.float64).reshape(-1, 3)
+    radius = spheres["radius"].astype(np.float64).reshape(-1, 1)
+    tri_points = np.stack(
+        [triangles[k].astype(np.float64).reshape(-1, 3) for k in ("p0", "p1", "p2")]
+    )
+    lower = np.concatenate([quad_points.min(axis=0), centre - radius, tri_points.min(axis=0)])
+    upper = np.concatenate([quad_points.max(axis=0), centre + radius, tri_points.max(axis=0)])
+    return lower, upper
+
+
+def pack_bvh(
+    quads: np.ndarray,
+    spheres: np.ndarray,
+    triangles: np.ndarray,
+    brute_force_limit: int = BRUTE_FORCE_LIMIT,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(BVH nodes, primitive ids) over every primitive (clrender/bvh.py), or two empty arrays
+    for a scene whose brute_force_cost is at most brute_force_limit (the kernels then use brute
+    force; -1: always a BVH)."""
+    if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
+        return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
+    return build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
+
+
+def scene_bounds(
+    quads: np.ndarray, spheres: np.ndarray, triangles: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box (low, high, float64) of packed quads, spheres and triangles; zeros when
+    empty."""
+    if triangles is not None and len(triangles):
+        lower, upper = primitive_bounds(quads, spheres, triangles)
+        return lower.min(axis=0), upper.max(axis=0)
     points = []
     for quad in quads:
         c, e1, e2 = (quad[k].astype(np.float64) for k in QUAD_FRAME)

@@ -25,7 +25,7 @@ from clrender.errors import ParameterError
 from clrender.runtime import Runtime, launch_global_size
 from clrender.sampling import PATHS_ZSOBOL, DeviceSampleSets, check_seed
 from clrender.scene import Scene
-from clrender.scene_device import QUAD_BLOCK_WIDTH
+from clrender.scene_device import BRUTE_FORCE_LIMIT, QUAD_BLOCK_WIDTH
 
 # Dimensions 1 + 2d and 2 + 2d of a 32-bit counter: any sane depth fits; this keeps a typo
 # (max_depth=10**9) from running for ever.
@@ -88,6 +88,7 @@ class PathTracer:
         russian_roulette: bool = False,
         next_event_estimation: bool = True,
         profile_defines: dict[str, object] | None = None,
+        brute_force_limit: int = BRUTE_FORCE_LIMIT,
     ):
         if (
             isinstance(max_depth, bool)
@@ -108,10 +109,42 @@ class PathTracer:
         }
         self._quad_blocks = scene.quad_blocks(QUAD_BLOCK_WIDTH)
         self._buffers["quad_blocks"] = runtime.upload(self._quad_blocks)
+        # Triangles and the BVH (none where brute force is cheaper: scene_device.pack_bvh)
+        self.bvh_nodes, self.bvh_prims = scene.bvh(brute_force_limit)
+        for name, array in (
+            ("triangles", scene.triangles),
+            ("triangle_normals", scene.triangle_normals),
+            ("bvh_nodes", self.bvh_nodes),
+            ("bvh_prims", self.bvh_prims),
+        ):
+            self._buffers[name] = runtime.upload(array)
         self._cameras: dict[tuple[int, int], cl.Buffer] = {}
         # Profiling builds only (bench/trace_throughput.py --profile), e.g.
         # {"PROFILE_SKIP_SHADOW_RAYS": True}: shadow rays counted but not traced.
         self._kernel = runtime.kernel("integrator.cl", "trace_paths", profile_defines)
+
+    def scene_arguments(self) -> tuple:
+        """The scene's kernel arguments, in the order trace_paths and every wavefront stage
+        take them."""
+        scene = self.scene
+        buffers = self._buffers
+        return (
+            buffers["quads"],
+            buffers["quad_blocks"],
+            np.uint32(len(scene.quads)),
+            np.uint32(len(self._quad_blocks)),
+            buffers["spheres"],
+            np.uint32(len(scene.spheres)),
+            buffers["materials"],
+            buffers["emitters"],
+            np.uint32(len(scene.emitters)),
+            buffers["triangles"],
+            np.uint32(len(scene.triangles)),
+            buffers["triangle_normals"],
+            buffers["bvh_nodes"],
+            np.uint32(len(self.bvh_nodes)),
+            buffers["bvh_prims"],
+        )
 
     def camera_buffer(self, width: int, height: int) -> cl.Buffer:
         key = (width, height)
@@ -178,7 +211,6 @@ class PathTracer:
         counters = runtime.upload(np.zeros(1 + groups, np.uint32))
         if count == 0:
             return TraceResult(radiance, 0, queue, counters, 1 + groups, None)
-        scene = self.scene
         event = self._kernel(
             queue,
             (global_size,),
@@ -197,15 +229,7 @@ class PathTracer:
             sample_sets.pixels_buffer,
             sample_sets.redraws_buffer,
             self.camera_buffer(width, height),
-            self._buffers["quads"],
-            self._buffers["quad_blocks"],
-            np.uint32(len(scene.quads)),
-            np.uint32(len(self._quad_blocks)),
-            self._buffers["spheres"],
-            np.uint32(len(scene.spheres)),
-            self._buffers["materials"],
-            self._buffers["emitters"],
-            np.uint32(len(scene.emitters)),
+            *self.scene_arguments(),
             radiance,
             counters,
         )

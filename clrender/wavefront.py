@@ -183,18 +183,7 @@ class WavefrontPathTracer(PathTracer):
         return result, record
 
     def _scene_arguments(self) -> tuple:
-        scene = self.scene
-        return (
-            self._buffers["quads"],
-            self._buffers["quad_blocks"],
-            np.uint32(len(scene.quads)),
-            np.uint32(len(self._quad_blocks)),
-            self._buffers["spheres"],
-            np.uint32(len(scene.spheres)),
-            self._buffers["materials"],
-            self._buffers["emitters"],
-            np.uint32(len(scene.emitters)),
-        )
+        return self.scene_arguments()
 
     def _trace(self, sample_sets, seed, image_width, image_height, record) -> TraceResult:
         width, height = self.check_launch(sample_sets, seed, image_width, image_height)

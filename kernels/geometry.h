@@ -1,18 +1,23 @@
-// Ray-primitive intersection: every block of quads (one vector test per block) whose bounding
-// box the ray meets, then every sphere.
-// Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s; -1 is a miss.
+// Ray-primitive intersection. Small scenes: every block of quads (one vector test per block)
+// whose bounding box the ray meets, then every sphere, then every triangle. Larger scenes
+// (bvh_node_count > 0): a bounding volume hierarchy over all primitives (clrender/bvh.py),
+// traversed with a short private stack.
+// Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
+// quad_count + sphere_count + k; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
 #define CLRENDER_GEOMETRY_H
 
 #include "scene_types.h"
 #include "vecmath.h"
 
-// A surface point found by a ray: position, geometric normal (the quad's front side, the
-// sphere's outside), material and emitter, and a bound on p's distance from the true surface
+// A surface point found by a ray: position, geometric normal (the quad's and the triangle's
+// front side, the sphere's outside), shading normal (the triangle's interpolated vertex normal
+// turned to the side of ng; ng elsewhere), material and emitter, and a bound on p's distance from the true surface
 // (float rounding), which is how far rays leaving it start off the surface.
 typedef struct {
     float3 p;
     float3 ng;
+    float3 ns;
     int material;
     int emitter;
     float error;
@@ -29,16 +34,13 @@ CL_INLINE float MaxAbs3(float3 v)
     return Fmax(Fabs(v.x), Fmax(Fabs(v.y), Fabs(v.z)));
 }
 
-// Whether the ray o + t d (inv_d = 1 / d) can meet the block's bounding box for some t in
-// [0, tmax] (slab test). Always true for a block flagged as enclosing the scene (lower[3] = 1:
-// every ray meets it). A NaN (zero direction on a slab's plane) never rejects.
-CL_INLINE bool QuadBlock_BoundsHit(__global const QuadBlock *block, float3 o, float3 inv_d,
-                                   float tmax)
+// Whether the ray o + t d (inv_d = 1 / d) can meet the box [lower, upper] for some t in
+// [0, tmax] (slab test). A NaN (zero direction on a slab's plane) never rejects.
+CL_INLINE bool Bounds_Hit(__global const float *lower, __global const float *upper, float3 o,
+                          float3 inv_d, float tmax)
 {
-    if (block->lower[3] != 0.0f)
-        return true;
-    float3 t0 = (Load3(block->lower) - o) * inv_d;
-    float3 t1 = (Load3(block->upper) - o) * inv_d;
+    float3 t0 = (Load3(lower) - o) * inv_d;
+    float3 t1 = (Load3(upper) - o) * inv_d;
     float3 t_near = t0 < t1 ? t0 : t1;
     float3 t_far = t0 < t1 ? t1 : t0;
     float t_enter = t_near.x > t_near.y ? t_near.x : t_near.y;
@@ -46,6 +48,16 @@ CL_INLINE bool QuadBlock_BoundsHit(__global const QuadBlock *block, float3 o, fl
     float t_exit = t_far.x < t_far.y ? t_far.x : t_far.y;
     t_exit = t_exit < t_far.z ? t_exit : t_far.z;
     return !(t_enter > t_exit || t_exit < 0.0f || t_enter > tmax);
+}
+
+// Whether the ray can meet the block's bounding box before tmax. Always true for a block
+// flagged as enclosing the scene (lower[3] = 1: every ray meets it).
+CL_INLINE bool QuadBlock_BoundsHit(__global const QuadBlock *block, float3 o, float3 inv_d,
+                                   float tmax)
+{
+    if (block->lower[3] != 0.0f)
+        return true;
+    return Bounds_Hit(block->lower, block->upper, o, inv_d, tmax);
 }
 
 // Hit mask of a block's quads along the ray before tmax (-1 where hit), and distances in *t.
@@ -113,11 +125,230 @@ CL_INLINE float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, f
     return (t > 0.0f && t < tmax) ? t : tmax;
 }
 
+// Distance to a single quad along the ray if hit before tmax, else tmax: the lane test of
+// QuadBlock_Hits on the Quad record, operation for operation (the BVH's leaves use it).
+CL_INLINE float Quad_Intersect(__global const Quad *q, float3 o, float3 d, float tmax)
+{
+    float3 n = Load3(q->normal);
+    float t = (q->plane_d - (n.x * o.x + n.y * o.y + n.z * o.z)) /
+              (n.x * d.x + n.y * d.y + n.z * d.z);
+    float rx = o.x + t * d.x - q->corner[0];
+    float ry = o.y + t * d.y - q->corner[1];
+    float rz = o.z + t * d.z - q->corner[2];
+    float a = rx * q->u_dual[0] + ry * q->u_dual[1] + rz * q->u_dual[2];
+    float b = rx * q->v_dual[0] + ry * q->v_dual[1] + rz * q->v_dual[2];
+    bool hit = t > 0.0f && t < tmax && a >= 0.0f && a <= 1.0f && b >= 0.0f && b <= 1.0f;
+    return hit ? t : tmax;
+}
+
+// A ray prepared for watertight triangle tests (Woop, Benthin and Wald 2013, as pbrt-v4):
+// its origin, the axis permutation that makes the largest direction component z, and the
+// shear taking the direction to +z.
+typedef struct {
+    float3 o;
+    uint kz;      // the permuted z axis; x and y follow it cyclically
+    float3 shear; // (-dx / dz, -dy / dz, 1 / dz) after permutation
+} TriangleRay;
+
+// v with its axes permuted so that axis kz comes last (kx = kz + 1, ky = kz + 2, cyclically):
+// swizzles and selects, no shuffle() (a builtin PoCL does not inline: see vecmath.h).
+CL_INLINE float3 TriangleRay_Permute(float3 v, uint kz)
+{
+    return kz == 0u ? v.yzx : (kz == 1u ? v.zxy : v);
+}
+
+CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
+{
+    TriangleRay r;
+    // z: the axis of the largest direction component; x and y follow it cyclically
+    float ax = Fabs(d.x);
+    float ay = Fabs(d.y);
+    float az = Fabs(d.z);
+    uint kz = ax > ay ? (ax > az ? 0u : 2u) : (ay > az ? 1u : 2u);
+    float3 dp = TriangleRay_Permute(d, kz);
+    r.o = o;
+    r.kz = kz;
+    r.shear = (float3)(-dp.x / dp.z, -dp.y / dp.z, 1.0f / dp.z);
+    return r;
+}
+
+// A triangle vertex in the ray's frame: translated to the origin, permuted, sheared (x, y);
+// z is left unscaled.
+CL_INLINE float3 TriangleRay_Vertex(const TriangleRay *r, __global const float *p)
+{
+    float3 v = TriangleRay_Permute(Load3(p) - r->o, r->kz);
+    return (float3)(v.x + r->shear.x * v.z, v.y + r->shear.y * v.z, v.z);
+}
+
+// Edge function of the ray's origin against the edge a -> b: the two products rounded apart,
+// so that the neighbour across a shared edge gets exactly the opposite value (watertight).
+CL_INLINE float Triangle_Edge(float3 a, float3 b)
+{
+    float p = a.x * b.y;
+    float q = a.y * b.x;
+    return p - q;
+}
+
+// Whether the ray meets the triangle at a distance in (0, tmax): the distance in *t and the
+// barycentric coordinates of p0, p1, p2 in *b.
+CL_INLINE bool Triangle_Hit(__global const Triangle *tri, const TriangleRay *r, float tmax,
+                            float *t, float3 *b)
+{
+    float3 p0 = TriangleRay_Vertex(r, tri->p0);
+    float3 p1 = TriangleRay_Vertex(r, tri->p1);
+    float3 p2 = TriangleRay_Vertex(r, tri->p2);
+    // Edge functions: the origin is inside when all three share a sign
+    float e0 = Triangle_Edge(p1, p2);
+    float e1 = Triangle_Edge(p2, p0);
+    float e2 = Triangle_Edge(p0, p1);
+    if ((e0 < 0.0f || e1 < 0.0f || e2 < 0.0f) && (e0 > 0.0f || e1 > 0.0f || e2 > 0.0f))
+        return false;
+    float det = e0 + e1 + e2;
+    if (det == 0.0f)
+        return false;
+    // Scaled distance, compared with the range before dividing by det
+    float t_scaled = r->shear.z * (e0 * p0.z + e1 * p1.z + e2 * p2.z);
+    if (det < 0.0f ? (t_scaled >= 0.0f || t_scaled < tmax * det)
+                   : (t_scaled <= 0.0f || t_scaled > tmax * det))
+        return false;
+    float inv_det = 1.0f / det;
+    *t = t_scaled * inv_det;
+    *b = (float3)(e0, e1, e2) * inv_det;
+    return *t > 0.0f && *t < tmax;
+}
+
+// Distance to the triangle along the ray if hit before tmax, else tmax.
+CL_INLINE float Triangle_Intersect(__global const Triangle *tri, const TriangleRay *r,
+                                   float tmax)
+{
+    float t;
+    float3 b;
+    return Triangle_Hit(tri, r, tmax, &t, &b) ? t : tmax;
+}
+
+// Distance to primitive `id` (any kind) along the ray if hit before tmax, else tmax.
+CL_INLINE float Primitive_Intersect(const SceneData *scene, uint id, float3 o, float3 d,
+                                    const TriangleRay *r, float tmax)
+{
+    if (id < scene->quad_count)
+        return Quad_Intersect(&scene->quads[id], o, d, tmax);
+    uint s = id - scene->quad_count;
+    if (s < scene->sphere_count)
+        return Sphere_Intersect(&scene->spheres[s], o, d, tmax);
+    return Triangle_Intersect(&scene->triangles[s - scene->sphere_count], r, tmax);
+}
+
+// Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
+// meets it within [0, tmax] (finite), else INFINITY (the slab test of Bounds_Hit, 8 boxes at
+// once).
+CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 inv_d, float tmax)
+{
+    float8 t0x = (Load8(node->lower[0]) - o.x) * inv_d.x;
+    float8 t1x = (Load8(node->upper[0]) - o.x) * inv_d.x;
+    float8 t0y = (Load8(node->lower[1]) - o.y) * inv_d.y;
+    float8 t1y = (Load8(node->upper[1]) - o.y) * inv_d.y;
+    float8 t0z = (Load8(node->lower[2]) - o.z) * inv_d.z;
+    float8 t1z = (Load8(node->upper[2]) - o.z) * inv_d.z;
+    float8 near_x = t0x < t1x ? t0x : t1x;
+    float8 far_x = t0x < t1x ? t1x : t0x;
+    float8 near_y = t0y < t1y ? t0y : t1y;
+    float8 far_y = t0y < t1y ? t1y : t0y;
+    float8 near_z = t0z < t1z ? t0z : t1z;
+    float8 far_z = t0z < t1z ? t1z : t0z;
+    float8 t_enter = near_x > near_y ? near_x : near_y;
+    t_enter = t_enter > near_z ? t_enter : near_z;
+    float8 t_exit = far_x < far_y ? far_x : far_y;
+    t_exit = t_exit < far_z ? t_exit : far_z;
+    int8 miss = (t_enter > t_exit) | (t_exit < 0.0f) | (t_enter > tmax);
+    // A hit's entry is finite (a NaN entry, which never rejects, becomes -FLT_MAX)
+    float8 finite_enter = t_enter > -FLT_MAX ? t_enter : (float8)(-FLT_MAX);
+    return miss ? (float8)(INFINITY) : finite_enter;
+}
+
+// The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
+// with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
+// at once; the leaves among them are tested right away, the nearest child node is visited next
+// and the others kept on a private stack with their entry distances (skipped when popped if a
+// closer hit was found since).
+CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
+                              bool any_hit, int *prim)
+{
+    float3 inv_d = 1.0f / d;
+    TriangleRay r = TriangleRay_Make(o, d);
+    uint stack[BVH_STACK_SIZE];
+    float stack_enter[BVH_STACK_SIZE];
+    int top = 0;
+    float t = tmax;
+    int id = -1;
+    uint node_id = 0;
+    bool visit = true;
+    while (visit) {
+        __global const BVHNode *node = &scene->bvh_nodes[node_id];
+        union {
+            float8 v;
+            float s[BVH_WIDTH];
+        } enter;
+        enter.v = BVHNode_Enter(node, o, inv_d, t);
+        visit = false;
+        float next_enter = INFINITY;
+        for (int j = 0; j < BVH_WIDTH; ++j) {
+            int count = node->count[j];
+            float e = enter.s[j];
+            if (count < 0 || e == INFINITY || e > t)
+                continue;
+            if (count > 0) {
+                // A leaf: test its primitives
+                for (int k = 0; k < count; ++k) {
+                    uint p = scene->bvh_prims[node->child[j] + k];
+                    float tp = Primitive_Intersect(scene, p, o, d, &r, t);
+                    if (tp < t) {
+                        t = tp;
+                        id = (int)p;
+                    }
+                }
+                if (any_hit && id >= 0)
+                    break;
+                continue;
+            }
+            // A node: the nearest so far is visited next, the others wait on the stack
+            uint child = (uint)node->child[j];
+            if (e < next_enter) {
+                if (visit) {
+                    stack[top] = node_id;
+                    stack_enter[top++] = next_enter;
+                }
+                node_id = child;
+                next_enter = e;
+                visit = true;
+            } else {
+                stack[top] = child;
+                stack_enter[top++] = e;
+            }
+        }
+        if (any_hit && id >= 0)
+            break;
+        if (visit && next_enter <= t)
+            continue;
+        // Next: the most recently kept node the ray can still reach before the closest hit
+        visit = false;
+        while (top > 0 && !visit) {
+            --top;
+            node_id = stack[top];
+            visit = stack_enter[top] <= t;
+        }
+    }
+    *prim = id;
+    return t;
+}
+
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
-// (Ties go to the lowest quad index, then to the sphere: blocks hold quads in scene order.)
+// Brute force (no BVH): ties go to the lowest quad index, then to the sphere, then to the
+// triangle (blocks hold quads in scene order).
 CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
                                 int *prim)
 {
+    if (scene->bvh_node_count > 0u)
+        return BVH_Intersect(scene, o, d, tmax, false, prim);
     float t = tmax;
     int id = -1;
     float3 inv_d = 1.0f / d;
@@ -137,6 +368,15 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
         id = ti < t ? (int)(scene->quad_count + i) : id;
         t = ti;
     }
+    if (scene->triangle_count > 0u) {
+        TriangleRay r = TriangleRay_Make(o, d);
+        uint first = scene->quad_count + scene->sphere_count;
+        for (uint k = 0; k < scene->triangle_count; ++k) {
+            float tk = Triangle_Intersect(&scene->triangles[k], &r, t);
+            id = tk < t ? (int)(first + k) : id;
+            t = tk;
+        }
+    }
     *prim = id;
     return t;
 }
@@ -147,6 +387,18 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
 // never block a ray between two points inside it.
 CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
+    if (scene->bvh_node_count > 0u) {
+        int prim;
+        BVH_Intersect(scene, o, d, tmax, true, &prim);
+        return prim >= 0;
+    }
+    if (scene->triangle_count > 0u) {
+        TriangleRay r = TriangleRay_Make(o, d);
+        for (uint k = 0; k < scene->triangle_count; ++k) {
+            if (Triangle_Intersect(&scene->triangles[k], &r, tmax) < tmax)
+                return true;
+        }
+    }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         if (Sphere_Intersect(&scene->spheres[i], o, d, tmax) < tmax)
             return true;
@@ -168,20 +420,47 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
         __global const Quad *q = &scene->quads[prim];
         s.p = o + t * d;
         s.ng = Load3(q->normal);
+        s.ns = s.ng;
         s.material = q->material;
         s.emitter = q->emitter;
         // The plane distance and o + t d round at the magnitudes of o, t d and the corner
         float magnitude = MaxAbs3(o) + t * MaxAbs3(d) + MaxAbs3(Load3(q->corner));
         s.error = SURFACE_ERROR_SCALE * magnitude;
-    } else {
+    } else if (prim < (int)(scene->quad_count + scene->sphere_count)) {
         __global const Sphere *sp = &scene->spheres[prim - (int)scene->quad_count];
         float3 center = Load3(sp->center);
         // Re-project the hit onto the sphere so the ray offset is measured from its surface
         s.ng = Normalize3(o + t * d - center);
+        s.ns = s.ng;
         s.p = center + sp->radius * s.ng;
         s.material = sp->material;
         s.emitter = sp->emitter;
         s.error = SURFACE_ERROR_SCALE * (MaxAbs3(center) + sp->radius);
+    } else {
+        __global const Triangle *tri =
+            &scene->triangles[prim - (int)(scene->quad_count + scene->sphere_count)];
+        float3 p0 = Load3(tri->p0);
+        float3 p1 = Load3(tri->p1);
+        float3 p2 = Load3(tri->p2);
+        // The hit's barycentric coordinates (the intersection test again, at no range limit)
+        TriangleRay r = TriangleRay_Make(o, d);
+        float th;
+        float3 b = (float3)(1.0f / 3.0f);
+        Triangle_Hit(tri, &r, INFINITY, &th, &b);
+        // The point from the vertices: its rounding follows the vertices' magnitudes only
+        s.p = b.x * p0 + b.y * p1 + b.z * p2;
+        s.ng = Normalize3(Cross3(p1 - p0, p2 - p0));
+        s.ns = s.ng;
+        if (tri->normals >= 0) {
+            // Interpolated vertex normal, on the side of the geometric normal
+            __global const TriangleNormals *vn = &scene->triangle_normals[tri->normals];
+            float3 n = b.x * Load3(vn->n[0]) + b.y * Load3(vn->n[1]) + b.z * Load3(vn->n[2]);
+            if (Dot3(n, n) > 0.0f)
+                s.ns = Normalize3(Dot3(n, s.ng) < 0.0f ? -n : n);
+        }
+        s.material = tri->material;
+        s.emitter = -1;
+        s.error = SURFACE_ERROR_SCALE * Fmax(MaxAbs3(p0), Fmax(MaxAbs3(p1), MaxAbs3(p2)));
     }
     return s;
 }

@@ -104,7 +104,7 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
 
         // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
         float3 n;
-        if (!PathVertex_ShadingNormal(material, surface.ng, wo, &n))
+        if (!PathVertex_ShadingNormal(material, surface.ng, surface.ns, wo, &n))
             break;
         Frame frame = Frame_FromNormal(n);
         float3 wo_local = Frame_ToLocal(frame, wo);
@@ -155,14 +155,30 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
                           __global const Sphere *spheres, uint sphere_count,
                           __global const Material *materials,
                           __global const Emitter *emitters, uint emitter_count,
+                          __global const Triangle *triangles, uint triangle_count,
+                          __global const TriangleNormals *triangle_normals,
+                          __global const BVHNode *bvh_nodes, uint bvh_node_count,
+                          __global const uint *bvh_prims,
                           __global float *radiance, __global uint *counters)
 {
     uint i = get_global_id(0);
     if (i >= traced_total)
         return;
-    SceneData scene = {quads,      quad_blocks,      spheres,      materials,
-                       emitters,   quad_count,       quad_block_count, sphere_count,
-                       emitter_count};
+    SceneData scene = {.quads = quads,
+                       .quad_blocks = quad_blocks,
+                       .spheres = spheres,
+                       .materials = materials,
+                       .emitters = emitters,
+                       .triangles = triangles,
+                       .triangle_normals = triangle_normals,
+                       .bvh_nodes = bvh_nodes,
+                       .bvh_prims = bvh_prims,
+                       .quad_count = quad_count,
+                       .quad_block_count = quad_block_count,
+                       .sphere_count = sphere_count,
+                       .emitter_count = emitter_count,
+                       .triangle_count = triangle_count,
+                       .bvh_node_count = bvh_node_count};
 
     // Find the sample's pixel, its index in the pixel and its image position
     uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);

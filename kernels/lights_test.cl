@@ -16,7 +16,8 @@ __kernel void sample_sphere_light(uint count, __global const Sphere *spheres,
     uint i = get_global_id(0);
     if (i >= count)
         return;
-    SceneData scene = {0, 0, spheres, 0, emitters, 0u, 0u, 1u, emitter_count};
+    SceneData scene = {.spheres = spheres, .emitters = emitters, .sphere_count = 1u,
+                       .emitter_count = emitter_count};
     float3 p = vload3(i, points);
     float3 wi = (float3)(0.0f);
     float dist = 0.0f, pdfW;

@@ -52,6 +52,39 @@ typedef struct {
     int emitter; // index into the emitters, or -1
 } Sphere;
 
+// A triangle p0, p1, p2; its front side is counter-clockwise: geometric normal along
+// cross(p1 - p0, p2 - p0) (pbrt's convention). normals indexes its three per-vertex shading
+// normals in the TriangleNormals array, or is -1 (shading normal = geometric normal).
+typedef struct {
+    float p0[3];
+    float p1[3];
+    float p2[3];
+    int material; // index into the materials, or MATERIAL_NONE
+    int normals;  // index into the triangle normals, or -1
+} Triangle;
+
+// Unit shading normals at a triangle's p0, p1, p2.
+typedef struct {
+    float n[3][3];
+} TriangleNormals;
+
+// A node of the bounding volume hierarchy over every primitive (clrender/bvh.py: a binary SAH
+// tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
+// as structure of arrays (one vector slab test for all of them), rounded outwards to float.
+// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf holding the
+// primitive ids bvh_prims[child[j] .. child[j] + count[j] - 1]; count[j] = -1, no child.
+// Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
+// a tree the builder never makes deeper than BVH_MAX_DEPTH.
+#define BVH_WIDTH 8
+#define BVH_MAX_DEPTH 40
+#define BVH_STACK_SIZE ((BVH_WIDTH - 1) * BVH_MAX_DEPTH)
+typedef struct {
+    float lower[3][BVH_WIDTH];
+    float upper[3][BVH_WIDTH];
+    int child[BVH_WIDTH];
+    int count[BVH_WIDTH];
+} BVHNode;
+
 // One record for every material type; each type reads its own members.
 typedef struct {
     int type;
@@ -88,16 +121,23 @@ typedef struct {
 } Camera;
 
 // The scene as the device functions see it (private; built in the kernel from its arguments).
+// Primitive ids: quads 0 .. quad_count - 1, then spheres, then triangles.
 typedef struct {
     __global const Quad *quads;
     __global const QuadBlock *quad_blocks;
     __global const Sphere *spheres;
     __global const Material *materials;
     __global const Emitter *emitters;
+    __global const Triangle *triangles;
+    __global const TriangleNormals *triangle_normals;
+    __global const BVHNode *bvh_nodes;
+    __global const uint *bvh_prims;
     uint quad_count;
     uint quad_block_count;
     uint sphere_count;
     uint emitter_count;
+    uint triangle_count;
+    uint bvh_node_count; // 0: brute force over every primitive (small scenes)
 } SceneData;
 
 #endif

@@ -83,10 +83,16 @@ typedef char WavefrontShadowRay_size_is_64[sizeof(WavefrontShadowRay) == 64 ? 1 
     __global const Quad *quads, __global const QuadBlock *quad_blocks, uint quad_count,        \
         uint quad_block_count, __global const Sphere *spheres, uint sphere_count,              \
         __global const Material *materials, __global const Emitter *emitters,                  \
-        uint emitter_count
+        uint emitter_count, __global const Triangle *triangles, uint triangle_count,           \
+        __global const TriangleNormals *triangle_normals, __global const BVHNode *bvh_nodes,   \
+        uint bvh_node_count, __global const uint *bvh_prims
 #define WAVEFRONT_SCENE                                                                        \
-    {quads,     quad_blocks, spheres,    materials,    emitters,                               \
-     quad_count, quad_block_count, sphere_count, emitter_count}
+    {.quads = quads, .quad_blocks = quad_blocks, .spheres = spheres, .materials = materials,  \
+     .emitters = emitters, .triangles = triangles, .triangle_normals = triangle_normals,       \
+     .bvh_nodes = bvh_nodes, .bvh_prims = bvh_prims, .quad_count = quad_count,                \
+     .quad_block_count = quad_block_count, .sphere_count = sphere_count,                      \
+     .emitter_count = emitter_count, .triangle_count = triangle_count,                        \
+     .bvh_node_count = bvh_node_count}
 
 CL_INLINE void Wavefront_Store3(__global float *p, float3 v)
 {
@@ -259,7 +265,7 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
 
     // Shading frame: two-sided surfaces face wo, one-sided ones are black from behind
     float3 n;
-    if (!PathVertex_ShadingNormal(material, surface.ng, wo, &n))
+    if (!PathVertex_ShadingNormal(material, surface.ng, surface.ns, wo, &n))
         return;
     Frame frame = Frame_FromNormal(n);
     float3 wo_local = Frame_ToLocal(frame, wo);

@@ -1,10 +1,9 @@
 """Ray intersection (kernels/geometry.h) against a float64 NumPy reference on random rays."""
 
 import numpy as np
-import pyopencl as cl
 import pytest
+from geometry_device import device_intersect
 
-from clrender.runtime import padded_global_size
 from clrender.scene import load_scene
 
 
@@ -47,36 +46,6 @@ def reference_intersect(scene, origins, directions):
     with np.errstate(invalid="ignore"):
         tie = np.isfinite(best_t) & (second - best_t <= 1e-5 * np.maximum(best_t, 1e-30))
     return best_t, best_id, np.where(tie, 0.0, margin)
-
-
-def device_intersect(runtime, scene, origins, directions):
-    ctx, queue = runtime.context, runtime.queue
-    upload = runtime.upload
-
-    count = len(origins)
-    blocks = scene.quad_blocks()
-    t_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
-    id_buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, size=4 * count)
-    kernel = runtime.kernel("geometry_test.cl", "intersect_rays")
-    kernel(
-        queue,
-        (padded_global_size(count),),
-        (runtime.local_size,),
-        np.uint32(count),
-        upload(blocks),
-        np.uint32(len(scene.quads)),
-        np.uint32(len(blocks)),
-        upload(scene.spheres),
-        np.uint32(len(scene.spheres)),
-        upload(origins.astype(np.float32)),
-        upload(directions.astype(np.float32)),
-        t_buf,
-        id_buf,
-    )
-    t, ids = np.empty(count, np.float32), np.empty(count, np.int32)
-    cl.enqueue_copy(queue, t, t_buf)
-    cl.enqueue_copy(queue, ids, id_buf)
-    return t, ids
 
 
 def random_rays(scene, count, seed):

@@ -1,0 +1,207 @@
+"""How the BVH scales: rays/s against triangle count, BVH build time, and small meshes, the
+Cornell boxes and the quad scenes of primitive_scaling.py traced with and without the BVH.
+
+    python bench/bvh_scaling.py [--triangles 20 1000 10000 100000 1000000] [--size 64]
+                                [--spp 16] [--repeats 3] [--skip-render]
+
+Triangles: a sphere of radius 0.5 tessellated in latitude/longitude (two triangles per cell,
+none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, traced at depth 8
+as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: clrender.bvh's
+binary build and its collapse to 8-wide nodes on the whole scene's primitive bounds, wall and
+CPU time, median of --repeats. Small meshes, Cornell boxes and quad scenes: the same launch by
+brute force and through the BVH, alternating, so the two rates come from the same stretch of
+machine load. Rates are per CPU-second x compute units (as trace_throughput.py), robust to a
+shared machine.
+Output: JSON (default bench/results/bvh_scaling.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from primitive_scaling import scene_with_extra_quads
+
+from clrender.bvh import build_bvh
+from clrender.runtime import create_runtime
+from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
+from clrender.scene import load_scene
+from clrender.scene_device import (
+    BRUTE_FORCE_LIMIT,
+    brute_force_cost,
+    pack_triangles,
+    primitive_bounds,
+)
+from clrender.trace import PathTracer
+
+DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "bvh_scaling.json"
+FORCE_BVH = -1  # brute_force_limit that builds a BVH for every scene
+NEVER_BVH = 2**62  # brute_force_limit that keeps brute force for every scene
+
+
+def sphere_mesh(triangles: int, radius: float = 0.5) -> dict:
+    """A latitude/longitude sphere of about `triangles` triangles (counter-clockwise seen from
+    outside), as pack_triangles' input."""
+    rings = max(2, round(math.sqrt(triangles / 4.0)) + 1)
+    segments = max(3, round(triangles / (2.0 * (rings - 1))))
+    theta = np.linspace(0.0, np.pi, rings + 1)
+    phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)[:-1]
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    positions = radius * np.stack([np.sin(t) * np.cos(p), np.cos(t), np.sin(t) * np.sin(p)], -1)
+    positions = positions.reshape(-1, 3)
+    ring = np.arange(rings)[:, None] * segments
+    a = ring + np.arange(segments)[None, :]
+    b = ring + (np.arange(segments)[None, :] + 1) % segments
+    c, d = a + segments, b + segments
+    first = np.stack([a, b, d], -1)[1:].reshape(-1, 3)  # none at the north pole
+    second = np.stack([a, d, c], -1)[:-1].reshape(-1, 3)  # none at the south pole
+    indices = np.concatenate([first, second])
+    return {"positions": positions, "indices": indices, "normals": None, "material": 0}
+
+
+def scene_with_sphere_mesh(triangles: int):
+    """mitsuba-cbox plus a tessellated sphere (white) at its centre."""
+    base = load_scene("mitsuba-cbox")
+    packed, normals = pack_triangles([sphere_mesh(triangles)])
+    return dataclasses.replace(base, triangles=packed, triangle_normals=normals)
+
+
+def rays_per_second(runtime, tracer, sets, size, repeats):
+    tracer.trace(sets, 1, size, size).wait()
+    cpu_times, walls, rays = [], [], 0
+    for _ in range(repeats):
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        result = tracer.trace(sets, 1, size, size)
+        result.wait()
+        cpu_times.append(time.process_time() - cpu0)
+        walls.append(time.perf_counter() - wall0)
+        rays = result.rays
+    cpu = statistics.median(cpu_times)
+    units = runtime.device.max_compute_units
+    return {
+        "rays": rays,
+        "cpu_s": cpu,
+        "wall_s": statistics.median(walls),
+        "rays_per_s": rays / cpu * units,
+    }
+
+
+def build_times(scene, repeats):
+    bounds = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
+    walls, cpus = [], []
+    for _ in range(repeats):
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        nodes, _ = build_bvh(*bounds)
+        walls.append(time.perf_counter() - wall0)
+        cpus.append(time.process_time() - cpu0)
+    return {
+        "build_wall_s": statistics.median(walls),
+        "build_cpu_s": statistics.median(cpus),
+        "nodes": len(nodes),
+    }
+
+
+def compare(runtime, scene, sets, size, repeats, label):
+    """Brute force and the BVH, alternating; and which of the two the renderer picks."""
+    tracers = {
+        "brute": PathTracer(runtime, scene, max_depth=8, brute_force_limit=NEVER_BVH),
+        "bvh": PathTracer(runtime, scene, max_depth=8, brute_force_limit=FORCE_BVH),
+    }
+    rates = {name: [] for name in tracers}
+    for _ in range(repeats):
+        for name, tracer in tracers.items():
+            rates[name].append(rays_per_second(runtime, tracer, sets, size, 1)["rays_per_s"])
+    row = {
+        "scene": label,
+        "primitives": scene.primitive_count,
+        "default_uses_bvh": brute_force_cost(
+            len(scene.quads), len(scene.spheres), len(scene.triangles)
+        )
+        > BRUTE_FORCE_LIMIT,
+    }
+    for name in tracers:
+        row[f"{name}_rays_per_s"] = statistics.median(rates[name])
+    row["bvh_over_brute"] = row["bvh_rays_per_s"] / row["brute_rays_per_s"]
+    print(
+        f"{label:>22s} ({row['primitives']:6d} prims): brute force "
+        f"{row['brute_rays_per_s'] / 1e6:6.2f} M rays/s, BVH "
+        f"{row['bvh_rays_per_s'] / 1e6:6.2f} M rays/s (x{row['bvh_over_brute']:.2f})",
+        flush=True,
+    )
+    return row
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument(
+        "--triangles", type=int, nargs="+", default=[20, 1000, 10000, 100000, 1000000]
+    )
+    parser.add_argument("--quads", type=int, nargs="+", default=[34, 66, 130, 258, 514])
+    parser.add_argument(
+        "--compare-triangles",
+        type=int,
+        nargs="+",
+        default=[8, 20, 50, 100],
+        help="sphere meshes traced both by brute force and through the BVH",
+    )
+    parser.add_argument("--size", type=int, default=64)
+    parser.add_argument("--spp", type=int, default=16)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--skip-render", action="store_true", help="build times only")
+    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
+    args = parser.parse_args(argv)
+    runtime = create_runtime()
+    pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
+    sets = generate_sample_sets(runtime, make_sampler("independent", args.spp), 1, pixels)
+    out = {
+        "device": runtime.describe(),
+        "brute_force_limit": BRUTE_FORCE_LIMIT,
+        "size": args.size,
+        "spp": args.spp,
+        "triangles": [],
+        "meshes": [],
+        "cornell": [],
+        "quads": [],
+    }
+    for count in args.triangles:
+        scene = scene_with_sphere_mesh(count)
+        row = {"triangles": len(scene.triangles), **build_times(scene, args.repeats)}
+        if not args.skip_render:
+            tracer = PathTracer(runtime, scene, max_depth=8)
+            row.update(rays_per_second(runtime, tracer, sets, args.size, args.repeats))
+        out["triangles"].append(row)
+        rate = f"{row['rays_per_s'] / 1e6:6.2f} M rays/s" if "rays_per_s" in row else ""
+        print(
+            f"{row['triangles']:8d} triangles: build {row['build_wall_s']:7.3f} s wall "
+            f"{row['build_cpu_s']:7.3f} s CPU  {rate}",
+            flush=True,
+        )
+    if not args.skip_render:
+        for count in args.compare_triangles:
+            scene = scene_with_sphere_mesh(count)
+            label = f"{len(scene.triangles)} triangles"
+            out["meshes"].append(compare(runtime, scene, sets, args.size, args.repeats, label))
+        for name in ("cornell-box", "mitsuba-cbox", "cornell-box-glossy"):
+            out["cornell"].append(
+                compare(runtime, load_scene(name), sets, args.size, args.repeats, name)
+            )
+        with tempfile.TemporaryDirectory() as folder:
+            for count in args.quads:
+                scene = scene_with_extra_quads(count - 18, 7, Path(folder))
+                out["quads"].append(
+                    compare(runtime, scene, sets, args.size, args.repeats, f"{count} quads")
+                )
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(out, indent=1))
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
