@@ -542,28 +542,15 @@ def transform_normals(matrix: np.ndarray, normals: np.ndarray) -> np.ndarray:
 
 
 def load_ply(where: Location, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(positions, triangles, vertex normals or None) of a PLY file, read with plyfile (the
-    meshes' reader; once clrender.mesh_files is merged, its read_mesh_file can serve here)."""
+    """(positions, triangles, vertex normals or None) of a PLY file, read as the scene's
+    `mesh` shape reads its files (clrender.mesh_files: plyfile; polygons as triangle fans)."""
+    from clrender.mesh_files import MeshFileError, read_mesh_file
+
     try:
-        from plyfile import PlyData
-    except ImportError:
-        where.fail(f"reading {path.name} under a transform needs plyfile (pip install plyfile)")
-    try:
-        data = PlyData.read(str(path))
-        vertex = data["vertex"]
-        positions = np.stack([vertex[axis] for axis in "xyz"], axis=1).astype(np.float64)
-        faces = list(data["face"]["vertex_indices"])
-    except OSError as err:
-        where.fail(f"cannot read {path}: {err.strerror}")
-    except Exception as err:  # plyfile raises several types for a malformed file
-        where.fail(f"cannot read {path} as PLY with vertex x, y, z and face vertex_indices: {err}")
-    if not faces or any(len(face) != 3 for face in faces):
-        where.fail(f"{path.name}: only triangle faces are supported")
-    names = vertex.data.dtype.names
-    normals = None
-    if all(axis in names for axis in ("nx", "ny", "nz")):
-        normals = np.stack([vertex[axis] for axis in ("nx", "ny", "nz")], axis=1).astype(float)
-    return positions, np.array(faces, np.int64), normals
+        mesh = read_mesh_file(path)
+    except MeshFileError as err:
+        where.fail(str(err))
+    return mesh.positions, mesh.indices, mesh.normals
 
 
 # --------------------------------------------------------------------------- the reader

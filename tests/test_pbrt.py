@@ -641,3 +641,28 @@ def test_25_veach_mis_pbrt_renders_as_its_toml_conversion():
     from_toml = clrender.render(load_scene(VEACH_TOML), **settings)
     assert from_pbrt.image.max() > 0
     np.testing.assert_array_equal(from_pbrt.image, from_toml.image)
+
+
+def test_26_meshes_load_as_the_scenes_triangles(tmp_path):
+    # A triangle fan (not parallelograms) and a plymesh under a transform: the loaded scene
+    # holds their triangles in world space, front sides as pbrt winds them.
+    ply = (
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
+    write(tmp_path, ply, "tri.ply")
+    body = (
+        'Shape "trianglemesh" "point3 P" [ 0 1 0  1 1 0  1 2 0  0 2 1 ]\n'
+        '    "integer indices" [ 0 1 2  0 2 3 ]\n'
+        'Translate 0 0 2\nShape "plymesh" "string filename" "tri.ply"\n'
+    )
+    scene = load_scene(write(tmp_path, SCENE + body))
+    assert len(scene.triangles) == 3
+    corners = np.stack([scene.triangles[k] for k in ("p0", "p1", "p2")], axis=1)
+    expected = [
+        [[0, 1, 0], [1, 1, 0], [1, 2, 0]],
+        [[0, 1, 0], [1, 2, 0], [0, 2, 1]],
+        [[0, 0, 2], [1, 0, 2], [0, 1, 2]],
+    ]
+    np.testing.assert_array_equal(corners, np.array(expected, np.float32))
