@@ -53,46 +53,63 @@ def timed(fn, repeats: int):
     return statistics.median(walls), result
 
 
+def alternated(calls: dict, repeats: int) -> tuple[dict, dict]:
+    """Median wall seconds of each call, run in rounds (one of each per round, after one
+    warm-up round) so that the machine's load changes hit them alike; and their last results."""
+    results = {name: call() for name, call in calls.items()}
+    walls: dict = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, call in calls.items():
+            start = time.perf_counter()
+            results[name] = call()
+            walls[name].append(time.perf_counter() - start)
+    return {name: statistics.median(w) for name, w in walls.items()}, results
+
+
 def noop(item):
     return item
 
 
 def analytic_case(executors: dict, repeats: int, n: int, runs: int) -> dict:
-    """The analytic slice on each executor: seconds and speed-up over this process."""
-
-    def run(executor):
-        return lambda: analytic_study.run_estimates(n, runs, (7, 2), executor)
-
-    seconds, local = timed(run(None), repeats)
-    rows = {"local": {"seconds": seconds}}
+    """The analytic slice in this process and on each executor, alternated: seconds, speed-up
+    over this process, and whether the numbers are the same."""
+    calls = {"local": lambda: analytic_study.run_estimates(n, runs, (7, 2), None)}
     for name, executor in executors.items():
-        seconds, result = timed(run(executor), repeats)
-        same = all(np.array_equal(result[0][k], local[0][k], equal_nan=True) for k in local[0])
-        rows[name] = {"seconds": seconds, "identical": same}
-    for row in rows.values():
-        row["speedup_vs_local"] = rows["local"]["seconds"] / row["seconds"]
+        calls[name] = lambda ex=executor: analytic_study.run_estimates(n, runs, (7, 2), ex)
+    seconds, results = alternated(calls, repeats)
+    local = results["local"][0]
+    rows = {}
+    for name, result in results.items():
+        same = all(np.array_equal(result[0][k], local[k], equal_nan=True) for k in local)
+        rows[name] = {
+            "seconds": seconds[name],
+            "speedup_vs_local": seconds["local"] / seconds[name],
+            "identical": same,
+        }
     return {"n": n, "runs": runs, "rows": rows}
 
 
 def render_case(executors: dict, repeats: int, size: int, spp: int) -> dict:
-    """The render on each executor: seconds, M paths/s and ratio to the local render."""
+    """The render in this process and on each executor, alternated: seconds, M paths/s, speed
+    against this process, and whether the image is the same."""
     runtime = runtime_for(None)
     scene = load_scene("mitsuba-cbox")
     settings = RenderSettings(size, size, make_sampler("independent", spp), ["mc"], 1)
     source = radiance_source(runtime, scene, (size, size), 8)
-    seconds, local = timed(lambda: render(runtime, source, settings), repeats)
-    paths = size * size * spp
-    rows = {"local": {"seconds": seconds}}
     job = RenderJob.of(scene, settings, 8)
+    calls = {"local": lambda: render(runtime, source, settings)}
     for name, executor in executors.items():
-        seconds, result = timed(lambda ex=executor: render_on(ex, job), repeats)
+        calls[name] = lambda ex=executor: render_on(ex, job)
+    seconds, results = alternated(calls, repeats)
+    paths = size * size * spp
+    rows = {}
+    for name, result in results.items():
         rows[name] = {
-            "seconds": seconds,
-            "identical": bool(np.array_equal(result.image, local.image)),
+            "seconds": seconds[name],
+            "mpaths_per_s": paths / seconds[name] / 1e6,
+            "speed_vs_local": seconds["local"] / seconds[name],
+            "identical": bool(np.array_equal(result.image, results["local"].image)),
         }
-    for row in rows.values():
-        row["mpaths_per_s"] = paths / row["seconds"] / 1e6
-        row["speed_vs_local"] = rows["local"]["seconds"] / row["seconds"]
     return {"size": size, "spp": spp, "rows": rows}
 
 
