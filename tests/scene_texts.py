@@ -28,3 +28,26 @@ center = [0.0, 0.0, -2.0]
 radius = 1.0
 material = "white"
 """
+
+
+def lit_room(resolution: int = 8) -> str:
+    """A camera on the z axis, a white material and a small emitting quad above the origin: the
+    start of a scene file that tests add their shapes to."""
+    return f"""
+[camera]
+look_from = [0.0, 0.0, 5.0]
+look_at = [0.0, 0.0, 0.0]
+fov = 40.0
+resolution = [{resolution}, {resolution}]
+
+[materials.white]
+type = "diffuse"
+albedo = [0.5, 0.5, 0.5]
+
+[[shapes]]
+type = "quad"
+corner = [-0.5, 3.0, -0.5]
+edge1 = [1.0, 0.0, 0.0]
+edge2 = [0.0, 0.0, 1.0]
+emission = [1.0, 1.0, 1.0]
+"""

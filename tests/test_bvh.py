@@ -9,6 +9,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from geometry_device import device_intersect, device_occluded, device_surface
+from scene_texts import lit_room
 
 from clrender.bvh import (
     BINARY_NODE_DTYPE,
@@ -24,24 +25,7 @@ from clrender.scene_device import NORMALS_DTYPE, TRIANGLE_DTYPE
 from clrender.trace import PathTracer
 from clrender.wavefront import WavefrontPathTracer
 
-HEADER = """
-[camera]
-look_from = [0.0, 0.0, 5.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [16, 16]
-
-[materials.white]
-type = "diffuse"
-albedo = [0.5, 0.5, 0.5]
-
-[[shapes]]
-type = "quad"
-corner = [-0.5, 3.0, -0.5]
-edge1 = [1.0, 0.0, 0.0]
-edge2 = [0.0, 0.0, 1.0]
-emission = [1.0, 1.0, 1.0]
-"""
+HEADER = lit_room(16)
 
 
 def toml_rows(array) -> str:

@@ -6,32 +6,19 @@ import warnings
 
 import numpy as np
 import pytest
+from scene_texts import lit_room
 
 from clrender.scene import SceneError, SceneWarning, load_scene
 
-HEADER = """
-[camera]
-look_from = [0.0, 0.0, 5.0]
-look_at = [0.0, 0.0, 0.0]
-fov = 40.0
-resolution = [8, 8]
-
-[materials.white]
-type = "diffuse"
-albedo = [0.5, 0.5, 0.5]
-
-[[shapes]]
-type = "quad"
-corner = [-0.5, 3.0, -0.5]
-edge1 = [1.0, 0.0, 0.0]
-edge2 = [0.0, 0.0, 1.0]
-emission = [1.0, 1.0, 1.0]
-
+HEADER = (
+    lit_room(8)
+    + """
 [[shapes]]
 type = "mesh"
 name = "thing"
 material = "white"
 """
+)
 
 SQUARE = """positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
 indices = [[0, 1, 2], [0, 2, 3]]
