@@ -652,21 +652,15 @@ class PbrtReader:
             "command line (--spp, --sampler, --max-depth, ...)",
         )
 
-    def directive_Integrator(self, cursor, where):
+    def ignore_rendering_option(self, cursor, where):
+        """Integrator, Sampler, PixelFilter, Accelerator: before WorldBegin, named, ignored."""
         self.require_world(where, False)
         self.ignore(cursor, where, True)
 
-    def directive_Sampler(self, cursor, where):
-        self.require_world(where, False)
-        self.ignore(cursor, where, True)
-
-    def directive_PixelFilter(self, cursor, where):
-        self.require_world(where, False)
-        self.ignore(cursor, where, True)
-
-    def directive_Accelerator(self, cursor, where):
-        self.require_world(where, False)
-        self.ignore(cursor, where, True)
+    directive_Integrator = ignore_rendering_option
+    directive_Sampler = ignore_rendering_option
+    directive_PixelFilter = ignore_rendering_option
+    directive_Accelerator = ignore_rendering_option
 
     def directive_ColorSpace(self, cursor, where):
         cursor.string(where, "a colour space name in quotes")
