@@ -78,12 +78,17 @@ mesh.normals        V x [x,y,z]  none       per-vertex shading normals (interpol
 mesh.file           path         (b)        alternative: a PLY or OBJ file (relative to the
                                             scene file; clrender/mesh_files.py), normals
                                             from the file when it has them
+mesh.emission       RGB >= 0     none       makes every triangle of the mesh a one-sided area
+                                            emitter of this radiance, emitting on its front
+                                            (counter-clockwise) side, whatever the shading
+                                            normals; lit points pick a triangle by power and
+                                            sample it uniformly by area
 ==================  ===========  =========  ==================================================
 
 (a) a quad takes either ``corner`` + ``edge1`` + ``edge2`` or ``vertices``.
 (b) a mesh takes either ``positions`` + ``indices`` (+ ``normals``) or ``file``. Degenerate
 triangles (zero area, or repeated indices) are skipped with a warning; a mesh left with none is
-an error. Meshes do not emit (``emission`` on a mesh is refused). Scenes of more than
+an error. Scenes of more than
 about 200 quads or 12 triangles (scene_device.BRUTE_FORCE_LIMIT) are traced through a BVH
 (clrender/bvh.py), smaller ones by brute force.
 
@@ -424,7 +429,7 @@ SHAPE_FIELDS = {
     "quad": ("type", "name", "material", "corner", "edge1", "edge2", "vertices", "emission"),
     "box": ("type", "name", "material", "min", "max", "rotate_y", "translate"),
     "sphere": ("type", "name", "material", "center", "radius", "emission"),
-    "mesh": ("type", "name", "material", "positions", "indices", "normals", "file"),
+    "mesh": ("type", "name", "material", "positions", "indices", "normals", "file", "emission"),
 }
 MESH_ARRAYS = ("positions", "indices", "normals")
 # A triangle is degenerate when |cross(e1, e2)| <= this times |e1| |e2| (as quads' check).
@@ -434,7 +439,7 @@ MATERIAL_FIELDS = {
     "dielectric": ("type", "ior"),
     "roughconductor": ("type", "alpha", "eta", "k", "two_sided"),
 }
-EMITTING_SHAPES = ("quad", "sphere")  # shapes that take `emission`
+EMITTING_SHAPES = ("quad", "sphere", "mesh")  # shapes that take `emission`
 CAMERA_FIELDS = ("look_from", "look_at", "up", "fov", "resolution", "handedness")
 CAMERA_HANDEDNESS = ("right", "left")
 TOP_FIELDS = ("description", "camera", "materials", "shapes")
@@ -464,7 +469,7 @@ class SceneBuilder:
             if key in document:
                 top.fail(
                     key,
-                    "unknown field: an emitter is a [[shapes]] quad or sphere with an "
+                    "unknown field: an emitter is a [[shapes]] quad, sphere or mesh with an "
                     "`emission` field",
                 )
         top.check_keys(TOP_FIELDS)
@@ -557,11 +562,13 @@ class SceneBuilder:
                 "type", f"unknown shape type {kind!r}{hint}; accepted: {', '.join(SHAPE_FIELDS)}"
             )
         if kind not in EMITTING_SHAPES and table.has("emission"):
-            table.fail("emission", f"a {kind} cannot be an emitter: only quads and spheres emit")
+            table.fail(
+                "emission", f"a {kind} cannot be an emitter: only quads, spheres and meshes emit"
+            )
         if table.has("emitter"):  # Mitsuba's nested emitter: here a quad field, no types
             table.fail(
                 "emitter",
-                "unknown field: there are no emitter types; a quad or sphere emits "
+                "unknown field: there are no emitter types; a quad, sphere or mesh emits "
                 "with `emission = [r, g, b]`",
             )
         table.check_keys(SHAPE_FIELDS[kind])
@@ -576,7 +583,7 @@ class SceneBuilder:
         elif kind == "box":
             self.read_box(table, name, label, material)
         elif kind == "mesh":
-            self.read_mesh(table, name, label, material)
+            self.read_mesh(table, name, label, material, emission)
         else:
             center = table.vector("center", _REQUIRED)
             radius = table.number("radius", _REQUIRED, what=" > 0")
@@ -687,7 +694,9 @@ class SceneBuilder:
         self.solids.append((f"{label} (a box)", inside))
 
     # -- meshes
-    def read_mesh(self, table: _Table, name: str, label: str, material: int) -> None:
+    def read_mesh(
+        self, table: _Table, name: str, label: str, material: int, emission: tuple | None
+    ) -> None:
         if table.has("file"):
             inline = [key for key in MESH_ARRAYS if table.has(key)]
             if inline:
@@ -740,7 +749,13 @@ class SceneBuilder:
             warnings.warn(self.notes[-1], SceneWarning, stacklevel=5)
             indices = indices[~degenerate]
         self.meshes.append(
-            {"positions": positions, "indices": indices, "normals": normals, "material": material}
+            {
+                "positions": positions,
+                "indices": indices,
+                "normals": normals,
+                "material": material,
+                "emission": emission,
+            }
         )
         self.mesh_names.append(name)
         used = positions[np.unique(indices)]
@@ -784,9 +799,9 @@ class SceneBuilder:
     def finish(self, camera: Camera, description: str) -> Scene:
         quads = pack_quads(self.quads)
         spheres = pack_spheres(self.spheres)
-        emitters = pack_emitters(self.quads, quads, self.spheres, spheres)
         materials = pack_materials(self.materials)
         triangles, triangle_normals = pack_triangles(self.meshes)
+        emitters = pack_emitters(self.quads, quads, self.spheres, spheres, self.meshes, triangles)
         if len(quads) + len(spheres) + len(triangles) == 0:
             raise SceneError(f"{self.path}: shapes: the scene has no shapes")
         origin = np.array(camera.look_from)

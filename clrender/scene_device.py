@@ -11,12 +11,13 @@ dtype              struct               one record per
 QUAD_DTYPE         Quad                 quad (a box is 6), with its dual vectors
 quad_block_dtype   QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
 SPHERE_DTYPE       Sphere               sphere
-TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, normals index)
+TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, normals and
+                                        emitter index)
 NORMALS_DTYPE      TriangleNormals      mesh triangle with per-vertex shading normals
 BVH_NODE_DTYPE     BVHNode              8-wide node of the BVH over every primitive (bvh.py)
 MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
-EMITTER_DTYPE      Emitter              emitting quad or sphere, with its light-selection pdf
-                                        and cdf
+EMITTER_DTYPE      Emitter              emitting quad, sphere or mesh triangle, with its
+                                        light-selection pdf and cdf
 CAMERA_DTYPE       Camera               camera at one image size
 =================  ===================  ====================================================
 
@@ -79,6 +80,7 @@ TRIANGLE_DTYPE = np.dtype(
         ("p2", "<f4", 3),
         ("material", "<i4"),
         ("normals", "<i4"),
+        ("emitter", "<i4"),
     ]
 )
 NORMALS_DTYPE = np.dtype([("n", "<f4", (3, 3))])
@@ -106,8 +108,8 @@ MATERIAL_DTYPE = np.dtype(
         ("alpha", "<f4"),
     ]
 )
-# Emitter shape kinds: EMITTER_QUAD, EMITTER_SPHERE in kernels/scene_types.h.
-EMITTER_SHAPES = {"quad": 0, "sphere": 1}
+# Emitter shape kinds: EMITTER_QUAD, EMITTER_SPHERE, EMITTER_TRIANGLE in kernels/scene_types.h.
+EMITTER_SHAPES = {"quad": 0, "sphere": 1, "triangle": 2}
 EMITTER_DTYPE = np.dtype(
     [
         ("shape", "<i4"),
@@ -211,40 +213,63 @@ def pack_emitters(
     packed: np.ndarray,
     spheres: list[dict] = (),
     packed_spheres: np.ndarray | None = None,
+    meshes: list[dict] = (),
+    packed_triangles: np.ndarray | None = None,
 ) -> np.ndarray:
-    """One EMITTER_DTYPE record per emitting shape (a quad or sphere dict whose "emission" is
-    not None; spheres without the key do not emit): the quads in order, then the spheres.
-    Selection pdf proportional to power = area * mean radiance (a sphere's area is
-    4 pi r^2); sets the packed quads' and spheres' emitter index."""
+    """One EMITTER_DTYPE record per emitting shape (a quad, sphere or mesh dict whose
+    "emission" is not None; dicts without the key do not emit), every triangle of an emitting
+    mesh an emitter of its own: the quads in order, then the spheres, then the triangles (in
+    pack_triangles' order). Selection pdf proportional to power = area * mean radiance (a
+    sphere's area is 4 pi r^2); sets the packed quads', spheres' and triangles' emitter index."""
     shapes = [("quad", i, quad, packed) for i, quad in enumerate(quads)]
     shapes += [("sphere", i, sphere, packed_spheres) for i, sphere in enumerate(spheres)]
     emitting = [shape for shape in shapes if shape[2].get("emission") is not None]
-    emitters = np.zeros(len(emitting), EMITTER_DTYPE)
-    powers = []
-    for slot, (kind, i, shape, records) in enumerate(emitting):
+    areas = []
+    for kind, _, shape, _ in emitting:
         if kind == "quad":
-            area = float(np.linalg.norm(np.cross(shape["edge1"], shape["edge2"])))
+            areas.append(float(np.linalg.norm(np.cross(shape["edge1"], shape["edge2"]))))
         else:
-            area = 4.0 * math.pi * float(shape["radius"]) ** 2
-        emitters[slot]["shape"] = EMITTER_SHAPES[kind]
-        emitters[slot]["index"] = i
-        emitters[slot]["radiance"] = shape["emission"]
-        emitters[slot]["area"] = area
-        powers.append(area * float(np.mean(shape["emission"])))
-        records[i]["emitter"] = slot
-    if emitting:
-        pdf = np.array(powers) / np.sum(powers)
-        emitters["pick_pdf"] = pdf
-        cdf = np.cumsum(pdf)
-        cdf[-1] = 1.0
-        emitters["pick_cdf"] = cdf
+            areas.append(4.0 * math.pi * float(shape["radius"]) ** 2)
+    first = 0  # the mesh's first triangle in the packed triangles
+    for mesh in meshes:
+        count = len(mesh["indices"])
+        if mesh.get("emission") is not None:
+            positions = np.asarray(mesh["positions"], np.float64)
+            p0, p1, p2 = (positions[np.asarray(mesh["indices"])[:, k]] for k in range(3))
+            mesh_areas = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+            for k in range(count):
+                emitting.append(("triangle", first + k, mesh, packed_triangles))
+            areas.extend(mesh_areas.tolist())
+        first += count
+    emitters = np.zeros(len(emitting), EMITTER_DTYPE)
+    if not emitting:
+        return emitters
+    kinds = np.array([EMITTER_SHAPES[kind] for kind, *_ in emitting])
+    indices = np.array([i for _, i, *_ in emitting])
+    radiance = np.array([shape["emission"] for _, _, shape, _ in emitting], np.float64)
+    emitters["shape"] = kinds
+    emitters["index"] = indices
+    emitters["radiance"] = radiance
+    emitters["area"] = areas
+    for kind in EMITTER_SHAPES:
+        records = {"quad": packed, "sphere": packed_spheres, "triangle": packed_triangles}[kind]
+        mine = kinds == EMITTER_SHAPES[kind]
+        if mine.any():
+            records["emitter"][indices[mine]] = np.flatnonzero(mine)
+    powers = np.array(areas) * np.mean(radiance, axis=1)
+    pdf = powers / np.sum(powers)
+    emitters["pick_pdf"] = pdf
+    cdf = np.cumsum(pdf)
+    cdf[-1] = 1.0
+    emitters["pick_cdf"] = cdf
     return emitters
 
 
 def pack_triangles(meshes: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     """TRIANGLE_DTYPE and NORMALS_DTYPE records of meshes given as dicts: "positions" (V, 3),
     "indices" (T, 3), "normals" (V, 3) or None, "material". Triangles of all meshes in order;
-    a triangle's normals index is its row in the normals records, or -1."""
+    a triangle's normals index is its row in the normals records, or -1 (emitter -1:
+    pack_emitters sets it)."""
     triangles = []
     normals = []
     count = 0
@@ -255,6 +280,7 @@ def pack_triangles(meshes: list[dict]) -> tuple[np.ndarray, np.ndarray]:
         packed["p0"], packed["p1"], packed["p2"] = (positions[indices[:, k]] for k in range(3))
         packed["material"] = mesh["material"]
         packed["normals"] = -1
+        packed["emitter"] = -1
         if mesh.get("normals") is not None:
             vertex_normals = np.asarray(mesh["normals"], np.float64)
             vertex_normals = vertex_normals / np.linalg.norm(vertex_normals, axis=1)[:, None]

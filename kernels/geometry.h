@@ -459,7 +459,7 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
                 s.ns = Normalize3(Dot3(n, s.ng) < 0.0f ? -n : n);
         }
         s.material = tri->material;
-        s.emitter = -1;
+        s.emitter = tri->emitter;
         s.error = SURFACE_ERROR_SCALE * Fmax(MaxAbs3(p0), Fmax(MaxAbs3(p1), MaxAbs3(p2)));
     }
     return s;

@@ -1,14 +1,14 @@
-// Area lights: emitting quads and spheres, one-sided (a quad emits on the side its normal
-// points to, a sphere outwards). An emitter is picked with probability proportional to its
-// power, then a point on it seen from the receiving point p:
-//   quad:   uniformly by area (pdfA = 1 / area), converted to solid angle at p:
+// Area lights: emitting quads, spheres and mesh triangles, one-sided (a quad or triangle emits
+// on the side its normal points to, a sphere outwards). An emitter is picked with probability
+// proportional to its power, then a point on it seen from the receiving point p:
+//   quad, triangle: uniformly by area (pdfA = 1 / area), converted to solid angle at p:
 //           pdfW = pick_pdf * pdfA * dist^2 / cos_light;
 //   sphere: uniformly in the cone of directions from p that meets the sphere (the visible
 //           cap, as pbrt-v4's Sphere::Sample with a reference point outside the sphere):
 //           pdfW = pick_pdf / (2 pi (1 - cos_theta_max)), sin^2 theta_max = r^2 / d^2.
 //           From a point inside or on the sphere the outward emitter is invisible: the sample
 //           and its pdf are zero (pbrt samples by area there; nothing here can use it).
-// Both take the same two random numbers (the emitter point u.y, u.z).
+// All take the same two random numbers (the emitter point u.y, u.z).
 #ifndef CLRENDER_LIGHTS_H
 #define CLRENDER_LIGHTS_H
 
@@ -17,18 +17,36 @@
 #include "scene_types.h"
 #include "vecmath.h"
 
-// The emitter whose selection-CDF interval holds u (linear scan: scenes have few emitters).
+// The emitter whose selection-CDF interval holds u: the first i with u < pick_cdf[i], the last
+// emitter if none (u rounding up to 1). A binary search (a mesh makes an emitter of every
+// triangle); the CDF never decreases, so it picks what a linear scan of the intervals would.
 CL_INLINE uint Light_Pick(const SceneData *scene, float u)
 {
-    uint last = scene->emitter_count - 1u;
-    uint chosen = last;
-    for (uint i = last; i-- > 0u;)
-        chosen = u < scene->emitters[i].pick_cdf ? i : chosen;
-    return chosen;
+    uint lo = 0u;
+    uint hi = scene->emitter_count - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (u < scene->emitters[mid].pick_cdf)
+            hi = mid;
+        else
+            lo = mid + 1u;
+    }
+    return lo;
 }
 
-// Solid-angle pdf of NEE producing a point of an emitting quad at distance dist whose normal
-// makes cosine cos_light with the direction back to the receiver.
+// Barycentric coordinates (b0, b1, b2) of a point uniform by area on a triangle, from u in
+// [0, 1)^2 (the square-root parametrisation, pbrt-v3's UniformSampleTriangle):
+// b0 = 1 - sqrt(u0), b1 = u1 sqrt(u0), b2 = 1 - b0 - b1.
+CL_INLINE float3 Triangle_SampleUniform(float2 u)
+{
+    float su0 = Sqrt(u.x);
+    float b0 = 1.0f - su0;
+    float b1 = u.y * su0;
+    return (float3)(b0, b1, 1.0f - b0 - b1);
+}
+
+// Solid-angle pdf of NEE producing a point of an emitting quad or triangle (sampled by area)
+// at distance dist whose normal makes cosine cos_light with the direction back to the receiver.
 CL_INLINE float Light_PdfW(__global const Emitter *emitter, float dist, float cos_light)
 {
     return emitter->pick_pdf * dist * dist / (cos_light * emitter->area);
@@ -117,13 +135,25 @@ CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, floa
         *pdfW = emitter->pick_pdf * cone_pdfW;
         return cone_pdfW > 0.0f ? Load3(emitter->radiance) : (float3)(0.0f);
     }
-    __global const Quad *quad = &scene->quads[emitter->index];
-    float3 y = Load3(quad->corner) + u.y * Load3(quad->edge1) +
-               u.z * Load3(quad->edge2);
+    // A point uniform by area on the quad or triangle, and the emitter's unit normal
+    float3 y, normal;
+    if (emitter->shape == EMITTER_TRIANGLE) {
+        __global const Triangle *tri = &scene->triangles[emitter->index];
+        float3 p0 = Load3(tri->p0);
+        float3 p1 = Load3(tri->p1);
+        float3 p2 = Load3(tri->p2);
+        float3 b = Triangle_SampleUniform((float2)(u.y, u.z));
+        y = b.x * p0 + b.y * p1 + b.z * p2;
+        normal = Normalize3(Cross3(p1 - p0, p2 - p0));
+    } else {
+        __global const Quad *quad = &scene->quads[emitter->index];
+        y = Load3(quad->corner) + u.y * Load3(quad->edge1) + u.z * Load3(quad->edge2);
+        normal = Load3(quad->normal);
+    }
     float3 to_light = y - p;
     *dist = Length3(to_light);
     *wi = to_light / *dist;
-    float cos_light = -Dot3(Load3(quad->normal), *wi);
+    float cos_light = -Dot3(normal, *wi);
     if (!(cos_light > 0.0f)) {
         *pdfW = 0.0f;
         return (float3)(0.0f);
@@ -134,10 +164,10 @@ CL_INLINE float3 Light_SampleLi(const SceneData *scene, float3 p, float3 u, floa
 
 // Where the shadow ray of a light sample (at distance dist from the receiving point, along
 // wi) meets the emitter, measured from the ray's origin (the receiver's offset point); the
-// caller stops the ray short of it by the points' rounding bounds. A quad: dist. A sphere:
-// where this very ray meets it (Sphere_Intersect, as the occlusion test will compute it), at
-// most dist: the offset origin moves the crossing of rays that graze the sphere's rim by many
-// times the offset, and a shadow ray ending at dist would find the emitter itself there.
+// caller stops the ray short of it by the points' rounding bounds. A quad or triangle: dist.
+// A sphere: where this very ray meets it (Sphere_Intersect, as the occlusion test will compute
+// it), at most dist: the offset origin moves the crossing of rays that graze the sphere's rim
+// by many times the offset, and a shadow ray ending at dist would find the emitter itself there.
 CL_INLINE float Light_ShadowDistance(const SceneData *scene, uint picked, float3 origin,
                                      float3 wi, float dist)
 {

@@ -61,6 +61,7 @@ typedef struct {
     float p2[3];
     int material; // index into the materials, or MATERIAL_NONE
     int normals;  // index into the triangle normals, or -1
+    int emitter;  // index into the emitters, or -1
 } Triangle;
 
 // Unit shading normals at a triangle's p0, p1, p2.
@@ -98,13 +99,14 @@ typedef struct {
 // Emitter shape kinds (scene_device.EMITTER_SHAPES).
 #define EMITTER_QUAD 0
 #define EMITTER_SPHERE 1
+#define EMITTER_TRIANGLE 2
 
-// An emitting quad or sphere; area is its surface area (a sphere's 4 pi r^2), pick_pdf its
-// selection probability (proportional to power: area x mean radiance) and pick_cdf the upper
-// end of its interval in the selection CDF.
+// An emitting quad, sphere or mesh triangle; area is its surface area (a sphere's 4 pi r^2),
+// pick_pdf its selection probability (proportional to power: area x mean radiance) and pick_cdf
+// the upper end of its interval in the selection CDF (non-decreasing, the last one 1).
 typedef struct {
-    int shape; // EMITTER_QUAD or EMITTER_SPHERE
-    int index; // the emitting quad's or sphere's index
+    int shape; // EMITTER_QUAD, EMITTER_SPHERE or EMITTER_TRIANGLE
+    int index; // the emitting quad's, sphere's or triangle's index
     float radiance[3];
     float area;
     float pick_pdf;

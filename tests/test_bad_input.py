@@ -98,7 +98,7 @@ SCENE_ERRORS = [
         '[[emitters]]\ntype = "area"\n\n[materials.white]',
         [
             "top level, field 'emitters'",
-            "an emitter is a [[shapes]] quad or sphere with an `emission`",
+            "an emitter is a [[shapes]] quad, sphere or mesh with an `emission`",
         ],
     ),
     ("radius = 1.0", "radius = -0.5", ["field 'radius'", "> 0, got -0.5"]),

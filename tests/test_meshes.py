@@ -139,7 +139,7 @@ BAD_INPUT = [
     (SQUARE + 'file = "m.ply"\n', "give either file or positions/indices/normals"),
     ('file = "missing.ply"\n', "missing.ply: cannot read"),
     ('file = "m.stl"\n', "unknown mesh file type '.stl'"),
-    (SQUARE + "emission = [1.0, 1.0, 1.0]\n", "a mesh cannot be an emitter"),
+    (SQUARE + "emission = [1.0, -1.0, 1.0]\n", "'emission': expected 3 numbers >= 0 (RGB)"),
     (SQUARE + "smooth = true\n", "'smooth': unknown field"),
 ]
 

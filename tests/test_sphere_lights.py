@@ -453,5 +453,7 @@ min = [0.0, 0.0, 0.0]
 max = [1.0, 1.0, 1.0]
 emission = [1.0, 1.0, 1.0]
 """
-    with pytest.raises(SceneError, match="'crate'.*'emission'.*only quads and spheres emit"):
+    with pytest.raises(
+        SceneError, match="'crate'.*'emission'.*only quads, spheres and meshes emit"
+    ):
         write_scene(tmp_path, MIS_SCENE + box)
