@@ -267,12 +267,12 @@ def report(results: dict, argv) -> str:
     ]
     rows = []
     for region, count in regions.items():
-        row = [region, count]
+        row = [region, count, f"{results['region_reference_noise'][region]:.2g}"]
         for pair in pairs:
             cell = table[pair]["regions"].get(region)
             row.append("n/a" if cell is None else f"{cell['mse']:.3g} +- {cell['mse_se'] or 0:.2g}")
         rows.append(row)
-    lines += [markdown_table(["region", "pixels", *pairs], rows), ""]
+    lines += [markdown_table(["region", "pixels", "reference noise", *pairs], rows), ""]
     for base in BASELINES:
         lines += [
             f"## MSE ratio to {base} (geometric mean over seeds, {CONFIDENCE:.0%} interval; "
@@ -334,6 +334,9 @@ def main(argv=None) -> None:
         "reference": ref_info,
         "reference_noise": float(ref_var.mean()),
         "region_pixels": {name: int(m.sum()) for name, m in masks.items()},
+        "region_reference_noise": {
+            name: float(ref_var.mean(axis=-1)[m].mean()) for name, m in masks.items()
+        },
         "table": summarise(rows, list(masks)),
         "renders": rows,
         "machine": machine(),

@@ -470,6 +470,7 @@ def test_11_veach_study_errors_by_region_from_the_geometry(tmp_path):
     assert masks[f"{lights[1]} on Glossy"][spot.y, spot.x]
     assert not (masks[f"{lights[1]} on Glossy"] & masks["rest of Glossy"]).any()
     assert data["region_pixels"]["whole image"] == 32 * 18
+    assert data["region_reference_noise"]["whole image"] == pytest.approx(data["reference_noise"])
     # every pair, mean and standard error over the seeds, ratios with their verdicts
     pairs = {f"{e}/{s}" for estimators, s in veach_study.RENDERS for e in estimators}
     assert set(data["table"]) == pairs and len(data["renders"]) == 2 * len(pairs)
