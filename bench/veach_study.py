@@ -148,7 +148,7 @@ def run_renders(runtime, args, ref, ref_var, masks, log=print) -> list[dict]:
     for seed in args.seeds:
         for estimators, sampler in RENDERS:
             wanted = list(estimators) if len(estimators) > 1 else estimators[0]
-            _, timing, films = render_all(runtime, source, wanted, sampler, args.spp, seed)
+            timing, films = render_all(runtime, source, wanted, sampler, args.spp, seed)
             for name in estimators:
                 rows.append(
                     {
@@ -171,15 +171,15 @@ def run_renders(runtime, args, ref, ref_var, masks, log=print) -> list[dict]:
 
 
 def render_all(runtime, source, estimators, sampler, spp, seed):
-    """(first image, timing row, {estimator: image}) of one render of one or more estimators."""
+    """(wall and CPU seconds, {estimator: image}) of one render of one or more estimators
+    (a list: one trace, one image each)."""
     settings = render_settings((source.width, source.height), estimators, sampler, spp, seed)
     cpu = time.process_time()
     start = time.perf_counter()
     result = render(runtime, source, settings)
     films = {name: film.image().astype(np.float64) for name, film in result.films.items()}
     timing = {"wall_s": time.perf_counter() - start, "cpu_s": time.process_time() - cpu}
-    first = settings.estimator.name
-    return films[first], timing, films
+    return timing, films
 
 
 # ---------------------------------------------------------------------------------------------
