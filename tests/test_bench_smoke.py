@@ -451,3 +451,55 @@ def test_10_kernel_structure_compares_megakernel_and_wavefront(tmp_path):
     text = (tmp_path / "results.json").read_text()
     data = json.loads(text)
     assert "conclusion" in text and data
+
+
+@pytest.mark.device
+def test_11_veach_study_errors_by_region_from_the_geometry(tmp_path):
+    import veach_study
+
+    from clrender.probes import glossy_reflection_pixel, sphere_light_edge_pixel
+    from clrender.scene import load_scene
+
+    veach_study.main(["--quick", "--out", str(tmp_path)])
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert data["size"] == [32, 18] and data["seeds"] == [1, 2]
+    # each region comes from the geometry: it holds what the probes find independently
+    scene = load_scene("veach-mis")
+    masks = veach_study.regions(scene, 32, 18)
+    lights = veach_study.light_names(scene)
+    for e in (0, 1):  # the small light's outline hides inside one pixel here
+        edge = sphere_light_edge_pixel(scene, 32, 18, emitter=e)
+        assert masks[f"outline {lights[e]}"][edge.y, edge.x]
+    spot = glossy_reflection_pixel(scene, 32, 18, emitter=1, material="Glossy")
+    assert masks[f"{lights[1]} on Glossy"][spot.y, spot.x]
+    assert not (masks[f"{lights[1]} on Glossy"] & masks["rest of Glossy"]).any()
+    assert data["region_pixels"]["whole image"] == 32 * 18
+    assert data["region_reference_noise"]["whole image"] == pytest.approx(data["reference_noise"])
+    # every pair, mean and standard error over the seeds, ratios with their verdicts
+    pairs = {f"{e}/{s}" for estimators, s in veach_study.RENDERS for e in estimators}
+    assert set(data["table"]) == pairs and len(data["renders"]) == 2 * len(pairs)
+    for entry in data["table"].values():
+        assert entry["wall_s"] > 0 and entry["cpu_s"] > 0
+        cell = entry["regions"]["whole image"]
+        assert cell["mse"] == pytest.approx(np.mean(cell["mse_per_seed"]))
+        assert cell["mse_se"] == pytest.approx(np.std(cell["mse_per_seed"], ddof=1) / np.sqrt(2))
+        for base in veach_study.BASELINES:
+            r = cell[f"vs {base}"]
+            if r["ratio"] is not None:
+                assert r["low"] <= r["ratio"] <= r["high"]
+                want = "win" if r["high"] < 1 else "loss" if r["low"] > 1 else "tie"
+                assert r["verdict"] == want
+    # the region MSE against a NumPy computation, and the ratio on known numbers
+    rng = np.random.default_rng(3)
+    ref, image = rng.random((2, 4, 5, 3))
+    var = np.full((4, 5, 3), 0.01)
+    mask = np.zeros((4, 5), bool)
+    mask[1:3, 2:4] = True
+    got = veach_study.region_mse(image, ref, var, {"r": mask})["r"]
+    assert got == pytest.approx(((image - ref)[1:3, 2:4] ** 2).mean() - 0.01)
+    twice = veach_study.ratio_interval(np.array([2.0, 4.0, 6.0]), np.array([1.0, 2.0, 3.0]))
+    assert twice["ratio"] == pytest.approx(2.0) and twice["verdict"] == "loss"
+    mixed = veach_study.ratio_interval(np.array([1.0, 4.0]), np.array([2.0, 2.0]))
+    assert mixed["ratio"] == pytest.approx(1.0) and mixed["verdict"] == "tie"
+    report = (tmp_path / "report.md").read_text()
+    assert "python bench/veach_study.py --quick" in report and "outline light r=1" in report
