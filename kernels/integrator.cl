@@ -164,21 +164,7 @@ __kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint i
     uint i = get_global_id(0);
     if (i >= traced_total)
         return;
-    SceneData scene = {.quads = quads,
-                       .quad_blocks = quad_blocks,
-                       .spheres = spheres,
-                       .materials = materials,
-                       .emitters = emitters,
-                       .triangles = triangles,
-                       .triangle_normals = triangle_normals,
-                       .bvh_nodes = bvh_nodes,
-                       .bvh_prims = bvh_prims,
-                       .quad_count = quad_count,
-                       .quad_block_count = quad_block_count,
-                       .sphere_count = sphere_count,
-                       .emitter_count = emitter_count,
-                       .triangle_count = triangle_count,
-                       .bvh_node_count = bvh_node_count};
+    SceneData scene = SCENE_DATA_OF_ARGUMENTS;
 
     // Find the sample's pixel, its index in the pixel and its image position
     uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);

@@ -142,4 +142,15 @@ typedef struct {
     uint bvh_node_count; // 0: brute force over every primitive (small scenes)
 } SceneData;
 
+// The SceneData of a kernel whose arguments carry the scene under these names (the path
+// tracer's kernels: integrator.cl, wavefront.cl; the host passes them in
+// PathTracer.scene_arguments' order).
+#define SCENE_DATA_OF_ARGUMENTS                                                                \
+    {.quads = quads, .quad_blocks = quad_blocks, .spheres = spheres, .materials = materials,  \
+     .emitters = emitters, .triangles = triangles, .triangle_normals = triangle_normals,       \
+     .bvh_nodes = bvh_nodes, .bvh_prims = bvh_prims, .quad_count = quad_count,                \
+     .quad_block_count = quad_block_count, .sphere_count = sphere_count,                      \
+     .emitter_count = emitter_count, .triangle_count = triangle_count,                        \
+     .bvh_node_count = bvh_node_count}
+
 #endif

@@ -78,7 +78,8 @@ typedef char WavefrontRay_size_is_32[sizeof(WavefrontRay) == 32 ? 1 : -1];
 typedef char WavefrontPath_size_is_64[sizeof(WavefrontPath) == 64 ? 1 : -1];
 typedef char WavefrontShadowRay_size_is_64[sizeof(WavefrontShadowRay) == 64 ? 1 : -1];
 
-// The scene as kernel arguments (every stage takes the same list) and as SceneData.
+// The scene as kernel arguments (every stage takes the same list; SCENE_DATA_OF_ARGUMENTS in
+// scene_types.h makes them a SceneData).
 #define WAVEFRONT_SCENE_PARAMS                                                                 \
     __global const Quad *quads, __global const QuadBlock *quad_blocks, uint quad_count,        \
         uint quad_block_count, __global const Sphere *spheres, uint sphere_count,              \
@@ -86,13 +87,6 @@ typedef char WavefrontShadowRay_size_is_64[sizeof(WavefrontShadowRay) == 64 ? 1 
         uint emitter_count, __global const Triangle *triangles, uint triangle_count,           \
         __global const TriangleNormals *triangle_normals, __global const BVHNode *bvh_nodes,   \
         uint bvh_node_count, __global const uint *bvh_prims
-#define WAVEFRONT_SCENE                                                                        \
-    {.quads = quads, .quad_blocks = quad_blocks, .spheres = spheres, .materials = materials,  \
-     .emitters = emitters, .triangles = triangles, .triangle_normals = triangle_normals,       \
-     .bvh_nodes = bvh_nodes, .bvh_prims = bvh_prims, .quad_count = quad_count,                \
-     .quad_block_count = quad_block_count, .sphere_count = sphere_count,                      \
-     .emitter_count = emitter_count, .triangle_count = triangle_count,                        \
-     .bvh_node_count = bvh_node_count}
 
 CL_INLINE void Wavefront_Store3(__global float *p, float3 v)
 {
@@ -206,7 +200,7 @@ __kernel void wavefront_intersect(uint ray_count, __global const uint *queue,
     uint q = get_global_id(0);
     if (q >= ray_count)
         return;
-    SceneData scene = WAVEFRONT_SCENE;
+    SceneData scene = SCENE_DATA_OF_ARGUMENTS;
     __global WavefrontRay *ray = &rays[queue[q]];
     int prim;
     ray->t = Scene_Intersect(&scene, Load3(ray->origin), Load3(ray->dir), INFINITY, &prim);
@@ -225,7 +219,7 @@ __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_rou
     uint q = get_global_id(0);
     if (q >= ray_count)
         return;
-    SceneData scene = WAVEFRONT_SCENE;
+    SceneData scene = SCENE_DATA_OF_ARGUMENTS;
     __global uint *queue_counts = &counters[count_slot];
     uint p = queue[q];
     __global WavefrontRay *ray = &rays[p];
@@ -322,7 +316,7 @@ __kernel void wavefront_shadow(uint shadow_count,
     uint q = get_global_id(0);
     if (q >= shadow_count)
         return;
-    SceneData scene = WAVEFRONT_SCENE;
+    SceneData scene = SCENE_DATA_OF_ARGUMENTS;
     __global const WavefrontShadowRay *shadow = &shadow_rays[q];
     float3 contribution = Load3(shadow->contribution);
 #ifndef PROFILE_SKIP_SHADOW_RAYS // profiling build: every shadow ray counts as unblocked

@@ -12,13 +12,12 @@ seeds: the outcome is deterministic, the bound says how far a correct one could 
 import math
 
 import numpy as np
-import pyopencl as cl
 import pytest
+from kernel_outputs import run_test_kernel
 from scipy import stats
 
 from clrender.pipeline import RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.runtime import padded_global_size
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import SceneError, load_scene, scenes_dir
 from clrender.scene_device import (
@@ -74,15 +73,12 @@ def device_samples(runtime, triangles, emitters, points, u, quads=None):
         "hit_pdf": np.empty(count, np.float32),
         "bary": np.empty((count, 3), np.float32),
     }
-    buffers = {
-        k: cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, v.nbytes) for k, v in out.items()
-    }
-    kernel = runtime.kernel("mesh_lights_test.cl", "sample_mesh_light")
-    kernel(
-        runtime.queue,
-        (padded_global_size(count),),
-        (runtime.local_size,),
-        np.uint32(count),
+    return run_test_kernel(
+        runtime,
+        "mesh_lights_test.cl",
+        "sample_mesh_light",
+        count,
+        out,
         runtime.upload(quads),
         np.uint32(len(quads)),
         runtime.upload(triangles),
@@ -91,11 +87,7 @@ def device_samples(runtime, triangles, emitters, points, u, quads=None):
         np.uint32(len(emitters)),
         runtime.upload(np.ascontiguousarray(points, np.float32)),
         runtime.upload(np.ascontiguousarray(u, np.float32)),
-        *buffers.values(),
     )
-    for key, array in out.items():
-        cl.enqueue_copy(runtime.queue, array, buffers[key])
-    return out
 
 
 def linear_scan_pick(cdf, u):

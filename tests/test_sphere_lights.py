@@ -11,13 +11,12 @@ seeds: the outcome is deterministic, the bound says how far a correct one could 
 import math
 
 import numpy as np
-import pyopencl as cl
 import pytest
+from kernel_outputs import run_test_kernel
 from scipy import stats
 
 from clrender.pipeline import RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.runtime import padded_global_size
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import SceneError, load_scene
 from clrender.scene_device import EMITTER_DTYPE, EMITTER_SHAPES, SPHERE_DTYPE
@@ -52,25 +51,18 @@ def device_samples(runtime, center, radius, points, u, pick_pdf=1.0):
         "pdf": np.empty(count, np.float32),
         "hit_pdf": np.empty(count, np.float32),
     }
-    buffers = {
-        k: cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, v.nbytes) for k, v in out.items()
-    }
-    kernel = runtime.kernel("lights_test.cl", "sample_sphere_light")
-    kernel(
-        runtime.queue,
-        (padded_global_size(count),),
-        (runtime.local_size,),
-        np.uint32(count),
+    return run_test_kernel(
+        runtime,
+        "lights_test.cl",
+        "sample_sphere_light",
+        count,
+        out,
         runtime.upload(sphere),
         runtime.upload(emitter),
         np.uint32(1),
         runtime.upload(np.ascontiguousarray(points, np.float32)),
         runtime.upload(np.ascontiguousarray(u, np.float32)),
-        *buffers.values(),
     )
-    for key, array in out.items():
-        cl.enqueue_copy(runtime.queue, array, buffers[key])
-    return out
 
 
 def duff_frame(n):
