@@ -234,8 +234,9 @@ def regular_obj_statements(data: bytes) -> ObjStatements | None:
     def numbers(body: np.ndarray, dtype, count: int) -> np.ndarray:
         if count == 0:  # (NumPy parses a blank string as one number)
             return np.zeros(0, dtype)
+        # Text that is not all numbers raises: ValueError (NumPy 2), DeprecationWarning before
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+            warnings.simplefilter("error", DeprecationWarning)
             return np.fromstring(body.tobytes(), dtype=dtype, sep=" ")
 
     try:
@@ -264,7 +265,7 @@ def regular_obj_statements(data: bytes) -> ObjStatements | None:
             return None
         body[slash] = ord(" ")
         indices = numbers(body, np.int64, corner_count)
-    except ValueError:
+    except (ValueError, DeprecationWarning):
         return None
     if len(indices) != fields * corner_count:
         return None

@@ -81,6 +81,7 @@ IRREGULAR = {
     "short vertex": "v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
     "not a number": "v 0 0 x\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
     "fraction index": "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 2.5\n",
+    "number with a tail": "v 0 0 0\nv 1 0 0\nv 0 1 1.5x\nf 1 2 3\n",
     "two-corner face": "v 0 0 0\nv 1 0 0\nf 1 2\n",
     "indented line": "v 0 0 0\n  v 1 0 0\nv 0 1 0\nf 1 2 3\n",
 }
