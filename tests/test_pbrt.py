@@ -666,3 +666,43 @@ def test_26_meshes_load_as_the_scenes_triangles(tmp_path):
         [[0, 0, 2], [1, 0, 2], [0, 1, 2]],
     ]
     np.testing.assert_array_equal(corners, np.array(expected, np.float32))
+
+
+# An emitting triangle fan at y = 1.5 above FLOOR: P = centre, +x, +z, -x, -z; indices as
+# written wind every triangle so that pbrt's normal, Cross(p0 - p2, p1 - p2), points down (-y)
+FAN_P = '"point3 P" [ 0 1.5 0  1 1.5 0  0 1.5 1  -1 1.5 0  0 1.5 -1 ]'
+FAN_DOWN = '"integer indices" [ 0 1 2  0 2 3  0 3 4 ]'
+FAN_UP = '"integer indices" [ 0 2 1  0 3 2  0 4 3 ]'
+NORMALS_DOWN = '"normal N" [ 0 -1 0  0 -1 0  0 -1 0  0 -1 0  0 -1 0 ]'
+
+
+@pytest.mark.device
+@pytest.mark.parametrize(
+    ("case", "transform", "indices", "normals", "lit"),
+    [
+        ("wound down", "", FAN_DOWN, "", True),
+        ("wound up", "", FAN_UP, "", False),
+        ("wound up, normals down", "", FAN_UP, NORMALS_DOWN, True),
+        ("wound down, mirrored", "Scale 1 1 -1\n", FAN_DOWN, "", True),
+        ("wound up, mirrored", "Scale 1 1 -1\n", FAN_UP, "", False),
+    ],
+)
+def test_27_mesh_emitters_light_the_side_pbrt_emits_to(
+    tmp_path, case, transform, indices, normals, lit
+):
+    # pbrt-v4: a diffuse area light emits on its surface normal's side only; a triangle's
+    # normal is its winding's, flipped by a transform that swaps handedness, and turned toward
+    # the vertex normals N when the mesh has them. The floor below is lit by the fan (the only
+    # emitter; black, so nothing else lights the floor) exactly when it emits down.
+    fan = (
+        f'AttributeBegin\n  {transform}  AreaLightSource "diffuse" "rgb L" [ 4 4 4 ]\n'
+        '  Material "diffuse" "rgb reflectance" [ 0 0 0 ]\n'
+        f'  Shape "trianglemesh" {FAN_P}\n    {indices} {normals}\nAttributeEnd\n'
+    )
+    scene = load_scene(write(tmp_path, HEADER + FLOOR + fan))
+    assert len(scene.triangles) == 3, case
+    floor = clrender.render(scene, spp=16, seed=3).image[4:].mean()
+    if lit:
+        assert floor > 0.01, case
+    else:
+        assert floor == 0.0, case
