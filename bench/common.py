@@ -1,6 +1,17 @@
 """Helpers shared by the render benches: scene sources, timed renders, cached references,
 image error metrics, machine load and report writing.
 
+Where renders run: a study's renders are `RenderTask`s (plain data: scene name, size,
+estimators, sampler, spp, seed, path settings), each rendered whole by `render_task` in this
+process or on a worker of a Dask cluster (--workers / --scheduler: clrender.cluster), which
+keeps its OpenCL runtime and radiance sources between tasks and sends back the images as NumPy
+arrays with the render's row of timings. A task's time is taken where it runs: wall and CPU
+time (time.process_time: PoCL's threads run in the process; a worker runs one task at a time)
+of that render in that process. Workers render different configurations at once, so on a
+cluster a render's wall time includes waiting for cores the other workers use; its CPU time is
+the render's own work (plus the worker's small share of Dask's threads). Every row records the
+worker and the load.
+
 References: the mean of REFERENCE_PARTS independent renders (mc over REFERENCE_SAMPLER samples:
 padded Owen-scrambled Sobol in every path dimension, the lowest-variance sampler that takes any
 count; seeds REFERENCE_SEED + k, so the parts are independent scrambles, spp / REFERENCE_PARTS
@@ -12,25 +23,36 @@ parts match (the file name and its metadata).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
 import sys
 import time
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
 from clrender import compare
-from clrender.cluster import make_executor
+from clrender.cluster import (
+    DaskExecutor,
+    LocalExecutor,
+    RenderJob,
+    make_executor,
+    process_cache,
+    render_on,
+    worker_name,
+)
 from clrender.imageio import read_exr, srgb_encode, write_atomically, write_exr
 from clrender.pipeline import RenderResult, RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.runtime import Runtime
+from clrender.runtime import Runtime, create_runtime
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
+
+Executor = LocalExecutor | DaskExecutor
 
 RESULTS = Path(__file__).resolve().parent / "results"
 REFERENCE_DIR = RESULTS / "references"
@@ -107,32 +129,131 @@ def timed_render(
     """(image (H, W, 3) float64, timings and counters of the render): wall_s is the render's
     own wall time (RenderStats), call_s the whole call to the image in hand (as a peer renderer
     is timed), cpu_s the process's CPU time over the call (PoCL's threads run in-process)."""
-    settings = render_settings(
-        (source.width, source.height), estimator, sampler, spp, seed, backend
-    )
+    images, row = measured_render(runtime, source, (estimator,), sampler, spp, seed, backend)
+    return images[estimator].astype(np.float64), row
+
+
+def measured_render(
+    runtime: Runtime,
+    source: PathTracerSource,
+    estimators: tuple[str, ...],
+    sampler: str,
+    spp: int,
+    seed: int,
+    backend: str | None = None,
+) -> tuple[dict[str, np.ndarray], dict]:
+    """({estimator: image (H, W, 3) float32}, the row of timed_render) of one render of one
+    or more estimators (several: one trace, one film each); the row's counters and cells are
+    the first estimator's."""
+    wanted = estimators[0] if len(estimators) == 1 else list(estimators)
+    settings = render_settings((source.width, source.height), wanted, sampler, spp, seed, backend)
     cpu = time.process_time()
     start = time.perf_counter()
     result: RenderResult = render(runtime, source, settings)
-    image = result.film.image().astype(np.float64)
+    images = {name: film.image() for name, film in result.films.items()}
     call = time.perf_counter() - start
     stats = result.stats
     row = {
-        "estimator": estimator,
+        "estimator": estimators[0],
         "sampler": sampler,
         "spp": spp,
         "seed": seed,
         "wall_s": stats.wall_seconds,
+        "run_s": stats.run_seconds,
         "call_s": call,
         "device_s": stats.device_seconds,
         "host_s": stats.host_seconds,
+        "tracing_s": stats.stage_seconds["tracing"],
+        "compile_s": stats.compile_seconds,
         "cpu_s": time.process_time() - cpu,
         "load_1min": os.getloadavg()[0],
+        "paths": stats.traced_samples,
+        "rays": stats.rays,
         "redrawn_pixels": stats.redrawn_pixels,
         "unresolved_pixels": stats.unresolved_pixels,
+        "nonfinite_samples": stats.nonfinite_samples,
         "flagged_pixels": result.film.flagged_count,
         "cells": cell_backend(settings),
     }
-    return image, row
+    return images, row
+
+
+# ---------------------------------------------------------------------------------------------
+# Renders as tasks (here or on a cluster)
+
+
+@dataclass(frozen=True)
+class RenderTask:
+    """One whole render as plain data: what a worker needs to render it and nothing it built.
+    estimators: one, or several sharing one trace; defines: kernel build defines of the path
+    tracer (name, value) pairs, as PathTracer's profile_defines."""
+
+    scene: str
+    size: tuple[int, int]
+    estimators: tuple[str, ...]
+    sampler: str
+    spp: int
+    seed: int
+    backend: str | None = None
+    max_depth: int = MAX_DEPTH
+    russian_roulette: bool = False
+    defines: tuple[tuple[str, int], ...] = ()
+    device: str | None = None
+
+
+# An untimed render before the first timed one of each (source, estimators, sampler) in a
+# process: kernel builds and first launches are not timed, wherever the task runs.
+WARMUP_SEED = 999
+
+
+def process_runtime(device: str | None = None) -> Runtime:
+    """This process's OpenCL runtime for a device request, made once (its programs are built
+    once per context): the study's own when local, each worker's own on a cluster."""
+    runtimes = process_cache("bench.runtimes")
+    if device not in runtimes:
+        runtimes[device] = create_runtime(device)
+    return runtimes[device]
+
+
+def task_source(task: RenderTask) -> PathTracerSource:
+    """The task's radiance source, made once per process and kept for the next task."""
+    sources = process_cache("bench.sources")
+    key = (task.scene, task.size, task.max_depth, task.russian_roulette, task.defines, task.device)
+    if key not in sources:
+        tracer = PathTracer(
+            process_runtime(task.device),
+            load_scene(task.scene),
+            max_depth=task.max_depth,
+            russian_roulette=task.russian_roulette,
+            profile_defines=dict(task.defines) or None,
+        )
+        sources[key] = PathTracerSource(tracer, *task.size)
+    return sources[key]
+
+
+def render_task(task: RenderTask) -> tuple[dict[str, np.ndarray], dict]:
+    """({estimator: image (H, W, 3) float32}, row) of one task, timed where it runs (after an
+    untimed warm-up the first time this process meets its source, estimators and sampler);
+    the row names the worker (or "this process")."""
+    runtime = process_runtime(task.device)
+    source = task_source(task)
+    args = (task.estimators, task.sampler)
+    warmed = process_cache("bench.warmed")
+    key = (id(source), *args, task.backend)
+    if key not in warmed:
+        measured_render(runtime, source, *args, task.spp, WARMUP_SEED, task.backend)
+        warmed[key] = True
+    images, row = measured_render(runtime, source, *args, task.spp, task.seed, task.backend)
+    row["worker"] = worker_name()
+    return images, row
+
+
+def render_tasks(executor: Executor, tasks: list[RenderTask]) -> list[tuple[dict, dict]]:
+    """render_task of every task on the executor, in the order of `tasks`."""
+    results: list = [None] * len(tasks)
+    for index, result in executor.map(render_task, tasks):
+        results[index] = result
+    return results
 
 
 def cell_backend(settings: RenderSettings) -> str:
@@ -140,6 +261,21 @@ def cell_backend(settings: RenderSettings) -> str:
     if settings.estimator.cells == "none":
         return "none"
     return "device" if getattr(settings, "device_cells", False) else "qhull"
+
+
+def executor_record(executor: Executor, args) -> dict:
+    """Where a render study ran and which clock its efficiency uses: wall time in this
+    process; CPU time on a cluster (its renders share cores with the other workers')."""
+    on_cluster = isinstance(executor, DaskExecutor)
+    return {
+        "where": executor_label(args),
+        "workers": executor.workers,
+        "clock": "cpu" if on_cluster else "wall",
+        "timed": "on the worker that rendered it (wall and CPU time of that render in that "
+        "worker process, one task at a time per worker)"
+        if on_cluster
+        else "in this process",
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -154,9 +290,15 @@ def reference_path(scene: str, size: tuple[int, int], spp: int) -> Path:
 
 
 def reference(
-    runtime: Runtime, scene: str, size: tuple[int, int], spp: int, log=print
+    runtime: Runtime,
+    scene: str,
+    size: tuple[int, int],
+    spp: int,
+    log=print,
+    executor: Executor | None = None,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(mean image, per-pixel variance of that mean, info): cached, else rendered."""
+    """(mean image, per-pixel variance of that mean, info): cached, else rendered (on the
+    executor when one is given: render_reference)."""
     path = reference_path(scene, size, spp)
     var_path = path.with_name(path.stem + "_var.exr")
     want = {
@@ -175,7 +317,7 @@ def reference(
                 read_exr(var_path)[0].astype(np.float64),
                 {**want, "path": str(path), "cached": True, "wall_s": float(meta["wall_s"])},
             )
-    image, variance, wall = render_reference(runtime, scene, size, spp, log)
+    image, variance, wall = render_reference(runtime, scene, size, spp, log, executor)
     REFERENCE_DIR.mkdir(parents=True, exist_ok=True)
     write_exr(path, image, {**want, "wall_s": wall, "estimator": "mc"})
     write_exr(var_path, variance, want)
@@ -183,17 +325,34 @@ def reference(
 
 
 def render_reference(
-    runtime: Runtime, scene: str, size: tuple[int, int], spp: int, log=print
+    runtime: Runtime,
+    scene: str,
+    size: tuple[int, int],
+    spp: int,
+    log=print,
+    executor: Executor | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Mean of REFERENCE_PARTS mc renders over REFERENCE_SAMPLER and the variance of that mean."""
+    """Mean of REFERENCE_PARTS mc renders over REFERENCE_SAMPLER and the variance of that mean,
+    and the wall seconds it took. On a Dask executor each part is split over every worker by
+    pixel ranges (clrender.cluster.render_on), bit-identical to the local render, so a
+    reference cached by either is the other's; its time is the client's wall time."""
     part_spp = spp // REFERENCE_PARTS
-    source = make_source(runtime, scene, *size)
+    on_cluster = isinstance(executor, DaskExecutor)
+    if on_cluster:
+        settings = render_settings(size, "mc", REFERENCE_SAMPLER, part_spp, 0)
+        job = RenderJob.of(load_scene(scene), settings, MAX_DEPTH)
+    else:
+        source = make_source(runtime, scene, *size)
     start = time.perf_counter()
     parts = []
     for k in range(REFERENCE_PARTS):
-        parts.append(
-            timed_render(runtime, source, "mc", REFERENCE_SAMPLER, part_spp, REFERENCE_SEED + k)[0]
-        )
+        seed = REFERENCE_SEED + k
+        if on_cluster:
+            part_job = dataclasses.replace(job, seed=seed)
+            image = render_on(executor, part_job).film.image().astype(np.float64)
+        else:
+            image = timed_render(runtime, source, "mc", REFERENCE_SAMPLER, part_spp, seed)[0]
+        parts.append(image)
         log(
             f"reference {scene} {size[0]}x{size[1]}: part {k + 1}/{REFERENCE_PARTS} "
             f"({part_spp} spp) done, {time.perf_counter() - start:.0f} s"
@@ -258,6 +417,15 @@ def add_executor_options(parser) -> None:
 def executor_from_args(args):
     """The executor --workers / --scheduler name: local (this process) when neither is given."""
     return make_executor(args.workers, args.scheduler)
+
+
+def executor_label(args) -> str:
+    """Where --workers / --scheduler ran a study's tasks, for its report and JSON."""
+    if args.scheduler is not None:
+        return f"Dask cluster at {args.scheduler}"
+    if args.workers is not None:
+        return f"Dask LocalCluster of {args.workers} worker processes"
+    return "this process"
 
 
 def machine() -> dict:

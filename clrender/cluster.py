@@ -190,6 +190,28 @@ def shipped(function: Callable) -> Callable | bytes:
         cloudpickle.unregister_pickle_by_value(module)
 
 
+# What tasks keep in this process between them: name -> dict (see `process_cache`)
+_process_caches: dict[str, dict] = {}
+
+
+def process_cache(name: str) -> dict:
+    """A dict that lives as long as this process, one per name: where a task keeps what it
+    built (an OpenCL runtime, radiance sources) for the next task on the same worker. A bench
+    script's function, pickled by value (`shipped`), gets fresh module globals with every
+    task; this module is imported once per worker."""
+    return _process_caches.setdefault(name, {})
+
+
+def worker_name() -> str:
+    """The Dask worker this runs on (its address), or "this process" outside a worker."""
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return "this process"
+
+
 def _identity(value: Any) -> Any:
     return value
 
