@@ -199,6 +199,7 @@ class RenderTask:
     russian_roulette: bool = False
     defines: tuple[tuple[str, int], ...] = ()
     device: str | None = None
+    warmup_spp: int = 4  # the warm-up render's spp (at most the task's; the kernels are the same)
 
 
 # An untimed render before the first timed one of each (source, estimators, sampler) in a
@@ -241,7 +242,8 @@ def render_task(task: RenderTask) -> tuple[dict[str, np.ndarray], dict]:
     warmed = process_cache("bench.warmed")
     key = (id(source), *args, task.backend)
     if key not in warmed:
-        measured_render(runtime, source, *args, task.spp, WARMUP_SEED, task.backend)
+        warmup_spp = min(task.warmup_spp, task.spp)
+        measured_render(runtime, source, *args, warmup_spp, WARMUP_SEED, task.backend)
         warmed[key] = True
     images, row = measured_render(runtime, source, *args, task.spp, task.seed, task.backend)
     row["worker"] = worker_name()

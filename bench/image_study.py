@@ -1,6 +1,7 @@
 """Whole-image error of every estimator on the authors' Cornell box: the paper's Figure 7.
 
     python bench/image_study.py [--quick] [--size N] [--spp 256] [--seeds 3] [--reference-spp 4096]
+        [--workers N | --scheduler ADDRESS]
 
 A reference (bench/common.py: the mean of 4 sobol mc renders of reference-spp / 4 samples
 each, cached as EXR under bench/results/references/ with its measured noise), then --seeds
@@ -18,6 +19,17 @@ labelled with its spp; the ratios in the report carry 95 % bootstrap intervals o
 Resolution: 256 x 256 when RenderSettings has the device Voronoi backend (voronoi_backend,
 the default there), else 128 x 128 (host Qhull cells take minutes per 256 x 256 render on two
 cores).
+Where: each (pair, seed) render is one task (bench/common.py render_task: a whole render,
+after an untimed warm-up of its pair in the process that renders it), in this process by
+default, or on a Dask cluster with --workers N / --scheduler ADDRESS. Images and errors are
+bit-identical wherever they run; the times are taken on the worker that rendered (wall, device,
+host and CPU seconds of that render in that worker process). On a cluster the workers render
+different pairs at once and share the cores, so wall times there include waiting for the other
+workers: compare CPU times across runs, and wall times only within one run. A reference not
+yet cached is split over the cluster by pixel ranges (clrender.cluster.render_on, bit-identical
+to the local one, so the cached file serves both). results.json and the report say where the
+renders ran.
+
 Outputs (default bench/results/image_study/): results.json, report.md, mse.png, renders.png,
 error_maps.png, error_<estimator>_<sampler>.png, render_<estimator>_<sampler>.png and .exr.
 """
@@ -42,16 +54,20 @@ from common import (  # noqa: E402
     REFERENCE_SAMPLER,
     RENDER_PAIRS,
     RESULTS,
+    RenderTask,
+    add_executor_options,
     command_line,
     default_backend,
+    executor_from_args,
+    executor_record,
     has_backend_setting,
     image_errors,
     machine,
-    make_source,
     markdown_table,
     pair_label,
+    process_runtime,
     reference,
-    timed_render,
+    render_tasks,
     write_json,
 )
 from figures import (  # noqa: E402
@@ -64,7 +80,6 @@ from figures import (  # noqa: E402
 )
 
 from clrender.imageio import srgb8, write_exr, write_png  # noqa: E402
-from clrender.runtime import create_runtime  # noqa: E402
 
 ERROR_COLOURMAP = "inferno"
 # The error maps share one scale: this percentile of mc/independent's error map.
@@ -95,6 +110,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="RenderSettings.voronoi_backend: device (default) or qhull",
     )
     parser.add_argument("--out", type=Path, default=RESULTS / "image_study")
+    add_executor_options(parser)
     args = parser.parse_args(argv)
     args.size = args.size or (32 if args.quick else 256 if has_backend_setting() else 128)
     args.spp = args.spp or (16 if args.quick else 256)
@@ -113,7 +129,7 @@ ERRORS = (
     "bright_share",
     "bright_fraction",
 )
-TIMES = ("wall_s", "device_s", "host_s")
+TIMES = ("wall_s", "device_s", "host_s", "cpu_s")
 PAPER_SPP = 256  # the spp of the paper's Figure 7 (PAPER_MSE)
 BOOTSTRAP = 2000  # resamples of a ratio's interval
 
@@ -122,20 +138,22 @@ def seeds(args) -> list[int]:
     return [args.seed + k for k in range(args.seeds)]
 
 
-def run_pairs(runtime, args, ref, ref_var) -> tuple[list[dict], dict]:
-    """(one row per render, {pair: image of the first seed})."""
-    source = make_source(runtime, args.scene, args.size, args.size)
-    timed_render(runtime, source, "mc", "independent", 1, 0)  # warm-up: kernel builds
+def run_pairs(executor, args, ref, ref_var) -> tuple[list[dict], dict]:
+    """(one row per render, {pair: image of the first seed}): every (seed, pair) render a task
+    on the executor."""
+    size = (args.size, args.size)
+    tasks = [
+        RenderTask(args.scene, size, (estimator,), sampler, args.spp, seed, args.backend)
+        for seed in seeds(args)
+        for estimator, sampler in RENDER_PAIRS
+    ]
     rows, images = [], {}
-    for seed in seeds(args):
-        for estimator, sampler in RENDER_PAIRS:
-            image, row = timed_render(
-                runtime, source, estimator, sampler, args.spp, seed, args.backend
-            )
-            row.update(image_errors(image, ref, ref_var))
-            rows.append(row)
-            images.setdefault(pair_label(estimator, sampler), image)
-            print_row(row)
+    for task, (rendered, row) in zip(tasks, render_tasks(executor, tasks), strict=True):
+        image = rendered[task.estimators[0]].astype(np.float64)
+        row.update(image_errors(image, ref, ref_var))
+        rows.append(row)
+        images.setdefault(pair_label(row["estimator"], row["sampler"]), image)
+        print_row(row)
     return rows, images
 
 
@@ -145,7 +163,8 @@ def print_row(row: dict) -> None:
         f"{row['mse']:.5f} (less ref noise "
         f"{row['mse_minus_ref_noise']:.5f}, clamped {row['mse_clamped']:.5f}, sRGB "
         f"{row['mse_srgb']:.5f}, top 0.1 % share {row['top_share']:.2f})  wall "
-        f"{row['wall_s']:.1f} s (device {row['device_s']:.1f}, host {row['host_s']:.1f})",
+        f"{row['wall_s']:.1f} s (device {row['device_s']:.1f}, host {row['host_s']:.1f}), CPU "
+        f"{row['cpu_s']:.1f} s on {row['worker']}",
         flush=True,
     )
 
@@ -387,6 +406,7 @@ def report(results: dict, args, argv) -> str:
         "wall s",
         "device s",
         "host s",
+        "CPU s",
     ]
     paper = {"mc/independent": PAPER_MSE["mc"], "vor_sn/sppp": PAPER_MSE["vor"]}
     table = [
@@ -404,6 +424,7 @@ def report(results: dict, args, argv) -> str:
             r["wall_s"],
             r["device_s"],
             r["host_s"],
+            r["cpu_s"],
         ]
         for r in rows
     ]
@@ -426,6 +447,8 @@ def report(results: dict, args, argv) -> str:
             "radiance; SE: its standard error over the seeds. The paper's column is its Figure 7 "
             f"at {PAPER_SPP} spp"
             + ("." if args.spp == PAPER_SPP else f", not this run's {args.spp} spp.")
+            + f" Renders ran in {results['executor']['where']}, each timed "
+            f"{results['executor']['timed']}; times are means over the seeds."
             + f" Machine: {results['machine']['uptime']}",
             "",
             markdown_table(header, table),
@@ -450,11 +473,21 @@ def report(results: dict, args, argv) -> str:
 def main(argv=None) -> None:
     args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    runtime = create_runtime()
+    executor = executor_from_args(args)
+    try:
+        run(args, executor, argv)
+    finally:
+        executor.close()
+
+
+def run(args, executor, argv) -> None:
+    runtime = process_runtime()
     start = time.perf_counter()
     size = (args.size, args.size)
-    ref, ref_var, ref_info = reference(runtime, args.scene, size, args.reference_spp)
-    renders, images = run_pairs(runtime, args, ref, ref_var)
+    ref, ref_var, ref_info = reference(
+        runtime, args.scene, size, args.reference_spp, executor=executor
+    )
+    renders, images = run_pairs(executor, args, ref, ref_var)
     rows = summarise(renders)
     device = runtime.describe()
     vmax = save_images(images, ref, args.out)
@@ -463,6 +496,7 @@ def main(argv=None) -> None:
     results = {
         "settings": {k: str(v) for k, v in vars(args).items()},
         "device": device,
+        "executor": executor_record(executor, args),
         "reference": ref_info,
         "rows": rows,
         "renders": renders,
