@@ -2,6 +2,7 @@
 
     python bench/veach_study.py                # 320 x 180, 256 spp, 4 seeds, 4096 spp reference
     python bench/veach_study.py --quick        # a smoke run of a few seconds
+    python bench/veach_study.py --workers 2    # or --scheduler ADDRESS: the renders on Dask
 
 Every (estimator, sampler) pair renders the scene with several seeds; each render's error is
 the MSE per pixel against a cached reference (bench/common.py: the mean of independent mc
@@ -22,6 +23,12 @@ per-seed ratio, with a 95 % Student-t interval of its log over the seeds (seed s
 pairs up; the SPPP estimators share one trace per seed). A win if the whole interval is below
 1, a loss if above, else a tie. The SPPP estimators mc_n, vor_sn and fvor come from one
 render (one trace, several estimators), so their time is that shared render's.
+Each (render, seed) is one task (bench/common.py render_task), in this process by default or
+on a Dask cluster (--workers N, --scheduler ADDRESS); its wall and CPU seconds are taken in the
+process that renders it, after an untimed warm-up of that render there (kernel builds). The
+region MSEs are bit-identical wherever the renders run; on a cluster the workers share the
+cores, so wall times include waiting for the other workers (CPU time is the render's own).
+A reference not yet cached is split over the cluster by pixel ranges (bit-identical).
 Writes results.json and report.md under bench/results/veach_study/ (or --out).
 """
 
@@ -34,19 +41,22 @@ from pathlib import Path
 import numpy as np
 from common import (
     RESULTS,
+    RenderTask,
+    add_executor_options,
     command_line,
+    executor_from_args,
+    executor_record,
     machine,
-    make_source,
     markdown_table,
     pair_label,
+    process_runtime,
     reference,
-    render_settings,
+    render_tasks,
     write_json,
 )
 from scipy import stats
 
 from clrender.errors import ParameterError
-from clrender.pipeline import render
 from clrender.probes import (
     glossy_reflection_pixel,
     pixel_hits,
@@ -54,7 +64,6 @@ from clrender.probes import (
     shape_materials,
     sphere_outline,
 )
-from clrender.runtime import create_runtime
 from clrender.scene import load_scene
 
 SCENE = "veach-mis"
@@ -141,45 +150,35 @@ def region_mse(image, ref, ref_var, masks) -> dict[str, float | None]:
     }
 
 
-def run_renders(runtime, args, ref, ref_var, masks, log=print) -> list[dict]:
-    """One row per (pair, seed): region MSEs and the time of the render it came from."""
-    source = make_source(runtime, SCENE, args.width, args.height)
+def run_renders(executor, args, ref, ref_var, masks, log=print) -> list[dict]:
+    """One row per (pair, seed): region MSEs and the time of the render it came from (every
+    (seed, render) a task on the executor)."""
+    tasks = [
+        RenderTask(SCENE, (args.width, args.height), estimators, sampler, args.spp, seed)
+        for seed in args.seeds
+        for estimators, sampler in RENDERS
+    ]
     rows = []
-    for seed in args.seeds:
-        for estimators, sampler in RENDERS:
-            wanted = list(estimators) if len(estimators) > 1 else estimators[0]
-            timing, films = render_all(runtime, source, wanted, sampler, args.spp, seed)
-            for name in estimators:
-                rows.append(
-                    {
-                        "pair": pair_label(name, sampler),
-                        "seed": seed,
-                        "shared_with": [pair_label(e, sampler) for e in estimators],
-                        "wall_s": timing["wall_s"],
-                        "cpu_s": timing["cpu_s"],
-                        "region_mse": region_mse(films[name], ref, ref_var, masks),
-                    }
-                )
-            log(
-                f"seed {seed} {'+'.join(estimators)}/{sampler}: {timing['wall_s']:.1f} s wall, "
-                f"{timing['cpu_s']:.1f} s CPU; whole-image MSE "
-                + ", ".join(
-                    f"{r['region_mse']['whole image']:.4g}" for r in rows[-len(estimators) :]
-                )
+    for task, (images, timing) in zip(tasks, render_tasks(executor, tasks), strict=True):
+        estimators, sampler = task.estimators, task.sampler
+        for name in estimators:
+            rows.append(
+                {
+                    "pair": pair_label(name, sampler),
+                    "seed": task.seed,
+                    "shared_with": [pair_label(e, sampler) for e in estimators],
+                    "wall_s": timing["call_s"],
+                    "cpu_s": timing["cpu_s"],
+                    "worker": timing["worker"],
+                    "region_mse": region_mse(images[name].astype(np.float64), ref, ref_var, masks),
+                }
             )
+        log(
+            f"seed {task.seed} {'+'.join(estimators)}/{sampler}: {timing['call_s']:.1f} s wall, "
+            f"{timing['cpu_s']:.1f} s CPU on {timing['worker']}; whole-image MSE "
+            + ", ".join(f"{r['region_mse']['whole image']:.4g}" for r in rows[-len(estimators) :])
+        )
     return rows
-
-
-def render_all(runtime, source, estimators, sampler, spp, seed):
-    """(wall and CPU seconds, {estimator: image}) of one render of one or more estimators
-    (a list: one trace, one image each)."""
-    settings = render_settings((source.width, source.height), estimators, sampler, spp, seed)
-    cpu = time.process_time()
-    start = time.perf_counter()
-    result = render(runtime, source, settings)
-    films = {name: film.image().astype(np.float64) for name, film in result.films.items()}
-    timing = {"wall_s": time.perf_counter() - start, "cpu_s": time.process_time() - cpu}
-    return timing, films
 
 
 # ---------------------------------------------------------------------------------------------
@@ -292,7 +291,8 @@ def report(results: dict, argv) -> str:
     lines += [
         markdown_table(["pair", "wall s", "CPU s", "one render of"], rows),
         "",
-        f"Machine: {results['machine']['uptime']}",
+        f"Renders ran in {results['executor']['where']}, each timed "
+        f"{results['executor']['timed']}. Machine: {results['machine']['uptime']}",
     ]
     return "\n".join(lines)
 
@@ -308,6 +308,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--reference-spp", type=int, default=4096)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--out", type=Path, default=OUT)
+    add_executor_options(parser)
     parser.add_argument(
         "--quick", action="store_true", help="smoke run: 32 x 18, 4 spp, 16 spp reference, 2 seeds"
     )
@@ -320,17 +321,28 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main(argv=None) -> None:
     args = parse_args(argv)
+    executor = executor_from_args(args)
+    try:
+        run(args, executor, argv)
+    finally:
+        executor.close()
+
+
+def run(args, executor, argv) -> None:
     start = time.perf_counter()
-    runtime = create_runtime()
+    runtime = process_runtime()
     scene = load_scene(SCENE)
     masks = regions(scene, args.width, args.height)
-    ref, ref_var, ref_info = reference(runtime, SCENE, tuple(args.size), args.reference_spp)
-    rows = run_renders(runtime, args, ref, ref_var, masks)
+    ref, ref_var, ref_info = reference(
+        runtime, SCENE, tuple(args.size), args.reference_spp, executor=executor
+    )
+    rows = run_renders(executor, args, ref, ref_var, masks)
     results = {
         "size": args.size,
         "spp": args.spp,
         "seeds": args.seeds,
         "device": runtime.describe(),
+        "executor": executor_record(executor, args),
         "reference": ref_info,
         "reference_noise": float(ref_var.mean()),
         "region_pixels": {name: int(m.sum()) for name, m in masks.items()},
