@@ -10,6 +10,11 @@ axes; where two consecutive spp bracket the target, the crossing of that segment
 so). The targets on mitsuba-cbox (clrender at most Mitsuba's MSE, and sooner to MSE 1e-4) are
 checked in wall time (the clock they were set in) and in CPU time.
 
+The clock of a scene's table and conclusions: wall time when its renders ran in the study's
+process; CPU time when they ran on a Dask cluster (the entry's executor record), where the
+workers render different configurations at once and a render's wall time includes waiting for
+the cores the others use.
+
     python bench/efficiency_report.py DIR    # summaries, targets, charts, report.md of
                                              # DIR/results.json again, from its rows
 """
@@ -40,6 +45,8 @@ from figures import (  # noqa: E402
 )
 
 TARGET_MSE = 1e-4
+# The names of the clocks of times_to_target, as the report writes them
+CLOCK_NAMES = {"wall": "wall", "cpu": "CPU"}
 # The table the targets were set from (an earlier run, quoted for comparison, never used as a
 # result of this one): mitsuba-cbox 256 x 256, MSE against a 4096-spp reference less its
 # variance, box filter.
@@ -273,13 +280,19 @@ def fmt(v, digits: int = 3) -> str:
     return f"{v:.{digits}g}"
 
 
+def clock_of(entry: dict) -> str:
+    """The efficiency's clock of a scene's entry: "wall", or "cpu" for renders on a cluster."""
+    return entry.get("executor", {}).get("clock", "wall")
+
+
 def scene_table(entry: dict) -> str:
     points = entry["summary"]
+    clock = clock_of(entry)
     spps = sorted({p["spp"] for p in points})
     header = ["config"]
     for spp in spps:
         header += [f"MSE {spp}", f"wall s {spp}", f"CPU s {spp}"]
-    header += ["t(1e-4) wall s", "how"]
+    header += [f"t(1e-4) {CLOCK_NAMES[clock]} s", "how"]
     rows = []
     for label in labels(points):
         by = {p["spp"]: p for p in series(points, label)}
@@ -291,7 +304,7 @@ def scene_table(entry: dict) -> str:
                 if p
                 else ["", "", ""]
             )
-        t = entry["time_to_target"][label]["wall"]
+        t = entry["time_to_target"][label][clock]
         row += [fmt(t["seconds"]), t["how"]]
         rows.append(row)
     return markdown_table(header, rows)
@@ -312,6 +325,21 @@ def scene_section(scene: str, entry: dict) -> list[str]:
         f"{entry['machine_after']['load_1_5_15'][0]:.2f}.",
         "",
     ]
+    where = entry.get("executor")
+    if where is not None:
+        clock = CLOCK_NAMES[clock_of(entry)]
+        lines += [
+            f"Renders ran in {where['where']}, each timed {where['timed']}; the times to "
+            f"target and the conclusions are in {clock} time"
+            + (
+                " (the workers render at once and share the cores: wall time includes waiting "
+                "for the others; Mitsuba's peer renders ran in the study's process, between "
+                "rounds)."
+                if where["clock"] == "cpu"
+                else "."
+            ),
+            "",
+        ]
     peer = entry.get("peer")
     if peer is not None:
         lines += peer_lines(peer)
@@ -378,12 +406,15 @@ def ratio_words(r: dict, what: str) -> str:
     return f"{fmt(r['ratio'])}x [{fmt(r['lo'])}, {fmt(r['hi'])}] the MSE of {what} ({verdict})"
 
 
-def fastest_to_target(ttt: dict, points: list[dict], voronoi: bool) -> tuple[str, float] | None:
-    """(label, wall seconds to the target MSE) of the fastest Voronoi (or baseline) label."""
+def fastest_to_target(
+    ttt: dict, points: list[dict], voronoi: bool, clock: str = "wall"
+) -> tuple[str, float] | None:
+    """(label, seconds to the target MSE on the clock) of the fastest Voronoi (or baseline)
+    label."""
     times = [
-        (label, ttt[label]["wall"]["seconds"])
+        (label, ttt[label][clock]["seconds"])
         for label in labels(points)
-        if is_voronoi(label) == voronoi and ttt[label]["wall"]["seconds"]
+        if is_voronoi(label) == voronoi and ttt[label][clock]["seconds"]
     ]
     return min(times, key=lambda t: t[1]) if times else None
 
@@ -425,13 +456,15 @@ def conclusions(entry: dict) -> list[str]:
             + ratio_words(mse_ratio(mc, plain, rng), "mc/independent")
             + "."
         )
-    fastest_vor = fastest_to_target(entry["time_to_target"], points, voronoi=True)
-    fastest_mc = fastest_to_target(entry["time_to_target"], points, voronoi=False)
+    clock = clock_of(entry)
+    fastest_vor = fastest_to_target(entry["time_to_target"], points, True, clock)
+    fastest_mc = fastest_to_target(entry["time_to_target"], points, False, clock)
     if fastest_vor and fastest_mc:
         (vor_label, t_vor), (mc_label, t_mc) = fastest_vor, fastest_mc
         faster = "the Voronoi configuration" if t_vor < t_mc else "the baseline"
         lines.append(
-            f"- Fastest to MSE {TARGET_MSE:g} in wall time: {vor_label} {fmt(t_vor)} s among the "
+            f"- Fastest to MSE {TARGET_MSE:g} in {CLOCK_NAMES[clock]} time: {vor_label} "
+            f"{fmt(t_vor)} s among the "
             f"Voronoi configurations, {mc_label} {fmt(t_mc)} s among the baselines, a ratio of "
             f"{fmt(t_vor / t_mc)} ({faster} is faster; each time interpolated or extrapolated as "
             "the table says)."

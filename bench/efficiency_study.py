@@ -4,6 +4,7 @@ optional peer on its own Cornell box; and the Voronoi-over-mc wall-time ratio.
 
     python bench/efficiency_study.py [--quick] [--scenes mitsuba-cbox ...] [--size 256]
         [--spp 16 64 256] [--seeds 3] [--reference-spp 4096] [--peer auto|off] [--out DIR]
+        [--workers N | --scheduler ADDRESS]
     python bench/efficiency_study.py --perf-ratio [--perf-estimator NAME] [--repeats 3]
 
 Optional peer: `pip install mitsuba` and `apt-get install -y libllvm19` (bench/mitsuba_peer.py;
@@ -36,6 +37,22 @@ run again replaces its entry, other scenes are kept; written after every (spp, s
 a killed run keeps its finished rounds and the same command resumes from them),
 efficiency_<scene>.png (MSE against wall and CPU time, log-log, error bars), report.md.
 
+Where the renders run: each clrender render is one task (bench/common.py render_task: the
+whole render of one (scene, configuration, spp, seed), after an untimed warm-up of that
+configuration at the first spp in the process that renders it), in this process by default or
+on a Dask cluster (--workers N: a LocalCluster of N processes here; --scheduler ADDRESS). A
+round's renders run as tasks at once, each timed on its worker: the wall and CPU time of that
+render in that worker process (one task at a time per worker). The images, so the MSEs, are
+bit-identical wherever they run; the times are not: workers render different configurations
+at once and share the cores, so a render's wall time on a cluster includes waiting for the
+others, and the efficiency's clock there is CPU time (the report's times to target and
+conclusions say which clock; results.json records the executor, and every row its worker and
+load). Mitsuba's peer renders stay in this process, after the round's clrender tasks finish
+(not interleaved with them). A reference not yet cached is split over the whole cluster by
+pixel ranges (clrender.cluster.render_on: bit-identical to the local one, so the cached file
+serves both), timed by this process's wall clock. The time budget (--max-seconds) predicts
+from wall times wherever they were taken. --perf-ratio runs in this process only.
+
 Configurations: mc over every sampler; mc_n only over the SPPP samplers, because over a
 fixed-count sampler N = n and mc_n is mc exactly (same image); vor_sn and fvor over sppp and
 sppp-sobol (they need auxiliary nuclei); pvor over stratified and sobol (the render settings add
@@ -65,23 +82,30 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import common  # noqa: E402
 import efficiency_report  # noqa: E402
+import numpy as np  # noqa: E402
 from common import (  # noqa: E402
     RESULTS,
+    RenderTask,
+    add_executor_options,
     command_line,
     default_backend,
+    executor_from_args,
+    executor_record,
     image_errors,
     machine,
     make_source,
     pair_label,
+    process_runtime,
     reference,
+    render_tasks,
     timed_render,
     write_json,
 )
 from mitsuba_peer import SAMPLERS as MITSUBA_SAMPLERS  # noqa: E402
 from mitsuba_peer import MitsubaPeer  # noqa: E402
 
+from clrender.cluster import DaskExecutor  # noqa: E402
 from clrender.estimators import ESTIMATORS, estimator_info  # noqa: E402
-from clrender.runtime import create_runtime  # noqa: E402
 
 SCENES = ["mitsuba-cbox", "cornell-box", "cornell-box-glossy", "veach-mis"]
 PEER_SCENE = "mitsuba-cbox"
@@ -152,7 +176,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--perf-estimator", default=None)
     parser.add_argument("--repeats", type=int, default=None, help="perf-ratio repeats (3)")
     parser.add_argument("--out", type=Path, default=RESULTS / "efficiency_study")
+    add_executor_options(parser)
     args = parser.parse_args(argv)
+    if args.perf_ratio and (args.workers is not None or args.scheduler is not None):
+        parser.error("--perf-ratio times its renders in this process: no --workers/--scheduler")
     if args.perf_ratio:
         args.size = args.size or (32 if args.quick else 256)
         args.spp = args.spp or ([16] if args.quick else [256])
@@ -186,14 +213,15 @@ def start_peer(scene: str, args) -> MitsubaPeer | None:
     return peer
 
 
-def study_scene(runtime, scene: str, args, argv, previous=None, save=None) -> dict:
-    """One scene's study. previous: this scene's entry from an interrupted run; its rows are
-    kept, and its (spp, seed) rounds are not rendered again when its settings match. save(entry)
-    is called after every round, so a killed run loses at most one round."""
+def study_scene(executor, scene: str, args, argv, previous=None, save=None) -> dict:
+    """One scene's study, its renders on the executor. previous: this scene's entry from an
+    interrupted run; its rows are kept, and its (spp, seed) rounds are not rendered again when
+    its settings match. save(entry) is called after every round, so a killed run loses at most
+    one round."""
     before = machine()
+    runtime = process_runtime()
     size = (args.size, args.size)
-    ref, ref_var, ref_info = reference(runtime, scene, size, args.reference_spp)
-    source = make_source(runtime, scene, *size)
+    ref, ref_var, ref_info = reference(runtime, scene, size, args.reference_spp, executor=executor)
     chosen = configs(args)
     peer = start_peer(scene, args)
     use_peer = peer is not None and peer.available
@@ -209,6 +237,7 @@ def study_scene(runtime, scene: str, args, argv, previous=None, save=None) -> di
         "reference": ref_info,
         "reference_noise": float(ref_var.mean()),
         "device": runtime.describe(),
+        "executor": executor_record(executor, args),
         "machine_before": before,
         "complete": False,
     }
@@ -233,8 +262,6 @@ def study_scene(runtime, scene: str, args, argv, previous=None, save=None) -> di
             reference_mse_between=between - float(mref_var.mean()) - float(ref_var.mean()),
             reference_means={"clrender": float(ref.mean()), "mitsuba": float(mref.mean())},
         )
-    for estimator, sampler in chosen:  # warm-up: kernel builds and first-call costs
-        timed_render(runtime, source, estimator, sampler, args.spp[0], WARMUP_SEED, args.backend)
     rows: list[dict] = list(kept)
     done = {(r["spp"], r["seed"]) for r in kept}
     if kept:
@@ -255,8 +282,8 @@ def study_scene(runtime, scene: str, args, argv, previous=None, save=None) -> di
                 for i, sampler in enumerate(MITSUBA_SAMPLERS):
                     items.insert(min(len(items), i * (step + 1) + step), ("mitsuba", sampler))
             shift = k % len(items)
-            for who, what in items[shift:] + items[:shift]:
-                rows.append(one_render(runtime, source, peer, refs, who, what, spp, seed, args))
+            order = items[shift:] + items[:shift]
+            rows += render_round(executor, scene, peer, refs, order, spp, seed, args)
             if save is not None:
                 save(entry)
     entry["machine_after"] = machine()
@@ -317,26 +344,64 @@ def within_budget(chosen, rows, spp, max_seconds, skipped) -> list[tuple[str, st
     return keep
 
 
-def one_render(runtime, source, peer, refs, who, what, spp, seed, args) -> dict:
-    """One timed render (clrender configuration or Mitsuba sampler) and its errors against its
-    renderer's reference."""
+def render_round(executor, scene, peer, refs, items, spp, seed, args) -> list[dict]:
+    """The rows of one (spp, seed) round. In this process the renders run one after another in
+    the items' order (Mitsuba's among clrender's); on a cluster clrender's renders run as tasks
+    at once, then Mitsuba's here, so the peer never shares the cores with a task of this round."""
+    if not isinstance(executor, DaskExecutor):
+        return [
+            one_render(executor, scene, peer, refs, who, what, spp, seed, args)
+            for who, what in items
+        ]
+    ours = [what for who, what in items if who == "clrender"]
+    tasks = [clrender_task(scene, what, spp, seed, args) for what in ours]
+    rows = [
+        scored_row(images[what[0]], row, refs, "clrender", pair_label(*what))
+        for what, (images, row) in zip(ours, render_tasks(executor, tasks), strict=True)
+    ]
+    return rows + [
+        one_render(executor, scene, peer, refs, who, what, spp, seed, args)
+        for who, what in items
+        if who == "mitsuba"
+    ]
+
+
+def clrender_task(scene: str, config: tuple[str, str], spp: int, seed: int, args) -> RenderTask:
+    """The render task of a configuration (warmed up at the study's first spp)."""
+    estimator, sampler = config
+    size = (args.size, args.size)
+    return RenderTask(
+        scene, size, (estimator,), sampler, spp, seed, args.backend, warmup_spp=args.spp[0]
+    )
+
+
+def one_render(executor, scene, peer, refs, who, what, spp, seed, args) -> dict:
+    """One timed render (clrender configuration, a task on the executor, or Mitsuba sampler,
+    in this process) and its errors against its renderer's reference."""
     if who == "mitsuba":
         image, row = peer.render(what, spp, seed)
-        label = f"mitsuba/{what}"
-    else:
-        image, row = timed_render(runtime, source, *what, spp, seed, args.backend)
+        return scored_row(image, row, refs, who, f"mitsuba/{what}")
+    task = clrender_task(scene, what, spp, seed, args)
+    images, row = render_tasks(executor, [task])[0]
+    return scored_row(images[what[0]], row, refs, who, pair_label(*what))
+
+
+def scored_row(image, row: dict, refs: dict, who: str, label: str) -> dict:
+    """The render's row with its errors against its renderer's reference, printed."""
+    if who == "clrender":
         row["renderer"] = "clrender"
-        label = pair_label(*what)
-    row.update(image_errors(image, *refs[who]))
+    row.update(image_errors(np.asarray(image, np.float64), *refs[who]))
+    where = f"  on {row['worker']}" if "worker" in row else ""
     print(
-        f"{spp:4d} spp seed {seed} {label:22s} MSE-noise {row['mse_minus_ref_noise']:.3e}  "
-        f"wall {row['call_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s  load {row['load_1min']:.1f}",
+        f"{row['spp']:4d} spp seed {row['seed']} {label:22s} MSE-noise "
+        f"{row['mse_minus_ref_noise']:.3e}  wall {row['call_s']:6.2f} s  cpu {row['cpu_s']:6.2f} s"
+        f"  load {row['load_1min']:.1f}{where}",
         flush=True,
     )
     return row
 
 
-def run_study(runtime, args, argv) -> None:
+def run_study(executor, args, argv) -> None:
     """Every scene of --scenes; results.json keeps the entries of scenes not run again."""
     path = args.out / "results.json"
     results = json.loads(path.read_text()) if path.exists() else {}
@@ -349,7 +414,7 @@ def run_study(runtime, args, argv) -> None:
             write_json(path, results)
 
         previous = results["scenes"].get(scene)
-        save(study_scene(runtime, scene, args, argv, previous, save))
+        save(study_scene(executor, scene, args, argv, previous, save))
     results["seconds_last_run"] = time.perf_counter() - start
     write_json(path, results)
     efficiency_report.plot_all(results, args.out)
@@ -433,11 +498,14 @@ def run_perf_ratio(runtime, args) -> None:
 def main(argv=None) -> None:
     args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    runtime = create_runtime()
     if args.perf_ratio:
-        run_perf_ratio(runtime, args)
-    else:
-        run_study(runtime, args, argv)
+        run_perf_ratio(process_runtime(), args)
+        return
+    executor = executor_from_args(args)
+    try:
+        run_study(executor, args, argv)
+    finally:
+        executor.close()
 
 
 if __name__ == "__main__":
