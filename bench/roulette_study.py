@@ -4,6 +4,7 @@ its start depth or its eta'^2 scaling matter.
     python bench/roulette_study.py                  # 4 scenes, 64 x 64, spp 4 16 64 256, 8 seeds
     python bench/roulette_study.py --quick          # smoke run (8 x 8, cornell-box, 2 seeds)
     python bench/roulette_study.py --scenes mitsuba-cbox --variants off rr --seeds 4
+    python bench/roulette_study.py --workers 2      # or --scheduler ADDRESS: renders on Dask
 
 Per scene (mitsuba-cbox and cornell-box; cornell-box-glossy, whose glossy box and glass ball
 make long paths; furnace, where every path runs to the maximum depth):
@@ -21,6 +22,16 @@ Measured per render: wall seconds (RenderStats.run_seconds: the render without t
 builds met on its thread), CPU seconds (time.process_time over the call: PoCL's threads run in
 this process), rays and paths (the kernel's counters), and the MSE against the reference (mean
 over pixels and RGB, less the reference's own mean variance: clrender.compare.image_errors).
+
+Where: every render is one task (bench/common.py render_task, after an untimed warm-up of its
+pair and variant in the process that renders it), in this process by default or on a Dask
+cluster (--workers N: a LocalCluster here; --scheduler ADDRESS), each timed on the worker that
+renders it (wall and CPU seconds of that render in that worker process, one task at a time per
+worker). The images, so the MSEs, are bit-identical wherever they run. On a cluster the
+workers render at once and share the cores, so wall times include waiting for the others: CPU
+time, the verdicts' clock here anyway, is the render's own. A reference not yet cached is split
+over the cluster by pixel ranges (bit-identical to the local one). results.json records where
+the renders ran, and every row its worker and load.
 
 Efficiency = 1 / (MSE x seconds), with the MSE a mean over the seeds and the seconds a median
 (a render slowed by another process's burst does not decide it). The efficiency ratio of a
@@ -65,10 +76,16 @@ from common import (  # noqa: E402
     REFERENCE_PARTS,
     REFERENCE_SAMPLER,
     RESULTS,
+    RenderTask,
+    add_executor_options,
     command_line,
+    executor_from_args,
+    executor_record,
     machine,
     markdown_table,
+    process_runtime,
     render_reference,
+    render_tasks,
     write_json,
 )
 from efficiency_report import time_to_mse  # noqa: E402
@@ -81,15 +98,10 @@ from figures import (  # noqa: E402
 )
 from scipy.stats import bootstrap  # noqa: E402
 
-from clrender.api import runtime_for  # noqa: E402
 from clrender.compare import image_errors  # noqa: E402
 from clrender.imageio import read_exr, write_exr  # noqa: E402
-from clrender.pipeline import RenderSettings, render  # noqa: E402
 from clrender.probes import glass_shapes  # noqa: E402
-from clrender.radiance import PathTracerSource  # noqa: E402
-from clrender.sampling import make_sampler  # noqa: E402
 from clrender.scene import load_scene  # noqa: E402
-from clrender.trace import PathTracer  # noqa: E402
 
 SCENES = ["mitsuba-cbox", "cornell-box", "cornell-box-glossy", "furnace"]
 CONFIGS = [("mc", "independent"), ("mc", "sobol"), ("vor_sn", "sppp")]
@@ -112,7 +124,6 @@ VARIANTS = {
 BASELINE = "off"
 SHIPPED = "rr"
 GLASS_ONLY = {"rr-beta"}
-WARMUP_SEED = 999
 RESAMPLES = 2000
 CLOCKS = {"cpu": "cpu_s", "wall": "wall_s"}
 MAIN_CLOCK = "cpu"  # the verdicts' clock: the machine is shared, CPU time is the steadier one
@@ -137,6 +148,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         action="store_true",
         help="no renders: summaries, charts and report again from OUT/results.json's rows",
     )
+    add_executor_options(parser)
     args = parser.parse_args(argv)
     args.scenes = args.scenes or (["cornell-box"] if args.quick else SCENES)
     quick_variants = ["off", "rr", "rr-beta"]
@@ -154,7 +166,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 # Renders
 
 
-def reference(runtime, scene: str, size: int, spp: int, folder: Path) -> tuple:
+def reference(runtime, scene: str, size: int, spp: int, folder: Path, executor=None) -> tuple:
     """(image, per-pixel variance of it, info): the no-roulette reference, cached in folder."""
     name = f"{scene}_{size}x{size}_{spp}spp_d{MAX_DEPTH}_{REFERENCE_SAMPLER}_p{REFERENCE_PARTS}"
     path, var_path = folder / f"{name}.exr", folder / f"{name}_var.exr"
@@ -167,7 +179,9 @@ def reference(runtime, scene: str, size: int, spp: int, folder: Path) -> tuple:
         print(f"reference: cached {path.name}", flush=True)
         cached = True
     else:
-        image, variance, wall = render_reference(runtime, scene, (size, size), spp)
+        image, variance, wall = render_reference(
+            runtime, scene, (size, size), spp, executor=executor
+        )
         folder.mkdir(parents=True, exist_ok=True)
         write_exr(path, image, {"scene": scene, "spp": spp, "wall_s": wall, "roulette": 0})
         write_exr(var_path, variance, {"scene": scene, "spp": spp})
@@ -176,80 +190,75 @@ def reference(runtime, scene: str, size: int, spp: int, folder: Path) -> tuple:
     return np.asarray(image, np.float64), float(np.mean(variance)), info
 
 
-def sources(runtime, scene_name: str, size: int, variants: list[str]) -> dict:
-    """A radiance source per roulette variant (each its own kernel build)."""
-    scene = load_scene(scene_name)
-    has_glass = len(glass_shapes(scene)) > 0
-    out = {}
-    for name in variants:
-        if name in GLASS_ONLY and not has_glass:
-            continue
-        roulette, defines, _ = VARIANTS[name]
-        tracer = PathTracer(
-            runtime, scene, MAX_DEPTH, russian_roulette=roulette, profile_defines=defines
-        )
-        out[name] = PathTracerSource(tracer, size, size)
-    return out
+def scene_variants(scene_name: str, variants: list[str]) -> list[str]:
+    """The variants that apply to a scene (the glass-only ones where it has glass)."""
+    has_glass = len(glass_shapes(load_scene(scene_name))) > 0
+    return [name for name in variants if name not in GLASS_ONLY or has_glass]
 
 
-def one_render(runtime, source, config, spp: int, seed: int) -> tuple[np.ndarray, dict]:
-    estimator, sampler = config
-    settings = RenderSettings(
-        source.width, source.height, make_sampler(sampler, spp), estimator, seed
+def render_task(scene: str, config, variant: str, spp: int, seed: int, args) -> RenderTask:
+    """The render of a pair with a roulette variant (each variant its own kernel build),
+    warmed up at the study's first spp where it runs."""
+    roulette, defines, _ = VARIANTS[variant]
+    return RenderTask(
+        scene,
+        (args.size, args.size),
+        (config[0],),
+        config[1],
+        spp,
+        seed,
+        max_depth=MAX_DEPTH,
+        russian_roulette=roulette,
+        defines=tuple(sorted((defines or {}).items())),
+        device=args.device,
+        warmup_spp=args.spp[0],
     )
-    cpu = time.process_time()
-    result = render(runtime, source, settings)
-    cpu = time.process_time() - cpu
-    stats = result.stats
-    row = {
-        "spp": spp,
-        "seed": seed,
-        "wall_s": stats.run_seconds,
-        "cpu_s": cpu,
-        "tracing_s": stats.stage_seconds["tracing"],
-        "compile_s": stats.compile_seconds,
-        "paths": stats.traced_samples,
-        "rays": stats.rays,
-        "redrawn_pixels": stats.redrawn_pixels,
-        "nonfinite_samples": stats.nonfinite_samples,
-        "load_1min": os.getloadavg()[0],
-    }
-    return result.film.image().astype(np.float64), row
 
 
-def study_scene(runtime, scene: str, args) -> dict:
+def render_row(row: dict) -> dict:
+    """The study's row of a render task's row: wall_s is RenderStats.run_seconds (the render
+    without the kernel builds met on its thread), cpu_s the process's CPU time over the call."""
+    keys = ("spp", "seed", "cpu_s", "tracing_s", "compile_s", "paths", "rays", "redrawn_pixels")
+    keys += ("nonfinite_samples", "load_1min", "worker")
+    return {"wall_s": row["run_s"], **{key: row[key] for key in keys}}
+
+
+def study_scene(executor, scene: str, args) -> dict:
     before = machine()
+    runtime = process_runtime(args.device)
     ref, noise, ref_info = reference(
-        runtime, scene, args.size, args.reference_spp, args.out / "references"
+        runtime, scene, args.size, args.reference_spp, args.out / "references", executor
     )
-    by_variant = sources(runtime, scene, args.size, args.variants)
-    pairs = [(config, variant) for config in CONFIGS for variant in by_variant]
-    for config, variant in pairs:  # warm-up: kernel builds and first launches, untimed
-        one_render(runtime, by_variant[variant], config, args.spp[0], WARMUP_SEED)
-    rows = []
-    start = time.perf_counter()
+    variants = scene_variants(scene, args.variants)
+    pairs = [(config, variant) for config in CONFIGS for variant in variants]
+    order = []  # (spp, seed, config, variant): a (spp, seed) round's pairs rotated by the seed
     for spp in args.spp:
         for k in range(args.seeds):
-            seed = args.seed + k
             shift = k % len(pairs)
-            for config, variant in pairs[shift:] + pairs[:shift]:
-                image, row = one_render(runtime, by_variant[variant], config, spp, seed)
-                errors = image_errors(image, ref, noise)
-                row.update(
-                    estimator=config[0],
-                    sampler=config[1],
-                    variant=variant,
-                    mse_raw=errors.mse,
-                    mse=errors.mse_minus_noise,
-                )
-                rows.append(row)
-        print(
-            f"{scene}: {spp} spp done ({len(rows)} renders, {time.perf_counter() - start:.0f} s)",
-            flush=True,
+            order += [(spp, args.seed + k, *pair) for pair in pairs[shift:] + pairs[:shift]]
+    tasks = [
+        render_task(scene, config, variant, spp, seed, args) for spp, seed, config, variant in order
+    ]
+    start = time.perf_counter()
+    rows = []
+    for (_, _, config, variant), (images, task_row) in zip(
+        order, render_tasks(executor, tasks), strict=True
+    ):
+        image = images[config[0]].astype(np.float64)
+        errors = image_errors(image, ref, noise)
+        row = render_row(task_row)
+        row.update(
+            estimator=config[0],
+            sampler=config[1],
+            variant=variant,
+            mse_raw=errors.mse,
+            mse=errors.mse_minus_noise,
         )
+        rows.append(row)
+    print(f"{scene}: {len(rows)} renders, {time.perf_counter() - start:.0f} s", flush=True)
     return {
         "reference": ref_info,
-        "variants": list(by_variant),
+        "variants": variants,
         "machine_before": before,
         "machine_after": machine(),
         "rows": rows,
@@ -814,15 +823,19 @@ def main(argv=None) -> dict:
     if args.rebuild:
         results = json.loads((args.out / "results.json").read_text())
     else:
-        results = run(args, argv)
+        executor = executor_from_args(args)
+        try:
+            results = run(args, argv, executor)
+        finally:
+            executor.close()
     analyse(results, args.out)
     print("\n".join(results["conclusion"]))
     return results
 
 
-def run(args, argv) -> dict:
-    """Every render of the study; results.json written after each scene."""
-    runtime = runtime_for(args.device)  # the process's runtime: programs built once
+def run(args, argv, executor) -> dict:
+    """Every render of the study, on the executor; results.json written after each scene."""
+    runtime = process_runtime(args.device)  # the process's runtime: programs built once
     results = {
         "settings": {
             "size": args.size,
@@ -835,11 +848,12 @@ def run(args, argv) -> dict:
             "command": command_line("roulette_study.py", argv),
         },
         "device": runtime.describe(),
+        "executor": executor_record(executor, args),
         "variants": args.variants,
         "scenes": {},
     }
     for scene in args.scenes:
-        results["scenes"][scene] = study_scene(runtime, scene, args)
+        results["scenes"][scene] = study_scene(executor, scene, args)
         write_json(args.out / "results.json", results)
     return results
 
