@@ -216,10 +216,15 @@ def process_runtime(device: str | None = None) -> Runtime:
     return runtimes[device]
 
 
+def source_key(task: RenderTask) -> tuple:
+    """What a task's radiance source depends on (tasks that share it share its kernels)."""
+    return (task.scene, task.size, task.max_depth, task.russian_roulette, task.defines, task.device)
+
+
 def task_source(task: RenderTask) -> PathTracerSource:
     """The task's radiance source, made once per process and kept for the next task."""
     sources = process_cache("bench.sources")
-    key = (task.scene, task.size, task.max_depth, task.russian_roulette, task.defines, task.device)
+    key = source_key(task)
     if key not in sources:
         tracer = PathTracer(
             process_runtime(task.device),
@@ -240,7 +245,7 @@ def render_task(task: RenderTask) -> tuple[dict[str, np.ndarray], dict]:
     source = task_source(task)
     args = (task.estimators, task.sampler)
     warmed = process_cache("bench.warmed")
-    key = (id(source), *args, task.backend)
+    key = (source_key(task), *args, task.backend)
     if key not in warmed:
         warmup_spp = min(task.warmup_spp, task.spp)
         measured_render(runtime, source, *args, warmup_spp, WARMUP_SEED, task.backend)
@@ -251,10 +256,13 @@ def render_task(task: RenderTask) -> tuple[dict[str, np.ndarray], dict]:
 
 
 def render_tasks(executor: Executor, tasks: list[RenderTask]) -> list[tuple[dict, dict]]:
-    """render_task of every task on the executor, in the order of `tasks`."""
+    """render_task of every task on the executor, in the order of `tasks`; each row also
+    records how many workers the executor had (1: this process)."""
     results: list = [None] * len(tasks)
-    for index, result in executor.map(render_task, tasks):
-        results[index] = result
+    workers = executor.workers
+    for index, (images, row) in executor.map(render_task, tasks):
+        row["workers"] = workers
+        results[index] = images, row
     return results
 
 

@@ -219,7 +219,7 @@ def render_row(row: dict) -> dict:
     """The study's row of a render task's row: wall_s is RenderStats.run_seconds (the render
     without the kernel builds met on its thread), cpu_s the process's CPU time over the call."""
     keys = ("spp", "seed", "cpu_s", "tracing_s", "compile_s", "paths", "rays", "redrawn_pixels")
-    keys += ("nonfinite_samples", "load_1min", "worker")
+    keys += ("nonfinite_samples", "load_1min", "worker", "workers")
     return {"wall_s": row["run_s"], **{key: row[key] for key in keys}}
 
 

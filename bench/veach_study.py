@@ -170,6 +170,7 @@ def run_renders(executor, args, ref, ref_var, masks, log=print) -> list[dict]:
                     "wall_s": timing["call_s"],
                     "cpu_s": timing["cpu_s"],
                     "worker": timing["worker"],
+                    "workers": timing["workers"],
                     "region_mse": region_mse(images[name].astype(np.float64), ref, ref_var, masks),
                 }
             )

@@ -34,6 +34,7 @@ TIMING_FIELDS = {
     "cpu_s",
     "load_1min",
     "worker",
+    "workers",
 }
 
 
@@ -70,6 +71,8 @@ def assert_timed_where_they_ran(local_rows: list[dict], cluster_rows: list[dict]
             assert row[key] > 0, key
     assert {row["worker"] for row in local_rows} == {"this process"}
     assert all(row["worker"].startswith("tcp://") for row in cluster_rows)
+    assert {row["workers"] for row in local_rows} == {1}
+    assert {row["workers"] for row in cluster_rows} == {2}
 
 
 def assert_same_references(local: Path, remote: Path) -> None:
