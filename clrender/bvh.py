@@ -41,6 +41,8 @@ BVH_NODE_DTYPE = np.dtype(
 # most BVH_WIDTH - 1 nodes on its stack per level, so BVH_STACK_SIZE = 7 x BVH_MAX_DEPTH.
 BVH_MAX_DEPTH = 40
 BVH_BINS = 16
+MORTON_BITS = 10  # per axis: Morton codes of 30 bits
+CLUSTER_MAX = 4  # primitives of a Morton cluster (the SAH's unit) at most
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
 # up to 8 trace 5-10 % faster here: bench/bvh_scaling.py).
@@ -52,11 +54,13 @@ BOUNDS_PADDING = 1e-5
 
 
 def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Primitive bounds widened by BOUNDS_PADDING of each primitive's magnitude (float64)."""
-    lower = np.asarray(lower, np.float64)
-    upper = np.asarray(upper, np.float64)
-    magnitude = np.maximum(np.abs(lower).max(axis=1), np.abs(upper).max(axis=1))
-    pad = (BOUNDS_PADDING * magnitude + 1e-30)[:, None]
+    """Primitive bounds (N, 3) as float32 structure of arrays (3, N), widened by BOUNDS_PADDING
+    of each primitive's magnitude: the padding is far above float32's rounding of the bounds and
+    of the padding itself, so each box still holds its primitive."""
+    lower = np.asarray(lower, np.float32).T
+    upper = np.asarray(upper, np.float32).T
+    magnitude = np.maximum(np.abs(lower).max(axis=0), np.abs(upper).max(axis=0))
+    pad = np.float32(BOUNDS_PADDING) * magnitude + np.float32(1e-30)
     return lower - pad, upper + pad
 
 
@@ -80,6 +84,203 @@ def _segment_prefix_min(values: np.ndarray, segment: np.ndarray, direction: int)
         np.minimum(result[:, target], result[:, source] + barrier, out=result[:, target])
         step *= 2
     return result
+
+
+def _spread_bits(q: np.ndarray) -> np.ndarray:
+    """10-bit integers (uint32) with two zero bits put after each bit (bit i moves to 3i)."""
+    q = (q | (q << np.uint32(16))) & np.uint32(0x030000FF)
+    q = (q | (q << np.uint32(8))) & np.uint32(0x0300F00F)
+    q = (q | (q << np.uint32(4))) & np.uint32(0x030C30C3)
+    return (q | (q << np.uint32(2))) & np.uint32(0x09249249)
+
+
+def _morton_keys(centroid: np.ndarray) -> np.ndarray:
+    """Unique uint64 sort keys of centroids (3, N): the Morton code of each centroid's cell in
+    a grid of 2^MORTON_BITS cells a side over their bounds (bits 32-61, x highest of each
+    triple), then the primitive id (bits 0-31: ties broken by id)."""
+    low = centroid.min(axis=1)
+    extent = centroid.max(axis=1) - low
+    cells = 1 << MORTON_BITS
+    with np.errstate(divide="ignore"):
+        scale = np.where(extent > 0.0, cells / extent, 0.0).astype(np.float32)
+    code = np.zeros(centroid.shape[1], np.uint32)
+    for axis in range(3):
+        cell = ((centroid[axis] - low[axis]) * scale[axis]).astype(np.uint32)
+        code |= _spread_bits(np.minimum(cell, np.uint32(cells - 1))) << np.uint32(2 - axis)
+    return (code.astype(np.uint64) << np.uint64(32)) | np.arange(len(code), dtype=np.uint64)
+
+
+def _highest_bit(x: np.ndarray) -> np.ndarray:
+    """Index of the highest set bit of each (non-zero) uint64, exactly (each half of 32 bits
+    is exact in float64)."""
+    high = (x >> np.uint64(32)).astype(np.float64)
+    low = (x & np.uint64(0xFFFFFFFF)).astype(np.float64)
+    return np.where(high > 0.0, 32 + np.frexp(high)[1], np.frexp(low)[1]) - 1
+
+
+def _morton_split(keys: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple:
+    """(middle, bit) of ranges [start, end) of the sorted keys (at least 2 each): the highest
+    bit where the range's keys differ and the first key of the range with that bit set."""
+    last = keys[end - 1]
+    bit = _highest_bit(keys[start] ^ last).astype(np.uint64)
+    return np.searchsorted(keys, (last >> bit) << bit), bit
+
+
+def _morton_clusters(keys: np.ndarray) -> np.ndarray:
+    """Starts (ascending) of the Morton clusters of sorted keys: the largest ranges the
+    recursive split at the highest differing bit (_morton_split) leaves with at most
+    CLUSTER_MAX keys; one level of ranges at a time."""
+    starts = []
+    start, end = np.array([0]), np.array([len(keys)])
+    while len(start):
+        small = end - start <= CLUSTER_MAX
+        starts.append(start[small])
+        start, end = start[~small], end[~small]
+        middle, _ = _morton_split(keys, start, end)
+        start, end = np.concatenate([start, middle]), np.concatenate([middle, end])
+    return np.sort(np.concatenate(starts))
+
+
+def _morton_axis(bit: np.ndarray) -> np.ndarray:
+    """The axis a key bit (_morton_keys) splits: x, y, z for Morton bits, x for id bits."""
+    code_bit = bit.astype(np.int64) - 32
+    return np.where(code_bit >= 0, 2 - code_bit % 3, 0)
+
+
+def _range_boxes(sorted_boxes: np.ndarray, start, middle, end) -> tuple:
+    """Boxes (6 rows) of the ranges [start, middle) and [middle, end) of sorted_boxes' columns
+    (disjoint ranges; sorted_boxes has a spare last column): one reduceat over the ranges in
+    ascending order."""
+    order = np.argsort(start, kind="stable")
+    bounds = np.stack([start[order], middle[order], end[order]], axis=1).reshape(-1)
+    reduced = np.minimum.reduceat(sorted_boxes, bounds, axis=1).reshape(6, -1, 3)
+    left = np.empty((6, len(start)), np.float32)
+    right = np.empty((6, len(start)), np.float32)
+    left[:, order], right[:, order] = reduced[:, :, 0], reduced[:, :, 1]
+    return left, right
+
+
+def _expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The integers of the ranges [starts[k], starts[k] + lengths[k]), one range after another."""
+    ends = np.cumsum(lengths)
+    return np.arange(ends[-1]) + np.repeat(starts - (ends - lengths), lengths)
+
+
+def _binned_sah(work_c, work_boxes, work_w, first, size, box) -> tuple:
+    """The best binned-SAH split of each node of items first[k] .. first[k] + size[k] - 1 (at
+    least 2) of the working set (centroids work_c, boxes work_boxes, primitive counts work_w);
+    box: the nodes' boxes. Returns (goes_right per item, axis, cost, left items, left
+    primitives, child boxes (6, nodes, 2)); cost inf where no split separates the items."""
+    m, total = len(size), len(work_w)
+    if m == 0:
+        empty = np.zeros(0, np.int64)
+        return np.zeros(0, bool), empty, np.zeros(0), empty, empty, np.zeros((6, 0, 2), np.float32)
+    node_of = np.repeat(np.arange(m), size)
+    # Split axis: the longest extent of the node's centroids
+    cmin = np.minimum.reduceat(work_c, first, axis=1)
+    cmax = np.maximum.reduceat(work_c, first, axis=1)
+    axis = np.argmax(cmax - cmin, axis=0)
+    extent = (cmax - cmin)[axis, np.arange(m)]
+    low = cmin[axis, np.arange(m)]
+    # Bin every item by its centroid: min(BVH_BINS, size) bins per node, so the level's bins
+    # never outnumber its items; bins of node k are groups bin_first[k] .. + node_bins[k] - 1
+    # (2 bins where the centroids coincide: rank halves)
+    node_bins = np.where(extent > 0.0, np.minimum(size, BVH_BINS), 2)
+    bin_first = np.cumsum(node_bins) - node_bins
+    group_count = int(node_bins.sum())
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(extent > 0.0, node_bins / extent, 0.0).astype(np.float32)
+    along = work_c.reshape(-1)[axis[node_of] * total + np.arange(total)]
+    bins = ((along - low[node_of]) * scale[node_of]).astype(np.int64)
+    bins = np.minimum(bins, node_bins[node_of] - 1)
+    if not np.all(extent > 0.0):
+        # Items whose centroids coincide are binned by their rank in the node
+        flat = (extent <= 0.0)[node_of]
+        rank = np.arange(total) - first[node_of]
+        bins[flat] = (rank * node_bins[node_of] // size[node_of])[flat]
+    group = bin_first[node_of] + bins
+    # Bounds and counts of each group: sort by bin (stable, so nodes stay in order within a
+    # bin: each (bin, node) group is then contiguous) and reduce
+    order = np.argsort(bins.astype(np.uint8), kind="stable")
+    sorted_group = group[order]
+    run_start = np.flatnonzero(np.r_[True, sorted_group[1:] != sorted_group[:-1]])
+    bin_boxes = np.full((6, group_count), np.inf, np.float32)
+    bin_boxes[:, sorted_group[run_start]] = np.minimum.reduceat(
+        np.take(work_boxes, order, axis=1), run_start, axis=1
+    )
+    bin_items = np.bincount(group, minlength=group_count)
+    bin_prims = np.bincount(group, weights=work_w, minlength=group_count).astype(np.int64)
+    # SAH cost of the split after each bin j (left: the node's bins up to j, the rest right)
+    group_node = np.repeat(np.arange(m), node_bins)
+    left_boxes = _segment_prefix_min(bin_boxes, group_node, 1)
+    right_boxes = _segment_prefix_min(bin_boxes, group_node, -1)
+    right_boxes = np.concatenate([right_boxes[:, 1:], np.full((6, 1), np.inf, np.float32)], axis=1)
+    left_items = _segment_cumsum(bin_items, bin_first, node_bins)
+    left_prims = _segment_cumsum(bin_prims, bin_first, node_bins)
+    right_prims = np.repeat(np.add.reduceat(bin_prims, bin_first), node_bins) - left_prims
+    node_area = np.maximum(_half_area(box), 1e-300)
+    with np.errstate(invalid="ignore", over="ignore"):
+        cost = (
+            TRAVERSAL_COST
+            + (left_prims * _half_area(left_boxes) + right_prims * _half_area(right_boxes))
+            / node_area[group_node]
+        )
+    cost[(left_items == 0) | (left_items == size[group_node])] = np.inf
+    # The cheapest split of each node (the first bin of the lowest cost)
+    best_cost = np.minimum.reduceat(cost, bin_first)
+    candidates = np.flatnonzero(cost == best_cost[group_node])
+    first_candidate = np.r_[True, group_node[candidates][1:] != group_node[candidates][:-1]]
+    best_group = np.zeros(m, np.int64)
+    best_group[group_node[candidates[first_candidate]]] = candidates[first_candidate]
+    goes_right = bins > (best_group - bin_first)[node_of]
+    child_boxes = np.stack([left_boxes[:, best_group], right_boxes[:, best_group]], axis=2)
+    return (
+        goes_right,
+        axis,
+        best_cost,
+        left_items[best_group],
+        left_prims[best_group],
+        child_boxes,
+    )
+
+
+def _segment_cumsum(values: np.ndarray, first: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """Inclusive running sums of values within the segments first[k] .. first[k] + size[k] - 1."""
+    total = np.cumsum(values)
+    return total - np.repeat(total[first] - values[first], size)
+
+
+def _partition(work: tuple, moving, goes_right, first, size, left_items, split) -> tuple:
+    """The working arrays (last axis: items) of the split nodes' items, each node's left items
+    first then its right ones, in order (a stable partition by cumulative sums); and the item
+    counts (split nodes, 2) of the children."""
+    total = len(moving)
+    node_of = np.repeat(np.arange(len(size)), size)
+    moved_size = np.where(split, size, 0)
+    next_first = np.cumsum(moved_size) - moved_size
+    # Rank of each moving item among its node's items going the same way
+    right = goes_right & moving
+    right_before = np.cumsum(right) - right
+    right_before -= np.repeat(right_before[first], size)
+    left_before = np.arange(total) - first[node_of] - right_before
+    side_rank = np.where(goes_right, left_items[node_of] + right_before, left_before)
+    destination = (next_first[node_of] + side_rank)[moving]
+    source = np.empty(len(destination), np.int64)
+    source[destination] = np.flatnonzero(moving)
+    moved = tuple(np.take(array, source, axis=-1) for array in work)
+    children = np.stack([left_items[split], size[split] - left_items[split]], axis=1)
+    return (*moved, children)
+
+
+def sah_cost(nodes: np.ndarray) -> float:
+    """A binary tree's (BINARY_NODE_DTYPE) surface-area-heuristic cost: interior nodes' areas x
+    TRAVERSAL_COST plus leaves' areas x their primitives, over the root's area."""
+    if len(nodes) == 0:
+        return 0.0
+    size = (nodes["upper"] - nodes["lower"]).astype(np.float64)
+    area = size[:, 0] * size[:, 1] + size[:, 1] * size[:, 2] + size[:, 2] * size[:, 0]
+    weight = np.where(nodes["count"] > 0, nodes["count"], TRAVERSAL_COST)
+    return float((area * weight).sum() / area[0])
 
 
 def build_wide_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -135,130 +336,150 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
 
 def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Binary BVH over N primitives with bounds lower[i], upper[i]: (nodes, prims), nodes a
-    BINARY_NODE_DTYPE array (the root first), prims the uint32 primitive ids the leaves point
-    into. Bounds are padded (padded_bounds) and rounded outwards to float32."""
-    lower, upper = padded_bounds(lower, upper)
+    BINARY_NODE_DTYPE array (the root first, breadth first), prims the uint32 primitive ids the
+    leaves point into. Bounds are padded (padded_bounds) in float32."""
     count = len(lower)
     if count == 0:
         return np.zeros(0, BINARY_NODE_DTYPE), np.zeros(0, np.uint32)
-    # Structure of arrays (one row per coordinate): gathers and reductions run along rows
-    # (float32, rounded outwards: half the memory traffic of float64)
-    lower32 = np.nextafter(lower.astype(np.float32), np.float32(-np.inf))
-    upper32 = np.nextafter(upper.astype(np.float32), np.float32(np.inf))
-    centroid = np.ascontiguousarray((0.5 * (lower32 + upper32)).T)
-    boxes = np.ascontiguousarray(np.concatenate([lower32, -upper32], axis=1).T)  # min: union
-    perm = np.zeros(count, np.int64)  # position -> primitive; a leaf owns a range of them
-    # The working set: primitives of the current level's nodes, node by node, in their
-    # current order (kept in that order, so gathers and scatters stay local)
-    work_ids = np.arange(count)
-    work_c = centroid
-    work_boxes = boxes
-    levels = []  # per depth: (lower, upper, offset, count) of its nodes, in index order
-    start = np.array([0])
-    size = np.array([count])
-    box = boxes.min(axis=1)[:, None]
+    lower32, upper32 = padded_bounds(lower, upper)
+    # Sort the primitives once along the Morton curve of their centroids
+    keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
+    order = (keys & np.uint64(0xFFFFFFFF)).astype(np.intp)
+    # Boxes in that order as rows (lower, -upper), so a union is a minimum; one spare column
+    # closes the last range of _range_boxes
+    sorted_boxes = np.zeros((6, count + 1), np.float32)
+    for row in range(3):
+        np.take(lower32[row], order, out=sorted_boxes[row, :count])
+        np.negative(np.take(upper32[row], order), out=sorted_boxes[3 + row, :count])
+    # The SAH's units: Morton clusters of at most CLUSTER_MAX primitives
+    cluster_start = _morton_clusters(keys)
+    cluster_end = np.r_[cluster_start[1:], count]
+    cluster_boxes = np.minimum.reduceat(sorted_boxes[:, :count], cluster_start, axis=1)
+    clusters = len(cluster_start)
+    # The level's nodes, in index order: box, first position in `prims`, primitives, and
+    # either clusters (an SAH node, items > 0) or a range of the sorted order (a Morton node,
+    # items 0: a single cluster or part of one)
+    box = sorted_boxes[:, :count].min(axis=1)[:, None]
+    first = np.array([0])
+    prims = np.array([count])
+    items = np.array([clusters if clusters > 1 else 0])
+    span = np.array([[0, count]])
+    # The working set: the clusters of the level's SAH nodes, node by node
+    work_ids = np.arange(clusters)
+    work_c = 0.5 * (cluster_boxes[:3] - cluster_boxes[3:])
+    work_boxes = cluster_boxes
+    work_w = cluster_end - cluster_start
+    if clusters == 1:
+        work_ids, work_c, work_boxes, work_w = (
+            work_ids[:0],
+            work_c[:, :0],
+            work_boxes[:, :0],
+            work_w[:0],
+        )
+    levels = []  # per depth: (box, offset, count) of its nodes, in index order
+    leaf_ranges = []  # (source start in the sorted order, length, first position in prims)
     next_index = 1
     depth = 0
-    while len(start):
-        m = len(start)
-        # The level's primitives, node by node
-        first = np.concatenate([[0], np.cumsum(size)[:-1]])
-        total = int(size.sum())
-        node_of = np.repeat(np.arange(m), size)
-        c = work_c
-        # Split axis: the longest extent of the node's centroids
-        cmin = np.minimum.reduceat(c, first, axis=1)
-        cmax = np.maximum.reduceat(c, first, axis=1)
-        axis = np.argmax(cmax - cmin, axis=0)
-        extent = (cmax - cmin)[axis, np.arange(m)]
-        low = cmin[axis, np.arange(m)]
-        # Bin every primitive by its centroid: min(BVH_BINS, size) bins per node, so the
-        # level's bins never outnumber its primitives; bins of node k are groups
-        # bin_first[k] .. bin_first[k] + node_bins[k] - 1
-        node_bins = np.minimum(size, BVH_BINS)
-        bin_first = np.concatenate([[0], np.cumsum(node_bins)[:-1]])
-        group_count = int(node_bins.sum())
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where(extent > 0.0, node_bins / extent, 0.0)
-        along = c.reshape(-1)[axis[node_of] * total + np.arange(total)]
-        bins = ((along - low[node_of]) * scale[node_of]).astype(np.int64)
-        bins = np.clip(bins, 0, node_bins[node_of] - 1)
-        group = bin_first[node_of] + bins
-        # Bounds and counts of each group: sort by bin (stable, so nodes stay in order within
-        # a bin: each (bin, node) group is then contiguous) and reduce
-        order = np.argsort(bins.astype(np.uint8), kind="stable")
-        sorted_group = group[order]
-        run_start = np.flatnonzero(np.r_[True, sorted_group[1:] != sorted_group[:-1]])
-        bin_boxes = np.full((6, group_count), np.inf, np.float32)
-        bin_boxes[:, sorted_group[run_start]] = np.minimum.reduceat(
-            np.take(work_boxes, order, axis=1), run_start, axis=1
+    while len(prims):
+        m = len(prims)
+        sah = np.flatnonzero(items > 0)
+        morton = np.flatnonzero(items == 0)
+        child_box = np.zeros((6, m, 2), np.float32)
+        left_prims = np.zeros(m, np.int64)
+        cost = np.full(m, np.inf)
+        axis = np.zeros(m, np.int64)
+        # SAH nodes: the best binned split of their clusters
+        item_first = np.cumsum(items[sah]) - items[sah]
+        sah_split = _binned_sah(work_c, work_boxes, work_w, item_first, items[sah], box[:, sah])
+        goes_right, sah_axis, cost[sah], left_items, left_prims[sah], boxes_lr = sah_split
+        axis[sah] = sah_axis
+        child_box[:, sah] = boxes_lr
+        # Morton nodes: the split at the highest bit where their first and last keys differ
+        middle = np.zeros(m, np.int64)
+        several = morton[prims[morton] > 1]
+        if len(several):
+            start, end = span[several, 0], span[several, 1]
+            middle[several], bit = _morton_split(keys, start, end)
+            left_box, right_box = _range_boxes(sorted_boxes, start, middle[several], end)
+            child_box[:, several, 0], child_box[:, several, 1] = left_box, right_box
+            left_prims[several] = middle[several] - start
+            axis[several] = _morton_axis(bit)
+            with np.errstate(invalid="ignore", over="ignore"):
+                cost[several] = TRAVERSAL_COST + (
+                    left_prims[several] * _half_area(left_box)
+                    + (prims[several] - left_prims[several]) * _half_area(right_box)
+                ) / np.maximum(_half_area(box[:, several]), 1e-300)
+        # Leaf or split: SAH decides for small nodes
+        splittable = np.isfinite(cost) & (depth < BVH_MAX_DEPTH)
+        split = splittable & ~((prims <= LEAF_MAX) & (prims <= cost))
+        offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first)
+        levels.append((box, offset, np.where(split, -1 - axis, prims)))
+        # Leaves take their primitives: a Morton leaf one range of the sorted order, an SAH
+        # leaf its clusters' ranges one after another
+        morton_leaves = morton[~split[morton]]
+        leaf_ranges.append((span[morton_leaves, 0], prims[morton_leaves], first[morton_leaves]))
+        item_node = np.repeat(sah, items[sah])
+        leaf_items = ~split[item_node]
+        sizes = work_w[leaf_items]
+        within = (
+            np.cumsum(work_w)
+            - work_w
+            - np.repeat(np.cumsum(work_w)[item_first] - work_w[item_first], items[sah])
         )
-        bin_counts = np.bincount(group, minlength=group_count)
-        # SAH cost of the split after each bin j (left: the node's bins up to j, the rest right)
-        group_node = np.repeat(np.arange(m), node_bins)
-        left_boxes = _segment_prefix_min(bin_boxes, group_node, 1)
-        right_boxes = _segment_prefix_min(bin_boxes, group_node, -1)
-        right_boxes = np.concatenate(
-            [right_boxes[:, 1:], np.full((6, 1), np.inf, np.float32)], axis=1
-        )
-        left_counts = np.cumsum(bin_counts) - np.repeat(
-            np.cumsum(bin_counts)[bin_first] - bin_counts[bin_first], node_bins
-        )
-        right_counts = size[group_node] - left_counts
-        node_area = np.maximum(_half_area(box), 1e-300)
-        with np.errstate(invalid="ignore", over="ignore"):
-            cost = (
-                TRAVERSAL_COST
-                + (left_counts * _half_area(left_boxes) + right_counts * _half_area(right_boxes))
-                / node_area[group_node]
+        leaf_ranges.append(
+            (
+                cluster_start[work_ids[leaf_items]],
+                sizes,
+                (first[item_node] + within)[leaf_items],
             )
-        cost[(left_counts == 0) | (right_counts == 0)] = np.inf
-        # The cheapest split of each node (the first bin of the lowest cost)
-        best_cost = np.minimum.reduceat(cost, bin_first)
-        candidates = np.flatnonzero(cost == best_cost[group_node])
-        first_candidate = np.r_[True, group_node[candidates][1:] != group_node[candidates][:-1]]
-        best_group = np.zeros(m, np.int64)
-        best_group[group_node[candidates[first_candidate]]] = candidates[first_candidate]
-        best = best_group - bin_first
-        # Leaf or split: SAH decides for small nodes; unsplittable nodes are leaves
-        splittable = (extent > 0.0) & (size > 1) & (depth < BVH_MAX_DEPTH) & np.isfinite(best_cost)
-        split = splittable & ~((size <= LEAF_MAX) & (size <= best_cost))
-        child = next_index + 2 * (np.cumsum(split) - 1)
-        offset = np.where(split, child, start)
-        levels.append((box, offset, np.where(split, -1 - axis, size)))
-        # Leaves take their primitives; the split nodes' primitives move on, each node's
-        # left side first (a stable partition)
-        moving = split[node_of]
-        leaf_prims = ~moving
-        perm[start[node_of[leaf_prims]] + (np.arange(total) - first[node_of])[leaf_prims]] = (
-            work_ids[leaf_prims]
         )
-        goes_right = bins > best[node_of]
-        n_left = left_counts[best_group]
-        next_first = np.cumsum(np.where(split, size, 0)) - np.where(split, size, 0)
-        # Rank of each moving primitive among its node's primitives going the same way
-        right = goes_right & moving
-        right_before = np.cumsum(right) - right
-        right_before -= right_before[first][node_of]
-        left_before = np.arange(total) - first[node_of] - right_before
-        side_rank = np.where(goes_right, n_left[node_of] + right_before, left_before)
-        dest = (next_first[node_of] + side_rank)[moving]
-        source = np.empty(len(dest), np.int64)
-        source[dest] = np.flatnonzero(moving)
-        work_ids_next = work_ids[source]
-        work_c_next = np.take(work_c, source, axis=1)
-        work_boxes_next = np.take(work_boxes, source, axis=1)
-        work_ids, work_c, work_boxes = work_ids_next, work_c_next, work_boxes_next
-        # The next level: both children of every split node, bounds from the bin sweep
+        # Split SAH nodes' clusters move on, each node's left side first (a stable partition)
+        moving = split[item_node]
+        work_ids, work_c, work_boxes, work_w, child_items = _partition(
+            (work_ids, work_c, work_boxes, work_w),
+            moving,
+            goes_right,
+            item_first,
+            items[sah],
+            left_items,
+            split[sah],
+        )
+        # The next level: both children of every split node
         parents = np.flatnonzero(split)
-        left_box = left_boxes[:, best_group[parents]]
-        right_box = right_boxes[:, best_group[parents]]
-        start = np.stack([start[parents], start[parents] + n_left[parents]], axis=1).reshape(-1)
-        size = np.stack([n_left[parents], size[parents] - n_left[parents]], axis=1).reshape(-1)
-        box = np.stack([left_box, right_box], axis=2).reshape(6, -1)
+        child_items_all = np.zeros((m, 2), np.int64)
+        child_items_all[sah[split[sah]]] = child_items
+        child_span = np.zeros((m, 2, 2), np.int64)
+        child_span[several, 0, 0] = span[several, 0]
+        child_span[several, 0, 1] = middle[several]
+        child_span[several, 1, 0] = middle[several]
+        child_span[several, 1, 1] = span[several, 1]
+        items = child_items_all[parents].reshape(-1)
+        span = child_span[parents].reshape(-1, 2)
+        # An SAH child of one cluster becomes a Morton node over that cluster
+        item_child = np.repeat(np.flatnonzero(items > 0), items[items > 0])
+        single = items[item_child] == 1
+        span[item_child[single], 0] = cluster_start[work_ids[single]]
+        span[item_child[single], 1] = cluster_end[work_ids[single]]
+        items[items == 1] = 0
+        keep = ~single
+        work_ids, work_c, work_boxes, work_w = (
+            work_ids[keep],
+            work_c[:, keep],
+            work_boxes[:, keep],
+            work_w[keep],
+        )
+        n_left = left_prims[parents]
+        first = np.stack([first[parents], first[parents] + n_left], axis=1).reshape(-1)
+        prims = np.stack([n_left, prims[parents] - n_left], axis=1).reshape(-1)
+        box = child_box[:, parents].reshape(6, -1)
         next_index += 2 * len(parents)
         depth += 1
-    return _flatten(levels), perm.astype(np.uint32)
+    source, length, destination = (
+        np.concatenate(column) for column in zip(*leaf_ranges, strict=True)
+    )
+    perm = np.empty(count, np.uint32)
+    perm[_expand_ranges(destination, length)] = order[_expand_ranges(source, length)]
+    return _flatten(levels), perm
 
 
 def _flatten(levels: list) -> np.ndarray:
