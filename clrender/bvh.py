@@ -42,7 +42,7 @@ BVH_NODE_DTYPE = np.dtype(
 BVH_MAX_DEPTH = 40
 BVH_BINS = 16
 MORTON_BITS = 10  # per axis: Morton codes of 30 bits
-CLUSTER_MAX = 4  # primitives of a Morton cluster (the SAH's unit) at most
+CLUSTER_MAX = 8  # primitives of a Morton cluster (the SAH's unit) at most
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
 # up to 8 trace 5-10 % faster here: bench/bvh_scaling.py).
@@ -118,46 +118,60 @@ def _highest_bit(x: np.ndarray) -> np.ndarray:
     return np.where(high > 0.0, 32 + np.frexp(high)[1], np.frexp(low)[1]) - 1
 
 
-def _morton_split(keys: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple:
-    """(middle, bit) of ranges [start, end) of the sorted keys (at least 2 each): the highest
-    bit where the range's keys differ and the first key of the range with that bit set."""
-    last = keys[end - 1]
-    bit = _highest_bit(keys[start] ^ last).astype(np.uint64)
-    return np.searchsorted(keys, (last >> bit) << bit), bit
+def _boundary_bits(keys: np.ndarray) -> np.ndarray:
+    """For sorted unique keys, the highest bit where keys i - 1 and i differ at boundary i
+    (1 .. N - 1), stored at CLUSTER_MAX + i of an int8 array padded by CLUSTER_MAX on each
+    side with 127 (the boundaries 0 and N, and beyond, differ above every bit)."""
+    bits = np.full(len(keys) + 1 + 2 * CLUSTER_MAX, 127, np.int8)
+    bits[CLUSTER_MAX + 1 : CLUSTER_MAX + len(keys)] = _highest_bit(keys[1:] ^ keys[:-1])
+    return bits
 
 
-def _morton_clusters(keys: np.ndarray) -> np.ndarray:
-    """Starts (ascending) of the Morton clusters of sorted keys: the largest ranges the
-    recursive split at the highest differing bit (_morton_split) leaves with at most
-    CLUSTER_MAX keys; one level of ranges at a time."""
-    starts = []
-    start, end = np.array([0]), np.array([len(keys)])
-    while len(start):
-        small = end - start <= CLUSTER_MAX
-        starts.append(start[small])
-        start, end = start[~small], end[~small]
-        middle, _ = _morton_split(keys, start, end)
-        start, end = np.concatenate([start, middle]), np.concatenate([middle, end])
-    return np.sort(np.concatenate(starts))
+def _morton_clusters(bits: np.ndarray, count: int) -> np.ndarray:
+    """Starts (ascending) of the Morton clusters of `count` sorted keys with boundary bits
+    `bits` (_boundary_bits): the largest subtrees of the keys' radix tree (Karras 2012) with
+    at most CLUSTER_MAX keys. Boundary i splits the radix node reaching from the nearest
+    boundary before it with a higher bit to the nearest one after it: a cut between clusters
+    where that node holds more than CLUSTER_MAX keys (both found in a window of CLUSTER_MAX)."""
+    pad = CLUSTER_MAX
+    here = bits[pad + 1 : pad + count]
+    before = np.full(count - 1, -pad, np.int64)  # distance to the nearest higher boundary
+    after = np.full(count - 1, pad, np.int64)
+    for step in range(pad - 1, 0, -1):
+        before[bits[pad + 1 - step : pad + count - step] > here] = -step
+        after[bits[pad + 1 + step : pad + count + step] > here] = step
+    return np.r_[0, 1 + np.flatnonzero(after - before > CLUSTER_MAX)]
 
 
-def _morton_axis(bit: np.ndarray) -> np.ndarray:
-    """The axis a key bit (_morton_keys) splits: x, y, z for Morton bits, x for id bits."""
-    code_bit = bit.astype(np.int64) - 32
-    return np.where(code_bit >= 0, 2 - code_bit % 3, 0)
-
-
-def _range_boxes(sorted_boxes: np.ndarray, start, middle, end) -> tuple:
-    """Boxes (6 rows) of the ranges [start, middle) and [middle, end) of sorted_boxes' columns
-    (disjoint ranges; sorted_boxes has a spare last column): one reduceat over the ranges in
-    ascending order."""
-    order = np.argsort(start, kind="stable")
-    bounds = np.stack([start[order], middle[order], end[order]], axis=1).reshape(-1)
-    reduced = np.minimum.reduceat(sorted_boxes, bounds, axis=1).reshape(6, -1, 3)
-    left = np.empty((6, len(start)), np.float32)
-    right = np.empty((6, len(start)), np.float32)
-    left[:, order], right[:, order] = reduced[:, :, 0], reduced[:, :, 1]
-    return left, right
+def _morton_sweep(sorted_boxes: np.ndarray, start, end, box) -> tuple:
+    """The SAH's best split of each range [start, end) (2 to CLUSTER_MAX primitives) of the
+    Morton order into [start, middle) and [middle, end), every middle tried; box: the ranges'
+    boxes. Returns (middle, cost, left boxes, right boxes, axis of the children's centres)."""
+    m, size = len(start), end - start
+    last = sorted_boxes.shape[1] - 1
+    rows = np.arange(m)
+    # Boxes of the first k primitives and of the last k, k = 1 .. CLUSTER_MAX - 1
+    head = np.empty((CLUSTER_MAX - 1, 6, m), np.float32)
+    tail = np.empty((CLUSTER_MAX - 1, 6, m), np.float32)
+    head[0] = sorted_boxes[:, start]
+    tail[0] = sorted_boxes[:, end - 1]
+    for k in range(1, CLUSTER_MAX - 1):
+        np.minimum(head[k - 1], sorted_boxes[:, np.minimum(start + k, last)], out=head[k])
+        np.minimum(tail[k - 1], sorted_boxes[:, np.maximum(end - 1 - k, 0)], out=tail[k])
+    # SAH cost of every split: k primitives on the left, size - k (tail[size - k - 1]) right
+    k = np.arange(1, CLUSTER_MAX)[:, None]
+    right = np.clip(size - k, 1, CLUSTER_MAX - 1) - 1
+    right_boxes = tail[right, :, rows[None, :]].transpose(0, 2, 1)
+    node_area = np.maximum(_half_area(box), 1e-300)
+    with np.errstate(invalid="ignore", over="ignore"):
+        left_area = _half_area(head.transpose(1, 0, 2))
+        right_area = _half_area(right_boxes.transpose(1, 0, 2))
+        cost = TRAVERSAL_COST + (k * left_area + (size - k) * right_area) / node_area
+    cost[k >= size] = np.inf
+    best = np.argmin(cost, axis=0)
+    left_box, right_box = head[best, :, rows].T, right_boxes[best, :, rows].T
+    centre_gap = np.abs((left_box[:3] - left_box[3:]) - (right_box[:3] - right_box[3:]))
+    return start + 1 + best, cost[best, rows], left_box, right_box, np.argmax(centre_gap, axis=0)
 
 
 def _expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
@@ -345,14 +359,13 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # Sort the primitives once along the Morton curve of their centroids
     keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
     order = (keys & np.uint64(0xFFFFFFFF)).astype(np.intp)
-    # Boxes in that order as rows (lower, -upper), so a union is a minimum; one spare column
-    # closes the last range of _range_boxes
+    # Boxes in that order as rows (lower, -upper), so a union is a minimum (and a spare column)
     sorted_boxes = np.zeros((6, count + 1), np.float32)
     for row in range(3):
         np.take(lower32[row], order, out=sorted_boxes[row, :count])
         np.negative(np.take(upper32[row], order), out=sorted_boxes[3 + row, :count])
     # The SAH's units: Morton clusters of at most CLUSTER_MAX primitives
-    cluster_start = _morton_clusters(keys)
+    cluster_start = _morton_clusters(_boundary_bits(keys), count)
     cluster_end = np.r_[cluster_start[1:], count]
     cluster_boxes = np.minimum.reduceat(sorted_boxes[:, :count], cluster_start, axis=1)
     clusters = len(cluster_start)
@@ -394,21 +407,15 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         goes_right, sah_axis, cost[sah], left_items, left_prims[sah], boxes_lr = sah_split
         axis[sah] = sah_axis
         child_box[:, sah] = boxes_lr
-        # Morton nodes: the split at the highest bit where their first and last keys differ
+        # Morton nodes: the best split of their range of the Morton order
         middle = np.zeros(m, np.int64)
         several = morton[prims[morton] > 1]
         if len(several):
             start, end = span[several, 0], span[several, 1]
-            middle[several], bit = _morton_split(keys, start, end)
-            left_box, right_box = _range_boxes(sorted_boxes, start, middle[several], end)
+            sweep = _morton_sweep(sorted_boxes, start, end, box[:, several])
+            middle[several], cost[several], left_box, right_box, axis[several] = sweep
             child_box[:, several, 0], child_box[:, several, 1] = left_box, right_box
             left_prims[several] = middle[several] - start
-            axis[several] = _morton_axis(bit)
-            with np.errstate(invalid="ignore", over="ignore"):
-                cost[several] = TRAVERSAL_COST + (
-                    left_prims[several] * _half_area(left_box)
-                    + (prims[several] - left_prims[several]) * _half_area(right_box)
-                ) / np.maximum(_half_area(box[:, several]), 1e-300)
         # Leaf or split: SAH decides for small nodes
         splittable = np.isfinite(cost) & (depth < BVH_MAX_DEPTH)
         split = splittable & ~((prims <= LEAF_MAX) & (prims <= cost))
@@ -419,20 +426,15 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         morton_leaves = morton[~split[morton]]
         leaf_ranges.append((span[morton_leaves, 0], prims[morton_leaves], first[morton_leaves]))
         item_node = np.repeat(sah, items[sah])
-        leaf_items = ~split[item_node]
-        sizes = work_w[leaf_items]
-        within = (
-            np.cumsum(work_w)
-            - work_w
-            - np.repeat(np.cumsum(work_w)[item_first] - work_w[item_first], items[sah])
-        )
-        leaf_ranges.append(
-            (
-                cluster_start[work_ids[leaf_items]],
-                sizes,
-                (first[item_node] + within)[leaf_items],
-            )
-        )
+        leaf_items = np.flatnonzero(~split[item_node])
+        if len(leaf_items):
+            sizes = work_w[leaf_items]
+            node = item_node[leaf_items]
+            ends = np.cumsum(sizes)
+            node_begins = np.r_[True, node[1:] != node[:-1]]
+            within = ends - sizes
+            within -= np.maximum.accumulate(np.where(node_begins, within, 0))
+            leaf_ranges.append((cluster_start[work_ids[leaf_items]], sizes, first[node] + within))
         # Split SAH nodes' clusters move on, each node's left side first (a stable partition)
         moving = split[item_node]
         work_ids, work_c, work_boxes, work_w, child_items = _partition(
