@@ -143,33 +143,31 @@ def _morton_clusters(bits: np.ndarray, count: int) -> np.ndarray:
     return np.r_[0, 1 + np.flatnonzero(after - before > CLUSTER_MAX)]
 
 
-def _morton_sweep(sorted_boxes: np.ndarray, start, end, box) -> tuple:
+def _morton_sweep(windows: np.ndarray, start, end, box) -> tuple:
     """The SAH's best split of each range [start, end) (2 to CLUSTER_MAX primitives) of the
-    Morton order into [start, middle) and [middle, end), every middle tried; box: the ranges'
-    boxes. Returns (middle, cost, left boxes, right boxes, axis of the children's centres)."""
+    Morton order into [start, middle) and [middle, end), every middle tried; windows: the
+    sorted boxes' windows of CLUSTER_MAX boxes (N, CLUSTER_MAX x 6); box: the ranges' boxes.
+    Returns (middle, cost, left boxes, right boxes, axis of the children's centres)."""
     m, size = len(start), end - start
-    last = sorted_boxes.shape[1] - 1
-    rows = np.arange(m)
-    # Boxes of the first k primitives and of the last k, k = 1 .. CLUSTER_MAX - 1
-    head = np.empty((CLUSTER_MAX - 1, 6, m), np.float32)
-    tail = np.empty((CLUSTER_MAX - 1, 6, m), np.float32)
-    head[0] = sorted_boxes[:, start]
-    tail[0] = sorted_boxes[:, end - 1]
-    for k in range(1, CLUSTER_MAX - 1):
-        np.minimum(head[k - 1], sorted_boxes[:, np.minimum(start + k, last)], out=head[k])
-        np.minimum(tail[k - 1], sorted_boxes[:, np.maximum(end - 1 - k, 0)], out=tail[k])
-    # SAH cost of every split: k primitives on the left, size - k (tail[size - k - 1]) right
+    # Boxes of the first k primitives (head[k - 1]) and of all but the first k (tail[k]), the
+    # boxes past the range left out; (window position, row, node) arrays
+    window = windows[start].reshape(m, CLUSTER_MAX, 6).transpose(1, 2, 0)
+    head = np.where(np.arange(CLUSTER_MAX)[:, None, None] < size, window, np.float32(np.inf))
+    tail = head.copy()
+    for k in range(1, CLUSTER_MAX):
+        np.minimum(head[k - 1], head[k], out=head[k])
+        np.minimum(tail[-k], tail[-k - 1], out=tail[-k - 1])
+    # SAH cost of every split: k primitives on the left
     k = np.arange(1, CLUSTER_MAX)[:, None]
-    right = np.clip(size - k, 1, CLUSTER_MAX - 1) - 1
-    right_boxes = tail[right, :, rows[None, :]].transpose(0, 2, 1)
     node_area = np.maximum(_half_area(box), 1e-300)
     with np.errstate(invalid="ignore", over="ignore"):
-        left_area = _half_area(head.transpose(1, 0, 2))
-        right_area = _half_area(right_boxes.transpose(1, 0, 2))
+        left_area = _half_area(np.moveaxis(head[:-1], 1, 0))
+        right_area = _half_area(np.moveaxis(tail[1:], 1, 0))
         cost = TRAVERSAL_COST + (k * left_area + (size - k) * right_area) / node_area
     cost[k >= size] = np.inf
     best = np.argmin(cost, axis=0)
-    left_box, right_box = head[best, :, rows].T, right_boxes[best, :, rows].T
+    rows = np.arange(m)
+    left_box, right_box = head[best, :, rows].T, tail[best + 1, :, rows].T
     centre_gap = np.abs((left_box[:3] - left_box[3:]) - (right_box[:3] - right_box[3:]))
     return start + 1 + best, cost[best, rows], left_box, right_box, np.argmax(centre_gap, axis=0)
 
@@ -359,20 +357,24 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # Sort the primitives once along the Morton curve of their centroids
     keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
     order = (keys & np.uint64(0xFFFFFFFF)).astype(np.intp)
-    # Boxes in that order as rows (lower, -upper), so a union is a minimum (and a spare column)
-    sorted_boxes = np.zeros((6, count + 1), np.float32)
+    # Boxes in that order (lower, -upper: a union is a minimum), then CLUSTER_MAX empty ones,
+    # so that every primitive starts a window of CLUSTER_MAX boxes
+    sorted_boxes = np.full((count + CLUSTER_MAX, 6), np.inf, np.float32)
     for row in range(3):
-        np.take(lower32[row], order, out=sorted_boxes[row, :count])
-        np.negative(np.take(upper32[row], order), out=sorted_boxes[3 + row, :count])
+        sorted_boxes[:count, row] = np.take(lower32[row], order)
+        sorted_boxes[:count, 3 + row] = -np.take(upper32[row], order)
+    windows = np.lib.stride_tricks.as_strided(
+        sorted_boxes, shape=(count, 6 * CLUSTER_MAX), strides=sorted_boxes.strides, writeable=False
+    )
     # The SAH's units: Morton clusters of at most CLUSTER_MAX primitives
     cluster_start = _morton_clusters(_boundary_bits(keys), count)
     cluster_end = np.r_[cluster_start[1:], count]
-    cluster_boxes = np.minimum.reduceat(sorted_boxes[:, :count], cluster_start, axis=1)
+    cluster_boxes = np.minimum.reduceat(sorted_boxes[:count], cluster_start, axis=0).T
     clusters = len(cluster_start)
     # The level's nodes, in index order: box, first position in `prims`, primitives, and
     # either clusters (an SAH node, items > 0) or a range of the sorted order (a Morton node,
     # items 0: a single cluster or part of one)
-    box = sorted_boxes[:, :count].min(axis=1)[:, None]
+    box = sorted_boxes[:count].min(axis=0)[:, None]
     first = np.array([0])
     prims = np.array([count])
     items = np.array([clusters if clusters > 1 else 0])
@@ -412,7 +414,7 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         several = morton[prims[morton] > 1]
         if len(several):
             start, end = span[several, 0], span[several, 1]
-            sweep = _morton_sweep(sorted_boxes, start, end, box[:, several])
+            sweep = _morton_sweep(windows, start, end, box[:, several])
             middle[several], cost[several], left_box, right_box, axis[several] = sweep
             child_box[:, several, 0], child_box[:, several, 1] = left_box, right_box
             left_prims[several] = middle[several] - start
