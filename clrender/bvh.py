@@ -143,26 +143,29 @@ def _morton_clusters(bits: np.ndarray, count: int) -> np.ndarray:
     return np.r_[0, 1 + np.flatnonzero(after - before > CLUSTER_MAX)]
 
 
-def _morton_sweep(windows: np.ndarray, start, end, box) -> tuple:
-    """The SAH's best split of each range [start, end) (2 to CLUSTER_MAX primitives) of the
-    Morton order into [start, middle) and [middle, end), every middle tried; windows: the
-    sorted boxes' windows of CLUSTER_MAX boxes (N, CLUSTER_MAX x 6); box: the ranges' boxes.
-    Returns (middle, cost, left boxes, right boxes, axis of the children's centres)."""
+def _morton_sweep(windows: np.ndarray, start, end, box, width: int) -> tuple:
+    """The SAH's best split of each range [start, end) (2 to `width` primitives) of the Morton
+    order into [start, middle) and [middle, end), every middle tried; windows: the sorted
+    boxes' windows of CLUSTER_MAX boxes (N, CLUSTER_MAX x 6); box: the ranges' boxes. Returns
+    (middle, cost, left boxes, right boxes, axis of the children's centres)."""
     m, size = len(start), end - start
     # Boxes of the first k primitives (head[k - 1]) and of all but the first k (tail[k]), the
     # boxes past the range left out; (window position, row, node) arrays
-    window = windows[start].reshape(m, CLUSTER_MAX, 6).transpose(1, 2, 0)
-    head = np.where(np.arange(CLUSTER_MAX)[:, None, None] < size, window, np.float32(np.inf))
+    window = windows[start, : 6 * width].reshape(m, width, 6).transpose(1, 2, 0)
+    head = np.where(np.arange(width)[:, None, None] < size, window, np.float32(np.inf))
     tail = head.copy()
-    for k in range(1, CLUSTER_MAX):
+    for k in range(1, width):
         np.minimum(head[k - 1], head[k], out=head[k])
         np.minimum(tail[-k], tail[-k - 1], out=tail[-k - 1])
-    # SAH cost of every split: k primitives on the left
-    k = np.arange(1, CLUSTER_MAX)[:, None]
-    node_area = np.maximum(_half_area(box), 1e-300)
+    # SAH cost of every split (k primitives on the left), areas relative to the node's largest
+    # extent (float32 without overflow)
+    extent = -box[3:] - box[:3]
+    scale = np.float32(1.0) / np.maximum(extent.max(axis=0), np.float32(1e-30))
+    k = np.arange(1, width)[:, None]
     with np.errstate(invalid="ignore", over="ignore"):
-        left_area = _half_area(np.moveaxis(head[:-1], 1, 0))
-        right_area = _half_area(np.moveaxis(tail[1:], 1, 0))
+        node_area = np.maximum(_scaled_half_area(extent, scale), np.float32(1e-30))
+        left_area = _scaled_half_area(-head[:-1, 3:] - head[:-1, :3], scale)
+        right_area = _scaled_half_area(-tail[1:, 3:] - tail[1:, :3], scale)
         cost = TRAVERSAL_COST + (k * left_area + (size - k) * right_area) / node_area
     cost[k >= size] = np.inf
     best = np.argmin(cost, axis=0)
@@ -170,6 +173,12 @@ def _morton_sweep(windows: np.ndarray, start, end, box) -> tuple:
     left_box, right_box = head[best, :, rows].T, tail[best + 1, :, rows].T
     centre_gap = np.abs((left_box[:3] - left_box[3:]) - (right_box[:3] - right_box[3:]))
     return start + 1 + best, cost[best, rows], left_box, right_box, np.argmax(centre_gap, axis=0)
+
+
+def _scaled_half_area(extent: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Half the surface area of boxes of extents (..., 3, nodes) scaled by `scale` (nodes)."""
+    x, y, z = (extent[..., axis, :] * scale for axis in range(3))
+    return x * y + y * z + z * x
 
 
 def _expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
@@ -211,15 +220,10 @@ def _binned_sah(work_c, work_boxes, work_w, first, size, box) -> tuple:
         rank = np.arange(total) - first[node_of]
         bins[flat] = (rank * node_bins[node_of] // size[node_of])[flat]
     group = bin_first[node_of] + bins
-    # Bounds and counts of each group: sort by bin (stable, so nodes stay in order within a
-    # bin: each (bin, node) group is then contiguous) and reduce
-    order = np.argsort(bins.astype(np.uint8), kind="stable")
-    sorted_group = group[order]
-    run_start = np.flatnonzero(np.r_[True, sorted_group[1:] != sorted_group[:-1]])
+    # Bounds and counts of each group
     bin_boxes = np.full((6, group_count), np.inf, np.float32)
-    bin_boxes[:, sorted_group[run_start]] = np.minimum.reduceat(
-        np.take(work_boxes, order, axis=1), run_start, axis=1
-    )
+    for row in range(6):
+        np.minimum.at(bin_boxes[row], group, work_boxes[row])
     bin_items = np.bincount(group, minlength=group_count)
     bin_prims = np.bincount(group, weights=work_w, minlength=group_count).astype(np.int64)
     # SAH cost of the split after each bin j (left: the node's bins up to j, the rest right)
@@ -412,12 +416,14 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         # Morton nodes: the best split of their range of the Morton order
         middle = np.zeros(m, np.int64)
         several = morton[prims[morton] > 1]
-        if len(several):
-            start, end = span[several, 0], span[several, 1]
-            sweep = _morton_sweep(windows, start, end, box[:, several])
-            middle[several], cost[several], left_box, right_box, axis[several] = sweep
-            child_box[:, several, 0], child_box[:, several, 1] = left_box, right_box
-            left_prims[several] = middle[several] - start
+        for low, width in ((1, 2), (2, 4), (4, CLUSTER_MAX)):
+            sweep = several[(prims[several] > low) & (prims[several] <= width)]
+            if len(sweep):
+                start, end = span[sweep, 0], span[sweep, 1]
+                result = _morton_sweep(windows, start, end, box[:, sweep], width)
+                middle[sweep], cost[sweep], left_box, right_box, axis[sweep] = result
+                child_box[:, sweep, 0], child_box[:, sweep, 1] = left_box, right_box
+                left_prims[sweep] = middle[sweep] - start
         # Leaf or split: SAH decides for small nodes
         splittable = np.isfinite(cost) & (depth < BVH_MAX_DEPTH)
         split = splittable & ~((prims <= LEAF_MAX) & (prims <= cost))
