@@ -40,9 +40,10 @@ BVH_NODE_DTYPE = np.dtype(
 # Depth cap of the binary tree (fixed in kernels/scene_types.h): the device's traversal keeps at
 # most BVH_WIDTH - 1 nodes on its stack per level, so BVH_STACK_SIZE = 7 x BVH_MAX_DEPTH.
 BVH_MAX_DEPTH = 40
-BVH_BINS = 16
 MORTON_BITS = 10  # per axis: Morton codes of 30 bits
-CLUSTER_MAX = 8  # primitives of a Morton cluster (the SAH's unit) at most
+# Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
+# 8 or 16 build the same quality here, 2 a worse tree: bench/bvh_scaling.py)
+PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
 # up to 8 trace 5-10 % faster here: bench/bvh_scaling.py).
@@ -70,22 +71,6 @@ def _half_area(box: np.ndarray) -> np.ndarray:
     return size[0] * size[1] + size[1] * size[2] + size[2] * size[0]
 
 
-def _segment_prefix_min(values: np.ndarray, segment: np.ndarray, direction: int) -> np.ndarray:
-    """Running minimum along the columns of `values` within runs of equal `segment` (runs of at
-    most BVH_BINS columns), forwards (direction 1) or backwards (-1): a doubling scan,
-    log2(BVH_BINS) vectorised steps."""
-    result = values.copy()
-    step = 1
-    while step < BVH_BINS:
-        late, early = (slice(step, None), slice(None, -step))
-        target, source = (late, early) if direction > 0 else (early, late)
-        # +inf where the neighbour `step` away is in another segment
-        barrier = np.where(segment[step:] == segment[:-step], 0.0, np.inf).astype(values.dtype)
-        np.minimum(result[:, target], result[:, source] + barrier, out=result[:, target])
-        step *= 2
-    return result
-
-
 def _spread_bits(q: np.ndarray) -> np.ndarray:
     """10-bit integers (uint32) with two zero bits put after each bit (bit i moves to 3i)."""
     q = (q | (q << np.uint32(16))) & np.uint32(0x030000FF)
@@ -110,182 +95,38 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
     return (code.astype(np.uint64) << np.uint64(32)) | np.arange(len(code), dtype=np.uint64)
 
 
-def _highest_bit(x: np.ndarray) -> np.ndarray:
-    """Index of the highest set bit of each (non-zero) uint64, exactly (each half of 32 bits
-    is exact in float64)."""
-    high = (x >> np.uint64(32)).astype(np.float64)
-    low = (x & np.uint64(0xFFFFFFFF)).astype(np.float64)
-    return np.where(high > 0.0, 32 + np.frexp(high)[1], np.frexp(low)[1]) - 1
-
-
-def _boundary_bits(keys: np.ndarray) -> np.ndarray:
-    """For sorted unique keys, the highest bit where keys i - 1 and i differ at boundary i
-    (1 .. N - 1), stored at CLUSTER_MAX + i of an int8 array padded by CLUSTER_MAX on each
-    side with 127 (the boundaries 0 and N, and beyond, differ above every bit)."""
-    bits = np.full(len(keys) + 1 + 2 * CLUSTER_MAX, 127, np.int8)
-    bits[CLUSTER_MAX + 1 : CLUSTER_MAX + len(keys)] = _highest_bit(keys[1:] ^ keys[:-1])
-    return bits
-
-
-def _morton_clusters(bits: np.ndarray, count: int) -> np.ndarray:
-    """Starts (ascending) of the Morton clusters of `count` sorted keys with boundary bits
-    `bits` (_boundary_bits): the largest subtrees of the keys' radix tree (Karras 2012) with
-    at most CLUSTER_MAX keys. Boundary i splits the radix node reaching from the nearest
-    boundary before it with a higher bit to the nearest one after it: a cut between clusters
-    where that node holds more than CLUSTER_MAX keys (both found in a window of CLUSTER_MAX)."""
-    pad = CLUSTER_MAX
-    here = bits[pad + 1 : pad + count]
-    before = np.full(count - 1, -pad, np.int64)  # distance to the nearest higher boundary
-    after = np.full(count - 1, pad, np.int64)
-    for step in range(pad - 1, 0, -1):
-        before[bits[pad + 1 - step : pad + count - step] > here] = -step
-        after[bits[pad + 1 + step : pad + count + step] > here] = step
-    return np.r_[0, 1 + np.flatnonzero(after - before > CLUSTER_MAX)]
-
-
-def _morton_sweep(windows: np.ndarray, start, end, box, width: int) -> tuple:
-    """The SAH's best split of each range [start, end) (2 to `width` primitives) of the Morton
-    order into [start, middle) and [middle, end), every middle tried; windows: the sorted
-    boxes' windows of CLUSTER_MAX boxes (N, CLUSTER_MAX x 6); box: the ranges' boxes. Returns
-    (middle, cost, left boxes, right boxes, axis of the children's centres)."""
-    m, size = len(start), end - start
-    # Boxes of the first k primitives (head[k - 1]) and of all but the first k (tail[k]), the
-    # boxes past the range left out; (window position, row, node) arrays
-    window = windows[start, : 6 * width].reshape(m, width, 6).transpose(1, 2, 0)
-    head = np.where(np.arange(width)[:, None, None] < size, window, np.float32(np.inf))
-    tail = head.copy()
-    for k in range(1, width):
-        np.minimum(head[k - 1], head[k], out=head[k])
-        np.minimum(tail[-k], tail[-k - 1], out=tail[-k - 1])
-    # SAH cost of every split (k primitives on the left), areas relative to the node's largest
-    # extent (float32 without overflow)
-    extent = -box[3:] - box[:3]
-    scale = np.float32(1.0) / np.maximum(extent.max(axis=0), np.float32(1e-30))
-    k = np.arange(1, width)[:, None]
-    with np.errstate(invalid="ignore", over="ignore"):
-        node_area = np.maximum(_scaled_half_area(extent, scale), np.float32(1e-30))
-        left_area = _scaled_half_area(-head[:-1, 3:] - head[:-1, :3], scale)
-        right_area = _scaled_half_area(-tail[1:, 3:] - tail[1:, :3], scale)
-        cost = TRAVERSAL_COST + (k * left_area + (size - k) * right_area) / node_area
-    cost[k >= size] = np.inf
-    best = np.argmin(cost, axis=0)
-    rows = np.arange(m)
-    left_box, right_box = head[best, :, rows].T, tail[best + 1, :, rows].T
-    centre_gap = np.abs((left_box[:3] - left_box[3:]) - (right_box[:3] - right_box[3:]))
-    return start + 1 + best, cost[best, rows], left_box, right_box, np.argmax(centre_gap, axis=0)
-
-
-def _scaled_half_area(extent: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Half the surface area of boxes of extents (..., 3, nodes) scaled by `scale` (nodes)."""
-    x, y, z = (extent[..., axis, :] * scale for axis in range(3))
-    return x * y + y * z + z * x
-
-
-def _expand_ranges(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """The integers of the ranges [starts[k], starts[k] + lengths[k]), one range after another."""
-    ends = np.cumsum(lengths)
-    return np.arange(ends[-1]) + np.repeat(starts - (ends - lengths), lengths)
-
-
-def _binned_sah(work_c, work_boxes, work_w, first, size, box) -> tuple:
-    """The best binned-SAH split of each node of items first[k] .. first[k] + size[k] - 1 (at
-    least 2) of the working set (centroids work_c, boxes work_boxes, primitive counts work_w);
-    box: the nodes' boxes. Returns (goes_right per item, axis, cost, left items, left
-    primitives, child boxes (6, nodes, 2)); cost inf where no split separates the items."""
-    m, total = len(size), len(work_w)
-    if m == 0:
-        empty = np.zeros(0, np.int64)
-        return np.zeros(0, bool), empty, np.zeros(0), empty, empty, np.zeros((6, 0, 2), np.float32)
-    node_of = np.repeat(np.arange(m), size)
-    # Split axis: the longest extent of the node's centroids
-    cmin = np.minimum.reduceat(work_c, first, axis=1)
-    cmax = np.maximum.reduceat(work_c, first, axis=1)
-    axis = np.argmax(cmax - cmin, axis=0)
-    extent = (cmax - cmin)[axis, np.arange(m)]
-    low = cmin[axis, np.arange(m)]
-    # Bin every item by its centroid: min(BVH_BINS, size) bins per node, so the level's bins
-    # never outnumber its items; bins of node k are groups bin_first[k] .. + node_bins[k] - 1
-    # (2 bins where the centroids coincide: rank halves)
-    node_bins = np.where(extent > 0.0, np.minimum(size, BVH_BINS), 2)
-    bin_first = np.cumsum(node_bins) - node_bins
-    group_count = int(node_bins.sum())
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(extent > 0.0, node_bins / extent, 0.0).astype(np.float32)
-    along = work_c.reshape(-1)[axis[node_of] * total + np.arange(total)]
-    bins = ((along - low[node_of]) * scale[node_of]).astype(np.int64)
-    bins = np.minimum(bins, node_bins[node_of] - 1)
-    if not np.all(extent > 0.0):
-        # Items whose centroids coincide are binned by their rank in the node
-        flat = (extent <= 0.0)[node_of]
-        rank = np.arange(total) - first[node_of]
-        bins[flat] = (rank * node_bins[node_of] // size[node_of])[flat]
-    group = bin_first[node_of] + bins
-    # Bounds and counts of each group
-    bin_boxes = np.full((6, group_count), np.inf, np.float32)
-    for row in range(6):
-        np.minimum.at(bin_boxes[row], group, work_boxes[row])
-    bin_items = np.bincount(group, minlength=group_count)
-    bin_prims = np.bincount(group, weights=work_w, minlength=group_count).astype(np.int64)
-    # SAH cost of the split after each bin j (left: the node's bins up to j, the rest right)
-    group_node = np.repeat(np.arange(m), node_bins)
-    left_boxes = _segment_prefix_min(bin_boxes, group_node, 1)
-    right_boxes = _segment_prefix_min(bin_boxes, group_node, -1)
-    right_boxes = np.concatenate([right_boxes[:, 1:], np.full((6, 1), np.inf, np.float32)], axis=1)
-    left_items = _segment_cumsum(bin_items, bin_first, node_bins)
-    left_prims = _segment_cumsum(bin_prims, bin_first, node_bins)
-    right_prims = np.repeat(np.add.reduceat(bin_prims, bin_first), node_bins) - left_prims
-    node_area = np.maximum(_half_area(box), 1e-300)
-    with np.errstate(invalid="ignore", over="ignore"):
-        cost = (
-            TRAVERSAL_COST
-            + (left_prims * _half_area(left_boxes) + right_prims * _half_area(right_boxes))
-            / node_area[group_node]
+def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> np.ndarray:
+    """For clusters in Morton order with boxes (6 rows: lower, -upper), the index of each one's
+    nearest among the PLOC_RADIUS clusters before and after it: the one whose union with it
+    has the least surface area (areas of extents x `scale`, float32 without overflow). Ties go
+    to the closer in the order, then (same distance) an even index looks forwards and an odd
+    one backwards, so equal boxes pair up (2k, 2k + 1)."""
+    n = boxes.shape[1]
+    index = np.arange(n)
+    best_area = np.full(n, np.inf, np.float32)
+    best_step = np.zeros(n, np.int64)  # distance of the nearest so far
+    nearest = index.copy()
+    forwards_on_tie = index % 2 == 0
+    for step in range(1, min(PLOC_RADIUS, n - 1) + 1):
+        # Union of cluster i and cluster i + step
+        union = np.minimum(boxes[:, :-step], boxes[:, step:])
+        x, y, z = ((-union[3 + axis] - union[axis]) * scale for axis in range(3))
+        area = x * y + y * z + z * x
+        # Cluster i + step looking back at i
+        later = slice(step, None)
+        closer = area < best_area[later]
+        best_area[later] = np.where(closer, area, best_area[later])
+        nearest[later] = np.where(closer, index[:-step], nearest[later])
+        best_step[later] = np.where(closer, step, best_step[later])
+        # Cluster i looking forwards at i + step
+        earlier = slice(None, -step)
+        closer = (area < best_area[earlier]) | (
+            (area == best_area[earlier]) & (best_step[earlier] == step) & forwards_on_tie[earlier]
         )
-    cost[(left_items == 0) | (left_items == size[group_node])] = np.inf
-    # The cheapest split of each node (the first bin of the lowest cost)
-    best_cost = np.minimum.reduceat(cost, bin_first)
-    candidates = np.flatnonzero(cost == best_cost[group_node])
-    first_candidate = np.r_[True, group_node[candidates][1:] != group_node[candidates][:-1]]
-    best_group = np.zeros(m, np.int64)
-    best_group[group_node[candidates[first_candidate]]] = candidates[first_candidate]
-    goes_right = bins > (best_group - bin_first)[node_of]
-    child_boxes = np.stack([left_boxes[:, best_group], right_boxes[:, best_group]], axis=2)
-    return (
-        goes_right,
-        axis,
-        best_cost,
-        left_items[best_group],
-        left_prims[best_group],
-        child_boxes,
-    )
-
-
-def _segment_cumsum(values: np.ndarray, first: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """Inclusive running sums of values within the segments first[k] .. first[k] + size[k] - 1."""
-    total = np.cumsum(values)
-    return total - np.repeat(total[first] - values[first], size)
-
-
-def _partition(work: tuple, moving, goes_right, first, size, left_items, split) -> tuple:
-    """The working arrays (last axis: items) of the split nodes' items, each node's left items
-    first then its right ones, in order (a stable partition by cumulative sums); and the item
-    counts (split nodes, 2) of the children."""
-    total = len(moving)
-    node_of = np.repeat(np.arange(len(size)), size)
-    moved_size = np.where(split, size, 0)
-    next_first = np.cumsum(moved_size) - moved_size
-    # Rank of each moving item among its node's items going the same way
-    right = goes_right & moving
-    right_before = np.cumsum(right) - right
-    right_before -= np.repeat(right_before[first], size)
-    left_before = np.arange(total) - first[node_of] - right_before
-    side_rank = np.where(goes_right, left_items[node_of] + right_before, left_before)
-    destination = (next_first[node_of] + side_rank)[moving]
-    source = np.empty(len(destination), np.int64)
-    source[destination] = np.flatnonzero(moving)
-    moved = tuple(np.take(array, source, axis=-1) for array in work)
-    children = np.stack([left_items[split], size[split] - left_items[split]], axis=1)
-    return (*moved, children)
+        best_area[earlier] = np.where(closer, area, best_area[earlier])
+        nearest[earlier] = np.where(closer, index[step:], nearest[earlier])
+        best_step[earlier] = np.where(closer, step, best_step[earlier])
+    return nearest, best_area
 
 
 def sah_cost(nodes: np.ndarray) -> float:
@@ -358,138 +199,78 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     if count == 0:
         return np.zeros(0, BINARY_NODE_DTYPE), np.zeros(0, np.uint32)
     lower32, upper32 = padded_bounds(lower, upper)
-    # Sort the primitives once along the Morton curve of their centroids
+    # Clusters: every primitive (ids 0 .. N - 1), then every merge of two (ids N .. 2N - 2),
+    # with boxes as rows (lower, -upper): a union is a minimum
+    total = 2 * count - 1
+    cluster_box = np.empty((6, total), np.float32)
+    cluster_box[:3, :count] = lower32
+    np.negative(upper32, out=cluster_box[3:, :count])
+    left = np.full(total, -1, np.int64)
+    right = np.full(total, -1, np.int64)
+    size = np.ones(total, np.int64)
+    # The clusters still open, in the Morton order of the primitives' centroids
     keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
-    order = (keys & np.uint64(0xFFFFFFFF)).astype(np.intp)
-    # Boxes in that order (lower, -upper: a union is a minimum), then CLUSTER_MAX empty ones,
-    # so that every primitive starts a window of CLUSTER_MAX boxes
-    sorted_boxes = np.full((count + CLUSTER_MAX, 6), np.inf, np.float32)
-    for row in range(3):
-        sorted_boxes[:count, row] = np.take(lower32[row], order)
-        sorted_boxes[:count, 3 + row] = -np.take(upper32[row], order)
-    windows = np.lib.stride_tricks.as_strided(
-        sorted_boxes, shape=(count, 6 * CLUSTER_MAX), strides=sorted_boxes.strides, writeable=False
-    )
-    # The SAH's units: Morton clusters of at most CLUSTER_MAX primitives
-    cluster_start = _morton_clusters(_boundary_bits(keys), count)
-    cluster_end = np.r_[cluster_start[1:], count]
-    cluster_boxes = np.minimum.reduceat(sorted_boxes[:count], cluster_start, axis=0).T
-    clusters = len(cluster_start)
-    # The level's nodes, in index order: box, first position in `prims`, primitives, and
-    # either clusters (an SAH node, items > 0) or a range of the sorted order (a Morton node,
-    # items 0: a single cluster or part of one)
-    box = sorted_boxes[:count].min(axis=0)[:, None]
-    first = np.array([0])
-    prims = np.array([count])
-    items = np.array([clusters if clusters > 1 else 0])
-    span = np.array([[0, count]])
-    # The working set: the clusters of the level's SAH nodes, node by node
-    work_ids = np.arange(clusters)
-    work_c = 0.5 * (cluster_boxes[:3] - cluster_boxes[3:])
-    work_boxes = cluster_boxes
-    work_w = cluster_end - cluster_start
-    if clusters == 1:
-        work_ids, work_c, work_boxes, work_w = (
-            work_ids[:0],
-            work_c[:, :0],
-            work_boxes[:, :0],
-            work_w[:0],
-        )
+    active = (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    boxes = np.take(cluster_box[:, :count], active, axis=1)
+    scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
+    scale = np.float32(1.0 / max(scene_extent, 1e-30))
+    # Merge rounds: mutual nearest clusters merge (the merge takes the first one's place)
+    round_first = [count]  # first cluster id of each round's merges, then the next id
+    while len(active) > 1:
+        nearest, area = _nearest_clusters(boxes, scale)
+        index = np.arange(len(active))
+        lead = np.flatnonzero((nearest[nearest] == index) & (nearest > index))
+        if len(lead) == 0:  # no mutual pair (ties): the closest pair merges
+            closest = int(np.argmin(area))
+            lead = np.array([min(closest, nearest[closest])])
+            nearest[lead] = max(closest, nearest[closest])
+        partner = nearest[lead]
+        merged = np.arange(round_first[-1], round_first[-1] + len(lead))
+        left[merged], right[merged] = active[lead], active[partner]
+        size[merged] = size[active[lead]] + size[active[partner]]
+        cluster_box[:, merged] = np.minimum(boxes[:, lead], boxes[:, partner])
+        active[lead] = merged
+        boxes[:, lead] = cluster_box[:, merged]
+        keep = np.ones(len(active), bool)
+        keep[partner] = False
+        active, boxes = active[keep], np.compress(keep, boxes, axis=1)
+        round_first.append(round_first[-1] + len(lead))
+    rounds = list(zip(round_first[:-1], round_first[1:], strict=True))
+    # Leaves where the SAH finds them cheaper than their subtree (bottom up, a round at a time)
+    area = _half_area(cluster_box)
+    cost = area.copy()  # a primitive: a leaf of one
+    leaf = np.ones(total, bool)
+    for first, end in rounds:
+        merged = np.arange(first, end)
+        subtree = TRAVERSAL_COST * area[merged] + cost[left[merged]] + cost[right[merged]]
+        as_leaf = np.where(size[merged] <= LEAF_MAX, size[merged] * area[merged], np.inf)
+        leaf[merged] = as_leaf <= subtree
+        cost[merged] = np.minimum(as_leaf, subtree)
+    # Each cluster's primitives are a range of `prims`, its left child's first (top down)
+    start = np.zeros(total, np.int64)
+    for first, end in reversed(rounds):
+        merged = np.arange(first, end)
+        start[left[merged]] = start[merged]
+        start[right[merged]] = start[merged] + size[left[merged]]
+    prims = np.empty(count, np.uint32)
+    prims[start[:count]] = np.arange(count, dtype=np.uint32)
+    # The nodes, breadth first: a level's split nodes' children make the next level
     levels = []  # per depth: (box, offset, count) of its nodes, in index order
-    leaf_ranges = []  # (source start in the sorted order, length, first position in prims)
+    nodes = active
     next_index = 1
-    depth = 0
-    while len(prims):
-        m = len(prims)
-        sah = np.flatnonzero(items > 0)
-        morton = np.flatnonzero(items == 0)
-        child_box = np.zeros((6, m, 2), np.float32)
-        left_prims = np.zeros(m, np.int64)
-        cost = np.full(m, np.inf)
-        axis = np.zeros(m, np.int64)
-        # SAH nodes: the best binned split of their clusters
-        item_first = np.cumsum(items[sah]) - items[sah]
-        sah_split = _binned_sah(work_c, work_boxes, work_w, item_first, items[sah], box[:, sah])
-        goes_right, sah_axis, cost[sah], left_items, left_prims[sah], boxes_lr = sah_split
-        axis[sah] = sah_axis
-        child_box[:, sah] = boxes_lr
-        # Morton nodes: the best split of their range of the Morton order
-        middle = np.zeros(m, np.int64)
-        several = morton[prims[morton] > 1]
-        for low, width in ((1, 2), (2, 4), (4, CLUSTER_MAX)):
-            sweep = several[(prims[several] > low) & (prims[several] <= width)]
-            if len(sweep):
-                start, end = span[sweep, 0], span[sweep, 1]
-                result = _morton_sweep(windows, start, end, box[:, sweep], width)
-                middle[sweep], cost[sweep], left_box, right_box, axis[sweep] = result
-                child_box[:, sweep, 0], child_box[:, sweep, 1] = left_box, right_box
-                left_prims[sweep] = middle[sweep] - start
-        # Leaf or split: SAH decides for small nodes
-        splittable = np.isfinite(cost) & (depth < BVH_MAX_DEPTH)
-        split = splittable & ~((prims <= LEAF_MAX) & (prims <= cost))
-        offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first)
-        levels.append((box, offset, np.where(split, -1 - axis, prims)))
-        # Leaves take their primitives: a Morton leaf one range of the sorted order, an SAH
-        # leaf its clusters' ranges one after another
-        morton_leaves = morton[~split[morton]]
-        leaf_ranges.append((span[morton_leaves, 0], prims[morton_leaves], first[morton_leaves]))
-        item_node = np.repeat(sah, items[sah])
-        leaf_items = np.flatnonzero(~split[item_node])
-        if len(leaf_items):
-            sizes = work_w[leaf_items]
-            node = item_node[leaf_items]
-            ends = np.cumsum(sizes)
-            node_begins = np.r_[True, node[1:] != node[:-1]]
-            within = ends - sizes
-            within -= np.maximum.accumulate(np.where(node_begins, within, 0))
-            leaf_ranges.append((cluster_start[work_ids[leaf_items]], sizes, first[node] + within))
-        # Split SAH nodes' clusters move on, each node's left side first (a stable partition)
-        moving = split[item_node]
-        work_ids, work_c, work_boxes, work_w, child_items = _partition(
-            (work_ids, work_c, work_boxes, work_w),
-            moving,
-            goes_right,
-            item_first,
-            items[sah],
-            left_items,
-            split[sah],
-        )
-        # The next level: both children of every split node
-        parents = np.flatnonzero(split)
-        child_items_all = np.zeros((m, 2), np.int64)
-        child_items_all[sah[split[sah]]] = child_items
-        child_span = np.zeros((m, 2, 2), np.int64)
-        child_span[several, 0, 0] = span[several, 0]
-        child_span[several, 0, 1] = middle[several]
-        child_span[several, 1, 0] = middle[several]
-        child_span[several, 1, 1] = span[several, 1]
-        items = child_items_all[parents].reshape(-1)
-        span = child_span[parents].reshape(-1, 2)
-        # An SAH child of one cluster becomes a Morton node over that cluster
-        item_child = np.repeat(np.flatnonzero(items > 0), items[items > 0])
-        single = items[item_child] == 1
-        span[item_child[single], 0] = cluster_start[work_ids[single]]
-        span[item_child[single], 1] = cluster_end[work_ids[single]]
-        items[items == 1] = 0
-        keep = ~single
-        work_ids, work_c, work_boxes, work_w = (
-            work_ids[keep],
-            work_c[:, keep],
-            work_boxes[:, keep],
-            work_w[keep],
-        )
-        n_left = left_prims[parents]
-        first = np.stack([first[parents], first[parents] + n_left], axis=1).reshape(-1)
-        prims = np.stack([n_left, prims[parents] - n_left], axis=1).reshape(-1)
-        box = child_box[:, parents].reshape(6, -1)
-        next_index += 2 * len(parents)
-        depth += 1
-    source, length, destination = (
-        np.concatenate(column) for column in zip(*leaf_ranges, strict=True)
-    )
-    perm = np.empty(count, np.uint32)
-    perm[_expand_ranges(destination, length)] = order[_expand_ranges(source, length)]
-    return _flatten(levels), perm
+    for depth in range(BVH_MAX_DEPTH + 1):
+        split = ~leaf[nodes] & (depth < BVH_MAX_DEPTH)
+        left_box, right_box = cluster_box[:, left[nodes]], cluster_box[:, right[nodes]]
+        centre_gap = np.abs((left_box[:3] - left_box[3:]) - (right_box[:3] - right_box[3:]))
+        offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), start[nodes])
+        count_or_axis = np.where(split, -1 - np.argmax(centre_gap, axis=0), size[nodes])
+        levels.append((cluster_box[:, nodes], offset, count_or_axis))
+        parents = nodes[split]
+        nodes = np.stack([left[parents], right[parents]], axis=1).reshape(-1)
+        next_index += len(nodes)
+        if len(nodes) == 0:
+            break
+    return _flatten(levels), prims
 
 
 def _flatten(levels: list) -> np.ndarray:
