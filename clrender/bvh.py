@@ -102,9 +102,9 @@ def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> np.ndarray:
     to the closer in the order, then (same distance) an even index looks forwards and an odd
     one backwards, so equal boxes pair up (2k, 2k + 1)."""
     n = boxes.shape[1]
-    index = np.arange(n)
+    index = np.arange(n, dtype=np.int32)
     best_area = np.full(n, np.inf, np.float32)
-    best_step = np.zeros(n, np.int64)  # distance of the nearest so far
+    best_step = np.zeros(n, np.int32)  # distance of the nearest so far
     nearest = index.copy()
     forwards_on_tie = index % 2 == 0
     for step in range(1, min(PLOC_RADIUS, n - 1) + 1):
@@ -115,17 +115,17 @@ def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> np.ndarray:
         # Cluster i + step looking back at i
         later = slice(step, None)
         closer = area < best_area[later]
-        best_area[later] = np.where(closer, area, best_area[later])
-        nearest[later] = np.where(closer, index[:-step], nearest[later])
-        best_step[later] = np.where(closer, step, best_step[later])
+        np.copyto(best_area[later], area, where=closer)
+        np.copyto(nearest[later], index[:-step], where=closer)
+        np.copyto(best_step[later], step, where=closer)
         # Cluster i looking forwards at i + step
         earlier = slice(None, -step)
         closer = (area < best_area[earlier]) | (
             (area == best_area[earlier]) & (best_step[earlier] == step) & forwards_on_tie[earlier]
         )
-        best_area[earlier] = np.where(closer, area, best_area[earlier])
-        nearest[earlier] = np.where(closer, index[step:], nearest[earlier])
-        best_step[earlier] = np.where(closer, step, best_step[earlier])
+        np.copyto(best_area[earlier], area, where=closer)
+        np.copyto(nearest[earlier], index[step:], where=closer)
+        np.copyto(best_step[earlier], step, where=closer)
     return nearest, best_area
 
 
@@ -260,11 +260,10 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     next_index = 1
     for depth in range(BVH_MAX_DEPTH + 1):
         split = ~leaf[nodes] & (depth < BVH_MAX_DEPTH)
-        left_box, right_box = cluster_box[:, left[nodes]], cluster_box[:, right[nodes]]
-        centre_gap = np.abs((left_box[:3] - left_box[3:]) - (right_box[:3] - right_box[3:]))
+        box = np.take(cluster_box, nodes, axis=1)
+        widest = np.argmax(-box[3:] - box[:3], axis=0)  # the split axis recorded: informative
         offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), start[nodes])
-        count_or_axis = np.where(split, -1 - np.argmax(centre_gap, axis=0), size[nodes])
-        levels.append((cluster_box[:, nodes], offset, count_or_axis))
+        levels.append((box, offset, np.where(split, -1 - widest, size[nodes])))
         parents = nodes[split]
         nodes = np.stack([left[parents], right[parents]], axis=1).reshape(-1)
         next_index += len(nodes)
@@ -274,11 +273,11 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _flatten(levels: list) -> np.ndarray:
-    """BVH_NODE_DTYPE records of every level's nodes."""
-    box = np.concatenate([level[0] for level in levels], axis=1).T
-    nodes = np.zeros(len(box), BINARY_NODE_DTYPE)
-    nodes["lower"] = box[:, :3]
-    nodes["upper"] = -box[:, 3:]
-    nodes["offset"] = np.concatenate([level[1] for level in levels])
-    nodes["count"] = np.concatenate([level[2] for level in levels])
-    return nodes
+    """BINARY_NODE_DTYPE records of every level's nodes (box rows: lower, -upper)."""
+    box = np.concatenate([level[0] for level in levels], axis=1)
+    words = np.empty((box.shape[1], 8), np.float32)  # a record: 8 words of 4 bytes
+    words[:, 0:3] = box[:3].T
+    words[:, 4:7] = -box[3:].T
+    words.view(np.int32)[:, 3] = np.concatenate([level[1] for level in levels])
+    words.view(np.int32)[:, 7] = np.concatenate([level[2] for level in levels])
+    return words.view(BINARY_NODE_DTYPE).reshape(-1)
