@@ -58,8 +58,8 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
     """Primitive bounds (N, 3) as float32 structure of arrays (3, N), widened by BOUNDS_PADDING
     of each primitive's magnitude: the padding is far above float32's rounding of the bounds and
     of the padding itself, so each box still holds its primitive."""
-    lower = np.asarray(lower, np.float32).T
-    upper = np.asarray(upper, np.float32).T
+    lower = np.asarray(lower).T.astype(np.float32, order="C")
+    upper = np.asarray(upper).T.astype(np.float32, order="C")
     magnitude = np.maximum(np.abs(lower).max(axis=0), np.abs(upper).max(axis=0))
     pad = np.float32(BOUNDS_PADDING) * magnitude + np.float32(1e-30)
     return lower - pad, upper + pad
@@ -95,38 +95,29 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
     return (code.astype(np.uint64) << np.uint64(32)) | np.arange(len(code), dtype=np.uint64)
 
 
-def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> np.ndarray:
+def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> tuple[np.ndarray, np.ndarray]:
     """For clusters in Morton order with boxes (6 rows: lower, -upper), the index of each one's
-    nearest among the PLOC_RADIUS clusters before and after it: the one whose union with it
-    has the least surface area (areas of extents x `scale`, float32 without overflow). Ties go
-    to the closer in the order, then (same distance) an even index looks forwards and an odd
-    one backwards, so equal boxes pair up (2k, 2k + 1)."""
+    nearest among the PLOC_RADIUS clusters before and after it, the one whose union with it has
+    the least surface area (areas of extents x `scale`: float32 without overflow), and that
+    area. Ties go to the closer in the order, then (same distance) an even index looks forwards
+    and an odd one backwards, so equal boxes pair up (2k, 2k + 1)."""
     n = boxes.shape[1]
-    index = np.arange(n, dtype=np.int32)
-    best_area = np.full(n, np.inf, np.float32)
-    best_step = np.zeros(n, np.int32)  # distance of the nearest so far
-    nearest = index.copy()
-    forwards_on_tie = index % 2 == 0
+    parity = np.arange(n, dtype=np.int64) & 1
+    # One int64 key per candidate, least for the nearest: the area's float32 bits (ordered as
+    # integers, areas being >= 0), then the distance, then 0 on the preferred side
+    best = np.full(n, np.iinfo(np.int64).max, np.int64)
     for step in range(1, min(PLOC_RADIUS, n - 1) + 1):
         # Union of cluster i and cluster i + step
         union = np.minimum(boxes[:, :-step], boxes[:, step:])
         x, y, z = ((-union[3 + axis] - union[axis]) * scale for axis in range(3))
-        area = x * y + y * z + z * x
-        # Cluster i + step looking back at i
-        later = slice(step, None)
-        closer = area < best_area[later]
-        np.copyto(best_area[later], area, where=closer)
-        np.copyto(nearest[later], index[:-step], where=closer)
-        np.copyto(best_step[later], step, where=closer)
-        # Cluster i looking forwards at i + step
-        earlier = slice(None, -step)
-        closer = (area < best_area[earlier]) | (
-            (area == best_area[earlier]) & (best_step[earlier] == step) & forwards_on_tie[earlier]
-        )
-        np.copyto(best_area[earlier], area, where=closer)
-        np.copyto(nearest[earlier], index[step:], where=closer)
-        np.copyto(best_step[earlier], step, where=closer)
-    return nearest, best_area
+        area = (x * y + y * z + z * x).view(np.int32).astype(np.int64) << 8 | step << 1
+        np.minimum(best[:-step], area | parity[:-step], out=best[:-step])  # i looks forwards
+        np.minimum(best[step:], area | (1 - parity[step:]), out=best[step:])  # i + step back
+    step = (best >> 1) & 127
+    forwards = (best & 1) == parity
+    nearest = np.where(forwards, np.arange(n) + step, np.arange(n) - step)
+    area = (best >> 8).astype(np.int32).view(np.float32)
+    return nearest, area
 
 
 def sah_cost(nodes: np.ndarray) -> float:
@@ -225,11 +216,15 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
             lead = np.array([min(closest, nearest[closest])])
             nearest[lead] = max(closest, nearest[closest])
         partner = nearest[lead]
-        merged = np.arange(round_first[-1], round_first[-1] + len(lead))
+        merged = slice(round_first[-1], round_first[-1] + len(lead))
         left[merged], right[merged] = active[lead], active[partner]
-        size[merged] = size[active[lead]] + size[active[partner]]
-        cluster_box[:, merged] = np.minimum(boxes[:, lead], boxes[:, partner])
-        active[lead] = merged
+        size[merged] = size[left[merged]] + size[right[merged]]
+        np.minimum(
+            np.take(boxes, lead, axis=1),
+            np.take(boxes, partner, axis=1),
+            out=cluster_box[:, merged],
+        )
+        active[lead] = np.arange(merged.start, merged.stop)
         boxes[:, lead] = cluster_box[:, merged]
         keep = np.ones(len(active), bool)
         keep[partner] = False
