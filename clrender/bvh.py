@@ -2,13 +2,18 @@
 
     nodes, prims = build_bvh(lower, upper)   # primitive bounds, (N, 3) each
 
-A top-down binned surface-area-heuristic build (Wald 2007; pbrt-v4's BVHAggregate with
-"sah"): each node's primitives are put in BVH_BINS bins along the axis where their centroids
-spread most, every split between bins is costed by the SAH, and the cheapest split is taken
-unless a leaf is cheaper (at most LEAF_MAX primitives). Written in NumPy by levels: every node
-of one depth is split at once (reductions over node x bin groups, a stable partition by cumulative
-sums), so the Python loop runs once per tree level, never per primitive or node; 1 M triangles
-build in about a second (bench/bvh_scaling.py).
+Built bottom up by agglomerative clustering in the manner of PLOC (Meister and Bittner 2018,
+"Parallel locally-ordered clustering for bounding volume hierarchy construction"): the
+primitives are sorted once by the Morton codes of their centroids; then, round after round, each
+open cluster finds its nearest among the PLOC_RADIUS clusters before and after it in that order
+(nearest: the smallest surface area of the union of the two boxes), mutually nearest clusters
+merge into one (in the place of the first), until one cluster is left. The merges are the
+binary tree; a bottom-up pass with the surface-area heuristic (SAH) makes a subtree of at most
+LEAF_MAX primitives a leaf where that is cheaper. Written in NumPy: each round, and each tree
+level of the bottom-up pass and of the output, is a handful of whole-array operations, so the
+Python loops run per merge round (about 150 for 1 M triangles) and per level, never per
+primitive or node. 1 M triangles build in under a second, into a tree whose SAH cost is lower
+than that of the former top-down binned SAH build (bench/bvh_scaling.py).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
@@ -41,8 +46,8 @@ BVH_NODE_DTYPE = np.dtype(
 # most BVH_WIDTH - 1 nodes on its stack per level, so BVH_STACK_SIZE = 7 x BVH_MAX_DEPTH.
 BVH_MAX_DEPTH = 40
 MORTON_BITS = 10  # per axis: Morton codes of 30 bits
-# Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
-# 8 or 16 build the same quality here, 2 a worse tree: bench/bvh_scaling.py)
+# Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r;
+# 8 and 16 build trees of about the same SAH cost on bench/bvh_scaling.py's meshes, slower)
 PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
