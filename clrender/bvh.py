@@ -46,8 +46,8 @@ BVH_NODE_DTYPE = np.dtype(
 # most BVH_WIDTH - 1 nodes on its stack per level, so BVH_STACK_SIZE = 7 x BVH_MAX_DEPTH.
 BVH_MAX_DEPTH = 40
 MORTON_BITS = 10  # per axis: Morton codes of 30 bits
-# Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r;
-# 8 and 16 build trees of about the same SAH cost on bench/bvh_scaling.py's meshes, slower)
+# Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
+# 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer)
 PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of

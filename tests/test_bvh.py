@@ -571,6 +571,8 @@ def test_bvh_scaling_bench_runs_and_reports_every_figure(runtime, tmp_path, monk
     counts = [row["triangles"] for row in data["triangles"]]
     assert counts[0] == 20 and abs(counts[1] - 2000) < 50
     assert all(row["rays_per_s"] > 0 and row["build_wall_s"] > 0 for row in data["triangles"])
+    for row in data["triangles"]:
+        assert row["total_build_cpu_s"] >= row["build_cpu_s"] and row["sah_cost"] > 1.0
     assert [row["scene"] for row in data["cornell"]][0] == "cornell-box"
     row = data["quads"][0]
     assert row["primitives"] == 66 and not row["default_uses_bvh"]
