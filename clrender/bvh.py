@@ -125,6 +125,41 @@ def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> tuple[np.ndarray,
     return nearest, area
 
 
+def _balanced_height(size: np.ndarray) -> np.ndarray:
+    """Height of a balanced tree (halves each split) with leaves of at most LEAF_MAX."""
+    return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int64)
+
+
+def _rebuild_in_morton_order(prims, morton_order, spans, cluster_box, position_box):
+    """Sorts each range spans[k] of `prims` (in place) in Morton order, and returns
+    position_box (allocated on the first call: (6, N + 1)) with those positions' boxes."""
+    count = len(prims)
+    if position_box is None:
+        position_box = np.zeros((6, count + 1), np.float32)
+    rank = np.empty(count, np.int64)
+    rank[morton_order] = np.arange(count)
+    lengths = spans[:, 1] - spans[:, 0]
+    ends = np.cumsum(lengths)
+    positions = np.arange(ends[-1]) + np.repeat(spans[:, 0] - (ends - lengths), lengths)
+    members = prims[positions]
+    order = np.lexsort((rank[members], np.repeat(np.arange(len(spans)), lengths)))
+    prims[positions] = members[order]
+    position_box[:, positions] = np.take(cluster_box, members[order], axis=1)
+    return position_box
+
+
+def _range_boxes(position_box: np.ndarray, start, middle, end) -> tuple:
+    """Boxes (6 rows) of the positions [start, middle) and [middle, end) (disjoint ranges;
+    position_box has a spare last column): one reduceat over the ranges in ascending order."""
+    order = np.argsort(start, kind="stable")
+    bounds = np.stack([start[order], middle[order], end[order]], axis=1).reshape(-1)
+    reduced = np.minimum.reduceat(position_box, bounds, axis=1).reshape(6, -1, 3)
+    left = np.empty((6, len(start)), np.float32)
+    right = np.empty((6, len(start)), np.float32)
+    left[:, order], right[:, order] = reduced[:, :, 0], reduced[:, :, 1]
+    return left, right
+
+
 def sah_cost(nodes: np.ndarray) -> float:
     """A binary tree's (BINARY_NODE_DTYPE) surface-area-heuristic cost: interior nodes' areas x
     TRAVERSAL_COST plus leaves' areas x their primitives, over the root's area."""
@@ -206,7 +241,8 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     size = np.ones(total, np.int64)
     # The clusters still open, in the Morton order of the primitives' centroids
     keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
-    active = (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    morton_order = (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
+    active = morton_order.copy()
     boxes = np.take(cluster_box[:, :count], active, axis=1)
     scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
     scale = np.float32(1.0 / max(scene_extent, 1e-30))
@@ -254,18 +290,64 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         start[right[merged]] = start[merged] + size[left[merged]]
     prims = np.empty(count, np.uint32)
     prims[start[:count]] = np.arange(count, dtype=np.uint32)
-    # The nodes, breadth first: a level's split nodes' children make the next level
+    # Subtree heights (leaves 0) against the depth cap
+    height = np.zeros(total, np.int64)
+    for first, end in rounds:
+        merged = np.arange(first, end)
+        below = np.maximum(height[left[merged]], height[right[merged]])
+        height[merged] = np.where(leaf[merged], 0, 1 + below)
+    # The nodes, breadth first: a level's split nodes' children make the next level. A node is
+    # a cluster, or a range of `prims` (range[0] < range[1]: a subtree too deep for the cap,
+    # rebuilt as a balanced tree over its primitives in Morton order)
     levels = []  # per depth: (box, offset, count) of its nodes, in index order
     nodes = active
+    span = np.zeros((1, 2), np.int64)
+    box = np.take(cluster_box, nodes, axis=1)
+    position_box = None  # boxes of the rebuilt primitives by position in `prims`
     next_index = 1
     for depth in range(BVH_MAX_DEPTH + 1):
-        split = ~leaf[nodes] & (depth < BVH_MAX_DEPTH)
-        box = np.take(cluster_box, nodes, axis=1)
+        room = BVH_MAX_DEPTH - depth
+        # Too deep: a cluster whose subtree exceeds the cap and one of whose children could
+        # not be fitted either (too deep itself and too large to rebuild) becomes a range
+        cluster = span[:, 0] == span[:, 1]
+        convert = cluster & (height[nodes] > room)
+        if convert.any():
+            child_fits = [
+                np.minimum(height[child], _balanced_height(size[child])) < room
+                for child in (left[nodes], right[nodes])
+            ]
+            convert &= ~(child_fits[0] & child_fits[1])
+        if convert.any():
+            roots = nodes[convert]
+            span[convert, 0], span[convert, 1] = start[roots], start[roots] + size[roots]
+            position_box = _rebuild_in_morton_order(
+                prims, morton_order, span[convert], cluster_box, position_box
+            )
+            cluster &= ~convert
+        length = span[:, 1] - span[:, 0]
+        split = np.where(cluster, ~leaf[nodes], length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
         widest = np.argmax(-box[3:] - box[:3], axis=0)  # the split axis recorded: informative
         offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), start[nodes])
-        levels.append((box, offset, np.where(split, -1 - widest, size[nodes])))
-        parents = nodes[split]
-        nodes = np.stack([left[parents], right[parents]], axis=1).reshape(-1)
+        offset = np.where(cluster, offset, np.where(split, offset, span[:, 0]))
+        count_or_axis = np.where(split, -1 - widest, np.where(cluster, size[nodes], length))
+        levels.append((box, offset, count_or_axis))
+        # Children: a cluster's two merged clusters, a range's two halves
+        parents = np.flatnonzero(split)
+        in_range = ~cluster[parents]
+        middle = span[parents, 0] + (length[parents] + 1) // 2
+        child_span = np.zeros((len(parents), 2, 2), np.int64)
+        child_span[in_range, 0] = np.stack([span[parents, 0], middle], axis=1)[in_range]
+        child_span[in_range, 1] = np.stack([middle, span[parents, 1]], axis=1)[in_range]
+        child_nodes = np.stack([left[nodes[parents]], right[nodes[parents]]], axis=1)
+        child_box = np.take(cluster_box, np.maximum(child_nodes, 0), axis=1)
+        if in_range.any():
+            halves = child_span[in_range]
+            child_box[:, in_range, 0], child_box[:, in_range, 1] = _range_boxes(
+                position_box, halves[:, 0, 0], halves[:, 1, 0], halves[:, 1, 1]
+            )
+        nodes = child_nodes.reshape(-1)
+        span = child_span.reshape(-1, 2)
+        box = child_box.reshape(6, -1)
         next_index += len(nodes)
         if len(nodes) == 0:
             break

@@ -346,14 +346,25 @@ def test_bvh_of_identical_boxes_splits_to_small_leaves_within_the_depth_cap():
     np.testing.assert_array_equal(np.unique(nodes["count"][nodes["count"] > 0]), [LEAF_MAX])
 
 
-def test_bvh_of_a_chain_honours_the_depth_cap():
-    """Boxes at exponentially growing positions: each merges with the whole chain before it,
-    a tree 99 deep, cut at BVH_MAX_DEPTH (the last leaf holds what lies below)."""
+def test_bvh_of_a_chain_is_rebuilt_within_the_depth_cap():
+    """Boxes at exponentially growing positions: each merges with the whole chain before it, a
+    tree 99 deep; its part below the cap is rebuilt balanced, in leaves of at most LEAF_MAX."""
     x = 2.0 ** np.arange(100)
     lower = np.stack([x, np.zeros(100), np.zeros(100)], 1)
     nodes, prims = build_bvh(lower, lower + 0.5)
     depth = assert_valid_bvh(lower, lower + 0.5, nodes, prims)
-    assert depth.max() == BVH_MAX_DEPTH
+    assert depth.max() <= BVH_MAX_DEPTH and nodes["count"].max() <= LEAF_MAX
+
+
+def test_bvh_of_heavy_tailed_boxes_keeps_small_leaves_within_the_depth_cap():
+    """Box sizes of a Pareto law (alpha 1): the large boxes merge with cluster after cluster,
+    chains deeper than the cap; rebuilt below it, no leaf holds more than LEAF_MAX."""
+    rng = np.random.default_rng(27)
+    lower = rng.uniform(-1, 1, (200_000, 3))
+    upper = lower + rng.pareto(1.0, (200_000, 1)) * 1e-3
+    nodes, prims = build_bvh(lower, upper)
+    assert_valid_bvh(lower, upper, nodes, prims)
+    assert nodes["count"].max() <= LEAF_MAX
 
 
 def test_sah_cost_of_a_hand_built_tree():
