@@ -125,6 +125,38 @@ def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> tuple[np.ndarray,
     return nearest, area
 
 
+def _range_level(
+    levels, nodes, span, box, widest, depth, next_index, tree, cluster_box, position_box
+):
+    """One level of build_bvh's output where some nodes are ranges of `prims` (span[k, 0] <
+    span[k, 1]; rebuilt subtrees, split in halves) and the others clusters (tree: leaf, left,
+    right, start, size by cluster): appends the level to `levels`, returns the next level's
+    (nodes, span, box)."""
+    leaf, left, right, start, size = tree
+    cluster = span[:, 0] == span[:, 1]
+    length = span[:, 1] - span[:, 0]
+    split = np.where(cluster, ~leaf[nodes], length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
+    first = np.where(cluster, start[nodes], span[:, 0])
+    offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first)
+    count_or_axis = np.where(split, -1 - widest, np.where(cluster, size[nodes], length))
+    levels.append((box, offset, count_or_axis))
+    # Children: a cluster's two merged clusters, a range's two halves
+    parents = np.flatnonzero(split)
+    in_range = ~cluster[parents]
+    middle = span[parents, 0] + (length[parents] + 1) // 2
+    child_span = np.zeros((len(parents), 2, 2), np.int64)
+    child_span[in_range, 0] = np.stack([span[parents, 0], middle], axis=1)[in_range]
+    child_span[in_range, 1] = np.stack([middle, span[parents, 1]], axis=1)[in_range]
+    child_nodes = np.stack([left[nodes[parents]], right[nodes[parents]]], axis=1)
+    child_box = np.take(cluster_box, np.maximum(child_nodes, 0), axis=1)
+    if in_range.any():
+        halves = child_span[in_range]
+        child_box[:, in_range, 0], child_box[:, in_range, 1] = _range_boxes(
+            position_box, halves[:, 0, 0], halves[:, 1, 0], halves[:, 1, 1]
+        )
+    return child_nodes.reshape(-1), child_span.reshape(-1, 2), child_box.reshape(6, -1)
+
+
 def _balanced_height(size: np.ndarray) -> np.ndarray:
     """Height of a balanced tree (halves each split) with leaves of at most LEAF_MAX."""
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int64)
@@ -301,7 +333,7 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # rebuilt as a balanced tree over its primitives in Morton order)
     levels = []  # per depth: (box, offset, count) of its nodes, in index order
     nodes = active
-    span = np.zeros((1, 2), np.int64)
+    span = None  # (nodes, 2) once some node is a range; equal bounds: a cluster
     box = np.take(cluster_box, nodes, axis=1)
     position_box = None  # boxes of the rebuilt primitives by position in `prims`
     next_index = 1
@@ -309,8 +341,9 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         room = BVH_MAX_DEPTH - depth
         # Too deep: a cluster whose subtree exceeds the cap and one of whose children could
         # not be fitted either (too deep itself and too large to rebuild) becomes a range
-        cluster = span[:, 0] == span[:, 1]
-        convert = cluster & (height[nodes] > room)
+        convert = height[nodes] > room
+        if span is not None:
+            convert &= span[:, 0] == span[:, 1]
         if convert.any():
             child_fits = [
                 np.minimum(height[child], _balanced_height(size[child])) < room
@@ -318,36 +351,33 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
             ]
             convert &= ~(child_fits[0] & child_fits[1])
         if convert.any():
+            span = np.zeros((len(nodes), 2), np.int64) if span is None else span
             roots = nodes[convert]
             span[convert, 0], span[convert, 1] = start[roots], start[roots] + size[roots]
             position_box = _rebuild_in_morton_order(
                 prims, morton_order, span[convert], cluster_box, position_box
             )
-            cluster &= ~convert
-        length = span[:, 1] - span[:, 0]
-        split = np.where(cluster, ~leaf[nodes], length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
         widest = np.argmax(-box[3:] - box[:3], axis=0)  # the split axis recorded: informative
-        offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), start[nodes])
-        offset = np.where(cluster, offset, np.where(split, offset, span[:, 0]))
-        count_or_axis = np.where(split, -1 - widest, np.where(cluster, size[nodes], length))
-        levels.append((box, offset, count_or_axis))
-        # Children: a cluster's two merged clusters, a range's two halves
-        parents = np.flatnonzero(split)
-        in_range = ~cluster[parents]
-        middle = span[parents, 0] + (length[parents] + 1) // 2
-        child_span = np.zeros((len(parents), 2, 2), np.int64)
-        child_span[in_range, 0] = np.stack([span[parents, 0], middle], axis=1)[in_range]
-        child_span[in_range, 1] = np.stack([middle, span[parents, 1]], axis=1)[in_range]
-        child_nodes = np.stack([left[nodes[parents]], right[nodes[parents]]], axis=1)
-        child_box = np.take(cluster_box, np.maximum(child_nodes, 0), axis=1)
-        if in_range.any():
-            halves = child_span[in_range]
-            child_box[:, in_range, 0], child_box[:, in_range, 1] = _range_boxes(
-                position_box, halves[:, 0, 0], halves[:, 1, 0], halves[:, 1, 1]
+        if span is None:
+            split = ~leaf[nodes] & (depth < BVH_MAX_DEPTH)
+            offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), start[nodes])
+            levels.append((box, offset, np.where(split, -1 - widest, size[nodes])))
+            parents = nodes[split]
+            nodes = np.stack([left[parents], right[parents]], axis=1).reshape(-1)
+            box = np.take(cluster_box, nodes, axis=1)
+        else:
+            nodes, span, box = _range_level(
+                levels,
+                nodes,
+                span,
+                box,
+                widest,
+                depth,
+                next_index,
+                (leaf, left, right, start, size),
+                cluster_box,
+                position_box,
             )
-        nodes = child_nodes.reshape(-1)
-        span = child_span.reshape(-1, 2)
-        box = child_box.reshape(6, -1)
         next_index += len(nodes)
         if len(nodes) == 0:
             break
