@@ -125,36 +125,33 @@ def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> tuple[np.ndarray,
     return nearest, area
 
 
-def _range_level(
-    levels, nodes, span, box, widest, depth, next_index, tree, cluster_box, position_box
-):
-    """One level of build_bvh's output where some nodes are ranges of `prims` (span[k, 0] <
-    span[k, 1]; rebuilt subtrees, split in halves) and the others clusters (tree: leaf, left,
-    right, start, size by cluster): appends the level to `levels`, returns the next level's
-    (nodes, span, box)."""
-    leaf, left, right, start, size = tree
-    cluster = span[:, 0] == span[:, 1]
-    length = span[:, 1] - span[:, 0]
-    split = np.where(cluster, ~leaf[nodes], length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
-    first = np.where(cluster, start[nodes], span[:, 0])
-    offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first)
-    count_or_axis = np.where(split, -1 - widest, np.where(cluster, size[nodes], length))
-    levels.append((box, offset, count_or_axis))
-    # Children: a cluster's two merged clusters, a range's two halves
-    parents = np.flatnonzero(split)
-    in_range = ~cluster[parents]
-    middle = span[parents, 0] + (length[parents] + 1) // 2
-    child_span = np.zeros((len(parents), 2, 2), np.int64)
-    child_span[in_range, 0] = np.stack([span[parents, 0], middle], axis=1)[in_range]
-    child_span[in_range, 1] = np.stack([middle, span[parents, 1]], axis=1)[in_range]
-    child_nodes = np.stack([left[nodes[parents]], right[nodes[parents]]], axis=1)
-    child_box = np.take(cluster_box, np.maximum(child_nodes, 0), axis=1)
-    if in_range.any():
-        halves = child_span[in_range]
-        child_box[:, in_range, 0], child_box[:, in_range, 1] = _range_boxes(
-            position_box, halves[:, 0, 0], halves[:, 1, 0], halves[:, 1, 1]
-        )
-    return child_nodes.reshape(-1), child_span.reshape(-1, 2), child_box.reshape(6, -1)
+def _cluster_table(cluster_box, left, right, start, size, height, leaf) -> np.ndarray:
+    """One record (48 bytes) per cluster, so that a level's nodes take theirs in one gather:
+    box (lower, -upper), left, right, first position in `prims`, size, height, leaf (int32)."""
+    table = np.empty((len(left), 12), np.int32)
+    table[:, :6] = cluster_box.T.view(np.int32)
+    for column, values in enumerate((left, right, start, size, height, leaf), start=6):
+        table[:, column] = values
+    return table.view(np.dtype((np.void, 48))).reshape(-1)
+
+
+def _range_children(children, parent_span, parent_is_range, table, position_box) -> tuple:
+    """The next level where some nodes are ranges: children (cluster ids, two a split parent;
+    a range's are placeholders) become (nodes, span, box (nodes, 6)): a cluster's children
+    their merged clusters with their boxes, a range's its two halves with theirs."""
+    pairs = children.reshape(-1, 2)
+    pairs[parent_is_range] = -1
+    span = np.zeros((len(pairs), 2, 2), np.int64)
+    low, high = parent_span[parent_is_range, 0], parent_span[parent_is_range, 1]
+    middle = low + (high - low + 1) // 2
+    span[parent_is_range, 0, 0], span[parent_is_range, 0, 1] = low, middle
+    span[parent_is_range, 1, 0], span[parent_is_range, 1, 1] = middle, high
+    box = np.take(table, np.maximum(pairs, 0)).view(np.int32).reshape(len(pairs), 2, 12)
+    box = box[:, :, :6].view(np.float32).copy()
+    if parent_is_range.any():
+        left_box, right_box = _range_boxes(position_box, low, middle, high)
+        box[parent_is_range, 0], box[parent_is_range, 1] = left_box.T, right_box.T
+    return pairs.reshape(-1), span.reshape(-1, 2), box.reshape(-1, 6)
 
 
 def _balanced_height(size: np.ndarray) -> np.ndarray:
@@ -329,67 +326,58 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         below = np.maximum(height[left[merged]], height[right[merged]])
         height[merged] = np.where(leaf[merged], 0, 1 + below)
     # The nodes, breadth first: a level's split nodes' children make the next level. A node is
-    # a cluster, or a range of `prims` (range[0] < range[1]: a subtree too deep for the cap,
-    # rebuilt as a balanced tree over its primitives in Morton order)
-    levels = []  # per depth: (box, offset, count) of its nodes, in index order
+    # a cluster, or a range of `prims` (a subtree too deep for the cap, rebuilt as a balanced
+    # tree over its primitives in Morton order: node -1, span[k] its range)
+    table = _cluster_table(cluster_box, left, right, start, size, height, leaf)
+    levels = []  # per depth: the nodes' records, (nodes, 8) words of BINARY_NODE_DTYPE
     nodes = active
-    span = None  # (nodes, 2) once some node is a range; equal bounds: a cluster
-    box = np.take(cluster_box, nodes, axis=1)
+    span = None  # (nodes, 2) once some node is a range
+    box = None  # (nodes, 6) boxes, carried from the level before once some node is a range
     position_box = None  # boxes of the rebuilt primitives by position in `prims`
     next_index = 1
     for depth in range(BVH_MAX_DEPTH + 1):
         room = BVH_MAX_DEPTH - depth
+        fields = np.take(table, np.maximum(nodes, 0)).view(np.int32).reshape(-1, 12)
+        left_of, right_of, first, size_of, height_of, leaf_of = fields[:, 6:].T
+        box = fields[:, :6].view(np.float32) if span is None else box
         # Too deep: a cluster whose subtree exceeds the cap and one of whose children could
         # not be fitted either (too deep itself and too large to rebuild) becomes a range
-        convert = height[nodes] > room
-        if span is not None:
-            convert &= span[:, 0] == span[:, 1]
-        if convert.any():
+        convert = (height_of > room) & (nodes >= 0)
+        deep = np.flatnonzero(convert)
+        if len(deep):
             child_fits = [
                 np.minimum(height[child], _balanced_height(size[child])) < room
-                for child in (left[nodes], right[nodes])
+                for child in (left_of[deep], right_of[deep])
             ]
-            convert &= ~(child_fits[0] & child_fits[1])
+            convert[deep[child_fits[0] & child_fits[1]]] = False
         if convert.any():
             span = np.zeros((len(nodes), 2), np.int64) if span is None else span
-            roots = nodes[convert]
-            span[convert, 0], span[convert, 1] = start[roots], start[roots] + size[roots]
+            span[convert, 0], span[convert, 1] = first[convert], first[convert] + size_of[convert]
             position_box = _rebuild_in_morton_order(
                 prims, morton_order, span[convert], cluster_box, position_box
             )
-        widest = np.argmax(-box[3:] - box[:3], axis=0)  # the split axis recorded: informative
-        if span is None:
-            split = ~leaf[nodes] & (depth < BVH_MAX_DEPTH)
-            offset = np.where(split, next_index + 2 * (np.cumsum(split) - 1), start[nodes])
-            levels.append((box, offset, np.where(split, -1 - widest, size[nodes])))
-            parents = nodes[split]
-            nodes = np.stack([left[parents], right[parents]], axis=1).reshape(-1)
-            box = np.take(cluster_box, nodes, axis=1)
-        else:
-            nodes, span, box = _range_level(
-                levels,
-                nodes,
-                span,
-                box,
-                widest,
-                depth,
-                next_index,
-                (leaf, left, right, start, size),
-                cluster_box,
-                position_box,
+            nodes = np.where(convert, -1, nodes)
+        is_range = nodes < 0
+        length = size_of if span is None else np.where(is_range, span[:, 1] - span[:, 0], size_of)
+        first = first if span is None else np.where(is_range, span[:, 0], first)
+        split = np.where(is_range, length > LEAF_MAX, leaf_of == 0) & (depth < BVH_MAX_DEPTH)
+        # The level's records: box, first child or primitive, count or -1 - split axis
+        record = np.empty((len(nodes), 8), np.float32)
+        record[:, 0:3] = box[:, 0:3]
+        np.negative(box[:, 3:6], out=record[:, 4:7])
+        widest = np.argmax(record[:, 4:7] - record[:, 0:3], axis=1)  # informative only
+        words = record.view(np.int32)
+        words[:, 3] = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first)
+        words[:, 7] = np.where(split, -1 - widest, length)
+        levels.append(record)
+        # Children: a cluster's two merged clusters, a range's two halves
+        parents = np.flatnonzero(split)
+        nodes = np.stack([left_of[parents], right_of[parents]], axis=1).reshape(-1)
+        if span is not None:
+            nodes, span, box = _range_children(
+                nodes, span[parents], is_range[parents], table, position_box
             )
         next_index += len(nodes)
         if len(nodes) == 0:
             break
-    return _flatten(levels), prims
-
-
-def _flatten(levels: list) -> np.ndarray:
-    """BINARY_NODE_DTYPE records of every level's nodes (box rows: lower, -upper)."""
-    box = np.concatenate([level[0] for level in levels], axis=1)
-    words = np.empty((box.shape[1], 8), np.float32)  # a record: 8 words of 4 bytes
-    words[:, 0:3] = box[:3].T
-    words[:, 4:7] = -box[3:].T
-    words.view(np.int32)[:, 3] = np.concatenate([level[1] for level in levels])
-    words.view(np.int32)[:, 7] = np.concatenate([level[2] for level in levels])
-    return words.view(BINARY_NODE_DTYPE).reshape(-1)
+    return np.concatenate(levels).view(BINARY_NODE_DTYPE).reshape(-1), prims
