@@ -338,7 +338,7 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     for depth in range(BVH_MAX_DEPTH + 1):
         room = BVH_MAX_DEPTH - depth
         fields = np.take(table, np.maximum(nodes, 0)).view(np.int32).reshape(-1, 12)
-        left_of, right_of, first, size_of, height_of, leaf_of = fields[:, 6:].T
+        left_of, right_of, first_prim, size_of, height_of, leaf_of = fields[:, 6:].T
         box = fields[:, :6].view(np.float32) if span is None else box
         # Too deep: a cluster whose subtree exceeds the cap and one of whose children could
         # not be fitted either (too deep itself and too large to rebuild) becomes a range
@@ -352,14 +352,18 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
             convert[deep[child_fits[0] & child_fits[1]]] = False
         if convert.any():
             span = np.zeros((len(nodes), 2), np.int64) if span is None else span
-            span[convert, 0], span[convert, 1] = first[convert], first[convert] + size_of[convert]
+            span[convert, 0], span[convert, 1] = (
+                first_prim[convert],
+                first_prim[convert] + size_of[convert],
+            )
             position_box = _rebuild_in_morton_order(
                 prims, morton_order, span[convert], cluster_box, position_box
             )
             nodes = np.where(convert, -1, nodes)
         is_range = nodes < 0
         length = size_of if span is None else np.where(is_range, span[:, 1] - span[:, 0], size_of)
-        first = first if span is None else np.where(is_range, span[:, 0], first)
+        if span is not None:
+            first_prim = np.where(is_range, span[:, 0], first_prim)
         split = np.where(is_range, length > LEAF_MAX, leaf_of == 0) & (depth < BVH_MAX_DEPTH)
         # The level's records: box, first child or primitive, count or -1 - split axis
         record = np.empty((len(nodes), 8), np.float32)
@@ -367,7 +371,7 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         np.negative(box[:, 3:6], out=record[:, 4:7])
         widest = np.argmax(record[:, 4:7] - record[:, 0:3], axis=1)  # informative only
         words = record.view(np.int32)
-        words[:, 3] = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first)
+        words[:, 3] = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first_prim)
         words[:, 7] = np.where(split, -1 - widest, length)
         levels.append(record)
         # Children: a cluster's two merged clusters, a range's two halves
