@@ -301,30 +301,29 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         active, boxes = active[keep], np.compress(keep, boxes, axis=1)
         round_first.append(round_first[-1] + len(lead))
     rounds = list(zip(round_first[:-1], round_first[1:], strict=True))
-    # Leaves where the SAH finds them cheaper than their subtree (bottom up, a round at a time)
+    # Leaves where the SAH finds them cheaper than their subtree, and the subtrees' heights
+    # (leaves 0): bottom up, a round at a time
     area = _half_area(cluster_box)
     cost = area.copy()  # a primitive: a leaf of one
     leaf = np.ones(total, bool)
+    height = np.zeros(total, np.int64)
     for first, end in rounds:
-        merged = np.arange(first, end)
-        subtree = TRAVERSAL_COST * area[merged] + cost[left[merged]] + cost[right[merged]]
+        merged = slice(first, end)
+        below_left, below_right = left[merged], right[merged]
+        subtree = TRAVERSAL_COST * area[merged] + cost[below_left] + cost[below_right]
         as_leaf = np.where(size[merged] <= LEAF_MAX, size[merged] * area[merged], np.inf)
         leaf[merged] = as_leaf <= subtree
         cost[merged] = np.minimum(as_leaf, subtree)
+        below = np.maximum(height[below_left], height[below_right])
+        height[merged] = np.where(leaf[merged], 0, 1 + below)
     # Each cluster's primitives are a range of `prims`, its left child's first (top down)
     start = np.zeros(total, np.int64)
     for first, end in reversed(rounds):
-        merged = np.arange(first, end)
+        merged = slice(first, end)
         start[left[merged]] = start[merged]
         start[right[merged]] = start[merged] + size[left[merged]]
     prims = np.empty(count, np.uint32)
     prims[start[:count]] = np.arange(count, dtype=np.uint32)
-    # Subtree heights (leaves 0) against the depth cap
-    height = np.zeros(total, np.int64)
-    for first, end in rounds:
-        merged = np.arange(first, end)
-        below = np.maximum(height[left[merged]], height[right[merged]])
-        height[merged] = np.where(leaf[merged], 0, 1 + below)
     # The nodes, breadth first: a level's split nodes' children make the next level. A node is
     # a cluster, or a range of `prims` (a subtree too deep for the cap, rebuilt as a balanced
     # tree over its primitives in Morton order: node -1, span[k] its range)
