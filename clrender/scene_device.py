@@ -306,11 +306,12 @@ def primitive_bounds(
     quad_points = np.stack([c, c + e1, c + e2, c + e1 + e2])
     centre = spheres["center"].astype(np.float64).reshape(-1, 3)
     radius = spheres["radius"].astype(np.float64).reshape(-1, 1)
-    tri_points = np.stack(
-        [triangles[k].astype(np.float64).reshape(-1, 3) for k in ("p0", "p1", "p2")]
-    )
-    lower = np.concatenate([quad_points.min(axis=0), centre - radius, tri_points.min(axis=0)])
-    upper = np.concatenate([quad_points.max(axis=0), centre + radius, tri_points.max(axis=0)])
+    # Triangles' bounds in their float32 (exact), a pair of vertices at a time
+    p0, p1, p2 = (triangles[k].reshape(-1, 3) for k in ("p0", "p1", "p2"))
+    tri_lower = np.minimum(np.minimum(p0, p1), p2)
+    tri_upper = np.maximum(np.maximum(p0, p1), p2)
+    lower = np.concatenate([quad_points.min(axis=0), centre - radius, tri_lower], dtype=np.float64)
+    upper = np.concatenate([quad_points.max(axis=0), centre + radius, tri_upper], dtype=np.float64)
     return lower, upper
 
 
