@@ -5,25 +5,27 @@ there, with its members in the same order and of the same types (only 4-byte mem
 ``float[3]``, so there is no padding on any device; tests/test_scene.py checks each size against
 ``sizeof`` on the device). Change both files together.
 
-=================  ===================  ====================================================
-dtype              struct               one record per
-=================  ===================  ====================================================
-QUAD_DTYPE         Quad                 quad (a box is 6), with its dual vectors
-quad_block_dtype   QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
-SPHERE_DTYPE       Sphere               sphere
-TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, normals and
-                                        emitter index)
-NORMALS_DTYPE      TriangleNormals      mesh triangle with per-vertex shading normals
-BVH_NODE_DTYPE     BVHNode              8-wide node of the BVH over every primitive (bvh.py)
-MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
-EMITTER_DTYPE      Emitter              emitting quad, sphere or mesh triangle, with its
-                                        light-selection pdf and cdf
-CAMERA_DTYPE       Camera               camera at one image size
-=================  ===================  ====================================================
+====================  ===================  ====================================================
+dtype                 struct               one record per
+====================  ===================  ====================================================
+QUAD_DTYPE            Quad                 quad (a box is 6), with its dual vectors
+quad_block_dtype      QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
+SPHERE_DTYPE          Sphere               sphere
+TRIANGLE_DTYPE        Triangle             mesh triangle (vertices, material, normals and
+                                           emitter index)
+NORMALS_DTYPE         TriangleNormals      mesh triangle with per-vertex shading normals
+BVH_NODE_DTYPE        BVHNode              8-wide node of the BVH over every primitive (bvh.py)
+TRIANGLE_BLOCK_DTYPE  TriangleBlock        8 triangles of a BVH leaf, structure of arrays (in the
+                                           leaf records, pack_bvh_leaves)
+MATERIAL_DTYPE        Material             material (MATERIAL_TYPES tags)
+EMITTER_DTYPE         Emitter              emitting quad, sphere or mesh triangle, with its
+                                           light-selection pdf and cdf
+CAMERA_DTYPE          Camera               camera at one image size
+====================  ===================  ====================================================
 
 The packing functions take validated plain values (what clrender/scene.py reads from a scene
 file) and return these records. Dependencies run one way: scene.py imports this module, this
-module imports nothing of clrender's but the BVH builder (clrender/bvh.py).
+module imports nothing of clrender's but the BVH builder (clrender/bvh.py) and the errors.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import math
 import numpy as np
 
 from clrender.bvh import BVH_NODE_DTYPE, build_wide_bvh
+from clrender.errors import ClrenderError
 
 # Material type tags: MATERIAL_DIFFUSE, ... in kernels/scene_types.h.
 MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
@@ -84,6 +87,19 @@ TRIANGLE_DTYPE = np.dtype(
     ]
 )
 NORMALS_DTYPE = np.dtype([("n", "<f4", (3, 3))])
+TRIANGLE_BLOCK_WIDTH = 8  # fixed in kernels/scene_types.h
+TRIANGLE_BLOCK_DTYPE = np.dtype(
+    [
+        ("p0", "<f4", (3, TRIANGLE_BLOCK_WIDTH)),
+        ("p1", "<f4", (3, TRIANGLE_BLOCK_WIDTH)),
+        ("p2", "<f4", (3, TRIANGLE_BLOCK_WIDTH)),
+        ("id", "<i4", TRIANGLE_BLOCK_WIDTH),
+    ]
+)
+# BVH leaf records (pack_bvh_leaves): a leaf lane's count packs its quads and spheres (above this
+# bit) and its triangle blocks (below); records start at multiples of BVH_LEAF_ALIGN words (64 bytes).
+BVH_LEAF_SCALAR_SHIFT = 16
+BVH_LEAF_ALIGN = 16
 # Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
 # triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
 # BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
@@ -320,12 +336,73 @@ def pack_bvh(
     triangles: np.ndarray,
     brute_force_limit: int = BRUTE_FORCE_LIMIT,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(BVH nodes, primitive ids) over every primitive (clrender/bvh.py), or two empty arrays
-    for a scene whose brute_force_cost is at most brute_force_limit (the kernels then use brute
-    force; -1: always a BVH)."""
+    """(BVH nodes, leaf records) over every primitive (clrender/bvh.py; pack_bvh_leaves), or two
+    empty arrays for a scene whose brute_force_cost is at most brute_force_limit (the kernels then
+    use brute force; -1: always a BVH)."""
     if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
         return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
-    return build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
+    nodes, prims = build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
+    return pack_bvh_leaves(nodes, prims, len(quads) + len(spheres), triangles)
+
+
+def pack_bvh_leaves(
+    nodes: np.ndarray, prims: np.ndarray, scalar_count: int, triangles: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The device's nodes and leaf records (kernels/scene_types.h, BVH leaf records) of a wide BVH
+    whose leaves hold prims[child .. child + count - 1]: a leaf's record holds its triangles in
+    TRIANGLE_BLOCK_DTYPE blocks (in the leaf's order; unused lanes all zero, id -1), then the ids
+    of its quads and spheres (ids below scalar_count), as uint32 words, and starts at a multiple
+    of BVH_LEAF_ALIGN words; its lane in the node gets child = the record's first word and count
+    = (quads and spheres) << BVH_LEAF_SCALAR_SHIFT | blocks. NumPy over all leaves at once."""
+    nodes = nodes.copy()
+    leaf_node, leaf_lane = np.nonzero(nodes["count"] > 0)
+    start = nodes["child"][leaf_node, leaf_lane].astype(np.int64)
+    count = nodes["count"][leaf_node, leaf_lane].astype(np.int64)
+    # Every leaf's members in leaf order, its triangles first (a stable sort)
+    leaf_of = np.repeat(np.arange(len(start)), count)
+    rank = np.arange(len(leaf_of)) - (np.cumsum(count) - count)[leaf_of]
+    ids = prims[start[leaf_of] + rank].astype(np.int64)
+    is_scalar = ids < scalar_count
+    order = np.argsort(2 * leaf_of + is_scalar, kind="stable")
+    ids, is_scalar = ids[order], is_scalar[order]
+    scalars = np.bincount(leaf_of[is_scalar], minlength=len(start))
+    blocks = -(-(count - scalars) // TRIANGLE_BLOCK_WIDTH)
+    if len(start) and (
+        scalars.max() >= 2 ** (31 - BVH_LEAF_SCALAR_SHIFT) or blocks.max() >= 2**BVH_LEAF_SCALAR_SHIFT
+    ):
+        raise ClrenderError(
+            f"BVH: a leaf of {int(count.max())} primitives (more than the device's leaf records "
+            "hold): too many primitives share one place in the scene"
+        )
+    block_words = TRIANGLE_BLOCK_DTYPE.itemsize // 4
+    size = block_words * blocks + scalars
+    size = -(-size // BVH_LEAF_ALIGN) * BVH_LEAF_ALIGN
+    offset = np.cumsum(size) - size
+    words = np.zeros(int(size.sum()), np.uint32)
+    # Every block's ids start unused (-1)
+    block_leaf = np.repeat(np.arange(len(start)), blocks)
+    block_rank = np.arange(len(block_leaf)) - (np.cumsum(blocks) - blocks)[block_leaf]
+    id_words = offset[block_leaf] + block_words * block_rank + 9 * TRIANGLE_BLOCK_WIDTH
+    words[id_words[:, None] + np.arange(TRIANGLE_BLOCK_WIDTH)] = np.uint32(0xFFFFFFFF)
+    # Triangles: block and lane from the rank among the leaf's triangles
+    triangle_leaf = leaf_of[~is_scalar]
+    triangle_rank = rank[~is_scalar]
+    block_start = offset[triangle_leaf] + block_words * (triangle_rank // TRIANGLE_BLOCK_WIDTH)
+    lane = triangle_rank % TRIANGLE_BLOCK_WIDTH
+    triangle_ids = ids[~is_scalar]
+    tri = triangles[triangle_ids - scalar_count]
+    for v, key in enumerate(("p0", "p1", "p2")):
+        bits = np.ascontiguousarray(tri[key], np.float32).view(np.uint32)
+        for axis in range(3):
+            words[block_start + (3 * v + axis) * TRIANGLE_BLOCK_WIDTH + lane] = bits[:, axis]
+    words[block_start + 9 * TRIANGLE_BLOCK_WIDTH + lane] = triangle_ids
+    # Quads and spheres after the blocks
+    scalar_leaf = leaf_of[is_scalar]
+    scalar_rank = rank[is_scalar] - (count - scalars)[scalar_leaf]
+    words[offset[scalar_leaf] + block_words * blocks[scalar_leaf] + scalar_rank] = ids[is_scalar]
+    nodes["child"][leaf_node, leaf_lane] = offset
+    nodes["count"][leaf_node, leaf_lane] = scalars << BVH_LEAF_SCALAR_SHIFT | blocks
+    return nodes, words
 
 
 def scene_bounds(

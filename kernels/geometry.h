@@ -148,6 +148,7 @@ typedef struct {
     float3 o;
     uint kz;      // the permuted z axis; x and y follow it cyclically
     float3 shear; // (-dx / dz, -dy / dz, 1 / dz) after permutation
+    float3 o_permuted; // o with its axes permuted (TriangleBlock_Hits subtracts it by axis)
 } TriangleRay;
 
 // v with its axes permuted so that axis kz comes last (kx = kz + 1, ky = kz + 2, cyclically):
@@ -169,6 +170,7 @@ CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
     r.o = o;
     r.kz = kz;
     r.shear = (float3)(-dp.x / dp.z, -dp.y / dp.z, 1.0f / dp.z);
+    r.o_permuted = TriangleRay_Permute(o, kz);
     return r;
 }
 
@@ -226,16 +228,122 @@ CL_INLINE float Triangle_Intersect(__global const Triangle *tri, const TriangleR
     return Triangle_Hit(tri, r, tmax, &t, &b) ? t : tmax;
 }
 
-// Distance to primitive `id` (any kind) along the ray if hit before tmax, else tmax.
+// One vertex row of a TriangleBlock in the ray's frame (TriangleRay_Vertex on 8 lanes, operation
+// for operation): x and y sheared, z translated only.
+CL_INLINE void TriangleBlock_Vertices(__global const float (*p)[TRIANGLE_BLOCK_WIDTH],
+                                      const TriangleRay *r, float8 *x, float8 *y, float8 *z)
+{
+    uint kx = r->kz == 2u ? 0u : r->kz + 1u;
+    uint ky = kx == 2u ? 0u : kx + 1u;
+    float8 vx = Load8(p[kx]) - r->o_permuted.x;
+    float8 vy = Load8(p[ky]) - r->o_permuted.y;
+    float8 vz = Load8(p[r->kz]) - r->o_permuted.z;
+    *x = vx + r->shear.x * vz;
+    *y = vy + r->shear.y * vz;
+    *z = vz;
+}
+
+// Edge functions of the 8 lanes (Triangle_Edge: the two products rounded apart).
+CL_INLINE float8 TriangleBlock_Edge(float8 ax, float8 ay, float8 bx, float8 by)
+{
+    float8 p = ax * by;
+    float8 q = ay * bx;
+    return p - q;
+}
+
+// Hit mask of a block's triangles along the ray in (0, tmax) (-1 where hit), distances in *t:
+// Triangle_Hit's watertight test on 8 lanes with the same operations, so the same decisions.
+CL_INLINE int8 TriangleBlock_Hits(__global const TriangleBlock *block, const TriangleRay *r,
+                                  float tmax, float8 *t_out)
+{
+    float8 x0, y0, z0, x1, y1, z1, x2, y2, z2;
+    TriangleBlock_Vertices(block->p0, r, &x0, &y0, &z0);
+    TriangleBlock_Vertices(block->p1, r, &x1, &y1, &z1);
+    TriangleBlock_Vertices(block->p2, r, &x2, &y2, &z2);
+    // Edge functions: the origin is inside when all three share a sign
+    float8 e0 = TriangleBlock_Edge(x1, y1, x2, y2);
+    float8 e1 = TriangleBlock_Edge(x2, y2, x0, y0);
+    float8 e2 = TriangleBlock_Edge(x0, y0, x1, y1);
+    int8 negative = (e0 < 0.0f) | (e1 < 0.0f) | (e2 < 0.0f);
+    int8 positive = (e0 > 0.0f) | (e1 > 0.0f) | (e2 > 0.0f);
+    float8 det = e0 + e1 + e2;
+    // Scaled distance, compared with the range before dividing by det
+    float8 t_scaled = r->shear.z * (e0 * z0 + e1 * z1 + e2 * z2);
+    float8 t_range = tmax * det;
+    int8 outside = det < 0.0f ? (t_scaled >= 0.0f) | (t_scaled < t_range)
+                              : (t_scaled <= 0.0f) | (t_scaled > t_range);
+    float8 t = t_scaled * (1.0f / det);
+    *t_out = t;
+    return ~(negative & positive) & (det != 0.0f) & ~outside & (t > 0.0f) & (t < tmax);
+}
+
+// The nearest triangle of a block hit before tmax: its distance (tmax if none) and its
+// primitive id in *id (unchanged if none).
+CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, const TriangleRay *r,
+                                        float tmax, int *id)
+{
+    float8 t;
+    int8 hit = TriangleBlock_Hits(block, r, tmax, &t);
+    float8 t_hit = hit ? t : (float8)(INFINITY);
+    float t_min = Lanes_Min(t_hit);
+    if (!(t_min < tmax))
+        return tmax;
+    int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    *id = block->id[Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(TRIANGLE_BLOCK_WIDTH))];
+    return t_min;
+}
+
+// Distance to primitive `id` (a quad or a sphere) along the ray if hit before tmax, else tmax.
 CL_INLINE float Primitive_Intersect(const SceneData *scene, uint id, float3 o, float3 d,
-                                    const TriangleRay *r, float tmax)
+                                    float tmax)
 {
     if (id < scene->quad_count)
         return Quad_Intersect(&scene->quads[id], o, d, tmax);
-    uint s = id - scene->quad_count;
-    if (s < scene->sphere_count)
-        return Sphere_Intersect(&scene->spheres[s], o, d, tmax);
-    return Triangle_Intersect(&scene->triangles[s - scene->sphere_count], r, tmax);
+    return Sphere_Intersect(&scene->spheres[id - scene->quad_count], o, d, tmax);
+}
+
+// The nearest primitive of a BVH leaf (record at word `leaf` of bvh_prims, `count` as its lane's)
+// along the ray before *t: its triangles a block at a time, then its quads and spheres one by
+// one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
+CL_INLINE void BVHLeaf_Intersect(const SceneData *scene, uint leaf, int count, float3 o, float3 d,
+                                 const TriangleRay *r, bool any_hit, float *t, int *id)
+{
+    __global const TriangleBlock *blocks = (__global const TriangleBlock *)(scene->bvh_prims + leaf);
+    int block_count = count & BVH_LEAF_BLOCK_MASK;
+    for (int b = 0; b < block_count; ++b) {
+        *t = TriangleBlock_Intersect(&blocks[b], r, *t, id);
+        if (any_hit && *id >= 0)
+            return;
+    }
+    __global const uint *scalar_ids = (__global const uint *)(blocks + block_count);
+    int scalars = count >> BVH_LEAF_SCALAR_SHIFT;
+    for (int k = 0; k < scalars; ++k) {
+        uint p = scalar_ids[k];
+        float tp = Primitive_Intersect(scene, p, o, d, *t);
+        if (tp < *t) {
+            *t = tp;
+            *id = (int)p;
+            if (any_hit)
+                return;
+        }
+    }
+}
+
+// Bit j set where lane j of the mask is set (-1).
+CL_INLINE uint Lanes_Bits(int8 mask)
+{
+    int8 bits = mask & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    int4 b4 = bits.lo | bits.hi;
+    int2 b2 = b4.lo | b4.hi;
+    return (uint)(b2.x | b2.y);
+}
+
+// 8 ints from a 4-byte aligned address.
+typedef int Int8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
+
+CL_INLINE int8 Load8Int(__global const int *p)
+{
+    return *(__global const Int8Unaligned *)p;
 }
 
 // Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
@@ -281,61 +389,55 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
     float t = tmax;
     int id = -1;
     uint node_id = 0;
-    bool visit = true;
-    while (visit) {
+    const int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    for (;;) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
         union {
             float8 v;
             float s[BVH_WIDTH];
         } enter;
         enter.v = BVHNode_Enter(node, o, inv_d, t);
-        visit = false;
-        float next_enter = INFINITY;
-        for (int j = 0; j < BVH_WIDTH; ++j) {
-            int count = node->count[j];
-            float e = enter.s[j];
-            if (count < 0 || e == INFINITY || e > t)
+        int8 count = Load8Int(node->count);
+        int8 reached = enter.v < INFINITY;
+        // The leaves the ray reaches: their primitives, lane by lane
+        uint leaves = Lanes_Bits(reached & (count > 0));
+        while (leaves != 0u) {
+            int j = __builtin_ctz(leaves);
+            leaves &= leaves - 1u;
+            if (enter.s[j] > t)
                 continue;
-            if (count > 0) {
-                // A leaf: test its primitives
-                for (int k = 0; k < count; ++k) {
-                    uint p = scene->bvh_prims[node->child[j] + k];
-                    float tp = Primitive_Intersect(scene, p, o, d, &r, t);
-                    if (tp < t) {
-                        t = tp;
-                        id = (int)p;
-                    }
-                }
-                if (any_hit && id >= 0)
-                    break;
-                continue;
-            }
-            // A node: the nearest so far is visited next, the others wait on the stack
-            uint child = (uint)node->child[j];
-            if (e < next_enter) {
-                if (visit) {
-                    stack[top] = node_id;
-                    stack_enter[top++] = next_enter;
-                }
-                node_id = child;
-                next_enter = e;
-                visit = true;
-            } else {
-                stack[top] = child;
-                stack_enter[top++] = e;
+            BVHLeaf_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit, &t,
+                              &id);
+            if (any_hit && id >= 0) {
+                *prim = id;
+                return t;
             }
         }
-        if (any_hit && id >= 0)
-            break;
-        if (visit && next_enter <= t)
+        // The child nodes it reaches before the closest hit: the nearest next, the others kept
+        int8 inner = reached & (count == 0) & (enter.v <= t);
+        float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
+        float nearest = Lanes_Min(inner_enter);
+        if (nearest < INFINITY) {
+            int j_near = Lanes_MinInt(inner_enter == nearest ? lane_ids : (int8)(BVH_WIDTH));
+            uint others = Lanes_Bits(inner) & ~(1u << j_near);
+            while (others != 0u) {
+                int j = __builtin_ctz(others);
+                others &= others - 1u;
+                stack[top] = (uint)node->child[j];
+                stack_enter[top++] = enter.s[j];
+            }
+            node_id = (uint)node->child[j_near];
             continue;
+        }
         // Next: the most recently kept node the ray can still reach before the closest hit
-        visit = false;
+        bool visit = false;
         while (top > 0 && !visit) {
             --top;
             node_id = stack[top];
             visit = stack_enter[top] <= t;
         }
+        if (!visit)
+            break;
     }
     *prim = id;
     return t;

@@ -72,8 +72,8 @@ typedef struct {
 // A node of the bounding volume hierarchy over every primitive (clrender/bvh.py: a binary SAH
 // tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
 // as structure of arrays (one vector slab test for all of them), rounded outwards to float.
-// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf holding the
-// primitive ids bvh_prims[child[j] .. child[j] + count[j] - 1]; count[j] = -1, no child.
+// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf whose record
+// starts at word child[j] of bvh_prims (leaf records below); count[j] = -1, no child.
 // Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
 // a tree the builder never makes deeper than BVH_MAX_DEPTH.
 #define BVH_WIDTH 8
@@ -85,6 +85,24 @@ typedef struct {
     int child[BVH_WIDTH];
     int count[BVH_WIDTH];
 } BVHNode;
+
+// Up to TRIANGLE_BLOCK_WIDTH triangles of a BVH leaf as structure of arrays (one vector
+// watertight test for all of them): vertex coordinates p0[axis][lane], ..., and the scene
+// primitive id of each lane (-1: an unused lane, all vertices 0, never a hit).
+#define TRIANGLE_BLOCK_WIDTH 8
+typedef struct {
+    float p0[3][TRIANGLE_BLOCK_WIDTH];
+    float p1[3][TRIANGLE_BLOCK_WIDTH];
+    float p2[3][TRIANGLE_BLOCK_WIDTH];
+    int id[TRIANGLE_BLOCK_WIDTH];
+} TriangleBlock;
+
+// A leaf's record in bvh_prims (32-bit words; clrender/scene_device.py pack_bvh_leaves), at word
+// child[j] (a multiple of 16: 64 bytes) of a leaf lane whose count[j] = S << BVH_LEAF_SCALAR_SHIFT
+// | B: its triangles in B TriangleBlocks (floats stored as their bits), then the primitive ids
+// of its S quads and spheres.
+#define BVH_LEAF_SCALAR_SHIFT 16
+#define BVH_LEAF_BLOCK_MASK ((1 << BVH_LEAF_SCALAR_SHIFT) - 1)
 
 // One record for every material type; each type reads its own members.
 typedef struct {
@@ -133,7 +151,7 @@ typedef struct {
     __global const Triangle *triangles;
     __global const TriangleNormals *triangle_normals;
     __global const BVHNode *bvh_nodes;
-    __global const uint *bvh_prims;
+    __global const uint *bvh_prims; // the BVH leaves' records
     uint quad_count;
     uint quad_block_count;
     uint sphere_count;
