@@ -16,7 +16,7 @@ TRIANGLE_DTYPE        Triangle             mesh triangle (vertices, material, no
 NORMALS_DTYPE         TriangleNormals      mesh triangle with per-vertex shading normals
 BVH_NODE_DTYPE        BVHNode              8-wide node of the BVH over every primitive (bvh.py)
 TRIANGLE_BLOCK_DTYPE  TriangleBlock        8 triangles of a BVH leaf, structure of arrays (in the
-                                           leaf records, pack_bvh_leaves)
+                                           leaf records, pack_bvh_leaves, with quad blocks)
 MATERIAL_DTYPE        Material             material (MATERIAL_TYPES tags)
 EMITTER_DTYPE         Emitter              emitting quad, sphere or mesh triangle, with its
                                            light-selection pdf and cdf
@@ -87,18 +87,19 @@ TRIANGLE_DTYPE = np.dtype(
     ]
 )
 NORMALS_DTYPE = np.dtype([("n", "<f4", (3, 3))])
-TRIANGLE_BLOCK_WIDTH = 8  # fixed in kernels/scene_types.h
+BVH_BLOCK_WIDTH = 8  # lanes of a BVH leaf's blocks: fixed in kernels/scene_types.h
 TRIANGLE_BLOCK_DTYPE = np.dtype(
     [
-        ("p0", "<f4", (3, TRIANGLE_BLOCK_WIDTH)),
-        ("p1", "<f4", (3, TRIANGLE_BLOCK_WIDTH)),
-        ("p2", "<f4", (3, TRIANGLE_BLOCK_WIDTH)),
-        ("id", "<i4", TRIANGLE_BLOCK_WIDTH),
+        ("p0", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("p1", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("p2", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("id", "<i4", BVH_BLOCK_WIDTH),
     ]
 )
-# BVH leaf records (pack_bvh_leaves): a leaf lane's count packs its quads and spheres (above this
-# bit) and its triangle blocks (below); records start at multiples of BVH_LEAF_ALIGN words (64 bytes).
-BVH_LEAF_SCALAR_SHIFT = 16
+# BVH leaf records (pack_bvh_leaves): a leaf lane's count packs its triangle blocks, quad blocks
+# and spheres, as (shift, bits) each (BVH_LEAF_* in kernels/scene_types.h); records start at
+# multiples of BVH_LEAF_ALIGN words (64 bytes).
+BVH_LEAF_FIELDS = ((0, 16), (16, 8), (24, 7))
 BVH_LEAF_ALIGN = 16
 # Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
 # triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
@@ -342,66 +343,118 @@ def pack_bvh(
     if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
         return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
     nodes, prims = build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
-    return pack_bvh_leaves(nodes, prims, len(quads) + len(spheres), triangles)
+    return pack_bvh_leaves(nodes, prims, quads, len(spheres), triangles)
+
+
+def _field_words(dtype: np.dtype, name: str) -> int:
+    """Word offset of a field in a record of 4-byte members."""
+    return dtype.fields[name][1] // 4
+
+
+def _fill_block_lanes(words, block_start, lane, dtype, values: dict) -> None:
+    """Write per-member values (name: (N, rows) or (N,) arrays of 4-byte items) into the lanes
+    `lane` of the blocks (dtype: structure of arrays, BLOCK_WIDTH lanes a row) at word
+    block_start."""
+    for name, value in values.items():
+        rows = int(np.prod(value.shape[1:], dtype=int))
+        bits = np.ascontiguousarray(value).view(np.uint32).reshape(len(lane), rows)
+        first = block_start + _field_words(dtype, name) + lane
+        for row in range(rows):
+            words[first + row * BVH_BLOCK_WIDTH] = bits[:, row]
 
 
 def pack_bvh_leaves(
-    nodes: np.ndarray, prims: np.ndarray, scalar_count: int, triangles: np.ndarray
+    nodes: np.ndarray,
+    prims: np.ndarray,
+    quads: np.ndarray,
+    sphere_count: int,
+    triangles: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The device's nodes and leaf records (kernels/scene_types.h, BVH leaf records) of a wide BVH
-    whose leaves hold prims[child .. child + count - 1]: a leaf's record holds its triangles in
-    TRIANGLE_BLOCK_DTYPE blocks (in the leaf's order; unused lanes all zero, id -1), then the ids
-    of its quads and spheres (ids below scalar_count), as uint32 words, and starts at a multiple
-    of BVH_LEAF_ALIGN words; its lane in the node gets child = the record's first word and count
-    = (quads and spheres) << BVH_LEAF_SCALAR_SHIFT | blocks. NumPy over all leaves at once."""
+    whose leaves hold prims[child .. child + count - 1] (primitive ids: quads, spheres, then
+    triangles): a leaf's record holds its triangles in TRIANGLE_BLOCK_DTYPE blocks, its quads in
+    quad_block_dtype() blocks (each in the leaf's order; unused lanes never hit, id -1), then
+    its spheres' ids, as uint32 words, and starts at a multiple of BVH_LEAF_ALIGN words; its
+    lane in the node gets child = the record's first word and count = the three numbers packed
+    by BVH_LEAF_FIELDS. NumPy over all leaves at once."""
     nodes = nodes.copy()
+    quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
+    first_triangle = len(quads) + sphere_count
     leaf_node, leaf_lane = np.nonzero(nodes["count"] > 0)
     start = nodes["child"][leaf_node, leaf_lane].astype(np.int64)
     count = nodes["count"][leaf_node, leaf_lane].astype(np.int64)
-    # Every leaf's members in leaf order, its triangles first (a stable sort)
+    # Every leaf's members in leaf order, grouped by kind (0 triangle, 1 quad, 2 sphere; stable)
     leaf_of = np.repeat(np.arange(len(start)), count)
     rank = np.arange(len(leaf_of)) - (np.cumsum(count) - count)[leaf_of]
     ids = prims[start[leaf_of] + rank].astype(np.int64)
-    is_scalar = ids < scalar_count
-    order = np.argsort(2 * leaf_of + is_scalar, kind="stable")
-    ids, is_scalar = ids[order], is_scalar[order]
-    scalars = np.bincount(leaf_of[is_scalar], minlength=len(start))
-    blocks = -(-(count - scalars) // TRIANGLE_BLOCK_WIDTH)
-    if len(start) and (
-        scalars.max() >= 2 ** (31 - BVH_LEAF_SCALAR_SHIFT) or blocks.max() >= 2**BVH_LEAF_SCALAR_SHIFT
-    ):
-        raise ClrenderError(
-            f"BVH: a leaf of {int(count.max())} primitives (more than the device's leaf records "
-            "hold): too many primitives share one place in the scene"
-        )
-    block_words = TRIANGLE_BLOCK_DTYPE.itemsize // 4
-    size = block_words * blocks + scalars
+    kind = np.where(ids >= first_triangle, 0, np.where(ids < len(quads), 1, 2))
+    order = np.argsort(3 * leaf_of + kind, kind="stable")
+    ids, kind = ids[order], kind[order]
+    per_kind = [np.bincount(leaf_of[kind == k], minlength=len(start)) for k in range(3)]
+    triangle_blocks = -(-per_kind[0] // BVH_BLOCK_WIDTH)
+    quad_blocks = -(-per_kind[1] // BVH_BLOCK_WIDTH)
+    packed = (triangle_blocks, quad_blocks, per_kind[2])
+    fields = np.zeros(len(start), np.int64)
+    for value, (shift, bits) in zip(packed, BVH_LEAF_FIELDS, strict=True):
+        if len(start) and value.max() >= 2**bits:
+            raise ClrenderError(
+                f"BVH: a leaf of {int(count.max())} primitives in one place, more than the "
+                "device's leaf records hold: spread out the coincident shapes"
+            )
+        fields |= value << shift
+    # Each leaf's record: triangle blocks, quad blocks, sphere ids (padded to BVH_LEAF_ALIGN)
+    triangle_words = TRIANGLE_BLOCK_DTYPE.itemsize // 4
+    quad_words = quad_dtype.itemsize // 4
+    size = triangle_words * triangle_blocks + quad_words * quad_blocks + per_kind[2]
     size = -(-size // BVH_LEAF_ALIGN) * BVH_LEAF_ALIGN
     offset = np.cumsum(size) - size
+    quads_at = offset + triangle_words * triangle_blocks
+    spheres_at = quads_at + quad_words * quad_blocks
     words = np.zeros(int(size.sum()), np.uint32)
-    # Every block's ids start unused (-1)
-    block_leaf = np.repeat(np.arange(len(start)), blocks)
-    block_rank = np.arange(len(block_leaf)) - (np.cumsum(blocks) - blocks)[block_leaf]
-    id_words = offset[block_leaf] + block_words * block_rank + 9 * TRIANGLE_BLOCK_WIDTH
-    words[id_words[:, None] + np.arange(TRIANGLE_BLOCK_WIDTH)] = np.uint32(0xFFFFFFFF)
-    # Triangles: block and lane from the rank among the leaf's triangles
-    triangle_leaf = leaf_of[~is_scalar]
-    triangle_rank = rank[~is_scalar]
-    block_start = offset[triangle_leaf] + block_words * (triangle_rank // TRIANGLE_BLOCK_WIDTH)
-    lane = triangle_rank % TRIANGLE_BLOCK_WIDTH
-    triangle_ids = ids[~is_scalar]
-    tri = triangles[triangle_ids - scalar_count]
-    for v, key in enumerate(("p0", "p1", "p2")):
-        bits = np.ascontiguousarray(tri[key], np.float32).view(np.uint32)
-        for axis in range(3):
-            words[block_start + (3 * v + axis) * TRIANGLE_BLOCK_WIDTH + lane] = bits[:, axis]
-    words[block_start + 9 * TRIANGLE_BLOCK_WIDTH + lane] = triangle_ids
-    # Quads and spheres after the blocks
-    scalar_leaf = leaf_of[is_scalar]
-    scalar_rank = rank[is_scalar] - (count - scalars)[scalar_leaf]
-    words[offset[scalar_leaf] + block_words * blocks[scalar_leaf] + scalar_rank] = ids[is_scalar]
+    # Unused lanes: id -1; a quad's plane_d -1 with a zero normal (t = -inf, never a hit)
+    lanes = np.arange(BVH_BLOCK_WIDTH)
+    for blocks, first, block_words, dtype, unused in (
+        (triangle_blocks, offset, triangle_words, TRIANGLE_BLOCK_DTYPE, {"id": -1}),
+        (quad_blocks, quads_at, quad_words, quad_dtype, {"quad": -1, "plane_d": -1.0}),
+    ):
+        block_leaf = np.repeat(np.arange(len(start)), blocks)
+        block_rank = np.arange(len(block_leaf)) - (np.cumsum(blocks) - blocks)[block_leaf]
+        base = first[block_leaf] + block_words * block_rank
+        for name, value in unused.items():
+            bits = np.array(value, dtype.fields[name][0].base).view(np.uint32)
+            words[(base + _field_words(dtype, name))[:, None] + lanes] = bits
+    # Each member into its block and lane (from its rank among the leaf's members of its kind)
+    kind_rank = rank - np.where(kind >= 1, per_kind[0][leaf_of], 0)
+    kind_rank -= np.where(kind == 2, per_kind[1][leaf_of], 0)
+    is_triangle = kind == 0
+    triangle_rank = kind_rank[is_triangle]
+    triangle_ids = ids[is_triangle]
+    tri = triangles[triangle_ids - first_triangle]
+    _fill_block_lanes(
+        words,
+        offset[leaf_of[is_triangle]] + triangle_words * (triangle_rank // BVH_BLOCK_WIDTH),
+        triangle_rank % BVH_BLOCK_WIDTH,
+        TRIANGLE_BLOCK_DTYPE,
+        {"p0": tri["p0"], "p1": tri["p1"], "p2": tri["p2"], "id": triangle_ids.astype(np.int32)},
+    )
+    is_quad = kind == 1
+    quad_rank = kind_rank[is_quad]
+    quad_ids = ids[is_quad]
+    quad = quads[quad_ids]
+    _fill_block_lanes(
+        words,
+        quads_at[leaf_of[is_quad]] + quad_words * (quad_rank // BVH_BLOCK_WIDTH),
+        quad_rank % BVH_BLOCK_WIDTH,
+        quad_dtype,
+        {
+            **{key: quad[key] for key in ("corner", "normal", "u_dual", "v_dual", "plane_d")},
+            "quad": quad_ids.astype(np.int32),
+        },
+    )
+    is_sphere = kind == 2
+    words[spheres_at[leaf_of[is_sphere]] + kind_rank[is_sphere]] = ids[is_sphere]
     nodes["child"][leaf_node, leaf_lane] = offset
-    nodes["count"][leaf_node, leaf_lane] = scalars << BVH_LEAF_SCALAR_SHIFT | blocks
+    nodes["count"][leaf_node, leaf_lane] = fields
     return nodes, words
 
 

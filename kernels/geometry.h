@@ -125,22 +125,6 @@ CL_INLINE float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, f
     return (t > 0.0f && t < tmax) ? t : tmax;
 }
 
-// Distance to a single quad along the ray if hit before tmax, else tmax: the lane test of
-// QuadBlock_Hits on the Quad record, operation for operation (the BVH's leaves use it).
-CL_INLINE float Quad_Intersect(__global const Quad *q, float3 o, float3 d, float tmax)
-{
-    float3 n = Load3(q->normal);
-    float t = (q->plane_d - (n.x * o.x + n.y * o.y + n.z * o.z)) /
-              (n.x * d.x + n.y * d.y + n.z * d.z);
-    float rx = o.x + t * d.x - q->corner[0];
-    float ry = o.y + t * d.y - q->corner[1];
-    float rz = o.z + t * d.z - q->corner[2];
-    float a = rx * q->u_dual[0] + ry * q->u_dual[1] + rz * q->u_dual[2];
-    float b = rx * q->v_dual[0] + ry * q->v_dual[1] + rz * q->v_dual[2];
-    bool hit = t > 0.0f && t < tmax && a >= 0.0f && a <= 1.0f && b >= 0.0f && b <= 1.0f;
-    return hit ? t : tmax;
-}
-
 // A ray prepared for watertight triangle tests (Woop, Benthin and Wald 2013, as pbrt-v4):
 // its origin, the axis permutation that makes the largest direction component z, and the
 // shear taking the direction to +z.
@@ -230,7 +214,7 @@ CL_INLINE float Triangle_Intersect(__global const Triangle *tri, const TriangleR
 
 // One vertex row of a TriangleBlock in the ray's frame (TriangleRay_Vertex on 8 lanes, operation
 // for operation): x and y sheared, z translated only.
-CL_INLINE void TriangleBlock_Vertices(__global const float (*p)[TRIANGLE_BLOCK_WIDTH],
+CL_INLINE void TriangleBlock_Vertices(__global const float (*p)[BVH_BLOCK_WIDTH],
                                       const TriangleRay *r, float8 *x, float8 *y, float8 *z)
 {
     uint kx = r->kz == 2u ? 0u : r->kz + 1u;
@@ -289,37 +273,44 @@ CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, con
     if (!(t_min < tmax))
         return tmax;
     int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    *id = block->id[Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(TRIANGLE_BLOCK_WIDTH))];
+    *id = block->id[Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(BVH_BLOCK_WIDTH))];
     return t_min;
 }
 
-// Distance to primitive `id` (a quad or a sphere) along the ray if hit before tmax, else tmax.
-CL_INLINE float Primitive_Intersect(const SceneData *scene, uint id, float3 o, float3 d,
-                                    float tmax)
-{
-    if (id < scene->quad_count)
-        return Quad_Intersect(&scene->quads[id], o, d, tmax);
-    return Sphere_Intersect(&scene->spheres[id - scene->quad_count], o, d, tmax);
-}
-
 // The nearest primitive of a BVH leaf (record at word `leaf` of bvh_prims, `count` as its lane's)
-// along the ray before *t: its triangles a block at a time, then its quads and spheres one by
-// one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
+// along the ray before *t: its triangles and its quads a block at a time, then its spheres one
+// by one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
 CL_INLINE void BVHLeaf_Intersect(const SceneData *scene, uint leaf, int count, float3 o, float3 d,
                                  const TriangleRay *r, bool any_hit, float *t, int *id)
 {
-    __global const TriangleBlock *blocks = (__global const TriangleBlock *)(scene->bvh_prims + leaf);
-    int block_count = count & BVH_LEAF_BLOCK_MASK;
-    for (int b = 0; b < block_count; ++b) {
-        *t = TriangleBlock_Intersect(&blocks[b], r, *t, id);
+    // Triangle blocks
+    __global const TriangleBlock *triangles =
+        (__global const TriangleBlock *)(scene->bvh_prims + leaf);
+    int triangle_blocks = BVH_LEAF_TRIANGLE_BLOCKS(count);
+    for (int b = 0; b < triangle_blocks; ++b) {
+        *t = TriangleBlock_Intersect(&triangles[b], r, *t, id);
         if (any_hit && *id >= 0)
             return;
     }
-    __global const uint *scalar_ids = (__global const uint *)(blocks + block_count);
-    int scalars = count >> BVH_LEAF_SCALAR_SHIFT;
-    for (int k = 0; k < scalars; ++k) {
-        uint p = scalar_ids[k];
-        float tp = Primitive_Intersect(scene, p, o, d, *t);
+    // Quad blocks
+    __global const QuadBlock *quads = (__global const QuadBlock *)(triangles + triangle_blocks);
+    int quad_blocks = BVH_LEAF_QUAD_BLOCKS(count);
+    for (int b = 0; b < quad_blocks; ++b) {
+        int lane;
+        float tb = QuadBlock_Intersect(&quads[b], o, d, *t, &lane);
+        if (tb < *t) {
+            *t = tb;
+            *id = quads[b].quad[lane];
+            if (any_hit)
+                return;
+        }
+    }
+    // Spheres
+    __global const uint *spheres = (__global const uint *)(quads + quad_blocks);
+    int sphere_count = BVH_LEAF_SPHERES(count);
+    for (int k = 0; k < sphere_count; ++k) {
+        uint p = spheres[k];
+        float tp = Sphere_Intersect(&scene->spheres[p - scene->quad_count], o, d, *t);
         if (tp < *t) {
             *t = tp;
             *id = (int)p;

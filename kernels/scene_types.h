@@ -86,23 +86,24 @@ typedef struct {
     int count[BVH_WIDTH];
 } BVHNode;
 
-// Up to TRIANGLE_BLOCK_WIDTH triangles of a BVH leaf as structure of arrays (one vector
-// watertight test for all of them): vertex coordinates p0[axis][lane], ..., and the scene
-// primitive id of each lane (-1: an unused lane, all vertices 0, never a hit).
-#define TRIANGLE_BLOCK_WIDTH 8
+// Up to BVH_BLOCK_WIDTH triangles of a BVH leaf as structure of arrays (one vector watertight
+// test for all of them): vertex coordinates p0[axis][lane], ..., and the scene primitive id of
+// each lane (-1: an unused lane, all vertices 0, never a hit).
+#define BVH_BLOCK_WIDTH 8
 typedef struct {
-    float p0[3][TRIANGLE_BLOCK_WIDTH];
-    float p1[3][TRIANGLE_BLOCK_WIDTH];
-    float p2[3][TRIANGLE_BLOCK_WIDTH];
-    int id[TRIANGLE_BLOCK_WIDTH];
+    float p0[3][BVH_BLOCK_WIDTH];
+    float p1[3][BVH_BLOCK_WIDTH];
+    float p2[3][BVH_BLOCK_WIDTH];
+    int id[BVH_BLOCK_WIDTH];
 } TriangleBlock;
 
 // A leaf's record in bvh_prims (32-bit words; clrender/scene_device.py pack_bvh_leaves), at word
-// child[j] (a multiple of 16: 64 bytes) of a leaf lane whose count[j] = S << BVH_LEAF_SCALAR_SHIFT
-// | B: its triangles in B TriangleBlocks (floats stored as their bits), then the primitive ids
-// of its S quads and spheres.
-#define BVH_LEAF_SCALAR_SHIFT 16
-#define BVH_LEAF_BLOCK_MASK ((1 << BVH_LEAF_SCALAR_SHIFT) - 1)
+// child[j] (a multiple of 16: 64 bytes) of its lane: its triangles in TriangleBlocks, its quads
+// in QuadBlocks (unused lanes as in brute force's; bounds unused), then its spheres' primitive
+// ids; floats stored as their bits. The lane's count[j] packs the three numbers.
+#define BVH_LEAF_TRIANGLE_BLOCKS(count) ((count) & 0xffff)
+#define BVH_LEAF_QUAD_BLOCKS(count) (((count) >> 16) & 0xff)
+#define BVH_LEAF_SPHERES(count) ((count) >> 24)
 
 // One record for every material type; each type reads its own members.
 typedef struct {
