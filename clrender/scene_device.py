@@ -372,37 +372,42 @@ def pack_bvh_leaves(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The device's nodes and leaf records (kernels/scene_types.h, BVH leaf records) of a wide BVH
     whose leaves hold prims[child .. child + count - 1] (primitive ids: quads, spheres, then
-    triangles): a leaf's record holds its triangles in TRIANGLE_BLOCK_DTYPE blocks, its quads in
-    quad_block_dtype() blocks (each in the leaf's order; unused lanes never hit, id -1), then
-    its spheres' ids, as uint32 words, and starts at a multiple of BVH_LEAF_ALIGN words; its
-    lane in the node gets child = the record's first word and count = the three numbers packed
-    by BVH_LEAF_FIELDS. NumPy over all leaves at once."""
+    triangles). The leaves of one node share a record: their triangles in TRIANGLE_BLOCK_DTYPE
+    blocks, their quads in quad_block_dtype() blocks (each in lane and leaf order; unused lanes
+    never hit, id -1), then their spheres' ids, as uint32 words, starting at a multiple of
+    BVH_LEAF_ALIGN words; every leaf lane of the node gets child = the record's first word and
+    count = the three numbers packed by BVH_LEAF_FIELDS. NumPy over all leaves at once."""
     nodes = nodes.copy()
     quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
     first_triangle = len(quads) + sphere_count
     leaf_node, leaf_lane = np.nonzero(nodes["count"] > 0)
     start = nodes["child"][leaf_node, leaf_lane].astype(np.int64)
     count = nodes["count"][leaf_node, leaf_lane].astype(np.int64)
-    # Every leaf's members in leaf order, grouped by kind (0 triangle, 1 quad, 2 sphere; stable)
+    _, record_of_leaf = np.unique(leaf_node, return_inverse=True)
+    records = int(record_of_leaf.max(initial=-1)) + 1
+    # Every record's members in lane and leaf order, grouped by kind (0 triangle, 1 quad,
+    # 2 sphere; a stable sort)
     leaf_of = np.repeat(np.arange(len(start)), count)
-    rank = np.arange(len(leaf_of)) - (np.cumsum(count) - count)[leaf_of]
-    ids = prims[start[leaf_of] + rank].astype(np.int64)
+    ids = prims[start[leaf_of] + np.arange(len(leaf_of)) - (np.cumsum(count) - count)[leaf_of]]
+    record_of = record_of_leaf[leaf_of]
     kind = np.where(ids >= first_triangle, 0, np.where(ids < len(quads), 1, 2))
-    order = np.argsort(3 * leaf_of + kind, kind="stable")
-    ids, kind = ids[order], kind[order]
-    per_kind = [np.bincount(leaf_of[kind == k], minlength=len(start)) for k in range(3)]
+    order = np.argsort(3 * record_of + kind, kind="stable")
+    ids, kind = ids[order].astype(np.int64), kind[order]
+    per_kind = [np.bincount(record_of[kind == k], minlength=records) for k in range(3)]
+    members = per_kind[0] + per_kind[1] + per_kind[2]
+    rank = np.arange(len(record_of)) - (np.cumsum(members) - members)[record_of]
     triangle_blocks = -(-per_kind[0] // BVH_BLOCK_WIDTH)
     quad_blocks = -(-per_kind[1] // BVH_BLOCK_WIDTH)
     packed = (triangle_blocks, quad_blocks, per_kind[2])
-    fields = np.zeros(len(start), np.int64)
+    fields = np.zeros(records, np.int64)
     for value, (shift, bits) in zip(packed, BVH_LEAF_FIELDS, strict=True):
-        if len(start) and value.max() >= 2**bits:
+        if records and value.max() >= 2**bits:
             raise ClrenderError(
                 f"BVH: a leaf of {int(count.max())} primitives in one place, more than the "
                 "device's leaf records hold: spread out the coincident shapes"
             )
         fields |= value << shift
-    # Each leaf's record: triangle blocks, quad blocks, sphere ids (padded to BVH_LEAF_ALIGN)
+    # Each record: triangle blocks, quad blocks, sphere ids (padded to BVH_LEAF_ALIGN)
     triangle_words = TRIANGLE_BLOCK_DTYPE.itemsize // 4
     quad_words = quad_dtype.itemsize // 4
     size = triangle_words * triangle_blocks + quad_words * quad_blocks + per_kind[2]
@@ -417,22 +422,22 @@ def pack_bvh_leaves(
         (triangle_blocks, offset, triangle_words, TRIANGLE_BLOCK_DTYPE, {"id": -1}),
         (quad_blocks, quads_at, quad_words, quad_dtype, {"quad": -1, "plane_d": -1.0}),
     ):
-        block_leaf = np.repeat(np.arange(len(start)), blocks)
+        block_leaf = np.repeat(np.arange(records), blocks)
         block_rank = np.arange(len(block_leaf)) - (np.cumsum(blocks) - blocks)[block_leaf]
         base = first[block_leaf] + block_words * block_rank
         for name, value in unused.items():
             bits = np.array(value, dtype.fields[name][0].base).view(np.uint32)
             words[(base + _field_words(dtype, name))[:, None] + lanes] = bits
-    # Each member into its block and lane (from its rank among the leaf's members of its kind)
-    kind_rank = rank - np.where(kind >= 1, per_kind[0][leaf_of], 0)
-    kind_rank -= np.where(kind == 2, per_kind[1][leaf_of], 0)
+    # Each member into its block and lane (from its rank among the record's members of its kind)
+    kind_rank = rank - np.where(kind >= 1, per_kind[0][record_of], 0)
+    kind_rank -= np.where(kind == 2, per_kind[1][record_of], 0)
     is_triangle = kind == 0
     triangle_rank = kind_rank[is_triangle]
     triangle_ids = ids[is_triangle]
     tri = triangles[triangle_ids - first_triangle]
     _fill_block_lanes(
         words,
-        offset[leaf_of[is_triangle]] + triangle_words * (triangle_rank // BVH_BLOCK_WIDTH),
+        offset[record_of[is_triangle]] + triangle_words * (triangle_rank // BVH_BLOCK_WIDTH),
         triangle_rank % BVH_BLOCK_WIDTH,
         TRIANGLE_BLOCK_DTYPE,
         {"p0": tri["p0"], "p1": tri["p1"], "p2": tri["p2"], "id": triangle_ids.astype(np.int32)},
@@ -443,7 +448,7 @@ def pack_bvh_leaves(
     quad = quads[quad_ids]
     _fill_block_lanes(
         words,
-        quads_at[leaf_of[is_quad]] + quad_words * (quad_rank // BVH_BLOCK_WIDTH),
+        quads_at[record_of[is_quad]] + quad_words * (quad_rank // BVH_BLOCK_WIDTH),
         quad_rank % BVH_BLOCK_WIDTH,
         quad_dtype,
         {
@@ -452,9 +457,9 @@ def pack_bvh_leaves(
         },
     )
     is_sphere = kind == 2
-    words[spheres_at[leaf_of[is_sphere]] + kind_rank[is_sphere]] = ids[is_sphere]
-    nodes["child"][leaf_node, leaf_lane] = offset
-    nodes["count"][leaf_node, leaf_lane] = fields
+    words[spheres_at[record_of[is_sphere]] + kind_rank[is_sphere]] = ids[is_sphere]
+    nodes["child"][leaf_node, leaf_lane] = offset[record_of_leaf]
+    nodes["count"][leaf_node, leaf_lane] = fields[record_of_leaf]
     return nodes, words
 
 

@@ -390,13 +390,10 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
         enter.v = BVHNode_Enter(node, o, inv_d, t);
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
-        // The leaves the ray reaches: their primitives, lane by lane
+        // A leaf the ray reaches: the primitives of all the node's leaves (one shared record)
         uint leaves = Lanes_Bits(reached & (count > 0));
-        while (leaves != 0u) {
+        if (leaves != 0u) {
             int j = __builtin_ctz(leaves);
-            leaves &= leaves - 1u;
-            if (enter.s[j] > t)
-                continue;
             BVHLeaf_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit, &t,
                               &id);
             if (any_hit && id >= 0) {
