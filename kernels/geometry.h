@@ -408,11 +408,22 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
         if (nearest < INFINITY) {
             int j_near = Lanes_MinInt(inner_enter == nearest ? lane_ids : (int8)(BVH_WIDTH));
             uint others = Lanes_Bits(inner) & ~(1u << j_near);
+            int first = top;
             while (others != 0u) {
                 int j = __builtin_ctz(others);
                 others &= others - 1u;
-                stack[top] = (uint)node->child[j];
-                stack_enter[top++] = enter.s[j];
+                // Closest hit: kept farthest first, so the nearest is taken next (insertion
+                // sort); any hit: in lane order
+                float e = enter.s[j];
+                uint c = (uint)node->child[j];
+                int k = top++;
+                while (!any_hit && k > first && stack_enter[k - 1] < e) {
+                    stack[k] = stack[k - 1];
+                    stack_enter[k] = stack_enter[k - 1];
+                    --k;
+                }
+                stack[k] = c;
+                stack_enter[k] = e;
             }
             node_id = (uint)node->child[j_near];
             continue;
