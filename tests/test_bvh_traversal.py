@@ -319,3 +319,30 @@ def test_too_many_coincident_primitives_are_refused(shape):
         pack_bvh(quads, spheres[1:], triangles, -1)
     else:
         pack_bvh(quads[8:], spheres, triangles, -1)
+
+
+def test_bvh_equals_brute_force_with_every_kind_in_the_leaves(runtime, tmp_path):
+    """Quads, spheres and triangles mixed in the nodes' records: ids and distances of the
+    closest hits equal brute force's, and so do shadow rays' answers."""
+    scene = mixed_scene(tmp_path, 32, quads=120, spheres=60, triangles=2000)
+    nodes, _ = scene.bvh(brute_force_limit=-1)
+    leaf = nodes["count"] > 0
+    counts = nodes["count"][leaf]
+    (_, tri_bits), (quad_shift, quad_bits), (sphere_shift, _) = BVH_LEAF_FIELDS
+    assert (
+        (counts & (2**tri_bits - 1) > 0) & (counts >> quad_shift & (2**quad_bits - 1) > 0)
+    ).any()
+    assert (counts >> sphere_shift > 0).any()
+    rng = np.random.default_rng(33)
+    origins = rng.uniform(-1.2, 1.2, (20000, 3))
+    directions = rng.normal(size=(20000, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    t_brute, prim_brute = device_intersect(runtime, scene, origins, directions, False)
+    t_bvh, prim_bvh = device_intersect(runtime, scene, origins, directions, True)
+    assert (prim_brute >= 0).mean() > 0.5
+    np.testing.assert_array_equal(prim_bvh, prim_brute)
+    np.testing.assert_array_equal(t_bvh, t_brute)
+    tmax = rng.uniform(0.0, 1.0, len(origins))
+    blocked = device_occluded(runtime, scene, origins, directions, tmax, True)
+    np.testing.assert_array_equal(blocked, t_brute < tmax)
+    assert 0.1 < blocked.mean() < 0.9
