@@ -42,12 +42,9 @@ BVH_NODE_DTYPE = np.dtype(
 BVH_MAX_DEPTH = 40
 BVH_BINS = 16
 LEAF_MAX = 8
-# Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2). The device tests
-# a node's leaves 8 primitives at a time (scene_device.pack_bvh_leaves), so primitives are cheap
-# next to the memory a node costs: 3 makes fewer, fuller leaves (100 000 triangles: 4.5 per leaf
-# and half the nodes of 1) and traces about 20 % faster than 1 or 2, as fast as 4-6
-# (bench/bvh_scaling.py).
-TRAVERSAL_COST = 3.0
+# Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
+# up to 8 trace 5-10 % faster here: bench/bvh_scaling.py).
+TRAVERSAL_COST = 1.0
 # Primitive bounds are widened by this fraction of their largest coordinate magnitude: far above
 # the rounding of the slab test and of the primitive tests (so a box never rejects a ray that
 # hits one of its primitives; flat primitives get boxes of non-zero thickness).
