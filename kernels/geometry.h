@@ -1,7 +1,8 @@
 // Ray-primitive intersection. Small scenes: every block of quads (one vector test per block)
 // whose bounding box the ray meets, then every sphere, then every triangle. Larger scenes
 // (bvh_node_count > 0): a bounding volume hierarchy over all primitives (clrender/bvh.py),
-// traversed with a short private stack.
+// traversed with a private stack, the leaves of a node tested together (triangles and quads 8
+// at a time).
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
 // quad_count + sphere_count + k; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
@@ -32,6 +33,28 @@ typedef struct {
 CL_INLINE float MaxAbs3(float3 v)
 {
     return Fmax(Fabs(v.x), Fmax(Fabs(v.y), Fabs(v.z)));
+}
+
+// Bit j set where lane j of the mask is set (-1): one instruction with AVX (the sign bits),
+// else a reduction.
+CL_INLINE uint Lanes_Bits(int8 mask)
+{
+#if defined(__AVX__)
+    return (uint)__builtin_ia32_movmskps256(as_float8(mask));
+#else
+    int8 bits = mask & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    int4 b4 = bits.lo | bits.hi;
+    int2 b2 = b4.lo | b4.hi;
+    return (uint)(b2.x | b2.y);
+#endif
+}
+
+// 8 ints from a 4-byte aligned address.
+typedef int Int8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
+
+CL_INLINE int8 Load8Int(__global const int *p)
+{
+    return *(__global const Int8Unaligned *)p;
 }
 
 // Whether the ray o + t d (inv_d = 1 / d) can meet the box [lower, upper] for some t in
@@ -88,8 +111,7 @@ CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, f
     int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
     float8 t_hit = hit ? t : (float8)(INFINITY);
     float t_min = Lanes_Min(t_hit);
-    int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    *lane = Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(QUAD_BLOCK_WIDTH));
+    *lane = __builtin_ctz(Lanes_Bits(t_hit == t_min) | (1u << QUAD_BLOCK_WIDTH));
     return t_min < tmax ? t_min : tmax;
 }
 
@@ -98,10 +120,7 @@ CL_INLINE bool QuadBlock_Occluded(__global const QuadBlock *block, float3 o, flo
                                   float tmax)
 {
     float8 t;
-    int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
-    int4 h4 = hit.lo | hit.hi;
-    int2 h2 = h4.lo | h4.hi;
-    return (h2.x | h2.y) != 0;
+    return Lanes_Bits(QuadBlock_Hits(block, o, d, tmax, &t)) != 0u;
 }
 
 // Distance along d (unit) to the nearest sphere crossing ahead, or tmax.
@@ -131,7 +150,7 @@ CL_INLINE float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, f
 typedef struct {
     float3 o;
     uint kz;      // the permuted z axis; x and y follow it cyclically
-    float3 shear; // (-dx / dz, -dy / dz, 1 / dz) after permutation
+    float3 shear;      // (-dx / dz, -dy / dz, 1 / dz) after permutation
     float3 o_permuted; // o with its axes permuted (TriangleBlock_Hits subtracts it by axis)
 } TriangleRay;
 
@@ -272,20 +291,19 @@ CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, con
     float t_min = Lanes_Min(t_hit);
     if (!(t_min < tmax))
         return tmax;
-    int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    *id = block->id[Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(BVH_BLOCK_WIDTH))];
+    *id = block->id[__builtin_ctz(Lanes_Bits(t_hit == t_min))];
     return t_min;
 }
 
-// The nearest primitive of a BVH leaf (record at word `leaf` of bvh_prims, `count` as its lane's)
-// along the ray before *t: its triangles and its quads a block at a time, then its spheres one
-// by one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
-CL_INLINE void BVHLeaf_Intersect(const SceneData *scene, uint leaf, int count, float3 o, float3 d,
-                                 const TriangleRay *r, bool any_hit, float *t, int *id)
+// The nearest primitive of a node's leaves (their shared record at word `record` of bvh_prims,
+// `count` as their lanes') along the ray before *t: triangles and quads a block at a time, then
+// spheres one by one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
+CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int count, float3 o,
+                                   float3 d, const TriangleRay *r, bool any_hit, float *t, int *id)
 {
     // Triangle blocks
     __global const TriangleBlock *triangles =
-        (__global const TriangleBlock *)(scene->bvh_prims + leaf);
+        (__global const TriangleBlock *)(scene->bvh_prims + record);
     int triangle_blocks = BVH_LEAF_TRIANGLE_BLOCKS(count);
     for (int b = 0; b < triangle_blocks; ++b) {
         *t = TriangleBlock_Intersect(&triangles[b], r, *t, id);
@@ -320,23 +338,6 @@ CL_INLINE void BVHLeaf_Intersect(const SceneData *scene, uint leaf, int count, f
     }
 }
 
-// Bit j set where lane j of the mask is set (-1).
-CL_INLINE uint Lanes_Bits(int8 mask)
-{
-    int8 bits = mask & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
-    int4 b4 = bits.lo | bits.hi;
-    int2 b2 = b4.lo | b4.hi;
-    return (uint)(b2.x | b2.y);
-}
-
-// 8 ints from a 4-byte aligned address.
-typedef int Int8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
-
-CL_INLINE int8 Load8Int(__global const int *p)
-{
-    return *(__global const Int8Unaligned *)p;
-}
-
 // Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
 // meets it within [0, tmax] (finite), else INFINITY (the slab test of Bounds_Hit, 8 boxes at
 // once).
@@ -366,9 +367,10 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
 // with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
-// at once; the leaves among them are tested right away, the nearest child node is visited next
-// and the others kept on a private stack with their entry distances (skipped when popped if a
-// closer hit was found since).
+// at once; if the ray reaches any of its leaves, all of them are tested right away (8 primitives
+// at a time, one record: fewer, fuller blocks than leaf by leaf); the nearest child node is
+// visited next and the others kept on a private stack with their entry distances, nearest on
+// top (skipped when taken if a closer hit was found since).
 CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
                               bool any_hit, int *prim)
 {
@@ -380,7 +382,6 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
     float t = tmax;
     int id = -1;
     uint node_id = 0;
-    const int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
     for (;;) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
         union {
@@ -394,8 +395,8 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
         uint leaves = Lanes_Bits(reached & (count > 0));
         if (leaves != 0u) {
             int j = __builtin_ctz(leaves);
-            BVHLeaf_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit, &t,
-                              &id);
+            BVHLeaves_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit,
+                                &t, &id);
             if (any_hit && id >= 0) {
                 *prim = id;
                 return t;
@@ -406,7 +407,7 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
         float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
         float nearest = Lanes_Min(inner_enter);
         if (nearest < INFINITY) {
-            int j_near = Lanes_MinInt(inner_enter == nearest ? lane_ids : (int8)(BVH_WIDTH));
+            int j_near = __builtin_ctz(Lanes_Bits(inner_enter == nearest));
             uint others = Lanes_Bits(inner) & ~(1u << j_near);
             int first = top;
             while (others != 0u) {
@@ -428,7 +429,8 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
             node_id = (uint)node->child[j_near];
             continue;
         }
-        // Next: the most recently kept node the ray can still reach before the closest hit
+        // Next: the most recently kept node (the nearest of the last node's others, for the
+        // closest hit) the ray can still reach before the closest hit
         bool visit = false;
         while (top > 0 && !visit) {
             --top;

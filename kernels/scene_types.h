@@ -72,8 +72,9 @@ typedef struct {
 // A node of the bounding volume hierarchy over every primitive (clrender/bvh.py: a binary SAH
 // tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
 // as structure of arrays (one vector slab test for all of them), rounded outwards to float.
-// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf whose record
-// starts at word child[j] of bvh_prims (leaf records below); count[j] = -1, no child.
+// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf, whose
+// primitives are in the record of the node's leaves at word child[j] of bvh_prims (leaf records
+// below; every leaf lane of a node has the same child and count); count[j] = -1, no child.
 // Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
 // a tree the builder never makes deeper than BVH_MAX_DEPTH.
 #define BVH_WIDTH 8
@@ -97,10 +98,11 @@ typedef struct {
     int id[BVH_BLOCK_WIDTH];
 } TriangleBlock;
 
-// A leaf's record in bvh_prims (32-bit words; clrender/scene_device.py pack_bvh_leaves), at word
-// child[j] (a multiple of 16: 64 bytes) of its lane: its triangles in TriangleBlocks, its quads
-// in QuadBlocks (unused lanes as in brute force's; bounds unused), then its spheres' primitive
-// ids; floats stored as their bits. The lane's count[j] packs the three numbers.
+// The record of a node's leaves in bvh_prims (32-bit words; clrender/scene_device.py
+// pack_bvh_leaves), at word child[j] (a multiple of 16: 64 bytes) of its leaf lanes: their
+// triangles in TriangleBlocks, their quads in QuadBlocks (unused lanes as in brute force's;
+// bounds unused), then their spheres' primitive ids; floats stored as their bits. The lanes'
+// count[j] packs the three numbers.
 #define BVH_LEAF_TRIANGLE_BLOCKS(count) ((count) & 0xffff)
 #define BVH_LEAF_QUAD_BLOCKS(count) (((count) >> 16) & 0xff)
 #define BVH_LEAF_SPHERES(count) ((count) >> 24)
