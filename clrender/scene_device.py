@@ -104,9 +104,10 @@ BVH_LEAF_ALIGN = 16
 # Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
 # triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
 # BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
-# bench/bvh_scaling.py (README, "Performance"): brute force wins up to 130 quads and loses from
-# 258, wins with 8 triangles in the Cornell box and loses from 20.
-BRUTE_FORCE_LIMIT = 192
+# bench/bvh_scaling.py (README, "Performance"): brute force wins up to 34 quads, the two are even
+# at 66 and 98 quads and with 6 triangles in the Cornell box (cost 114), the BVH wins from 130
+# quads (1.2x) and 8 triangles (1.2x).
+BRUTE_FORCE_LIMIT = 96
 TRIANGLE_COST = 16
 
 
