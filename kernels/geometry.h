@@ -371,8 +371,8 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
 // at a time, one record: fewer, fuller blocks than leaf by leaf); the nearest child node is
 // visited next and the others kept on a private stack with their entry distances, nearest on
 // top (skipped when taken if a closer hit was found since).
-CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
-                              bool any_hit, int *prim)
+CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float tmax, bool any_hit,
+                             int *prim)
 {
     float3 inv_d = 1.0f / d;
     TriangleRay r = TriangleRay_Make(o, d);
@@ -444,6 +444,24 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
     return t;
 }
 
+// The BVH's closest hit and any hit (shadow rays): called, not inlined (unlike every other
+// device function): inlined into the path tracer, the traversal's code slowed the brute-force
+// path sharing the kernel by about 5 % (bench/primitive_scaling.py); the calls cost the BVH
+// nothing measurable.
+__attribute__((noinline)) float BVH_Intersect(const SceneData *scene, float3 o, float3 d,
+                                              float tmax, int *prim)
+{
+    return BVH_Traverse(scene, o, d, tmax, false, prim);
+}
+
+__attribute__((noinline)) bool BVH_Occluded(const SceneData *scene, float3 o, float3 d,
+                                            float tmax)
+{
+    int prim;
+    BVH_Traverse(scene, o, d, tmax, true, &prim);
+    return prim >= 0;
+}
+
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
 // Brute force (no BVH): ties go to the lowest quad index, then to the sphere, then to the
 // triangle (blocks hold quads in scene order).
@@ -451,7 +469,7 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
                                 int *prim)
 {
     if (scene->bvh_node_count > 0u)
-        return BVH_Intersect(scene, o, d, tmax, false, prim);
+        return BVH_Intersect(scene, o, d, tmax, prim);
     float t = tmax;
     int id = -1;
     float3 inv_d = 1.0f / d;
@@ -490,11 +508,8 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
 // never block a ray between two points inside it.
 CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
-    if (scene->bvh_node_count > 0u) {
-        int prim;
-        BVH_Intersect(scene, o, d, tmax, true, &prim);
-        return prim >= 0;
-    }
+    if (scene->bvh_node_count > 0u)
+        return BVH_Occluded(scene, o, d, tmax);
     if (scene->triangle_count > 0u) {
         TriangleRay r = TriangleRay_Make(o, d);
         for (uint k = 0; k < scene->triangle_count; ++k) {

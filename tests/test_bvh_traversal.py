@@ -1,4 +1,4 @@
-"""The device side of the BVH (kernels/geometry.h BVH_Intersect, scene_device.pack_bvh_leaves):
+"""The device side of the BVH (kernels/geometry.h BVH_Traverse, scene_device.pack_bvh_leaves):
 the 8-lane triangle test decides exactly like the one-triangle test, the leaf records hold every
 leaf's primitives once and unchanged, a tree at the depth cap traces like brute force, and
 primitives the records cannot hold are refused with a clear error."""
