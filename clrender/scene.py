@@ -225,7 +225,7 @@ class Scene:
         return scene_bounds(self.quads, self.spheres, self.triangles)
 
     def bvh(self, brute_force_limit: int = BRUTE_FORCE_LIMIT) -> tuple[np.ndarray, np.ndarray]:
-        """(BVH nodes, primitive ids) of the scene, empty when brute force is cheaper
+        """(BVH nodes, leaf records) of the scene, empty when brute force is cheaper
         (scene_device.pack_bvh; brute_force_limit -1: always a BVH)."""
         return pack_bvh(self.quads, self.spheres, self.triangles, brute_force_limit)
 

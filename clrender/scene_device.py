@@ -5,25 +5,27 @@ there, with its members in the same order and of the same types (only 4-byte mem
 ``float[3]``, so there is no padding on any device; tests/test_scene.py checks each size against
 ``sizeof`` on the device). Change both files together.
 
-=================  ===================  ====================================================
-dtype              struct               one record per
-=================  ===================  ====================================================
-QUAD_DTYPE         Quad                 quad (a box is 6), with its dual vectors
-quad_block_dtype   QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
-SPHERE_DTYPE       Sphere               sphere
-TRIANGLE_DTYPE     Triangle             mesh triangle (vertices, material, normals and
-                                        emitter index)
-NORMALS_DTYPE      TriangleNormals      mesh triangle with per-vertex shading normals
-BVH_NODE_DTYPE     BVHNode              8-wide node of the BVH over every primitive (bvh.py)
-MATERIAL_DTYPE     Material             material (MATERIAL_TYPES tags)
-EMITTER_DTYPE      Emitter              emitting quad, sphere or mesh triangle, with its
-                                        light-selection pdf and cdf
-CAMERA_DTYPE       Camera               camera at one image size
-=================  ===================  ====================================================
+====================  ===================  ====================================================
+dtype                 struct               one record per
+====================  ===================  ====================================================
+QUAD_DTYPE            Quad                 quad (a box is 6), with its dual vectors
+quad_block_dtype      QuadBlock            QUAD_BLOCK_WIDTH quads, structure of arrays
+SPHERE_DTYPE          Sphere               sphere
+TRIANGLE_DTYPE        Triangle             mesh triangle (vertices, material, normals and
+                                           emitter index)
+NORMALS_DTYPE         TriangleNormals      mesh triangle with per-vertex shading normals
+BVH_NODE_DTYPE        BVHNode              8-wide node of the BVH over every primitive (bvh.py)
+TRIANGLE_BLOCK_DTYPE  TriangleBlock        8 triangles of a BVH leaf, structure of arrays (in the
+                                           leaf records, pack_bvh_leaves, with quad blocks)
+MATERIAL_DTYPE        Material             material (MATERIAL_TYPES tags)
+EMITTER_DTYPE         Emitter              emitting quad, sphere or mesh triangle, with its
+                                           light-selection pdf and cdf
+CAMERA_DTYPE          Camera               camera at one image size
+====================  ===================  ====================================================
 
 The packing functions take validated plain values (what clrender/scene.py reads from a scene
 file) and return these records. Dependencies run one way: scene.py imports this module, this
-module imports nothing of clrender's but the BVH builder (clrender/bvh.py).
+module imports nothing of clrender's but the BVH builder (clrender/bvh.py) and the errors.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ import math
 import numpy as np
 
 from clrender.bvh import BVH_NODE_DTYPE, build_wide_bvh
+from clrender.errors import ClrenderError
 
 # Material type tags: MATERIAL_DIFFUSE, ... in kernels/scene_types.h.
 MATERIAL_TYPES = {"diffuse": 0, "dielectric": 1, "roughconductor": 2}
@@ -84,12 +87,27 @@ TRIANGLE_DTYPE = np.dtype(
     ]
 )
 NORMALS_DTYPE = np.dtype([("n", "<f4", (3, 3))])
+BVH_BLOCK_WIDTH = 8  # lanes of a BVH leaf's blocks: fixed in kernels/scene_types.h
+TRIANGLE_BLOCK_DTYPE = np.dtype(
+    [
+        ("p0", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("p1", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("p2", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("id", "<i4", BVH_BLOCK_WIDTH),
+    ]
+)
+# BVH leaf records (pack_bvh_leaves): a leaf lane's count packs its triangle blocks, quad blocks
+# and spheres, as (shift, bits) each (BVH_LEAF_* in kernels/scene_types.h); records start at
+# multiples of BVH_LEAF_ALIGN words (64 bytes).
+BVH_LEAF_FIELDS = ((0, 16), (16, 8), (24, 7))
+BVH_LEAF_ALIGN = 16
 # Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
 # triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
 # BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
-# bench/bvh_scaling.py (README, "Performance"): brute force wins up to 130 quads and loses from
-# 258, wins with 8 triangles in the Cornell box and loses from 20.
-BRUTE_FORCE_LIMIT = 192
+# bench/bvh_scaling.py (README, "Performance"): brute force wins up to 34 quads, the two are even
+# at 66 and 98 quads and with 6 triangles in the Cornell box (cost 114), the BVH wins from 130
+# quads (1.2x) and 8 triangles (1.2x).
+BRUTE_FORCE_LIMIT = 96
 TRIANGLE_COST = 16
 
 
@@ -321,12 +339,130 @@ def pack_bvh(
     triangles: np.ndarray,
     brute_force_limit: int = BRUTE_FORCE_LIMIT,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(BVH nodes, primitive ids) over every primitive (clrender/bvh.py), or two empty arrays
-    for a scene whose brute_force_cost is at most brute_force_limit (the kernels then use brute
-    force; -1: always a BVH)."""
+    """(BVH nodes, leaf records) over every primitive (clrender/bvh.py; pack_bvh_leaves), or two
+    empty arrays for a scene whose brute_force_cost is at most brute_force_limit (the kernels then
+    use brute force; -1: always a BVH)."""
     if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
         return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
-    return build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
+    nodes, prims = build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
+    return pack_bvh_leaves(nodes, prims, quads, len(spheres), triangles)
+
+
+def _field_words(dtype: np.dtype, name: str) -> int:
+    """Word offset of a field in a record of 4-byte members."""
+    return dtype.fields[name][1] // 4
+
+
+def _fill_block_lanes(words, block_start, lane, dtype, values: dict) -> None:
+    """Write per-member values (name: (N, rows) or (N,) arrays of 4-byte items) into the lanes
+    `lane` of the blocks (dtype: structure of arrays, BLOCK_WIDTH lanes a row) at word
+    block_start."""
+    for name, value in values.items():
+        rows = int(np.prod(value.shape[1:], dtype=int))
+        bits = np.ascontiguousarray(value).view(np.uint32).reshape(len(lane), rows)
+        first = block_start + _field_words(dtype, name) + lane
+        for row in range(rows):
+            words[first + row * BVH_BLOCK_WIDTH] = bits[:, row]
+
+
+def pack_bvh_leaves(
+    nodes: np.ndarray,
+    prims: np.ndarray,
+    quads: np.ndarray,
+    sphere_count: int,
+    triangles: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The device's nodes and leaf records (kernels/scene_types.h, BVH leaf records) of a wide BVH
+    whose leaves hold prims[child .. child + count - 1] (primitive ids: quads, spheres, then
+    triangles). The leaves of one node share a record: their triangles in TRIANGLE_BLOCK_DTYPE
+    blocks, their quads in quad_block_dtype() blocks (each in lane and leaf order; unused lanes
+    never hit, id -1), then their spheres' ids, as uint32 words, starting at a multiple of
+    BVH_LEAF_ALIGN words; every leaf lane of the node gets child = the record's first word and
+    count = the three numbers packed by BVH_LEAF_FIELDS. NumPy over all leaves at once."""
+    nodes = nodes.copy()
+    quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
+    first_triangle = len(quads) + sphere_count
+    leaf_node, leaf_lane = np.nonzero(nodes["count"] > 0)
+    start = nodes["child"][leaf_node, leaf_lane].astype(np.int64)
+    count = nodes["count"][leaf_node, leaf_lane].astype(np.int64)
+    _, record_of_leaf = np.unique(leaf_node, return_inverse=True)
+    records = int(record_of_leaf.max(initial=-1)) + 1
+    # Every record's members in lane and leaf order, grouped by kind (0 triangle, 1 quad,
+    # 2 sphere; a stable sort)
+    leaf_of = np.repeat(np.arange(len(start)), count)
+    ids = prims[start[leaf_of] + np.arange(len(leaf_of)) - (np.cumsum(count) - count)[leaf_of]]
+    record_of = record_of_leaf[leaf_of]
+    kind = np.where(ids >= first_triangle, 0, np.where(ids < len(quads), 1, 2))
+    order = np.argsort(3 * record_of + kind, kind="stable")
+    ids, kind = ids[order].astype(np.int64), kind[order]
+    per_kind = [np.bincount(record_of[kind == k], minlength=records) for k in range(3)]
+    members = per_kind[0] + per_kind[1] + per_kind[2]
+    rank = np.arange(len(record_of)) - (np.cumsum(members) - members)[record_of]
+    triangle_blocks = -(-per_kind[0] // BVH_BLOCK_WIDTH)
+    quad_blocks = -(-per_kind[1] // BVH_BLOCK_WIDTH)
+    packed = (triangle_blocks, quad_blocks, per_kind[2])
+    fields = np.zeros(records, np.int64)
+    for value, (shift, bits) in zip(packed, BVH_LEAF_FIELDS, strict=True):
+        if records and value.max() >= 2**bits:
+            raise ClrenderError(
+                f"BVH: a leaf of {int(count.max())} primitives in one place, more than the "
+                "device's leaf records hold: spread out the coincident shapes"
+            )
+        fields |= value << shift
+    # Each record: triangle blocks, quad blocks, sphere ids (padded to BVH_LEAF_ALIGN)
+    triangle_words = TRIANGLE_BLOCK_DTYPE.itemsize // 4
+    quad_words = quad_dtype.itemsize // 4
+    size = triangle_words * triangle_blocks + quad_words * quad_blocks + per_kind[2]
+    size = -(-size // BVH_LEAF_ALIGN) * BVH_LEAF_ALIGN
+    offset = np.cumsum(size) - size
+    quads_at = offset + triangle_words * triangle_blocks
+    spheres_at = quads_at + quad_words * quad_blocks
+    words = np.zeros(int(size.sum()), np.uint32)
+    # Unused lanes: id -1; a quad's plane_d -1 with a zero normal (t = -inf, never a hit)
+    lanes = np.arange(BVH_BLOCK_WIDTH)
+    for blocks, first, block_words, dtype, unused in (
+        (triangle_blocks, offset, triangle_words, TRIANGLE_BLOCK_DTYPE, {"id": -1}),
+        (quad_blocks, quads_at, quad_words, quad_dtype, {"quad": -1, "plane_d": -1.0}),
+    ):
+        block_leaf = np.repeat(np.arange(records), blocks)
+        block_rank = np.arange(len(block_leaf)) - (np.cumsum(blocks) - blocks)[block_leaf]
+        base = first[block_leaf] + block_words * block_rank
+        for name, value in unused.items():
+            bits = np.array(value, dtype.fields[name][0].base).view(np.uint32)
+            words[(base + _field_words(dtype, name))[:, None] + lanes] = bits
+    # Each member into its block and lane (from its rank among the record's members of its kind)
+    kind_rank = rank - np.where(kind >= 1, per_kind[0][record_of], 0)
+    kind_rank -= np.where(kind == 2, per_kind[1][record_of], 0)
+    is_triangle = kind == 0
+    triangle_rank = kind_rank[is_triangle]
+    triangle_ids = ids[is_triangle]
+    tri = triangles[triangle_ids - first_triangle]
+    _fill_block_lanes(
+        words,
+        offset[record_of[is_triangle]] + triangle_words * (triangle_rank // BVH_BLOCK_WIDTH),
+        triangle_rank % BVH_BLOCK_WIDTH,
+        TRIANGLE_BLOCK_DTYPE,
+        {"p0": tri["p0"], "p1": tri["p1"], "p2": tri["p2"], "id": triangle_ids.astype(np.int32)},
+    )
+    is_quad = kind == 1
+    quad_rank = kind_rank[is_quad]
+    quad_ids = ids[is_quad]
+    quad = quads[quad_ids]
+    _fill_block_lanes(
+        words,
+        quads_at[record_of[is_quad]] + quad_words * (quad_rank // BVH_BLOCK_WIDTH),
+        quad_rank % BVH_BLOCK_WIDTH,
+        quad_dtype,
+        {
+            **{key: quad[key] for key in ("corner", "normal", "u_dual", "v_dual", "plane_d")},
+            "quad": quad_ids.astype(np.int32),
+        },
+    )
+    is_sphere = kind == 2
+    words[spheres_at[record_of[is_sphere]] + kind_rank[is_sphere]] = ids[is_sphere]
+    nodes["child"][leaf_node, leaf_lane] = offset[record_of_leaf]
+    nodes["count"][leaf_node, leaf_lane] = fields[record_of_leaf]
+    return nodes, words
 
 
 def scene_bounds(

@@ -1,7 +1,8 @@
 // Ray-primitive intersection. Small scenes: every block of quads (one vector test per block)
 // whose bounding box the ray meets, then every sphere, then every triangle. Larger scenes
 // (bvh_node_count > 0): a bounding volume hierarchy over all primitives (clrender/bvh.py),
-// traversed with a short private stack.
+// traversed with a private stack, the leaves of a node tested together (triangles and quads 8
+// at a time).
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
 // quad_count + sphere_count + k; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
@@ -32,6 +33,28 @@ typedef struct {
 CL_INLINE float MaxAbs3(float3 v)
 {
     return Fmax(Fabs(v.x), Fmax(Fabs(v.y), Fabs(v.z)));
+}
+
+// Bit j set where lane j of the mask is set (-1): one instruction with AVX (the sign bits),
+// else a reduction.
+CL_INLINE uint Lanes_Bits(int8 mask)
+{
+#if defined(__AVX__)
+    return (uint)__builtin_ia32_movmskps256(as_float8(mask));
+#else
+    int8 bits = mask & (int8)(1, 2, 4, 8, 16, 32, 64, 128);
+    int4 b4 = bits.lo | bits.hi;
+    int2 b2 = b4.lo | b4.hi;
+    return (uint)(b2.x | b2.y);
+#endif
+}
+
+// 8 ints from a 4-byte aligned address.
+typedef int Int8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
+
+CL_INLINE int8 Load8Int(__global const int *p)
+{
+    return *(__global const Int8Unaligned *)p;
 }
 
 // Whether the ray o + t d (inv_d = 1 / d) can meet the box [lower, upper] for some t in
@@ -88,8 +111,7 @@ CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, f
     int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
     float8 t_hit = hit ? t : (float8)(INFINITY);
     float t_min = Lanes_Min(t_hit);
-    int8 lane_ids = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    *lane = Lanes_MinInt(t_hit == t_min ? lane_ids : (int8)(QUAD_BLOCK_WIDTH));
+    *lane = __builtin_ctz(Lanes_Bits(t_hit == t_min) | (1u << QUAD_BLOCK_WIDTH));
     return t_min < tmax ? t_min : tmax;
 }
 
@@ -98,10 +120,7 @@ CL_INLINE bool QuadBlock_Occluded(__global const QuadBlock *block, float3 o, flo
                                   float tmax)
 {
     float8 t;
-    int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
-    int4 h4 = hit.lo | hit.hi;
-    int2 h2 = h4.lo | h4.hi;
-    return (h2.x | h2.y) != 0;
+    return Lanes_Bits(QuadBlock_Hits(block, o, d, tmax, &t)) != 0u;
 }
 
 // Distance along d (unit) to the nearest sphere crossing ahead, or tmax.
@@ -125,29 +144,14 @@ CL_INLINE float Sphere_Intersect(__global const Sphere *s, float3 o, float3 d, f
     return (t > 0.0f && t < tmax) ? t : tmax;
 }
 
-// Distance to a single quad along the ray if hit before tmax, else tmax: the lane test of
-// QuadBlock_Hits on the Quad record, operation for operation (the BVH's leaves use it).
-CL_INLINE float Quad_Intersect(__global const Quad *q, float3 o, float3 d, float tmax)
-{
-    float3 n = Load3(q->normal);
-    float t = (q->plane_d - (n.x * o.x + n.y * o.y + n.z * o.z)) /
-              (n.x * d.x + n.y * d.y + n.z * d.z);
-    float rx = o.x + t * d.x - q->corner[0];
-    float ry = o.y + t * d.y - q->corner[1];
-    float rz = o.z + t * d.z - q->corner[2];
-    float a = rx * q->u_dual[0] + ry * q->u_dual[1] + rz * q->u_dual[2];
-    float b = rx * q->v_dual[0] + ry * q->v_dual[1] + rz * q->v_dual[2];
-    bool hit = t > 0.0f && t < tmax && a >= 0.0f && a <= 1.0f && b >= 0.0f && b <= 1.0f;
-    return hit ? t : tmax;
-}
-
 // A ray prepared for watertight triangle tests (Woop, Benthin and Wald 2013, as pbrt-v4):
 // its origin, the axis permutation that makes the largest direction component z, and the
 // shear taking the direction to +z.
 typedef struct {
     float3 o;
     uint kz;      // the permuted z axis; x and y follow it cyclically
-    float3 shear; // (-dx / dz, -dy / dz, 1 / dz) after permutation
+    float3 shear;      // (-dx / dz, -dy / dz, 1 / dz) after permutation
+    float3 o_permuted; // o with its axes permuted (TriangleBlock_Hits subtracts it by axis)
 } TriangleRay;
 
 // v with its axes permuted so that axis kz comes last (kx = kz + 1, ky = kz + 2, cyclically):
@@ -169,6 +173,7 @@ CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
     r.o = o;
     r.kz = kz;
     r.shear = (float3)(-dp.x / dp.z, -dp.y / dp.z, 1.0f / dp.z);
+    r.o_permuted = TriangleRay_Permute(o, kz);
     return r;
 }
 
@@ -226,16 +231,111 @@ CL_INLINE float Triangle_Intersect(__global const Triangle *tri, const TriangleR
     return Triangle_Hit(tri, r, tmax, &t, &b) ? t : tmax;
 }
 
-// Distance to primitive `id` (any kind) along the ray if hit before tmax, else tmax.
-CL_INLINE float Primitive_Intersect(const SceneData *scene, uint id, float3 o, float3 d,
-                                    const TriangleRay *r, float tmax)
+// One vertex row of a TriangleBlock in the ray's frame (TriangleRay_Vertex on 8 lanes, operation
+// for operation): x and y sheared, z translated only.
+CL_INLINE void TriangleBlock_Vertices(__global const float (*p)[BVH_BLOCK_WIDTH],
+                                      const TriangleRay *r, float8 *x, float8 *y, float8 *z)
 {
-    if (id < scene->quad_count)
-        return Quad_Intersect(&scene->quads[id], o, d, tmax);
-    uint s = id - scene->quad_count;
-    if (s < scene->sphere_count)
-        return Sphere_Intersect(&scene->spheres[s], o, d, tmax);
-    return Triangle_Intersect(&scene->triangles[s - scene->sphere_count], r, tmax);
+    uint kx = r->kz == 2u ? 0u : r->kz + 1u;
+    uint ky = kx == 2u ? 0u : kx + 1u;
+    float8 vx = Load8(p[kx]) - r->o_permuted.x;
+    float8 vy = Load8(p[ky]) - r->o_permuted.y;
+    float8 vz = Load8(p[r->kz]) - r->o_permuted.z;
+    *x = vx + r->shear.x * vz;
+    *y = vy + r->shear.y * vz;
+    *z = vz;
+}
+
+// Edge functions of the 8 lanes (Triangle_Edge: the two products rounded apart).
+CL_INLINE float8 TriangleBlock_Edge(float8 ax, float8 ay, float8 bx, float8 by)
+{
+    float8 p = ax * by;
+    float8 q = ay * bx;
+    return p - q;
+}
+
+// Hit mask of a block's triangles along the ray in (0, tmax) (-1 where hit), distances in *t:
+// Triangle_Hit's watertight test on 8 lanes with the same operations, so the same decisions.
+CL_INLINE int8 TriangleBlock_Hits(__global const TriangleBlock *block, const TriangleRay *r,
+                                  float tmax, float8 *t_out)
+{
+    float8 x0, y0, z0, x1, y1, z1, x2, y2, z2;
+    TriangleBlock_Vertices(block->p0, r, &x0, &y0, &z0);
+    TriangleBlock_Vertices(block->p1, r, &x1, &y1, &z1);
+    TriangleBlock_Vertices(block->p2, r, &x2, &y2, &z2);
+    // Edge functions: the origin is inside when all three share a sign
+    float8 e0 = TriangleBlock_Edge(x1, y1, x2, y2);
+    float8 e1 = TriangleBlock_Edge(x2, y2, x0, y0);
+    float8 e2 = TriangleBlock_Edge(x0, y0, x1, y1);
+    int8 negative = (e0 < 0.0f) | (e1 < 0.0f) | (e2 < 0.0f);
+    int8 positive = (e0 > 0.0f) | (e1 > 0.0f) | (e2 > 0.0f);
+    float8 det = e0 + e1 + e2;
+    // Scaled distance, compared with the range before dividing by det
+    float8 t_scaled = r->shear.z * (e0 * z0 + e1 * z1 + e2 * z2);
+    float8 t_range = tmax * det;
+    int8 outside = det < 0.0f ? (t_scaled >= 0.0f) | (t_scaled < t_range)
+                              : (t_scaled <= 0.0f) | (t_scaled > t_range);
+    float8 t = t_scaled * (1.0f / det);
+    *t_out = t;
+    return ~(negative & positive) & (det != 0.0f) & ~outside & (t > 0.0f) & (t < tmax);
+}
+
+// The nearest triangle of a block hit before tmax: its distance (tmax if none) and its
+// primitive id in *id (unchanged if none).
+CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, const TriangleRay *r,
+                                        float tmax, int *id)
+{
+    float8 t;
+    int8 hit = TriangleBlock_Hits(block, r, tmax, &t);
+    float8 t_hit = hit ? t : (float8)(INFINITY);
+    float t_min = Lanes_Min(t_hit);
+    if (!(t_min < tmax))
+        return tmax;
+    *id = block->id[__builtin_ctz(Lanes_Bits(t_hit == t_min))];
+    return t_min;
+}
+
+// The nearest primitive of a node's leaves (their shared record at word `record` of bvh_prims,
+// `count` as their lanes') along the ray before *t: triangles and quads a block at a time, then
+// spheres one by one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
+CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int count, float3 o,
+                                   float3 d, const TriangleRay *r, bool any_hit, float *t, int *id)
+{
+    // Triangle blocks
+    __global const TriangleBlock *triangles =
+        (__global const TriangleBlock *)(scene->bvh_prims + record);
+    int triangle_blocks = BVH_LEAF_TRIANGLE_BLOCKS(count);
+    for (int b = 0; b < triangle_blocks; ++b) {
+        *t = TriangleBlock_Intersect(&triangles[b], r, *t, id);
+        if (any_hit && *id >= 0)
+            return;
+    }
+    // Quad blocks
+    __global const QuadBlock *quads = (__global const QuadBlock *)(triangles + triangle_blocks);
+    int quad_blocks = BVH_LEAF_QUAD_BLOCKS(count);
+    for (int b = 0; b < quad_blocks; ++b) {
+        int lane;
+        float tb = QuadBlock_Intersect(&quads[b], o, d, *t, &lane);
+        if (tb < *t) {
+            *t = tb;
+            *id = quads[b].quad[lane];
+            if (any_hit)
+                return;
+        }
+    }
+    // Spheres
+    __global const uint *spheres = (__global const uint *)(quads + quad_blocks);
+    int sphere_count = BVH_LEAF_SPHERES(count);
+    for (int k = 0; k < sphere_count; ++k) {
+        uint p = spheres[k];
+        float tp = Sphere_Intersect(&scene->spheres[p - scene->quad_count], o, d, *t);
+        if (tp < *t) {
+            *t = tp;
+            *id = (int)p;
+            if (any_hit)
+                return;
+        }
+    }
 }
 
 // Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
@@ -267,11 +367,12 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
 // with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
-// at once; the leaves among them are tested right away, the nearest child node is visited next
-// and the others kept on a private stack with their entry distances (skipped when popped if a
-// closer hit was found since).
-CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
-                              bool any_hit, int *prim)
+// at once; if the ray reaches any of its leaves, all of them are tested right away (8 primitives
+// at a time, one record: fewer, fuller blocks than leaf by leaf); the nearest child node is
+// visited next and the others kept on a private stack with their entry distances, nearest on
+// top (skipped when taken if a closer hit was found since).
+CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float tmax, bool any_hit,
+                             int *prim)
 {
     float3 inv_d = 1.0f / d;
     TriangleRay r = TriangleRay_Make(o, d);
@@ -281,64 +382,84 @@ CL_INLINE float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float 
     float t = tmax;
     int id = -1;
     uint node_id = 0;
-    bool visit = true;
-    while (visit) {
+    for (;;) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
         union {
             float8 v;
             float s[BVH_WIDTH];
         } enter;
         enter.v = BVHNode_Enter(node, o, inv_d, t);
-        visit = false;
-        float next_enter = INFINITY;
-        for (int j = 0; j < BVH_WIDTH; ++j) {
-            int count = node->count[j];
-            float e = enter.s[j];
-            if (count < 0 || e == INFINITY || e > t)
-                continue;
-            if (count > 0) {
-                // A leaf: test its primitives
-                for (int k = 0; k < count; ++k) {
-                    uint p = scene->bvh_prims[node->child[j] + k];
-                    float tp = Primitive_Intersect(scene, p, o, d, &r, t);
-                    if (tp < t) {
-                        t = tp;
-                        id = (int)p;
-                    }
-                }
-                if (any_hit && id >= 0)
-                    break;
-                continue;
-            }
-            // A node: the nearest so far is visited next, the others wait on the stack
-            uint child = (uint)node->child[j];
-            if (e < next_enter) {
-                if (visit) {
-                    stack[top] = node_id;
-                    stack_enter[top++] = next_enter;
-                }
-                node_id = child;
-                next_enter = e;
-                visit = true;
-            } else {
-                stack[top] = child;
-                stack_enter[top++] = e;
+        int8 count = Load8Int(node->count);
+        int8 reached = enter.v < INFINITY;
+        // A leaf the ray reaches: the primitives of all the node's leaves (one shared record)
+        uint leaves = Lanes_Bits(reached & (count > 0));
+        if (leaves != 0u) {
+            int j = __builtin_ctz(leaves);
+            BVHLeaves_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit,
+                                &t, &id);
+            if (any_hit && id >= 0) {
+                *prim = id;
+                return t;
             }
         }
-        if (any_hit && id >= 0)
-            break;
-        if (visit && next_enter <= t)
+        // The child nodes it reaches before the closest hit: the nearest next, the others kept
+        int8 inner = reached & (count == 0) & (enter.v <= t);
+        float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
+        float nearest = Lanes_Min(inner_enter);
+        if (nearest < INFINITY) {
+            int j_near = __builtin_ctz(Lanes_Bits(inner_enter == nearest));
+            uint others = Lanes_Bits(inner) & ~(1u << j_near);
+            int first = top;
+            while (others != 0u) {
+                int j = __builtin_ctz(others);
+                others &= others - 1u;
+                // Closest hit: kept farthest first, so the nearest is taken next (insertion
+                // sort); any hit: in lane order
+                float e = enter.s[j];
+                uint c = (uint)node->child[j];
+                int k = top++;
+                while (!any_hit && k > first && stack_enter[k - 1] < e) {
+                    stack[k] = stack[k - 1];
+                    stack_enter[k] = stack_enter[k - 1];
+                    --k;
+                }
+                stack[k] = c;
+                stack_enter[k] = e;
+            }
+            node_id = (uint)node->child[j_near];
             continue;
-        // Next: the most recently kept node the ray can still reach before the closest hit
-        visit = false;
+        }
+        // Next: the most recently kept node (the nearest of the last node's others, for the
+        // closest hit) the ray can still reach before the closest hit
+        bool visit = false;
         while (top > 0 && !visit) {
             --top;
             node_id = stack[top];
             visit = stack_enter[top] <= t;
         }
+        if (!visit)
+            break;
     }
     *prim = id;
     return t;
+}
+
+// The BVH's closest hit and any hit (shadow rays): called, not inlined (unlike every other
+// device function): inlined into the path tracer, the traversal's code slowed the brute-force
+// path sharing the kernel by about 5 % (bench/primitive_scaling.py); the calls cost the BVH
+// nothing measurable.
+__attribute__((noinline)) float BVH_Intersect(const SceneData *scene, float3 o, float3 d,
+                                              float tmax, int *prim)
+{
+    return BVH_Traverse(scene, o, d, tmax, false, prim);
+}
+
+__attribute__((noinline)) bool BVH_Occluded(const SceneData *scene, float3 o, float3 d,
+                                            float tmax)
+{
+    int prim;
+    BVH_Traverse(scene, o, d, tmax, true, &prim);
+    return prim >= 0;
 }
 
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
@@ -348,7 +469,7 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
                                 int *prim)
 {
     if (scene->bvh_node_count > 0u)
-        return BVH_Intersect(scene, o, d, tmax, false, prim);
+        return BVH_Intersect(scene, o, d, tmax, prim);
     float t = tmax;
     int id = -1;
     float3 inv_d = 1.0f / d;
@@ -387,11 +508,8 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
 // never block a ray between two points inside it.
 CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
-    if (scene->bvh_node_count > 0u) {
-        int prim;
-        BVH_Intersect(scene, o, d, tmax, true, &prim);
-        return prim >= 0;
-    }
+    if (scene->bvh_node_count > 0u)
+        return BVH_Occluded(scene, o, d, tmax);
     if (scene->triangle_count > 0u) {
         TriangleRay r = TriangleRay_Make(o, d);
         for (uint k = 0; k < scene->triangle_count; ++k) {

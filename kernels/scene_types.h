@@ -72,8 +72,9 @@ typedef struct {
 // A node of the bounding volume hierarchy over every primitive (clrender/bvh.py: a binary SAH
 // tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
 // as structure of arrays (one vector slab test for all of them), rounded outwards to float.
-// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf holding the
-// primitive ids bvh_prims[child[j] .. child[j] + count[j] - 1]; count[j] = -1, no child.
+// Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf, whose
+// primitives are in the record of the node's leaves at word child[j] of bvh_prims (leaf records
+// below; every leaf lane of a node has the same child and count); count[j] = -1, no child.
 // Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
 // a tree the builder never makes deeper than BVH_MAX_DEPTH.
 #define BVH_WIDTH 8
@@ -85,6 +86,26 @@ typedef struct {
     int child[BVH_WIDTH];
     int count[BVH_WIDTH];
 } BVHNode;
+
+// Up to BVH_BLOCK_WIDTH triangles of a BVH leaf as structure of arrays (one vector watertight
+// test for all of them): vertex coordinates p0[axis][lane], ..., and the scene primitive id of
+// each lane (-1: an unused lane, all vertices 0, never a hit).
+#define BVH_BLOCK_WIDTH 8
+typedef struct {
+    float p0[3][BVH_BLOCK_WIDTH];
+    float p1[3][BVH_BLOCK_WIDTH];
+    float p2[3][BVH_BLOCK_WIDTH];
+    int id[BVH_BLOCK_WIDTH];
+} TriangleBlock;
+
+// The record of a node's leaves in bvh_prims (32-bit words; clrender/scene_device.py
+// pack_bvh_leaves), at word child[j] (a multiple of 16: 64 bytes) of its leaf lanes: their
+// triangles in TriangleBlocks, their quads in QuadBlocks (unused lanes as in brute force's;
+// bounds unused), then their spheres' primitive ids; floats stored as their bits. The lanes'
+// count[j] packs the three numbers.
+#define BVH_LEAF_TRIANGLE_BLOCKS(count) ((count) & 0xffff)
+#define BVH_LEAF_QUAD_BLOCKS(count) (((count) >> 16) & 0xff)
+#define BVH_LEAF_SPHERES(count) ((count) >> 24)
 
 // One record for every material type; each type reads its own members.
 typedef struct {
@@ -133,7 +154,7 @@ typedef struct {
     __global const Triangle *triangles;
     __global const TriangleNormals *triangle_normals;
     __global const BVHNode *bvh_nodes;
-    __global const uint *bvh_prims;
+    __global const uint *bvh_prims; // the BVH leaves' records
     uint quad_count;
     uint quad_block_count;
     uint sphere_count;
