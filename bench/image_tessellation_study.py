@@ -1,6 +1,7 @@
 """Image-level tessellation (ivor, ivor_sn) against per-pixel SPPP estimators on analytic images.
 
     python bench/image_tessellation_study.py [--quick] [--out DIR] [--runs R] [--size S]
+        [--runs-per-task K] [--workers N | --scheduler ADDRESS]
 
 An S x S image with four analytic functions as value columns (clrender.analytic's edge, smooth
 and disc laid out for the image, plus a linear ramp), exact pixel integrals. For each n in
@@ -15,6 +16,15 @@ from the spread of per-run image means; std = per-pixel std over runs, averaged 
 (tessellation + sums; not drawing, not evaluating f), median of the runs; ivor and ivor_sn
 report the same time (one tessellation serves both; so do vor, vor_sn and fvor, but each is
 timed alone here, as in bench/analytic_study.py).
+
+Runs as tasks: run r at n draws from its own random stream (seed, n, r), so its numbers do not
+depend on which task computes it; tasks of --runs-per-task runs (all n in one map) go to the
+executor of --workers N (a Dask LocalCluster of N processes) or --scheduler ADDRESS, this process
+by default, and every number but the times is bit-identical whatever the executor and the split
+(tests/test_cluster_studies.py). The times are measured inside the tasks, where they ran: on a
+LocalCluster sharing this machine's cores they include that contention (results.json names the
+executor). (Before the executor every run drew from one stream in order, so this version's draws
+and numbers differ from that version's; the statistics are the same.)
 
 Outputs (default bench/results/image_tessellation/): results.json, report.md, study.png.
 """
@@ -208,6 +218,9 @@ def report_markdown(results: dict) -> str:
     lines = [
         f"# Image-level tessellation study ({results['size']}^2 pixels, "
         f"{results['runs']} runs per n)",
+        "",
+        f"Seed {results['seed']}; tasks of {results['runs_per_task']} runs on: "
+        f"{results['executor']} (times measured there).",
         "",
         "bias +- standard error, std (per pixel, RMS over pixels), us per pixel estimate.",
         "",

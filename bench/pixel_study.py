@@ -2,7 +2,7 @@
 the paper's Figures 6 and 9, over every sampler.
 
     python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--pixels NAME ...]
-                                [--out DIR]
+                                [--batch-runs B] [--workers N | --scheduler ADDRESS] [--out DIR]
 
 Pixels found from the scenes' geometry (clrender.probes, never hard-coded), each in its scene
 (PROBES): in cornell-box, one the light's outline crosses (light covering closest to half of
@@ -18,25 +18,43 @@ each pixel and spp, R independent estimates of every (estimator, sampler) of GRO
 and pvor over independent samples; mc over stratified, stratified-pixel, sobol and zsobol; pvor
 over stratified and sobol points with a random toroidal shift per run (as the render settings
 do for it); mc_n, vor, vor_sn and fvor over sppp and sppp-sobol. A sampler is skipped at a
-count it does not take (stratified: squares; zsobol: powers of two). R sample sets of a pixel
-are drawn and traced in one launch: run r is redraw number r, an independent randomisation
-(zsobol's key includes it too), then each estimator is applied to all R runs as one batch
-(estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi estimator
-rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw does; all
-SPPP estimators of a sampler use the same accepted runs.
+count it does not take (stratified: squares; zsobol: powers of two). Run r of a point (pixel,
+sampler, spp) is redraw number r of its (seed, pixel), an independent randomisation (zsobol's
+key includes it too); runs are drawn, traced and estimated by tasks of --batch-runs runs
+(default BATCH_RUNS), each estimator applied to ESTIMATE_RUNS runs at a time (estimate_all:
+estimators sharing a tessellation share it). SPPP runs a Voronoi estimator rejects (an
+unbounded W cell) are replaced by further runs, as the paper's redraw does; all SPPP estimators
+of a sampler use the same accepted runs, the first R in run order.
+
+Where it runs: the tasks of one pixel (all its points, then any redraw rounds) go to the
+executor of --workers N (a Dask LocalCluster of N processes) or --scheduler ADDRESS (an
+existing cluster), this process by default; the scene travels as its loaded records, each
+worker opens its own device and sends back NumPy arrays. A run's random numbers are keyed by
+(seed, pixel, sample, dimension, redraw = run), and its estimate block is fixed by its index,
+so every number but the times is bit-identical whatever the executor and --batch-runs
+(tests/test_cluster_studies.py). Before the executor, each point's runs were estimated in one
+batch: the Qhull estimators' last bits depend on a run's company in a batch, so the Voronoi
+estimates can differ from that version's in their last bits (the runs traced are the same).
+
+Timings: the estimator and device-cell times are taken in this process, once a pixel's tasks
+are done (the cluster idle), on the point's first --timing-runs runs, whose sample sets the
+tasks send back: timings on workers that share the cores would not be comparable. The
+tracing time is the tasks' own (draw + trace + download of each launch, summed, per run),
+measured where they ran: on a LocalCluster sharing this machine's cores it includes that
+contention (results.json's settings name the executor).
 
 The value of a pixel is the mean of its RGB channels. Per (pixel, estimator/sampler, spp):
 mean, std and variance over the R runs; milliseconds per estimate of the estimator alone (each
 estimator run alone on the first --timing-runs runs, the fastest of >= 3 calls / runs;
-tessellation + sums, on the host) and of tracing (the launch's draw + trace + download time /
-runs); variance against their sum; ratios to mc/independent. And the Voronoi question: per
-pixel and spp, each Voronoi estimator over low-discrepancy samples (VORONOI_LD) against the
-best low-discrepancy mc (LD_MC, the lowest variance at that spp): var(best) / var(estimator)
-with a 95 % bootstrap interval, the efficiency ratio, and wins / loses / tie. Outputs (default
-bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std against
-spp), fig9_<pixel>.png (time against spp, variance against time, each variance with its 95 %
-bootstrap interval over the R runs: var_ci in results.json), each figure with a caption of its
-parameters (in the figure and under it in the report).
+tessellation + sums, on the host) and of tracing (see Timings); variance against their sum;
+ratios to mc/independent. And the Voronoi question: per pixel and spp, each Voronoi estimator
+over low-discrepancy samples (VORONOI_LD) against the best low-discrepancy mc (LD_MC, the
+lowest variance at that spp): var(best) / var(estimator) with a 95 % bootstrap interval, the
+efficiency ratio, and wins / loses / tie. Outputs (default bench/results/pixel_study/):
+results.json, report.md, fig6_<pixel>.png (mean +- std against spp), fig9_<pixel>.png (time
+against spp, variance against time, each variance with its 95 % bootstrap interval over the R
+runs: var_ci in results.json), each figure with a caption of its parameters (in the figure and
+under it in the report).
 """
 
 from __future__ import annotations
@@ -833,6 +851,9 @@ def report(results: dict, args, argv) -> str:
         f"{args.size}x{args.size}, R = {args.runs} runs per point, spp {args.spp}, max depth 8, "
         "pixel value = mean of RGB; each pixel's scene is in its heading. Machine: "
         f"{results['machine']['uptime']}",
+        "",
+        f"Runs traced and estimated in: {results['settings']['executor']}, tasks of "
+        f"{results['settings']['batch_runs']} runs; estimator times in this process.",
         "",
     ]
     for name, entry in results["pixels"].items():

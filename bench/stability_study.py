@@ -1,7 +1,8 @@
 """Stability study of the pixel estimators and their failure atlas: where each one is worse
 than plain Monte Carlo.
 
-    python bench/stability_study.py [--quick] [--out DIR] [--seed S]
+    python bench/stability_study.py [--quick] [--out DIR] [--seed S] [--task-blocks K]
+                                    [--workers N | --scheduler ADDRESS]
 
 Where and how each estimator of clrender.estimators misbehaves, measured against exact pixel
 integrals: small n (Poisson N = 0 and near-empty pixels), the rejection frequency against the
@@ -16,6 +17,18 @@ the standard Monte Carlo mean of n uniform samples. Every chart and table names 
 with its samples (mc/sppp: mc over SPPP draws, sum / n; mc/independent: the baseline), so the
 atlas's first column and its baseline are told apart. All test functions are value columns of the
 same draws, so each tessellation serves all of them.
+
+Blocks: the heavy measurements (the pixels of every n, fvor's empty filter, the rejection
+frequencies: nearly all of the study's time) are blocks of about BLOCK_POINTS points, each drawn
+from its own random stream (seed, section, n [, alpha], first pixel of the block) and estimated
+alone (one redraw driver call), so a pixel's numbers depend on its block only. Blocks run as
+tasks of --task-blocks blocks on the executor of --workers N (a Dask LocalCluster of N
+processes) or --scheduler ADDRESS, this process by default, all sections in one map; every
+number is bit-identical whatever the executor and the split (tests/test_cluster_studies.py).
+The storm (a few seconds) runs here, from its own streams; the bootstrap intervals draw from
+the seed's stream. The per-n seconds are the blocks' own, summed, where they ran. (Before the
+executor all sections drew from one stream in order, so this version's draws, and with them
+every number, differ from that version's; the statistics are the same.)
 
 Outputs (default bench/results/stability/): results.json (every number), estimates.npz (the
 raw per-pixel estimates), report.md (the failure atlas and one section per situation) and the
@@ -1298,7 +1311,8 @@ def build_report(results: dict, charts: dict, argv: list[str]) -> str:
         "",
         f"Command: `{' '.join(['python bench/stability_study.py', *argv])}` "
         f"(seed {cfg['seed']}, {'quick' if cfg['quick'] else 'full'} run, "
-        f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}.",
+        f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}. Measured in blocks of "
+        f"{cfg['block_points']} points, {cfg['task_blocks']} per task, on: {cfg['executor']}.",
         "",
         "## Failure atlas",
         "",
