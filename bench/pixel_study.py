@@ -220,7 +220,7 @@ def usable(group: Group, spp: int) -> bool:
 class Study:
     def __init__(self, args):
         self.args = args
-        # The tasks of the local executor share this runtime (compiled programs) and its tracers
+        # The tasks of the local executor share this runtime (its compiled programs)
         self.runtime = runtime_for(None)
         scenes = dict.fromkeys(PROBES[name].scene for name in args.pixels)
         self.tracers = {scene: make_tracer(self.runtime, scene) for scene in scenes}

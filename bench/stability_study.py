@@ -88,8 +88,9 @@ def displayed(names) -> list[str]:
 
 
 # Points drawn per block (see "Blocks" in the module's docstring): its pixels are drawn from
-# their own random stream and estimated together.
-BLOCK_POINTS = 50_000
+# their own random stream and estimated together (one redraw driver call of the size the
+# study's calls had before the executor).
+BLOCK_POINTS = 200_000
 EXACT_TOL = 1e-12
 BOOT_REPS = 1000
 FIREFLY_GAINS = (10, 100, 1_000, 10_000, 100_000, 1_000_000)
