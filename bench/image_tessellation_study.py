@@ -1,6 +1,7 @@
 """Image-level tessellation (ivor, ivor_sn) against per-pixel SPPP estimators on analytic images.
 
     python bench/image_tessellation_study.py [--quick] [--out DIR] [--runs R] [--size S]
+        [--runs-per-task K] [--workers N | --scheduler ADDRESS]
 
 An S x S image with four analytic functions as value columns (clrender.analytic's edge, smooth
 and disc laid out for the image, plus a linear ramp), exact pixel integrals. For each n in
@@ -16,6 +17,15 @@ from the spread of per-run image means; std = per-pixel std over runs, averaged 
 report the same time (one tessellation serves both; so do vor, vor_sn and fvor, but each is
 timed alone here, as in bench/analytic_study.py).
 
+Runs as tasks: run r at n draws from its own random stream (seed, n, r), so its numbers do not
+depend on which task computes it; tasks of --runs-per-task runs (all n in one map) go to the
+executor of --workers N (a Dask LocalCluster of N processes) or --scheduler ADDRESS, this process
+by default, and every number but the times is bit-identical whatever the executor and the split
+(tests/test_cluster_studies.py). The times are measured inside the tasks, where they ran: on a
+LocalCluster sharing this machine's cores they include that contention (results.json names the
+executor). (Before the executor every run drew from one stream in order, so this version's draws
+and numbers differ from that version's; the statistics are the same.)
+
 Outputs (default bench/results/image_tessellation/): results.json, report.md, study.png.
 """
 
@@ -26,6 +36,7 @@ import json
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -36,8 +47,10 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from common import add_executor_options, executor_from_args, executor_label  # noqa: E402
 
 from clrender.analytic import analytic_functions  # noqa: E402
+from clrender.cluster import LocalExecutor  # noqa: E402
 from clrender.estimators import ESTIMATORS, estimate, estimate_with_redraw  # noqa: E402
 from clrender.estimators.image import (  # noqa: E402
     draw_plane_poisson,
@@ -129,31 +142,72 @@ def summarise(errors: np.ndarray) -> dict:
     }
 
 
-def study_n(image: AnalyticColumns, n: int, runs: int, rng) -> dict:
-    errors = {name: [] for name in IMAGE_ESTIMATORS + PIXEL_ESTIMATORS}
-    times = {name: [] for name in errors}
-    counters = {"redraws": 0, "widened_blocks": 0, "uncertified_nuclei": 0}
-    for _ in range(runs):
-        est, seconds, stats = image_level_run(image, n, rng)
-        for name in IMAGE_ESTIMATORS:
-            errors[name].append(est[name] - image.exact)
-            times[name].append(seconds)
-        counters["widened_blocks"] += stats["widened_blocks"]
-        counters["uncertified_nuclei"] += stats["uncertified_nuclei"]
-        est, seconds, redraws = pixel_level_run(image, n, rng)
+@dataclass(frozen=True)
+class RunRange:
+    """Runs [first, first + count) at intensity n of an S x S image: one task. Run r draws
+    from the random stream (seed, n, r) alone."""
+
+    n: int
+    first: int
+    count: int
+    size: int
+    seed: int
+
+
+def run_range(task: RunRange) -> list[tuple[dict, dict, dict]]:
+    """Per run: errors (S, S, 4) per estimator, seconds per estimator (measured where the task
+    ran), counters."""
+    image = AnalyticColumns(task.size)
+    out = []
+    for run in range(task.first, task.first + task.count):
+        rng = np.random.default_rng([task.seed, task.n, run])
+        est, seconds, stats = image_level_run(image, task.n, rng)
+        errors = {name: est[name] - image.exact for name in IMAGE_ESTIMATORS}
+        times = dict.fromkeys(IMAGE_ESTIMATORS, seconds)
+        counters = {key: stats[key] for key in ("widened_blocks", "uncertified_nuclei")}
+        est, seconds, redraws = pixel_level_run(image, task.n, rng)
         for name in PIXEL_ESTIMATORS:
-            errors[name].append(est[name] - image.exact)
-            times[name].append(seconds[name])
-        counters["redraws"] += redraws
-    pixels = image.size**2
-    rows = {
-        name: {
-            **summarise(np.array(errors[name])),
-            "us_per_pixel": 1e6 * float(np.median(times[name])) / pixels,
+            errors[name] = est[name] - image.exact
+            times[name] = seconds[name]
+        out.append((errors, times, {**counters, "redraws": redraws}))
+    return out
+
+
+def study_ns(
+    size: int, runs: int, seed: int, executor=None, runs_per_task: int = 1, ns=NS
+) -> dict[str, dict]:
+    """{str(n): {"estimators": {name: summary}, "counters": {...}}} over the runs of every n,
+    from tasks of runs_per_task runs (all n in one map): the same numbers for any split and
+    any executor (this process by default)."""
+    tasks = [
+        RunRange(n, first, min(runs_per_task, runs - first), size, seed)
+        for n in ns
+        for first in range(0, runs, runs_per_task)
+    ]
+    done: list = [None] * len(tasks)
+    for index, result in (executor or LocalExecutor()).map(run_range, tasks):
+        done[index] = result
+    by_n = {}
+    for n in ns:
+        per_run = [
+            run for task, part in zip(tasks, done, strict=True) if task.n == n for run in part
+        ]
+        names = IMAGE_ESTIMATORS + PIXEL_ESTIMATORS
+        counters = {"redraws": 0, "widened_blocks": 0, "uncertified_nuclei": 0}
+        for _, _, run_counters in per_run:
+            for key in counters:
+                counters[key] += run_counters[key]
+        rows = {
+            name: {
+                **summarise(np.array([errors[name] for errors, _, _ in per_run])),
+                "us_per_pixel": 1e6
+                * float(np.median([times[name] for _, times, _ in per_run]))
+                / size**2,
+            }
+            for name in names
         }
-        for name in errors
-    }
-    return {"estimators": rows, "counters": counters}
+        by_n[str(n)] = {"estimators": rows, "counters": counters}
+    return by_n
 
 
 # ---------------------------------------------------------------------------------------------
@@ -164,6 +218,9 @@ def report_markdown(results: dict) -> str:
     lines = [
         f"# Image-level tessellation study ({results['size']}^2 pixels, "
         f"{results['runs']} runs per n)",
+        "",
+        f"Seed {results['seed']}; tasks of {results['runs_per_task']} runs on: "
+        f"{results['executor']} (times measured there).",
         "",
         "bias +- standard error, std (per pixel, RMS over pixels), us per pixel estimate.",
         "",
@@ -217,16 +274,34 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--runs", type=int, default=None, help="runs per n (default 24)")
     parser.add_argument("--size", type=int, default=None, help="image side (default 16)")
     parser.add_argument("--seed", type=int, default=2024)
+    parser.add_argument(
+        "--runs-per-task",
+        type=int,
+        default=1,
+        help="runs per task (default 1; the numbers do not depend on it)",
+    )
+    add_executor_options(parser)
     args = parser.parse_args(argv)
+    if args.runs_per_task < 1:
+        parser.error(f"--runs-per-task must be a positive integer, got {args.runs_per_task}")
     size = args.size or (8 if args.quick else 16)
     runs = args.runs or (4 if args.quick else 24)
-    rng = np.random.default_rng(args.seed)
-    image = AnalyticColumns(size)
-    results = {"size": size, "runs": runs, "functions": FUNCTIONS, "by_n": {}}
-    for n in NS:
-        start = time.perf_counter()
-        results["by_n"][str(n)] = study_n(image, n, runs, rng)
-        print(f"n = {n}: {time.perf_counter() - start:.1f} s", flush=True)
+    start = time.perf_counter()
+    executor = executor_from_args(args)
+    try:
+        by_n = study_ns(size, runs, args.seed, executor, args.runs_per_task)
+    finally:
+        executor.close()
+    results = {
+        "size": size,
+        "runs": runs,
+        "functions": FUNCTIONS,
+        "seed": args.seed,
+        "runs_per_task": args.runs_per_task,
+        "executor": executor_label(args),
+        "by_n": by_n,
+    }
+    print(f"{len(NS)} n x {runs} runs: {time.perf_counter() - start:.1f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
     (args.out / "report.md").write_text(report_markdown(results))

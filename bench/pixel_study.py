@@ -2,7 +2,7 @@
 the paper's Figures 6 and 9, over every sampler.
 
     python bench/pixel_study.py [--quick] [--runs R] [--spp 64 128 ...] [--pixels NAME ...]
-                                [--out DIR]
+                                [--batch-runs B] [--workers N | --scheduler ADDRESS] [--out DIR]
 
 Pixels found from the scenes' geometry (clrender.probes, never hard-coded), each in its scene
 (PROBES): in cornell-box, one the light's outline crosses (light covering closest to half of
@@ -18,25 +18,43 @@ each pixel and spp, R independent estimates of every (estimator, sampler) of GRO
 and pvor over independent samples; mc over stratified, stratified-pixel, sobol and zsobol; pvor
 over stratified and sobol points with a random toroidal shift per run (as the render settings
 do for it); mc_n, vor, vor_sn and fvor over sppp and sppp-sobol. A sampler is skipped at a
-count it does not take (stratified: squares; zsobol: powers of two). R sample sets of a pixel
-are drawn and traced in one launch: run r is redraw number r, an independent randomisation
-(zsobol's key includes it too), then each estimator is applied to all R runs as one batch
-(estimate_all: estimators sharing a tessellation share it). SPPP runs a Voronoi estimator
-rejects (an unbounded W cell) are replaced by further draws, as the paper's redraw does; all
-SPPP estimators of a sampler use the same accepted runs.
+count it does not take (stratified: squares; zsobol: powers of two). Run r of a point (pixel,
+sampler, spp) is redraw number r of its (seed, pixel), an independent randomisation (zsobol's
+key includes it too); runs are drawn, traced and estimated by tasks of --batch-runs runs
+(default BATCH_RUNS), each estimator applied to ESTIMATE_RUNS runs at a time (estimate_all:
+estimators sharing a tessellation share it). SPPP runs a Voronoi estimator rejects (an
+unbounded W cell) are replaced by further runs, as the paper's redraw does; all SPPP estimators
+of a sampler use the same accepted runs, the first R in run order.
+
+Where it runs: the tasks of one pixel (all its points, then any redraw rounds) go to the
+executor of --workers N (a Dask LocalCluster of N processes) or --scheduler ADDRESS (an
+existing cluster), this process by default; the scene travels as its loaded records, each
+worker opens its own device and sends back NumPy arrays. A run's random numbers are keyed by
+(seed, pixel, sample, dimension, redraw = run), and its estimate block is fixed by its index,
+so every number but the times is bit-identical whatever the executor and --batch-runs
+(tests/test_cluster_studies.py). Before the executor, each point's runs were estimated in one
+batch: the Qhull estimators' last bits depend on a run's company in a batch, so the Voronoi
+estimates can differ from that version's in their last bits (the runs traced are the same).
+
+Timings: the estimator and device-cell times are taken in this process, once a pixel's tasks
+are done (the cluster idle), on the point's first --timing-runs runs, whose sample sets the
+tasks send back: timings on workers that share the cores would not be comparable. The
+tracing time is the tasks' own (draw + trace + download of each launch, summed, per run),
+measured where they ran: on a LocalCluster sharing this machine's cores it includes that
+contention (results.json's settings name the executor).
 
 The value of a pixel is the mean of its RGB channels. Per (pixel, estimator/sampler, spp):
 mean, std and variance over the R runs; milliseconds per estimate of the estimator alone (each
 estimator run alone on the first --timing-runs runs, the fastest of >= 3 calls / runs;
-tessellation + sums, on the host) and of tracing (the launch's draw + trace + download time /
-runs); variance against their sum; ratios to mc/independent. And the Voronoi question: per
-pixel and spp, each Voronoi estimator over low-discrepancy samples (VORONOI_LD) against the
-best low-discrepancy mc (LD_MC, the lowest variance at that spp): var(best) / var(estimator)
-with a 95 % bootstrap interval, the efficiency ratio, and wins / loses / tie. Outputs (default
-bench/results/pixel_study/): results.json, report.md, fig6_<pixel>.png (mean +- std against
-spp), fig9_<pixel>.png (time against spp, variance against time, each variance with its 95 %
-bootstrap interval over the R runs: var_ci in results.json), each figure with a caption of its
-parameters (in the figure and under it in the report).
+tessellation + sums, on the host) and of tracing (see Timings); variance against their sum;
+ratios to mc/independent. And the Voronoi question: per pixel and spp, each Voronoi estimator
+over low-discrepancy samples (VORONOI_LD) against the best low-discrepancy mc (LD_MC, the
+lowest variance at that spp): var(best) / var(estimator) with a 95 % bootstrap interval, the
+efficiency ratio, and wins / loses / tie. Outputs (default bench/results/pixel_study/):
+results.json, report.md, fig6_<pixel>.png (mean +- std against spp), fig9_<pixel>.png (time
+against spp, variance against time, each variance with its 95 % bootstrap interval over the R
+runs: var_ci in results.json), each figure with a caption of its parameters (in the figure and
+under it in the report).
 """
 
 from __future__ import annotations
@@ -47,6 +65,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
+from itertools import pairwise
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -59,7 +78,10 @@ from bootstrap import ratio_interval, statistic_interval  # noqa: E402
 from common import (  # noqa: E402
     MAX_DEPTH,
     RESULTS,
+    add_executor_options,
     command_line,
+    executor_from_args,
+    executor_label,
     machine,
     make_tracer,
     markdown_table,
@@ -68,6 +90,7 @@ from common import (  # noqa: E402
 )
 from figures import SAVE_OPTIONS, caption, draw_caption, report_caption  # noqa: E402
 
+from clrender.api import runtime_for  # noqa: E402
 from clrender.estimators import ESTIMATORS, estimate, estimate_all  # noqa: E402
 from clrender.estimators.device_cells import device_sppp_cells_from_arrays  # noqa: E402
 from clrender.probes import (  # noqa: E402
@@ -83,9 +106,10 @@ from clrender.probes import (  # noqa: E402
     trace_pixel_runs,
 )
 from clrender.radiance import PathTracerSource  # noqa: E402
-from clrender.runtime import create_runtime  # noqa: E402
 from clrender.samples import SampleSets  # noqa: E402
-from clrender.sampling import SAMPLERS, make_sampler  # noqa: E402
+from clrender.sampling import SAMPLERS, SamplerConfig, make_sampler  # noqa: E402
+from clrender.scene import Scene  # noqa: E402
+from clrender.trace import PathTracer  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -168,6 +192,15 @@ VORONOI_LD = (
     "fvor/sppp-sobol",
 )
 BOOTSTRAP = 2000
+# Runs per task: a few tasks per point at the default R (200), so that one pixel's points keep
+# two workers busy; the numbers do not depend on it.
+BATCH_RUNS = 64
+# Runs estimated together (one estimate_all call). The Qhull estimators pack a call's pixels
+# into shared Qhull calls and size their ghost margins from its mean count, which changes the
+# last bits of a run's estimate with its company: so the blocks are fixed by the run index
+# (runs [16 k, 16 k + 16) of a round), whatever the tasks, and the numbers are bit-identical
+# for every --batch-runs (a multiple of it) and every executor.
+ESTIMATE_RUNS = 16
 BOOTSTRAP_ERROR_BARS = 1000  # resamples behind a variance's error bar
 # The estimators of SPPP cells (vor, vor_sn, fvor): they reject runs with an unbounded W cell,
 # and the device kernel can compute their cells.
@@ -187,14 +220,15 @@ def usable(group: Group, spp: int) -> bool:
 class Study:
     def __init__(self, args):
         self.args = args
-        self.runtime = create_runtime()
+        # The tasks of the local executor share this runtime (its compiled programs)
+        self.runtime = runtime_for(None)
         scenes = dict.fromkeys(PROBES[name].scene for name in args.pixels)
         self.tracers = {scene: make_tracer(self.runtime, scene) for scene in scenes}
         self.size = args.size
         for tracer in self.tracers.values():  # warm-up: kernel builds are not timed
             for group in GROUPS:
                 trace_pixel_runs(
-                    self.runtime, tracer, self.sampler(group, 16), 0, 0, 2, self.size, self.size
+                    self.runtime, tracer, sampler_of(group, 16), 0, 0, 2, self.size, self.size
                 )
 
     def find_pixel(self, probe: Probe) -> ProbePixel:
@@ -211,84 +245,241 @@ class Study:
         )
         return image
 
-    @staticmethod
-    def sampler(group: Group, spp: int):
-        return replace(make_sampler(group.sampler, spp), toroidal_shift=group.shift)
-
-    def runs(
-        self, scene: str, group: Group, spp: int, pixel: int, count: int, first: int
-    ) -> PixelRuns:
-        return trace_pixel_runs(
-            self.runtime,
-            self.tracers[scene],
-            self.sampler(group, spp),
-            self.args.seed + group.seed,
-            pixel,
-            count,
-            self.size,
-            self.size,
-            first,
+    def points(self, scene: str, pixel: int, executor) -> dict[tuple[int, str], dict]:
+        """{(spp, group key): {label: {"values": (R,), "estimator_ms", "trace_ms", ...}}} for
+        every usable (spp, group) of a pixel: the runs on the executor, then the timings here."""
+        points = [(spp, group) for spp in self.args.spp for group in GROUPS if usable(group, spp)]
+        scene_data = self.tracers[scene].scene
+        shared = executor.share(scene_data) if hasattr(executor, "share") else scene_data
+        runs = gather_runs(
+            executor,
+            shared,
+            [point_of(group, spp, pixel, self.args) for spp, group in points],
+            self.args.runs,
+            self.args.batch_runs,
         )
+        return {
+            (spp, group.key): self.timed(group, spp, point)
+            for (spp, group), point in zip(points, runs, strict=True)
+        }
 
-    def group(self, scene: str, group: Group, spp: int, pixel: int) -> dict:
-        """{label: {"values": (R,), "estimator_ms", "trace_ms"}} for one sampler's group at a
-        pixel of a scene."""
-        sampler = self.sampler(group, spp)
-        names = list(group.estimators)
-        R = self.args.runs
-        spare = max(4, R // 20) if sampler.is_sppp else 0
-        values = {name: [] for name in names}
-        seconds = dict.fromkeys(names, 0.0)
-        device_s = dict.fromkeys(names, 0.0)
-        trace_s, drawn, accepted = 0.0, 0, 0
-        while accepted < R:
-            runs = self.runs(scene, group, spp, pixel, R - accepted + spare, drawn)
-            trace_s += runs.trace_seconds
-            drawn += runs.runs
-            batch = estimate_batch(runs, sampler, names, self.args.timing_runs)
-            device = device_times(self.runtime, runs, sampler, names, self.args.timing_runs)
-            keep = ~np.logical_or.reduce(
-                [batch[n][1] for n in names if n in REJECTING] + [np.zeros(runs.runs, bool)]
-            )
-            for name in names:
-                values[name].append(batch[name][0][keep])
-                seconds[name] += batch[name][2] * runs.runs
-                device_s[name] += device.get(name, 0.0) * runs.runs
-            accepted += int(keep.sum())
+    def timed(self, group: Group, spp: int, point: PointRuns) -> dict:
+        """A point's entries, with the times of its estimators taken here (see the module's
+        docstring: Timings)."""
+        sampler = sampler_of(group, spp)
+        names = group.estimators
+        timing, timing_values = point.timing
+        seconds = {
+            name: min_seconds(lambda name=name: estimate(name, timing, timing_values))
+            / timing.pixel_count
+            for name in names
+        }
+        device = device_times(self.runtime, timing, timing_values, sampler, names)
         return {
             f"{name}/{group.sampler}": {
-                "values": np.concatenate(values[name])[:R],
-                "estimator_ms": 1e3 * seconds[name] / drawn,
-                "trace_ms": 1e3 * trace_s / drawn,
-                "rejected_runs": drawn - accepted,
-                "device_cells_ms": 1e3 * device_s[name] / drawn if name in REJECTING else None,
+                "values": point.values[name],
+                "estimator_ms": 1e3 * seconds[name],
+                "trace_ms": 1e3 * point.trace_seconds / point.drawn,
+                "rejected_runs": point.drawn - point.accepted,
+                "device_cells_ms": 1e3 * device[name] if name in REJECTING else None,
             }
             for name in names
         }
 
 
-def estimate_batch(runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
-    """{name: (estimates (R,), needs_redraw (R,), seconds per run)}: values from one
-    estimate_all on every run (shared tessellations), times from each estimator alone on the
-    first timing_runs runs."""
-    samples, values = pixel_samples(runs, sampler)
-    results = estimate_all(names, samples, values)
-    timing, timing_values = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
-    return {
-        name: (
-            results[name].estimates,
-            results[name].needs_redraw,
-            min_seconds(lambda name=name: estimate(name, timing, timing_values))
-            / timing.pixel_count,
+def sampler_of(group: Group, spp: int):
+    return replace(make_sampler(group.sampler, spp), toroidal_shift=group.shift)
+
+
+# ---------------------------------------------------------------------------------------------
+# Runs on the executor
+
+
+@dataclass(frozen=True)
+class Point:
+    """One (pixel, sampler group, spp) of the study, as plain data for the tasks."""
+
+    sampler: SamplerConfig
+    estimators: tuple[str, ...]
+    seed: int
+    pixel: int
+    size: int
+    timing_runs: int
+
+
+def point_of(group: Group, spp: int, pixel: int, args) -> Point:
+    return Point(
+        sampler_of(group, spp),
+        group.estimators,
+        args.seed + group.seed,
+        pixel,
+        args.size,
+        args.timing_runs,
+    )
+
+
+@dataclass(frozen=True)
+class RunBatch:
+    """Runs [first, first + count) of a point: one task."""
+
+    index: int  # the point's, in the study's list
+    point: Point
+    first: int
+    count: int
+
+
+@dataclass
+class BatchResult:
+    """A task's estimates of its runs (count,) per estimator, which runs an SPPP-cell estimator
+    rejected, the device time of the launch, and the sample sets of its runs below the point's
+    timing_runs (for the timings, taken by the client) with their values."""
+
+    estimates: dict[str, np.ndarray]
+    rejected: np.ndarray
+    trace_seconds: float
+    timing: tuple[SampleSets, np.ndarray] | None
+
+
+def trace_batch(batch: RunBatch, scene: Scene) -> BatchResult:
+    """Draw, trace and estimate runs [first, first + count) of a point on this process's
+    runtime. Run r is redraw number r of the point's (seed, pixel), so its estimates do not
+    depend on which task or worker computes it."""
+    point = batch.point
+    runtime = runtime_for(None)
+    tracer = PathTracer(runtime, scene, max_depth=MAX_DEPTH)
+    args = (runtime, tracer, point.sampler, point.seed, point.pixel)
+    # One untimed run first: a worker's first launch of a sampler builds its kernels
+    trace_pixel_runs(*args, 1, point.size, point.size, batch.first)
+    runs = trace_pixel_runs(*args, batch.count, point.size, point.size, batch.first)
+    # Estimate in blocks of ESTIMATE_RUNS runs aligned to the run index (see ESTIMATE_RUNS)
+    estimates = {name: [] for name in point.estimators}
+    rejected = []
+    for start, end in estimate_blocks(batch.first, batch.count):
+        samples, values = pixel_samples(runs, point.sampler, start, end)
+        results = estimate_all(list(point.estimators), samples, values)
+        rejected.append(np.zeros(end - start, bool))
+        for name in point.estimators:
+            estimates[name].append(results[name].estimates)
+            if name in REJECTING:
+                rejected[-1] |= results[name].needs_redraw
+    timed = min(max(point.timing_runs - batch.first, 0), batch.count)
+    return BatchResult(
+        {name: np.concatenate(parts) for name, parts in estimates.items()},
+        np.concatenate(rejected),
+        runs.trace_seconds,
+        pixel_samples(runs, point.sampler, 0, timed) if timed else None,
+    )
+
+
+def estimate_blocks(first: int, count: int) -> list[tuple[int, int]]:
+    """[start, end) of the estimate blocks of runs [first, first + count), relative to first:
+    cut at every multiple of ESTIMATE_RUNS."""
+    cuts = range((first // ESTIMATE_RUNS + 1) * ESTIMATE_RUNS, first + count, ESTIMATE_RUNS)
+    bounds = [first, *cuts, first + count]
+    return [(a - first, b - first) for a, b in pairwise(bounds) if b > a]
+
+
+@dataclass
+class PointRuns:
+    """The first R accepted runs of a point (values per estimator), how many runs were drawn
+    and accepted, the summed device time, and the timing runs (sample sets, values)."""
+
+    values: dict[str, np.ndarray]
+    drawn: int
+    accepted: int
+    trace_seconds: float
+    timing: tuple[SampleSets, np.ndarray]
+
+
+def split_runs(index: int, point: Point, first: int, count: int, batch_runs: int) -> list[RunBatch]:
+    """Tasks of runs [first, first + count), cut at every multiple of batch_runs (itself a
+    multiple of ESTIMATE_RUNS, so that a task never splits an estimate block)."""
+    cuts = range((first // batch_runs + 1) * batch_runs, first + count, batch_runs)
+    bounds = [first, *cuts, first + count]
+    return [RunBatch(index, point, a, b - a) for a, b in pairwise(bounds) if b > a]
+
+
+def gather_runs(
+    executor, scene, points: list[Point], runs: int, batch_runs: int
+) -> list[PointRuns]:
+    """R accepted runs of every point, in rounds of tasks of at most batch_runs runs each:
+    round one draws R runs of each point (and a few spare ones for SPPP samplers, whose
+    Voronoi estimators reject some), each further round as many more as a point still
+    lacks (plus the spare). A point keeps its first R accepted runs in run order, so the
+    numbers depend neither on batch_runs nor on where the tasks ran."""
+    spare = [max(4, runs // 20) if point.sampler.is_sppp else 0 for point in points]
+    parts: list[list[tuple[int, BatchResult]]] = [[] for _ in points]
+    drawn = [0] * len(points)
+    accepted = [0] * len(points)
+    wanted = {index: runs + spare[index] for index in range(len(points))}
+    while wanted:
+        batches = [
+            batch
+            for index, count in wanted.items()
+            for batch in split_runs(index, points[index], drawn[index], count, batch_runs)
+        ]
+        for task, result in executor.map(trace_batch, batches, scene):
+            batch = batches[task]
+            parts[batch.index].append((batch.first, result))
+            accepted[batch.index] += int((~result.rejected).sum())
+        for index, count in wanted.items():
+            drawn[index] += count
+        wanted = {
+            index: runs - accepted[index] + spare[index]
+            for index in range(len(points))
+            if accepted[index] < runs
+        }
+    return [
+        point_runs(
+            point, sorted(part, key=lambda item: item[0]), drawn[index], accepted[index], runs
         )
-        for name in names
+        for index, (point, part) in enumerate(zip(points, parts, strict=True))
+    ]
+
+
+def point_runs(
+    point: Point, part: list[tuple[int, BatchResult]], drawn: int, accepted: int, runs: int
+) -> PointRuns:
+    results = [result for _, result in part]
+    values = {
+        name: np.concatenate([r.estimates[name][~r.rejected] for r in results])[:runs]
+        for name in point.estimators
     }
+    timing = [r.timing for r in results if r.timing is not None]
+    return PointRuns(
+        values,
+        drawn,
+        accepted,
+        sum(r.trace_seconds for r in results),
+        (join_sample_sets([t[0] for t in timing]), np.concatenate([t[1] for t in timing])),
+    )
 
 
-def device_times(runtime, runs: PixelRuns, sampler, names, timing_runs: int) -> dict:
+def join_sample_sets(parts: list[SampleSets]) -> SampleSets:
+    """One SampleSets of the pixels of `parts`, in order (same n and eps)."""
+
+    def offsets(name):
+        ends = np.cumsum([0] + [getattr(p, name)[-1] for p in parts[:-1]])
+        return np.concatenate(
+            [getattr(parts[0], name)[:1]]
+            + [getattr(p, name)[1:] + end for p, end in zip(parts, ends, strict=True)]
+        )
+
+    first = parts[0]
+    has_aux = first.aux is not None
+    return SampleSets(
+        np.concatenate([p.traced for p in parts]),
+        offsets("offsets"),
+        first.n,
+        np.concatenate([p.aux for p in parts]) if has_aux else None,
+        offsets("aux_offsets") if has_aux else None,
+        first.eps,
+    )
+
+
+def device_times(runtime, timing: SampleSets, timing_values, sampler, names) -> dict:
     """{name: seconds per run} of the SPPP-cell estimators (vor, vor_sn, fvor) with their cells
     from the device kernel (clrender.estimators.device_cells, upload included) instead of Qhull."""
-    timing, timing_values = pixel_samples(runs, sampler, min(timing_runs, runs.runs))
 
     def run(name):
         box = 0.5 + sampler.eps if ESTIMATORS[name].kept_cells else None  # fvor
@@ -316,22 +507,23 @@ def min_seconds(call, min_calls: int = 3, budget: float = 0.1) -> float:
 
 
 def pixel_samples(
-    runs: PixelRuns, sampler, first: int | None = None
+    runs: PixelRuns, sampler, start: int = 0, end: int | None = None
 ) -> tuple[SampleSets, np.ndarray]:
-    """The runs as a batch of pixels (the first `first` runs only if given) and the values of
-    their traced samples; value = RGB mean."""
+    """Runs [start, end) (default all) as a batch of pixels and the values of their traced
+    samples; value = RGB mean."""
     sets = runs.sets
-    p = runs.runs if first is None else first
-    traced, aux = sets.offsets[p], sets.aux_offsets[p]
+    end = runs.runs if end is None else end
+    traced = slice(sets.offsets[start], sets.offsets[end])
+    aux = slice(sets.aux_offsets[start], sets.aux_offsets[end])
     samples = SampleSets(
-        sets.traced[:traced].astype(np.float64),
-        sets.offsets[: p + 1],
+        sets.traced[traced].astype(np.float64),
+        sets.offsets[start : end + 1] - sets.offsets[start],
         float(sampler.n),
-        sets.aux[:aux].astype(np.float64),
-        sets.aux_offsets[: p + 1],
+        sets.aux[aux].astype(np.float64),
+        sets.aux_offsets[start : end + 1] - sets.aux_offsets[start],
         sampler.eps,
     )
-    return samples, runs.radiance[:traced].mean(axis=1)
+    return samples, runs.radiance[traced].mean(axis=1)
 
 
 def summarise(entry: dict, rng: np.random.Generator) -> dict:
@@ -362,17 +554,18 @@ def device_summary(entry: dict) -> dict:
     }
 
 
-def study_pixel(study: Study, scene: str, pixel: ProbePixel) -> tuple[dict, dict]:
+def study_pixel(study: Study, scene: str, pixel: ProbePixel, executor) -> tuple[dict, dict]:
     """({spp: {label: summary}}, {spp: {label: values (R,)}}) over the spp list."""
     table, values = {}, {}
     rng = np.random.default_rng([study.args.seed, 1])  # error bars only: the draws are not its
+    points = study.points(scene, pixel.pixel, executor)
     for spp in study.args.spp:
         row = {}
         values[spp] = {}
         for group in GROUPS:
             if not usable(group, spp):
                 continue
-            for label, entry in study.group(scene, group, spp, pixel.pixel).items():
+            for label, entry in points[spp, group.key].items():
                 row[label] = summarise(entry, rng)
                 values[spp][label] = entry["values"]
         table[spp] = row
@@ -607,8 +800,19 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=32,
         help="runs each estimator is timed on alone (default 32)",
     )
+    parser.add_argument(
+        "--batch-runs",
+        type=int,
+        default=BATCH_RUNS,
+        help=f"runs per task (default {BATCH_RUNS}; the numbers do not depend on it)",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS / "pixel_study")
+    add_executor_options(parser)
     args = parser.parse_args(argv)
+    if args.batch_runs < 1 or args.batch_runs % ESTIMATE_RUNS:
+        parser.error(
+            f"--batch-runs must be a positive multiple of {ESTIMATE_RUNS}, got {args.batch_runs}"
+        )
     args.runs = args.runs or (16 if args.quick else 200)
     args.spp = args.spp or ([64, 256] if args.quick else [2**k for k in range(6, 13)])
     return args
@@ -647,6 +851,9 @@ def report(results: dict, args, argv) -> str:
         f"{args.size}x{args.size}, R = {args.runs} runs per point, spp {args.spp}, max depth 8, "
         "pixel value = mean of RGB; each pixel's scene is in its heading. Machine: "
         f"{results['machine']['uptime']}",
+        "",
+        f"Runs traced and estimated in: {results['settings']['executor']}, tasks of "
+        f"{results['settings']['batch_runs']} runs; estimator times in this process.",
         "",
     ]
     for name, entry in results["pixels"].items():
@@ -736,6 +943,7 @@ def main(argv=None) -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     study = Study(args)
     args.device = study.runtime.describe()
+    executor = executor_from_args(args)
     start = time.perf_counter()
     results = {
         "settings": {
@@ -746,34 +954,45 @@ def main(argv=None) -> None:
             "seed": args.seed,
             "quick": args.quick,
             "device": args.device,
+            "batch_runs": args.batch_runs,
+            "executor": executor_label(args),
         },
         "machine_before": machine(),
         "pixels": {},
     }
-    for name in args.pixels:
-        scene = PROBES[name].scene
-        pixel = study.find_pixel(PROBES[name])
-        print(f"{name} ({scene}): {pixel.as_dict()}", flush=True)
-        table, values = study_pixel(study, scene, pixel)
-        top = max(spp for spp in table if REFERENCE_LABEL in table[spp])
-        ref = table[top][REFERENCE_LABEL]["mean"]
-        results["pixels"][name] = {
-            "scene": scene,
-            "pixel": pixel.as_dict(),
-            "table": table,
-            "reference": ref,
-            "reference_spp": top,
-            "variance_ratio": variance_ratios(table),
-            "efficiency_ratio": efficiency_ratios(table),
-            "voronoi_vs_ld": voronoi_vs_ld(table, values, args.seed),
-        }
-        plot_fig6(table, name, scene, pixel, ref, args, args.out)
-        plot_fig9(table, name, scene, pixel, args, args.out)
+    try:
+        for name in args.pixels:
+            study_probe(study, name, executor, results["pixels"])
+    finally:
+        executor.close()
     results["machine"] = machine()
     results["seconds"] = time.perf_counter() - start
     write_json(args.out / "results.json", results)
     (args.out / "report.md").write_text(report(results, args, argv) + "\n")
     print(f"done in {results['seconds']:.0f} s; wrote {args.out}/results.json, report.md, PNGs")
+
+
+def study_probe(study: Study, name: str, executor, pixels: dict) -> None:
+    """Find a probe's pixel, measure it, write its figures and add its entry to pixels."""
+    args = study.args
+    scene = PROBES[name].scene
+    pixel = study.find_pixel(PROBES[name])
+    print(f"{name} ({scene}): {pixel.as_dict()}", flush=True)
+    table, values = study_pixel(study, scene, pixel, executor)
+    top = max(spp for spp in table if REFERENCE_LABEL in table[spp])
+    ref = table[top][REFERENCE_LABEL]["mean"]
+    pixels[name] = {
+        "scene": scene,
+        "pixel": pixel.as_dict(),
+        "table": table,
+        "reference": ref,
+        "reference_spp": top,
+        "variance_ratio": variance_ratios(table),
+        "efficiency_ratio": efficiency_ratios(table),
+        "voronoi_vs_ld": voronoi_vs_ld(table, values, args.seed),
+    }
+    plot_fig6(table, name, scene, pixel, ref, args, args.out)
+    plot_fig9(table, name, scene, pixel, args, args.out)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,8 @@
 """Stability study of the pixel estimators and their failure atlas: where each one is worse
 than plain Monte Carlo.
 
-    python bench/stability_study.py [--quick] [--out DIR] [--seed S]
+    python bench/stability_study.py [--quick] [--out DIR] [--seed S] [--task-blocks K]
+                                    [--workers N | --scheduler ADDRESS]
 
 Where and how each estimator of clrender.estimators misbehaves, measured against exact pixel
 integrals: small n (Poisson N = 0 and near-empty pixels), the rejection frequency against the
@@ -16,6 +17,18 @@ the standard Monte Carlo mean of n uniform samples. Every chart and table names 
 with its samples (mc/sppp: mc over SPPP draws, sum / n; mc/independent: the baseline), so the
 atlas's first column and its baseline are told apart. All test functions are value columns of the
 same draws, so each tessellation serves all of them.
+
+Blocks: the heavy measurements (the pixels of every n, fvor's empty filter, the rejection
+frequencies: nearly all of the study's time) are blocks of about BLOCK_POINTS points, each drawn
+from its own random stream (seed, section, n [, alpha], first pixel of the block) and estimated
+alone (one redraw driver call), so a pixel's numbers depend on its block only. Blocks run as
+tasks of --task-blocks blocks on the executor of --workers N (a Dask LocalCluster of N
+processes) or --scheduler ADDRESS, this process by default, all sections in one map; every
+number is bit-identical whatever the executor and the split (tests/test_cluster_studies.py).
+The storm (a few seconds) runs here, from its own streams; the bootstrap intervals draw from
+the seed's stream. The per-n seconds are the blocks' own, summed, where they ran. (Before the
+executor all sections drew from one stream in order, so this version's draws, and with them
+every number, differ from that version's; the statistics are the same.)
 
 Outputs (default bench/results/stability/): results.json (every number), estimates.npz (the
 raw per-pixel estimates), report.md (the failure atlas and one section per situation) and the
@@ -43,10 +56,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from analytic_study import FUNCTIONS  # noqa: E402
 from bootstrap import ratio_interval  # noqa: E402
+from common import add_executor_options, executor_from_args, executor_label  # noqa: E402
 from figures import caption, draw_caption, report_caption  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
 from clrender.analytic import SmoothSines, StepEdge  # noqa: E402
+from clrender.cluster import LocalExecutor  # noqa: E402
 from clrender.errors import ClrenderError  # noqa: E402
 from clrender.estimators import estimate, estimate_all, estimate_with_redraw  # noqa: E402
 from clrender.estimators.qhull_cells import sppp_cells  # noqa: E402
@@ -72,7 +87,10 @@ def displayed(names) -> list[str]:
     return [display(name) for name in names]
 
 
-POINTS_PER_CALL = 200_000
+# Points drawn per block (see "Blocks" in the module's docstring): its pixels are drawn from
+# their own random stream and estimated together (one redraw driver call of the size the
+# study's calls had before the executor).
+BLOCK_POINTS = 200_000
 EXACT_TOL = 1e-12
 BOOT_REPS = 1000
 FIREFLY_GAINS = (10, 100, 1_000, 10_000, 100_000, 1_000_000)
@@ -167,62 +185,143 @@ def add_redraw_stats(total: dict, stats) -> None:
     total["final_eps"] = max(total.get("final_eps", 0.0), stats.final_eps)
 
 
-def sppp_draw(rng, n: float, start: int, counts: np.ndarray, accept_eps: np.ndarray):
+def sppp_draw(rng, n: float, counts: np.ndarray, accept_eps: np.ndarray):
     """The draw for the driver (sample sets and their values); it records N and eps of each
     pixel's last draw, which is its accepted one (rejected pixels are drawn again, accepted
     ones never)."""
 
     def draw(pixel_ids, eps):
-        accept_eps[start + pixel_ids] = eps
+        accept_eps[pixel_ids] = eps
         samples = draw_sppp(rng, n, len(pixel_ids), eps=eps)
-        counts[start + pixel_ids] = samples.counts
+        counts[pixel_ids] = samples.counts
         return samples, evaluate_columns(samples.traced, samples.offsets)
 
     return draw
 
 
-def run_sppp(
-    n: float, runs: int, rng, names=SPPP_NAMES, **driver
-) -> tuple[dict, np.ndarray, np.ndarray, dict]:
-    """SPPP estimates of `runs` pixels through the redraw driver (driver options passed on)."""
-    eps = driver.pop("eps", None)
-    per_call = max(1, POINTS_PER_CALL // (int(n) + auxiliary_count(n, eps or sppp_eps(n))))
-    counts, accept_eps = np.zeros(runs, np.int64), np.zeros(runs)
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
-    stats: dict = {}
-    for start in range(0, runs, per_call):
-        count = min(per_call, runs - start)
-        draw = sppp_draw(rng, n, start, counts, accept_eps)
-        outcome = estimate_with_redraw(names, draw, count, n, eps=eps, **driver)
-        for name in names:
-            parts[name].append(outcome.estimates[name])
-        add_redraw_stats(stats, outcome.stats)
-    return {k: np.concatenate(v) for k, v in parts.items()}, counts, accept_eps, stats
+# ---------------------------------------------------------------------------------------------
+# Blocks: the measurements as tasks of an executor (bench/common.py --workers / --scheduler)
 
 
-def run_uniform(n: int, runs: int, rng) -> dict[str, np.ndarray]:
-    """Baseline mc, cvor and pvor on N = n uniform points per pixel."""
-    per_call = max(1, POINTS_PER_CALL // n)
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in ["baseline", *UNIFORM_NAMES]}
-    for start in range(0, runs, per_call):
-        count = min(per_call, runs - start)
-        positions = rng.random((count * n, 2)) - 0.5
-        offsets = np.arange(count + 1, dtype=np.int64) * n
-        samples = SampleSets(positions, offsets, float(n))
+# The random streams of the measurements: (seed, section, key..., first pixel of the block)
+STREAM_SPPP, STREAM_UNIFORM, STREAM_FVOR, STREAM_REJECTION, STREAM_STORM = range(1, 6)
+
+
+@dataclass(frozen=True)
+class Block:
+    """Pixels [start, start + count) of one measurement, drawn from the random stream
+    (*stream, start) alone: plain data for a task. kind: "sppp" (SPPP estimators through the
+    redraw driver, options `driver`), "uniform" (baseline, cvor and pvor on n uniform points),
+    "fvor" (fvor's empty filtered set) or "rejection" (first-draw rejections at eps)."""
+
+    kind: str
+    n: int
+    start: int
+    count: int
+    stream: tuple[int, ...]
+    eps: float | None = None
+    names: tuple[str, ...] = tuple(SPPP_NAMES)
+    driver: tuple[tuple[str, object], ...] = ()
+
+    def rng(self) -> np.random.Generator:
+        return np.random.default_rng([*self.stream, self.start])
+
+
+def blocks_of(kind: str, n: int, pixels: int, stream, points_per_pixel: int, **fields) -> list:
+    """The blocks of `pixels` pixels of a measurement: BLOCK_POINTS points each."""
+    per_block = max(1, BLOCK_POINTS // points_per_pixel)
+    return [
+        Block(kind, n, start, min(per_block, pixels - start), tuple(stream), **fields)
+        for start in range(0, pixels, per_block)
+    ]
+
+
+def sppp_blocks(n: int, pixels: int, stream, eps=None, names=SPPP_NAMES, **driver) -> list:
+    points = n + auxiliary_count(n, eps or sppp_eps(n))
+    return blocks_of(
+        "sppp",
+        n,
+        pixels,
+        stream,
+        points,
+        eps=eps,
+        names=tuple(names),
+        driver=tuple(sorted(driver.items())),
+    )
+
+
+def run_block(block: Block):
+    """A block's measurement (see Block), and the seconds it took where it ran."""
+    start = time.perf_counter()
+    rng = block.rng()
+    if block.kind == "sppp":
+        counts, accept_eps = np.zeros(block.count, np.int64), np.zeros(block.count)
+        draw = sppp_draw(rng, block.n, counts, accept_eps)
+        outcome = estimate_with_redraw(
+            list(block.names), draw, block.count, block.n, eps=block.eps, **dict(block.driver)
+        )
+        result = (outcome.estimates, counts, accept_eps, outcome.stats)
+    elif block.kind == "uniform":
+        positions = rng.random((block.count * block.n, 2)) - 0.5
+        offsets = np.arange(block.count + 1, dtype=np.int64) * block.n
+        samples = SampleSets(positions, offsets, float(block.n))
         results = estimate_all(
             ["mc", *UNIFORM_NAMES], samples, evaluate_columns(positions, offsets)
         )
-        parts["baseline"].append(results["mc"].estimates)
-        for name in UNIFORM_NAMES:
-            parts[name].append(results[name].estimates)
-    return {k: np.concatenate(v) for k, v in parts.items()}
+        result = {
+            "baseline": results["mc"].estimates,
+            **{name: results[name].estimates for name in UNIFORM_NAMES},
+        }
+    elif block.kind == "fvor":
+        result = fvor_empty_row(block.n, block.count, rng)
+    else:  # rejection
+        batch = draw_sppp(rng, block.n, block.count, eps=block.eps)
+        result = int(estimate("vor", batch, np.ones(len(batch.traced))).needs_redraw.sum())
+    return result, time.perf_counter() - start
 
 
-def run_all(n: int, runs: int, rng) -> Runs:
-    start = time.perf_counter()
-    sppp, counts, _, stats = run_sppp(n, runs, rng)
-    estimates = {**sppp, **run_uniform(n, runs, rng)}
-    return Runs(n, estimates, counts, stats, time.perf_counter() - start)
+def run_task(blocks: list[Block]) -> list:
+    """One task: its blocks, in order."""
+    return [run_block(block) for block in blocks]
+
+
+def run_blocks(blocks: list[Block], executor=None, task_blocks: int = 1) -> list:
+    """[(result, seconds)] of every block, in order, from tasks of task_blocks consecutive
+    blocks on the executor (this process by default): the same numbers for any split."""
+    tasks = [blocks[k : k + task_blocks] for k in range(0, len(blocks), task_blocks)]
+    results: list = [None] * len(tasks)
+    for index, result in (executor or LocalExecutor()).map(run_task, tasks):
+        results[index] = result
+    return [result for task in results for result in task]
+
+
+def joined_sppp(results: list) -> tuple[dict, np.ndarray, np.ndarray, dict]:
+    """The sppp blocks' results as one: estimates per estimator, N and accepting eps of each
+    pixel, and the redraw statistics."""
+    stats: dict = {}
+    for (_, _, _, block_stats), _ in results:
+        add_redraw_stats(stats, block_stats)
+    estimates = {
+        name: np.concatenate([r[0][name] for r, _ in results]) for name in results[0][0][0]
+    }
+    counts = np.concatenate([r[1] for r, _ in results])
+    accept_eps = np.concatenate([r[2] for r, _ in results])
+    return estimates, counts, accept_eps, stats
+
+
+def run_sppp(n: int, runs: int, stream, executor=None, names=SPPP_NAMES, **driver):
+    """SPPP estimates of `runs` pixels through the redraw driver (driver options passed on)."""
+    eps = driver.pop("eps", None)
+    return joined_sppp(run_blocks(sppp_blocks(n, runs, stream, eps, names, **driver), executor))
+
+
+def runs_of(n: int, sppp: list, uniform: list) -> Runs:
+    """An n's Runs from its sppp and uniform blocks' results; seconds: the blocks' own."""
+    estimates, counts, _, stats = joined_sppp(sppp)
+    for name in ["baseline", *UNIFORM_NAMES]:
+        estimates[name] = np.concatenate([r[name] for r, _ in uniform])
+    seconds = sum(t for _, t in sppp) + sum(t for _, t in uniform)
+    return Runs(n, estimates, counts, stats, seconds)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -348,51 +447,41 @@ def near_empty_section(runs: Runs) -> dict:
     return {"n": runs.n, "function": "smooth", "classes": table}
 
 
-def fvor_empty_section(ns, pixels: int, rng) -> list[dict]:
+def fvor_empty_row(n: int, pixels: int, rng) -> dict:
     """How often fvor's filtered set is empty (no W cell inside W') and what it returns then."""
-    rows = []
     c, exact = col("smooth"), EXACT[col("smooth")]
-    for n in ns:
-        batch = draw_sppp(rng, n, pixels)
-        values = evaluate_columns(batch.traced, batch.offsets)[:, c]
-        results = estimate_all(["vor_sn", "fvor"], batch, values)
-        cells = sppp_cells(
-            batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5 + batch.eps
-        )
-        counts = batch.counts
-        pixel = np.repeat(np.arange(pixels), counts)
-        kept = np.bincount(pixel, cells.inside_box & cells.bounded, pixels)
-        valid = ~results["fvor"].needs_redraw & (counts > 0)
-        empty = valid & (kept == 0)
-        fvor, vor_sn = results["fvor"].estimates, results["vor_sn"].estimates
-        rows.append(
-            {
-                "n": n,
-                "pixels": pixels,
-                "eps": batch.eps,
-                "valid_nonempty": int(valid.sum()),
-                "empty_filtered": int(empty.sum()),
-                "frequency": float(empty.sum() / valid.sum()),
-                "stats_empty_filtered": results["fvor"].stats.empty_filtered,
-                "max_abs_fvor_minus_vor_sn": float(np.abs(fvor[empty] - vor_sn[empty]).max())
-                if empty.any()
-                else None,
-                "mean_N_when_empty": float(counts[empty].mean()) if empty.any() else None,
-                "rms_error_empty": float(rmse(fvor[empty] - exact)) if empty.any() else None,
-                "rms_error_kept": float(rmse(fvor[valid & ~empty] - exact)),
-            }
-        )
-    return rows
+    batch = draw_sppp(rng, n, pixels)
+    values = evaluate_columns(batch.traced, batch.offsets)[:, c]
+    results = estimate_all(["vor_sn", "fvor"], batch, values)
+    cells = sppp_cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets, 0.5 + batch.eps)
+    counts = batch.counts
+    pixel = np.repeat(np.arange(pixels), counts)
+    kept = np.bincount(pixel, cells.inside_box & cells.bounded, pixels)
+    valid = ~results["fvor"].needs_redraw & (counts > 0)
+    empty = valid & (kept == 0)
+    fvor, vor_sn = results["fvor"].estimates, results["vor_sn"].estimates
+    return {
+        "n": n,
+        "pixels": pixels,
+        "eps": batch.eps,
+        "valid_nonempty": int(valid.sum()),
+        "empty_filtered": int(empty.sum()),
+        "frequency": float(empty.sum() / valid.sum()),
+        "stats_empty_filtered": results["fvor"].stats.empty_filtered,
+        "max_abs_fvor_minus_vor_sn": float(np.abs(fvor[empty] - vor_sn[empty]).max())
+        if empty.any()
+        else None,
+        "mean_N_when_empty": float(counts[empty].mean()) if empty.any() else None,
+        "rms_error_empty": float(rmse(fvor[empty] - exact)) if empty.any() else None,
+        "rms_error_kept": float(rmse(fvor[valid & ~empty] - exact)),
+    }
 
 
-def rejection_frequency(n: int, alpha: float, pixels: int, rng) -> dict:
-    """First-draw rejection frequency (a W nucleus with an unbounded cell) at eps(n, alpha)."""
+def rejection_row(n: int, alpha: float, pixels: int, results: list) -> dict:
+    """First-draw rejection frequency (a W nucleus with an unbounded cell) at eps(n, alpha),
+    from the rejection blocks' counts."""
     eps = sppp_eps(n, alpha)
-    per_call = max(1, POINTS_PER_CALL // (n + auxiliary_count(n, eps)))
-    rejected = 0
-    for start in range(0, pixels, per_call):
-        batch = draw_sppp(rng, n, min(per_call, pixels - start), eps=eps)
-        rejected += int(estimate("vor", batch, np.ones(len(batch.traced))).needs_redraw.sum())
+    rejected = sum(count for count, _ in results)
     return {
         "n": n,
         "alpha": alpha,
@@ -406,17 +495,17 @@ def rejection_frequency(n: int, alpha: float, pixels: int, rng) -> dict:
     }
 
 
-def rejection_section(ns, pixels_for, rng) -> list[dict]:
-    rows = []
-    for n in ns:
-        for alpha in REJECTION_BOUNDS:
-            rows.append(rejection_frequency(n, alpha, pixels_for(n, alpha), rng))
-    return rows
+def rejection_blocks(n: int, alpha_index: int, pixels: int, seed: int) -> list[Block]:
+    eps = sppp_eps(n, REJECTION_BOUNDS[alpha_index])
+    stream = (seed, STREAM_REJECTION, n, alpha_index)
+    return blocks_of("rejection", n, pixels, stream, n + auxiliary_count(n, eps), eps=eps)
 
 
-def storm_run(label: str, pixels: int, rng, driver: dict) -> dict:
+def storm_run(label: str, pixels: int, stream, driver: dict) -> dict:
     start = time.perf_counter()
-    estimates, counts, accept_eps, stats = run_sppp(STORM_N, pixels, rng, eps=STORM_EPS, **driver)
+    estimates, counts, accept_eps, stats = run_sppp(
+        STORM_N, pixels, stream, eps=STORM_EPS, **driver
+    )
     seconds = time.perf_counter() - start
     summary = {}
     for fname in ("holder_1", "smooth"):
@@ -455,13 +544,14 @@ def storm_by_eps(estimates: dict, accept_eps: np.ndarray) -> list[dict]:
     return rows
 
 
-def storm_section(pixels: int, rng) -> dict:
+def storm_section(pixels: int, seed: int) -> dict:
+    """The storm, in this process (a few seconds): each driver's pixels from their own stream."""
     runs = {
-        label: storm_run(label, pixels, rng, dict(driver))
-        for label, driver in STORM_DRIVERS.items()
+        label: storm_run(label, pixels, (seed, STREAM_STORM, index), dict(driver))
+        for index, (label, driver) in enumerate(STORM_DRIVERS.items())
     }
     try:
-        run_sppp(STORM_N, 20, rng, eps=STORM_EPS)
+        run_sppp(STORM_N, 20, (seed, STREAM_STORM, len(STORM_DRIVERS)), eps=STORM_EPS)
         raised = None
     except ClrenderError as error:
         raised = str(error)
@@ -1222,7 +1312,8 @@ def build_report(results: dict, charts: dict, argv: list[str]) -> str:
         "",
         f"Command: `{' '.join(['python bench/stability_study.py', *argv])}` "
         f"(seed {cfg['seed']}, {'quick' if cfg['quick'] else 'full'} run, "
-        f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}.",
+        f"{results['seconds']:.0f} s). Pixels per n: {cfg['runs']}. Measured in blocks of "
+        f"{cfg['block_points']} points, {cfg['task_blocks']} per task, on: {cfg['executor']}.",
         "",
         "## Failure atlas",
         "",
@@ -1348,26 +1439,63 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--quick", action="store_true", help="smoke run (well under a minute)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "stability")
     parser.add_argument("--seed", type=int, default=2026)
-    return parser.parse_args(argv)
+    parser.add_argument(
+        "--task-blocks",
+        type=int,
+        default=1,
+        help="blocks per task (default 1; the numbers do not depend on it)",
+    )
+    add_executor_options(parser)
+    args = parser.parse_args(argv)
+    if args.task_blocks < 1:
+        parser.error(f"--task-blocks must be a positive integer, got {args.task_blocks}")
+    return args
 
 
-def measure(cfg: Config, rng) -> tuple[dict, dict[int, Runs]]:
+def measure(cfg: Config, executor=None, task_blocks: int = 1) -> tuple[dict, dict[int, Runs]]:
+    """The measurements: the heavy sections (the runs per n, fvor's empty filter, the rejection
+    frequencies) as blocks on the executor, all in one map so that it balances them; the
+    storm (a few seconds) here."""
+    seed = cfg.seed
+    plan: dict[tuple, list[Block]] = {}
+    for n in cfg.ns:
+        plan["sppp", n] = sppp_blocks(n, cfg.runs[n], (seed, STREAM_SPPP, n))
+        plan["uniform", n] = blocks_of("uniform", n, cfg.runs[n], (seed, STREAM_UNIFORM, n), n)
+    for n in cfg.fvor_ns:
+        plan["fvor", n] = [Block("fvor", n, 0, cfg.fvor_pixels, (seed, STREAM_FVOR, n))]
+    for n in cfg.rejection_ns:
+        for index, alpha in enumerate(REJECTION_BOUNDS):
+            pixels = cfg.rejection_pixels_for(n, alpha)
+            plan["rejection", n, index] = rejection_blocks(n, index, pixels, seed)
+    start = time.perf_counter()
+    results = run_blocks(
+        [block for blocks in plan.values() for block in blocks], executor, task_blocks
+    )
+    done, first = {}, 0
+    for key, blocks in plan.items():
+        done[key] = results[first : first + len(blocks)]
+        first += len(blocks)
+    tasks = math.ceil(len(results) / task_blocks)
+    print(
+        f"{len(results)} blocks in {tasks} tasks: {time.perf_counter() - start:.1f} s",
+        flush=True,
+    )
     all_runs = {}
     for n in cfg.ns:
-        all_runs[n] = run_all(n, cfg.runs[n], rng)
+        all_runs[n] = runs_of(n, done["sppp", n], done["uniform", n])
         print(
             f"n = {n}: {cfg.runs[n]} pixels, {all_runs[n].seconds:.1f} s, redraw "
             f"{all_runs[n].redraw}",
             flush=True,
         )
+    fvor_rows = [done["fvor", n][0][0] for n in cfg.fvor_ns]
+    rejection = [
+        rejection_row(n, alpha, cfg.rejection_pixels_for(n, alpha), done["rejection", n, index])
+        for n in cfg.rejection_ns
+        for index, alpha in enumerate(REJECTION_BOUNDS)
+    ]
     start = time.perf_counter()
-    fvor_rows = fvor_empty_section(cfg.fvor_ns, cfg.fvor_pixels, rng)
-    print(f"fvor empty filter: {time.perf_counter() - start:.1f} s", flush=True)
-    start = time.perf_counter()
-    rejection = rejection_section(cfg.rejection_ns, cfg.rejection_pixels_for, rng)
-    print(f"rejection frequencies: {time.perf_counter() - start:.1f} s", flush=True)
-    start = time.perf_counter()
-    storm = storm_section(cfg.storm_pixels, rng)
+    storm = storm_section(cfg.storm_pixels, seed)
     print(f"storm: {time.perf_counter() - start:.1f} s", flush=True)
     return {"fvor_empty": fvor_rows, "rejection": rejection, "storm": storm}, all_runs
 
@@ -1453,9 +1581,14 @@ def main(argv=None) -> None:
     args = parse_args(argv)
     cfg = make_config(args.quick, args.seed)
     args.out.mkdir(parents=True, exist_ok=True)
+    # The bootstrap's stream; the measurements have their own (see Blocks)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
-    measured, all_runs = measure(cfg, rng)
+    executor = executor_from_args(args)
+    try:
+        measured, all_runs = measure(cfg, executor, args.task_blocks)
+    finally:
+        executor.close()
     results = analyse(cfg, measured, all_runs, rng)
     results["config"] = {
         "quick": cfg.quick,
@@ -1464,6 +1597,9 @@ def main(argv=None) -> None:
         "rejection_ns": cfg.rejection_ns,
         "fvor_ns": cfg.fvor_ns,
         "storm_pixels": cfg.storm_pixels,
+        "block_points": BLOCK_POINTS,
+        "task_blocks": args.task_blocks,
+        "executor": executor_label(args),
         "columns": COLUMNS,
         "exact": dict(zip(COLUMNS, EXACT.tolist(), strict=True)),
         "baseline": BASELINE,

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import sys
 import time
 import uuid
@@ -174,20 +175,40 @@ class DaskExecutor:
 def shipped(function: Callable) -> Callable | bytes:
     """The function as the tasks take it: itself when the workers can import it (clrender's
     own functions, installed libraries), else pickled by value here (cloudpickle), as for a
-    function of a bench script imported from its folder, which a worker cannot import."""
+    function of a bench script imported from its folder, which a worker cannot import. The
+    script's sibling modules (bench/common.py, a study that reads another's functions) travel
+    by value with it, the script run as __main__ too."""
     import cloudpickle
 
     name = getattr(function, "__module__", None) or "__main__"
     module = sys.modules.get(name)
     path = getattr(module, "__file__", None) or ""
     importable = name.split(".")[0] == "clrender" or "-packages" in path
-    if module is None or name == "__main__" or importable:
+    if module is None or importable:
         return function
-    cloudpickle.register_pickle_by_value(module)
+    folder = os.path.dirname(os.path.abspath(path)) if path else None
+    modules = [
+        other
+        for other_name, other in list(sys.modules.items())
+        if other_name != "__main__"
+        and (other is module or (folder is not None and _folder_of(other) == folder))
+    ]
+    if name == "__main__" and not modules:
+        return function
+    registered = set(cloudpickle.list_registry_pickle_by_value())
+    added = [other for other in modules if other.__name__ not in registered]
+    for other in added:
+        cloudpickle.register_pickle_by_value(other)
     try:
         return cloudpickle.dumps(function)
     finally:
-        cloudpickle.unregister_pickle_by_value(module)
+        for other in added:
+            cloudpickle.unregister_pickle_by_value(other)
+
+
+def _folder_of(module) -> str | None:
+    path = getattr(module, "__file__", None)
+    return os.path.dirname(os.path.abspath(path)) if path else None
 
 
 # What tasks keep in this process between them: name -> dict (see `process_cache`)

@@ -51,6 +51,7 @@ def test_01_pixel_study(tmp_path):
     )
     results = json.loads((tmp_path / "results.json").read_text())
     assert list(results["pixels"]) == chosen
+    assert results["settings"]["executor"] == "this process"
     for name, entry in results["pixels"].items():
         assert entry["scene"] == pixel_study.PROBES[name].scene
         assert (tmp_path / f"fig6_{name}.png").exists() and (tmp_path / f"fig9_{name}.png").exists()
