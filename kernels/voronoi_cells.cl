@@ -41,6 +41,9 @@
 #if VORONOI_BLOCK_CAPACITY % 8 != 0
 #error "VORONOI_BLOCK_CAPACITY must be a multiple of 8 (the walk runs over groups of 8)"
 #endif
+#if VORONOI_BLOCK_CAPACITY > 64
+#error "VORONOI_BLOCK_CAPACITY must be at most 64 (the walk marks its edges' lanes in a ulong)"
+#endif
 
 #ifndef VORONOI_FIRST_BOX_SPACINGS
 #define VORONOI_FIRST_BOX_SPACINGS 2.5f
@@ -423,87 +426,139 @@ CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbour
     block->nearest = nearest_value < INFINITY ? first : -1;
 }
 
-// The crossing t of a's bisector (a = (ax, ay)) by the bisectors of group j's nuclei, kept
-// lane by lane where it is the first so far among the nuclei on a's left (best_t, best_index).
+// The first crossings over group j's nuclei, kept lane by lane (the lowest index on ties):
+// of a's bisector going counter-clockwise, by the bisectors of the nuclei on a's left
+// (cross > 0), and of c's bisector going clockwise, by those on c's right. One load of the
+// group serves both walks; their two chains of selects are independent.
 CL_INLINE void VoronoiBlock_CrossGroup(const VoronoiBlock *block, int j, real ax, real ay,
-                                       real8 *best_t, lane_index8 *best_index)
+                                       real cx, real cy, real8 *ccw_t, lane_index8 *ccw_index,
+                                       real8 *cw_t, lane_index8 *cw_index)
 {
-    // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
+    // No fused multiply-adds: a nucleus at a's (c's) position must get a cross product of
+    // exactly 0
 #pragma OPENCL FP_CONTRACT OFF
     const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
-    real8 bx = block->vx.group[j], by = block->vy.group[j];
+    lane_index8 index = lanes + 8 * j;
+    real8 bx = block->vx.group[j], by = block->vy.group[j], dist2 = block->dist2.group[j];
+    // Counter-clockwise along a's bisector (direction perp(a) = (-ay, ax))
     real8 cross = ax * by - ay * bx;
-    real8 num = block->dist2.group[j] - (ax * bx + ay * by);
-    real8 t = num / cross;
-    lane_index8 better = (cross > 0) & (t < *best_t);
-    *best_t = better ? t : *best_t;
-    *best_index = better ? lanes + 8 * j : *best_index;
+    real8 t = (dist2 - (ax * bx + ay * by)) / cross;
+    lane_index8 better = (cross > 0) & (t < *ccw_t);
+    *ccw_t = better ? t : *ccw_t;
+    *ccw_index = better ? index : *ccw_index;
+    // Clockwise along c's bisector (direction -perp(c) = (cy, -cx)); the cross product is the
+    // exact negation of the counter-clockwise one
+    real8 cw_cross = cy * bx - cx * by;
+    real8 cw_t_new = (dist2 - (cx * bx + cy * by)) / cw_cross;
+    better = (cw_cross > 0) & (cw_t_new < *cw_t);
+    *cw_t = better ? cw_t_new : *cw_t;
+    *cw_index = better ? index : *cw_index;
 }
 
-// The first crossing of a's bisector by the bisector of a nucleus on its left: its t
-// (INFINITY if none) and that nucleus (the lowest index on ties). Even and odd groups go to
-// two sets of lanes (two shorter chains of dependent selects), merged at the end.
-CL_INLINE int VoronoiBlock_FirstCrossing(const VoronoiBlock *block, real ax, real ay,
-                                         real *best)
+// Both walks' next step: the first crossing of a's bisector counter-clockwise (its t in
+// *ccw_best, INFINITY if none, and that nucleus returned in *ccw_next) and of c's bisector
+// clockwise (*cw_best, *cw_next).
+CL_INLINE void VoronoiBlock_FirstCrossings(const VoronoiBlock *block, real ax, real ay,
+                                           real cx, real cy, int *ccw_next, real *ccw_best,
+                                           int *cw_next, real *cw_best)
 {
     int groups = (block->count + 7) / 8;
-    real8 best_t0 = INFINITY, best_t1 = INFINITY;
-    lane_index8 best_index0 = VORONOI_BLOCK_CAPACITY, best_index1 = VORONOI_BLOCK_CAPACITY;
-    int j = 0;
-    for (; j + 1 < groups; j += 2) {
-        VoronoiBlock_CrossGroup(block, j, ax, ay, &best_t0, &best_index0);
-        VoronoiBlock_CrossGroup(block, j + 1, ax, ay, &best_t1, &best_index1);
-    }
-    if (j < groups)
-        VoronoiBlock_CrossGroup(block, j, ax, ay, &best_t0, &best_index0);
-    lane_index8 take = (best_t1 < best_t0) | ((best_t1 == best_t0) & (best_index1 < best_index0));
-    best_t0 = take ? best_t1 : best_t0;
-    best_index0 = take ? best_index1 : best_index0;
-    return VoronoiLanes_ArgMin(&best_t0, &best_index0, best);
+    real8 ccw_t = INFINITY, cw_t = INFINITY;
+    lane_index8 ccw_index = VORONOI_BLOCK_CAPACITY, cw_index = VORONOI_BLOCK_CAPACITY;
+    for (int j = 0; j < groups; ++j)
+        VoronoiBlock_CrossGroup(block, j, ax, ay, cx, cy, &ccw_t, &ccw_index, &cw_t, &cw_index);
+    *ccw_next = VoronoiLanes_ArgMin(&ccw_t, &ccw_index, ccw_best);
+    *cw_next = VoronoiLanes_ArgMin(&cw_t, &cw_index, cw_best);
 }
 
-// The cell of x among the block's nuclei, walked counter-clockwise: the nearest nucleus is
-// always a Voronoi neighbour, and the edge on the bisector of neighbour a (points
-// a / 2 + t perp(a), perp(a) = (-a.y, a.x)) ends at the smallest t where the bisector of a
-// nucleus b on its left (perp(a).b > 0) crosses it, t_b = (|b|^2 - a.b) / (2 perp(a).b); that b
-// is the next neighbour. The walk ends back at the nearest nucleus. Returns false when it
-// cannot decide (a cell unbounded within the block, more than VORONOI_MAX_VERTICES edges from
-// a rounding-degenerate configuration): the clipping search then does the cell.
+// The cell of x among the block's nuclei, walked both ways from the nearest nucleus (always
+// a Voronoi neighbour) until the two walks meet. The edge on the bisector of neighbour a
+// (points a / 2 + t perp(a) / 2, perp(a) = (-a.y, a.x)) ends, counter-clockwise, at the
+// smallest t_b = (|b|^2 - a.b) / perp(a).b over the nuclei b on its left (perp(a).b > 0),
+// and b is the next neighbour; clockwise, the same with -perp(a). The two walks are
+// independent chains of dependent steps, so the processor overlaps them: about half the
+// sequential steps of one walk around the cell. They meet when the counter-clockwise walk
+// reaches the clockwise walk's edge, or both find the same new neighbour; anything else (a
+// rounding- or tie-degenerate configuration) returns false, as do a cell unbounded within
+// the block and more than VORONOI_MAX_VERTICES edges: the clipping search then does the cell.
+// Edges found counter-clockwise go to the polygon in order; those found clockwise wait in
+// cw_lane (their start vertices in cw_vx, cw_vy) and follow in reverse.
 CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
                                  VoronoiPolygon *poly)
 {
     // No fused multiply-adds (the vertices as computed before the walk ran over vectors)
 #pragma OPENCL FP_CONTRACT OFF
-    int first = block->nearest, a = first;
-    real radius2 = 0;
+    int first = block->nearest;
     if (first < 0)
         return false;
-    for (int m = 0; m < VORONOI_MAX_VERTICES; ++m) {
+    int cw_lane[VORONOI_MAX_VERTICES];
+    real cw_vx[VORONOI_MAX_VERTICES], cw_vy[VORONOI_MAX_VERTICES];
+    ulong seen = (ulong)1 << first;  // the lanes of both walks' edges
+    int a = first, c = first;  // the current edge of each walk
+    int ccw_count = 1, cw_count = 0;  // edges found each way (the first counts as ccw)
+    real radius2 = 0;
+    poly->ex[0] = (float)hood->x.lane[first];  // the input coordinates (exact in real)
+    poly->ey[0] = (float)hood->y.lane[first];
+    while (ccw_count + cw_count < VORONOI_MAX_VERTICES) {
         real ax = block->vx.lane[a], ay = block->vy.lane[a];
-        real best;
-        int next = VoronoiBlock_FirstCrossing(block, ax, ay, &best);
-        if (!(best < INFINITY))
+        real cx = block->vx.lane[c], cy = block->vy.lane[c];
+        int next, prev;
+        real ccw_best, cw_best;
+        VoronoiBlock_FirstCrossings(block, ax, ay, cx, cy, &next, &ccw_best, &prev, &cw_best);
+        if (!(ccw_best < INFINITY) || !(cw_best < INFINITY))
             return false;
-        // Edge m lies on a's bisector; its end (t = best / 2) is vertex m + 1, or vertex 0
-        // when the walk closes
-        bool closes = next == first;
-        int end = closes ? 0 : m + 1;
-        if (end == VORONOI_MAX_VERTICES)
-            return false;
-        real half_t = 0.5f * best;
+        // The end of a's edge (p) and the start of c's edge (q)
+        real half_t = 0.5f * ccw_best, cw_half_t = 0.5f * cw_best;
         real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
-        poly->vx[end] = px;
-        poly->vy[end] = py;
-        poly->ex[m] = (float)hood->x.lane[a];  // the input coordinates (exact in real)
-        poly->ey[m] = (float)hood->y.lane[a];
-        real r2 = px * px + py * py;
-        radius2 = r2 > radius2 ? r2 : radius2;
-        if (closes) {
-            poly->count = m + 1;
-            poly->radius2 = radius2;
-            return m >= 2;
+        real qx = 0.5f * cx + cw_half_t * cy, qy = 0.5f * cy - cw_half_t * cx;
+        real p2 = px * px + py * py, q2 = qx * qx + qy * qy;
+        radius2 = VORONOI_MAX(radius2, VORONOI_MAX(p2, q2));
+        if (cw_count == 0) {
+            poly->vx[0] = qx;  // the first edge's start
+            poly->vy[0] = qy;
+        } else {
+            cw_vx[cw_count - 1] = qx;
+            cw_vy[cw_count - 1] = qy;
         }
+        // Met: the counter-clockwise walk reached c (whose clockwise step must lead back to
+        // a), or both walks found the same new edge (which runs from p to q)
+        bool reached = next == c && cw_count > 0 && prev == a;
+        bool shared = next == prev && (((seen >> next) & 1) == 0);
+        if (reached || shared) {
+            int count = ccw_count + cw_count + (shared ? 1 : 0);
+            if (count > VORONOI_MAX_VERTICES)
+                return false;
+            int k = ccw_count;
+            if (shared) {
+                poly->vx[k] = px;
+                poly->vy[k] = py;
+                poly->ex[k] = (float)hood->x.lane[next];
+                poly->ey[k] = (float)hood->y.lane[next];
+                ++k;
+            }
+            for (int f = cw_count - 1; f >= 0; --f, ++k) {
+                poly->vx[k] = cw_vx[f];
+                poly->vy[k] = cw_vy[f];
+                poly->ex[k] = (float)hood->x.lane[cw_lane[f]];
+                poly->ey[k] = (float)hood->y.lane[cw_lane[f]];
+            }
+            poly->count = count;
+            poly->radius2 = radius2;
+            return count >= 3;
+        }
+        // Otherwise both walks go on to new edges (an edge seen before: degenerate)
+        if (next == prev || ((seen >> next) & 1) != 0 || ((seen >> prev) & 1) != 0)
+            return false;
+        seen |= ((ulong)1 << next) | ((ulong)1 << prev);
+        poly->vx[ccw_count] = px;
+        poly->vy[ccw_count] = py;
+        poly->ex[ccw_count] = (float)hood->x.lane[next];
+        poly->ey[ccw_count] = (float)hood->y.lane[next];
+        ++ccw_count;
+        cw_lane[cw_count] = prev;
+        ++cw_count;
         a = next;
+        c = prev;
     }
     return false;
 }
