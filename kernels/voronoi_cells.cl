@@ -455,6 +455,26 @@ CL_INLINE void VoronoiBlock_CrossGroup(const VoronoiBlock *block, int j, real ax
     *cw_index = better ? index : *cw_index;
 }
 
+// The first step of both walks, from the same edge a: the clockwise cross products and
+// crossings are the exact negations of the counter-clockwise ones (CrossGroup with c = a).
+CL_INLINE void VoronoiBlock_CrossGroupBothWays(const VoronoiBlock *block, int j, real ax,
+                                               real ay, real8 *ccw_t, lane_index8 *ccw_index,
+                                               real8 *cw_t, lane_index8 *cw_index)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
+    lane_index8 index = lanes + 8 * j;
+    real8 bx = block->vx.group[j], by = block->vy.group[j];
+    real8 cross = ax * by - ay * bx;
+    real8 t = (block->dist2.group[j] - (ax * bx + ay * by)) / cross;
+    lane_index8 better = (cross > 0) & (t < *ccw_t);
+    *ccw_t = better ? t : *ccw_t;
+    *ccw_index = better ? index : *ccw_index;
+    better = (cross < 0) & (-t < *cw_t);
+    *cw_t = better ? -t : *cw_t;
+    *cw_index = better ? index : *cw_index;
+}
+
 // Both walks' next step: the first crossing of a's bisector counter-clockwise (its t in
 // *ccw_best, INFINITY if none, and that nucleus returned in *ccw_next) and of c's bisector
 // clockwise (*cw_best, *cw_next).
@@ -465,8 +485,15 @@ CL_INLINE void VoronoiBlock_FirstCrossings(const VoronoiBlock *block, real ax, r
     int groups = (block->count + 7) / 8;
     real8 ccw_t = INFINITY, cw_t = INFINITY;
     lane_index8 ccw_index = VORONOI_BLOCK_CAPACITY, cw_index = VORONOI_BLOCK_CAPACITY;
-    for (int j = 0; j < groups; ++j)
-        VoronoiBlock_CrossGroup(block, j, ax, ay, cx, cy, &ccw_t, &ccw_index, &cw_t, &cw_index);
+    if (ax == cx && ay == cy) {
+        for (int j = 0; j < groups; ++j)
+            VoronoiBlock_CrossGroupBothWays(block, j, ax, ay, &ccw_t, &ccw_index, &cw_t,
+                                            &cw_index);
+    } else {
+        for (int j = 0; j < groups; ++j)
+            VoronoiBlock_CrossGroup(block, j, ax, ay, cx, cy, &ccw_t, &ccw_index, &cw_t,
+                                    &cw_index);
+    }
     *ccw_next = VoronoiLanes_ArgMin(&ccw_t, &ccw_index, ccw_best);
     *cw_next = VoronoiLanes_ArgMin(&cw_t, &cw_index, cw_best);
 }
