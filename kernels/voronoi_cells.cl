@@ -505,19 +505,25 @@ CL_INLINE void VoronoiBlock_FirstCrossings(const VoronoiBlock *block, real ax, r
 // and b is the next neighbour; clockwise, the same with -perp(a). The two walks are
 // independent chains of dependent steps, so the processor overlaps them: about half the
 // sequential steps of one walk around the cell. They meet when the counter-clockwise walk
-// reaches the clockwise walk's edge, or both find the same new neighbour; anything else (a
-// rounding- or tie-degenerate configuration) returns false, as do a cell unbounded within
-// the block and more than VORONOI_MAX_VERTICES edges: the clipping search then does the cell.
+// reaches the clockwise walk's edge, or both find the same new neighbour. Returns
+// VORONOI_WALK_DONE, or VORONOI_WALK_FAILED for a cell unbounded within the block or with
+// more than VORONOI_MAX_VERTICES edges (the clipping search then does the cell), or
+// VORONOI_WALK_TIED when the walks do not meet cleanly: at a vertex shared by more than three
+// cells (ties, as on a lattice) the two directions may take different zero-length edges, and
+// the one-way walk (VoronoiBlock_WalkOneWay) then does the cell.
 // Edges found counter-clockwise go to the polygon in order; those found clockwise wait in
 // cw_lane (their start vertices in cw_vx, cw_vy) and follow in reverse.
-CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
-                                 VoronoiPolygon *poly)
+#define VORONOI_WALK_DONE 1
+#define VORONOI_WALK_FAILED 0
+#define VORONOI_WALK_TIED -1
+CL_INLINE int VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
+                                VoronoiPolygon *poly)
 {
     // No fused multiply-adds (the vertices as computed before the walk ran over vectors)
 #pragma OPENCL FP_CONTRACT OFF
     int first = block->nearest;
     if (first < 0)
-        return false;
+        return VORONOI_WALK_FAILED;
     int cw_lane[VORONOI_MAX_VERTICES];
     real cw_vx[VORONOI_MAX_VERTICES], cw_vy[VORONOI_MAX_VERTICES];
     ulong seen = (ulong)1 << first;  // the lanes of both walks' edges
@@ -533,7 +539,7 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbo
         real ccw_best, cw_best;
         VoronoiBlock_FirstCrossings(block, ax, ay, cx, cy, &next, &ccw_best, &prev, &cw_best);
         if (!(ccw_best < INFINITY) || !(cw_best < INFINITY))
-            return false;
+            return VORONOI_WALK_FAILED;
         // The end of a's edge (p) and the start of c's edge (q)
         real half_t = 0.5f * ccw_best, cw_half_t = 0.5f * cw_best;
         real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
@@ -554,7 +560,7 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbo
         if (reached || shared) {
             int count = ccw_count + cw_count + (shared ? 1 : 0);
             if (count > VORONOI_MAX_VERTICES)
-                return false;
+                return VORONOI_WALK_FAILED;
             int k = ccw_count;
             if (shared) {
                 poly->vx[k] = px;
@@ -571,11 +577,11 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbo
             }
             poly->count = count;
             poly->radius2 = radius2;
-            return count >= 3;
+            return count >= 3 ? VORONOI_WALK_DONE : VORONOI_WALK_FAILED;
         }
-        // Otherwise both walks go on to new edges (an edge seen before: degenerate)
+        // Otherwise both walks go on to new edges (an edge seen before: they missed each other)
         if (next == prev || ((seen >> next) & 1) != 0 || ((seen >> prev) & 1) != 0)
-            return false;
+            return VORONOI_WALK_TIED;
         seen |= ((ulong)1 << next) | ((ulong)1 << prev);
         poly->vx[ccw_count] = px;
         poly->vy[ccw_count] = py;
@@ -586,6 +592,51 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbo
         ++cw_count;
         a = next;
         c = prev;
+    }
+    return VORONOI_WALK_FAILED;
+}
+
+// The same cell walked counter-clockwise only, until the walk is back at the nearest nucleus
+// (ties are broken the same way at every step, so it closes where the two-way walk may not).
+// Returns false when it cannot decide (as VORONOI_WALK_FAILED). Rare: not inlined, out of the
+// way of the common path.
+__attribute__((noinline)) bool VoronoiBlock_WalkOneWay(const VoronoiBlock *block,
+                                                       const VoronoiNeighbourhood *hood,
+                                                       VoronoiPolygon *poly)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    int first = block->nearest, a = first;
+    real radius2 = 0;
+    if (first < 0)
+        return false;
+    for (int m = 0; m < VORONOI_MAX_VERTICES; ++m) {
+        real ax = block->vx.lane[a], ay = block->vy.lane[a];
+        int next, unused_next;
+        real best, unused_best;
+        VoronoiBlock_FirstCrossings(block, ax, ay, ax, ay, &next, &best, &unused_next,
+                                    &unused_best);
+        if (!(best < INFINITY))
+            return false;
+        // Edge m lies on a's bisector; its end (t = best / 2) is vertex m + 1, or vertex 0
+        // when the walk closes
+        bool closes = next == first;
+        int end = closes ? 0 : m + 1;
+        if (end == VORONOI_MAX_VERTICES)
+            return false;
+        real half_t = 0.5f * best;
+        real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
+        poly->vx[end] = px;
+        poly->vy[end] = py;
+        poly->ex[m] = (float)hood->x.lane[a];
+        poly->ey[m] = (float)hood->y.lane[a];
+        real r2 = px * px + py * py;
+        radius2 = r2 > radius2 ? r2 : radius2;
+        if (closes) {
+            poly->count = m + 1;
+            poly->radius2 = radius2;
+            return m >= 2;
+        }
+        a = next;
     }
     return false;
 }
@@ -649,7 +700,9 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     bool walked = false;
     if (have_hood) {
         VoronoiBlock_Relative(&block, hood, x, &coincident);
-        walked = VoronoiBlock_Walk(&block, hood, &poly);
+        int walk = VoronoiBlock_Walk(&block, hood, &poly);
+        walked = walk == VORONOI_WALK_DONE
+                 || (walk == VORONOI_WALK_TIED && VoronoiBlock_WalkOneWay(&block, hood, &poly));
     }
     bool ok;
     if (walked) {
