@@ -10,7 +10,8 @@
 //     block of grid cells around it once, then does each traced nucleus of its grid cell. It
 //     walks around the nucleus among the block's nuclei: from the nearest nucleus (always
 //     a Voronoi neighbour), each edge ends where the first other bisector crosses it, whose
-//     nucleus is the next neighbour, until the walk is back at the first. That is the exact
+//     nucleus is the next neighbour; two walks, one each way round, until they meet (two
+//     independent chains of steps, which the processor overlaps). That is the exact
 //     cell among the block's nuclei; a nucleus outside the block can only change it if it is
 //     closer than the nucleus to one of its vertices (inside a disc through the nucleus centred
 //     on a vertex), so the grid cells meeting those discs' bounding box are searched and their
@@ -27,6 +28,8 @@
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
+//   VORONOI_WALKED_ONE_WAY  ... from the one-way walk, where the two-way walk met a tie
+//                     (diagnostic)
 // Coincident nuclei share their cell equally, as in the host reference.
 //
 // Torus cells (pvor) use the same two kernels: voronoi_periodic_copies first writes each traced
@@ -697,12 +700,12 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     VoronoiPolygon poly;
     VoronoiBlock block;
     int coincident = 0;
-    bool walked = false;
+    bool walked = false, one_way = false;
     if (have_hood) {
         VoronoiBlock_Relative(&block, hood, x, &coincident);
         int walk = VoronoiBlock_Walk(&block, hood, &poly);
-        walked = walk == VORONOI_WALK_DONE
-                 || (walk == VORONOI_WALK_TIED && VoronoiBlock_WalkOneWay(&block, hood, &poly));
+        one_way = walk == VORONOI_WALK_TIED && VoronoiBlock_WalkOneWay(&block, hood, &poly);
+        walked = walk == VORONOI_WALK_DONE || one_way;
     }
     bool ok;
     if (walked) {
@@ -745,7 +748,8 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     bool inside;
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
     areas[i] = area / VORONOI_MAX(coincident, 1);
-    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0);
+    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0)
+                | (one_way ? VORONOI_WALKED_ONE_WAY : 0);
 }
 
 // One work-item per (pixel, grid cell): the cells of the grid cell's traced nuclei, which

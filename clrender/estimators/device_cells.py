@@ -81,6 +81,7 @@ SUMS_PER_PIXEL = 14
 MOMENTS_PER_PIXEL = 6  # pixel_moments: sum f, sum f^2
 SUMS_REDRAW, SUMS_FALLBACK = 1, 2
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
+STATUS_WALKED_ONE_WAY = 16  # diagnostic: walked one way only (a tie stopped the two-way walk)
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
 GRID_NUCLEI_PER_CELL = 3.5
 MAX_GRID_SIDE = 256
