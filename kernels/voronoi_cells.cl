@@ -10,7 +10,8 @@
 //     block of grid cells around it once, then does each traced nucleus of its grid cell. It
 //     walks around the nucleus among the block's nuclei: from the nearest nucleus (always
 //     a Voronoi neighbour), each edge ends where the first other bisector crosses it, whose
-//     nucleus is the next neighbour, until the walk is back at the first. That is the exact
+//     nucleus is the next neighbour; two walks, one each way round, until they meet (two
+//     independent chains of steps, which the processor overlaps). That is the exact
 //     cell among the block's nuclei; a nucleus outside the block can only change it if it is
 //     closer than the nucleus to one of its vertices (inside a disc through the nucleus centred
 //     on a vertex), so the grid cells meeting those discs' bounding box are searched and their
@@ -27,6 +28,8 @@
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
+//   VORONOI_WALKED_ONE_WAY  ... from the one-way walk, where the two-way walk met a tie
+//                     (diagnostic)
 // Coincident nuclei share their cell equally, as in the host reference.
 //
 // Torus cells (pvor) use the same two kernels: voronoi_periodic_copies first writes each traced
@@ -40,6 +43,9 @@
 #endif
 #if VORONOI_BLOCK_CAPACITY % 8 != 0
 #error "VORONOI_BLOCK_CAPACITY must be a multiple of 8 (the walk runs over groups of 8)"
+#endif
+#if VORONOI_BLOCK_CAPACITY > 64
+#error "VORONOI_BLOCK_CAPACITY must be at most 64 (the walk marks its edges' lanes in a ulong)"
 #endif
 
 #ifndef VORONOI_FIRST_BOX_SPACINGS
@@ -423,56 +429,184 @@ CL_INLINE void VoronoiBlock_Relative(VoronoiBlock *block, const VoronoiNeighbour
     block->nearest = nearest_value < INFINITY ? first : -1;
 }
 
-// The crossing t of a's bisector (a = (ax, ay)) by the bisectors of group j's nuclei, kept
-// lane by lane where it is the first so far among the nuclei on a's left (best_t, best_index).
+// The first crossings over group j's nuclei, kept lane by lane (the lowest index on ties):
+// of a's bisector going counter-clockwise, by the bisectors of the nuclei on a's left
+// (cross > 0), and of c's bisector going clockwise, by those on c's right. One load of the
+// group serves both walks; their two chains of selects are independent.
 CL_INLINE void VoronoiBlock_CrossGroup(const VoronoiBlock *block, int j, real ax, real ay,
-                                       real8 *best_t, lane_index8 *best_index)
+                                       real cx, real cy, real8 *ccw_t, lane_index8 *ccw_index,
+                                       real8 *cw_t, lane_index8 *cw_index)
 {
-    // No fused multiply-adds: a nucleus at a's position must get a cross product of exactly 0
+    // No fused multiply-adds: a nucleus at a's (c's) position must get a cross product of
+    // exactly 0
 #pragma OPENCL FP_CONTRACT OFF
     const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
+    lane_index8 index = lanes + 8 * j;
+    real8 bx = block->vx.group[j], by = block->vy.group[j], dist2 = block->dist2.group[j];
+    // Counter-clockwise along a's bisector (direction perp(a) = (-ay, ax))
+    real8 cross = ax * by - ay * bx;
+    real8 t = (dist2 - (ax * bx + ay * by)) / cross;
+    lane_index8 better = (cross > 0) & (t < *ccw_t);
+    *ccw_t = better ? t : *ccw_t;
+    *ccw_index = better ? index : *ccw_index;
+    // Clockwise along c's bisector (direction -perp(c) = (cy, -cx)); the cross product is the
+    // exact negation of the counter-clockwise one
+    real8 cw_cross = cy * bx - cx * by;
+    real8 cw_t_new = (dist2 - (cx * bx + cy * by)) / cw_cross;
+    better = (cw_cross > 0) & (cw_t_new < *cw_t);
+    *cw_t = better ? cw_t_new : *cw_t;
+    *cw_index = better ? index : *cw_index;
+}
+
+// The first step of both walks, from the same edge a: the clockwise cross products and
+// crossings are the exact negations of the counter-clockwise ones (CrossGroup with c = a).
+CL_INLINE void VoronoiBlock_CrossGroupBothWays(const VoronoiBlock *block, int j, real ax,
+                                               real ay, real8 *ccw_t, lane_index8 *ccw_index,
+                                               real8 *cw_t, lane_index8 *cw_index)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    const lane_index8 lanes = (lane_index8)(0, 1, 2, 3, 4, 5, 6, 7);
+    lane_index8 index = lanes + 8 * j;
     real8 bx = block->vx.group[j], by = block->vy.group[j];
     real8 cross = ax * by - ay * bx;
-    real8 num = block->dist2.group[j] - (ax * bx + ay * by);
-    real8 t = num / cross;
-    lane_index8 better = (cross > 0) & (t < *best_t);
-    *best_t = better ? t : *best_t;
-    *best_index = better ? lanes + 8 * j : *best_index;
+    real8 t = (block->dist2.group[j] - (ax * bx + ay * by)) / cross;
+    lane_index8 better = (cross > 0) & (t < *ccw_t);
+    *ccw_t = better ? t : *ccw_t;
+    *ccw_index = better ? index : *ccw_index;
+    better = (cross < 0) & (-t < *cw_t);
+    *cw_t = better ? -t : *cw_t;
+    *cw_index = better ? index : *cw_index;
 }
 
-// The first crossing of a's bisector by the bisector of a nucleus on its left: its t
-// (INFINITY if none) and that nucleus (the lowest index on ties). Even and odd groups go to
-// two sets of lanes (two shorter chains of dependent selects), merged at the end.
-CL_INLINE int VoronoiBlock_FirstCrossing(const VoronoiBlock *block, real ax, real ay,
-                                         real *best)
+// Both walks' next step: the first crossing of a's bisector counter-clockwise (its t in
+// *ccw_best, INFINITY if none, and that nucleus returned in *ccw_next) and of c's bisector
+// clockwise (*cw_best, *cw_next).
+CL_INLINE void VoronoiBlock_FirstCrossings(const VoronoiBlock *block, real ax, real ay,
+                                           real cx, real cy, int *ccw_next, real *ccw_best,
+                                           int *cw_next, real *cw_best)
 {
     int groups = (block->count + 7) / 8;
-    real8 best_t0 = INFINITY, best_t1 = INFINITY;
-    lane_index8 best_index0 = VORONOI_BLOCK_CAPACITY, best_index1 = VORONOI_BLOCK_CAPACITY;
-    int j = 0;
-    for (; j + 1 < groups; j += 2) {
-        VoronoiBlock_CrossGroup(block, j, ax, ay, &best_t0, &best_index0);
-        VoronoiBlock_CrossGroup(block, j + 1, ax, ay, &best_t1, &best_index1);
+    real8 ccw_t = INFINITY, cw_t = INFINITY;
+    lane_index8 ccw_index = VORONOI_BLOCK_CAPACITY, cw_index = VORONOI_BLOCK_CAPACITY;
+    if (ax == cx && ay == cy) {
+        for (int j = 0; j < groups; ++j)
+            VoronoiBlock_CrossGroupBothWays(block, j, ax, ay, &ccw_t, &ccw_index, &cw_t,
+                                            &cw_index);
+    } else {
+        for (int j = 0; j < groups; ++j)
+            VoronoiBlock_CrossGroup(block, j, ax, ay, cx, cy, &ccw_t, &ccw_index, &cw_t,
+                                    &cw_index);
     }
-    if (j < groups)
-        VoronoiBlock_CrossGroup(block, j, ax, ay, &best_t0, &best_index0);
-    lane_index8 take = (best_t1 < best_t0) | ((best_t1 == best_t0) & (best_index1 < best_index0));
-    best_t0 = take ? best_t1 : best_t0;
-    best_index0 = take ? best_index1 : best_index0;
-    return VoronoiLanes_ArgMin(&best_t0, &best_index0, best);
+    *ccw_next = VoronoiLanes_ArgMin(&ccw_t, &ccw_index, ccw_best);
+    *cw_next = VoronoiLanes_ArgMin(&cw_t, &cw_index, cw_best);
 }
 
-// The cell of x among the block's nuclei, walked counter-clockwise: the nearest nucleus is
-// always a Voronoi neighbour, and the edge on the bisector of neighbour a (points
-// a / 2 + t perp(a), perp(a) = (-a.y, a.x)) ends at the smallest t where the bisector of a
-// nucleus b on its left (perp(a).b > 0) crosses it, t_b = (|b|^2 - a.b) / (2 perp(a).b); that b
-// is the next neighbour. The walk ends back at the nearest nucleus. Returns false when it
-// cannot decide (a cell unbounded within the block, more than VORONOI_MAX_VERTICES edges from
-// a rounding-degenerate configuration): the clipping search then does the cell.
-CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
-                                 VoronoiPolygon *poly)
+// The cell of x among the block's nuclei, walked both ways from the nearest nucleus (always
+// a Voronoi neighbour) until the two walks meet. The edge on the bisector of neighbour a
+// (points a / 2 + t perp(a) / 2, perp(a) = (-a.y, a.x)) ends, counter-clockwise, at the
+// smallest t_b = (|b|^2 - a.b) / perp(a).b over the nuclei b on its left (perp(a).b > 0),
+// and b is the next neighbour; clockwise, the same with -perp(a). The two walks are
+// independent chains of dependent steps, so the processor overlaps them: about half the
+// sequential steps of one walk around the cell. They meet when the counter-clockwise walk
+// reaches the clockwise walk's edge, or both find the same new neighbour. Returns
+// VORONOI_WALK_DONE, or VORONOI_WALK_FAILED for a cell unbounded within the block or with
+// more than VORONOI_MAX_VERTICES edges (the clipping search then does the cell), or
+// VORONOI_WALK_TIED when the walks do not meet cleanly: at a vertex shared by more than three
+// cells (ties, as on a lattice) the two directions may take different zero-length edges, and
+// the one-way walk (VoronoiBlock_WalkOneWay) then does the cell.
+// Edges found counter-clockwise go to the polygon in order; those found clockwise wait in
+// cw_lane (their start vertices in cw_vx, cw_vy) and follow in reverse.
+#define VORONOI_WALK_DONE 1
+#define VORONOI_WALK_FAILED 0
+#define VORONOI_WALK_TIED -1
+CL_INLINE int VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbourhood *hood,
+                                VoronoiPolygon *poly)
 {
     // No fused multiply-adds (the vertices as computed before the walk ran over vectors)
+#pragma OPENCL FP_CONTRACT OFF
+    int first = block->nearest;
+    if (first < 0)
+        return VORONOI_WALK_FAILED;
+    int cw_lane[VORONOI_MAX_VERTICES];
+    real cw_vx[VORONOI_MAX_VERTICES], cw_vy[VORONOI_MAX_VERTICES];
+    ulong seen = (ulong)1 << first;  // the lanes of both walks' edges
+    int a = first, c = first;  // the current edge of each walk
+    int ccw_count = 1, cw_count = 0;  // edges found each way (the first counts as ccw)
+    real radius2 = 0;
+    poly->ex[0] = (float)hood->x.lane[first];  // the input coordinates (exact in real)
+    poly->ey[0] = (float)hood->y.lane[first];
+    while (ccw_count + cw_count < VORONOI_MAX_VERTICES) {
+        real ax = block->vx.lane[a], ay = block->vy.lane[a];
+        real cx = block->vx.lane[c], cy = block->vy.lane[c];
+        int next, prev;
+        real ccw_best, cw_best;
+        VoronoiBlock_FirstCrossings(block, ax, ay, cx, cy, &next, &ccw_best, &prev, &cw_best);
+        if (!(ccw_best < INFINITY) || !(cw_best < INFINITY))
+            return VORONOI_WALK_FAILED;
+        // The end of a's edge (p) and the start of c's edge (q)
+        real half_t = 0.5f * ccw_best, cw_half_t = 0.5f * cw_best;
+        real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
+        real qx = 0.5f * cx + cw_half_t * cy, qy = 0.5f * cy - cw_half_t * cx;
+        real p2 = px * px + py * py, q2 = qx * qx + qy * qy;
+        radius2 = VORONOI_MAX(radius2, VORONOI_MAX(p2, q2));
+        if (cw_count == 0) {
+            poly->vx[0] = qx;  // the first edge's start
+            poly->vy[0] = qy;
+        } else {
+            cw_vx[cw_count - 1] = qx;
+            cw_vy[cw_count - 1] = qy;
+        }
+        // Met: the counter-clockwise walk reached c (whose clockwise step must lead back to
+        // a), or both walks found the same new edge (which runs from p to q)
+        bool reached = next == c && cw_count > 0 && prev == a;
+        bool shared = next == prev && (((seen >> next) & 1) == 0);
+        if (reached || shared) {
+            int count = ccw_count + cw_count + (shared ? 1 : 0);
+            if (count > VORONOI_MAX_VERTICES)
+                return VORONOI_WALK_FAILED;
+            int k = ccw_count;
+            if (shared) {
+                poly->vx[k] = px;
+                poly->vy[k] = py;
+                poly->ex[k] = (float)hood->x.lane[next];
+                poly->ey[k] = (float)hood->y.lane[next];
+                ++k;
+            }
+            for (int f = cw_count - 1; f >= 0; --f, ++k) {
+                poly->vx[k] = cw_vx[f];
+                poly->vy[k] = cw_vy[f];
+                poly->ex[k] = (float)hood->x.lane[cw_lane[f]];
+                poly->ey[k] = (float)hood->y.lane[cw_lane[f]];
+            }
+            poly->count = count;
+            poly->radius2 = radius2;
+            return count >= 3 ? VORONOI_WALK_DONE : VORONOI_WALK_FAILED;
+        }
+        // Otherwise both walks go on to new edges (an edge seen before: they missed each other)
+        if (next == prev || ((seen >> next) & 1) != 0 || ((seen >> prev) & 1) != 0)
+            return VORONOI_WALK_TIED;
+        seen |= ((ulong)1 << next) | ((ulong)1 << prev);
+        poly->vx[ccw_count] = px;
+        poly->vy[ccw_count] = py;
+        poly->ex[ccw_count] = (float)hood->x.lane[next];
+        poly->ey[ccw_count] = (float)hood->y.lane[next];
+        ++ccw_count;
+        cw_lane[cw_count] = prev;
+        ++cw_count;
+        a = next;
+        c = prev;
+    }
+    return VORONOI_WALK_FAILED;
+}
+
+// The same cell walked counter-clockwise only, until the walk is back at the nearest nucleus
+// (ties are broken the same way at every step, so it closes where the two-way walk may not).
+// Returns false when it cannot decide (as VORONOI_WALK_FAILED). Rare: not inlined, out of the
+// way of the common path.
+__attribute__((noinline)) bool VoronoiBlock_WalkOneWay(const VoronoiBlock *block,
+                                                       const VoronoiNeighbourhood *hood,
+                                                       VoronoiPolygon *poly)
+{
 #pragma OPENCL FP_CONTRACT OFF
     int first = block->nearest, a = first;
     real radius2 = 0;
@@ -480,8 +614,10 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbo
         return false;
     for (int m = 0; m < VORONOI_MAX_VERTICES; ++m) {
         real ax = block->vx.lane[a], ay = block->vy.lane[a];
-        real best;
-        int next = VoronoiBlock_FirstCrossing(block, ax, ay, &best);
+        int next, unused_next;
+        real best, unused_best;
+        VoronoiBlock_FirstCrossings(block, ax, ay, ax, ay, &next, &best, &unused_next,
+                                    &unused_best);
         if (!(best < INFINITY))
             return false;
         // Edge m lies on a's bisector; its end (t = best / 2) is vertex m + 1, or vertex 0
@@ -494,7 +630,7 @@ CL_INLINE bool VoronoiBlock_Walk(const VoronoiBlock *block, const VoronoiNeighbo
         real px = 0.5f * ax - half_t * ay, py = 0.5f * ay + half_t * ax;
         poly->vx[end] = px;
         poly->vy[end] = py;
-        poly->ex[m] = (float)hood->x.lane[a];  // the input coordinates (exact in real)
+        poly->ex[m] = (float)hood->x.lane[a];
         poly->ey[m] = (float)hood->y.lane[a];
         real r2 = px * px + py * py;
         radius2 = r2 > radius2 ? r2 : radius2;
@@ -564,10 +700,12 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     VoronoiPolygon poly;
     VoronoiBlock block;
     int coincident = 0;
-    bool walked = false;
+    bool walked = false, one_way = false;
     if (have_hood) {
         VoronoiBlock_Relative(&block, hood, x, &coincident);
-        walked = VoronoiBlock_Walk(&block, hood, &poly);
+        int walk = VoronoiBlock_Walk(&block, hood, &poly);
+        one_way = walk == VORONOI_WALK_TIED && VoronoiBlock_WalkOneWay(&block, hood, &poly);
+        walked = walk == VORONOI_WALK_DONE || one_way;
     }
     bool ok;
     if (walked) {
@@ -610,7 +748,8 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     bool inside;
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
     areas[i] = area / VORONOI_MAX(coincident, 1);
-    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0);
+    status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0)
+                | (one_way ? VORONOI_WALKED_ONE_WAY : 0);
 }
 
 // One work-item per (pixel, grid cell): the cells of the grid cell's traced nuclei, which

@@ -19,5 +19,6 @@ typedef float2 area_real2;
 #define VORONOI_INSIDE 2
 #define VORONOI_FALLBACK 4
 #define VORONOI_WALKED 8
+#define VORONOI_WALKED_ONE_WAY 16
 
 #endif

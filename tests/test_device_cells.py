@@ -69,6 +69,20 @@ def assert_same_cells(device, host, rtol):
         np.testing.assert_array_equal(device.inside_box, host.inside_box)
 
 
+def cell_status(runtime, traced, aux, box=None):
+    """The device's status byte of each traced cell of one pixel (float32-rounded nuclei)."""
+    flat = np.concatenate([rounded(traced), rounded(aux)]).astype(np.float32)
+    layout = device_cells._Layout(
+        runtime.upload(flat),
+        offsets_of([len(rounded(traced))]),
+        offsets_of([len(rounded(aux))]),
+        max(float(np.abs(flat).max()), 0.5),
+        device_cells.grid_side(len(flat), 1),
+    )
+    defines, real = device_cells._precision_setup(runtime, "auto")
+    return device_cells._launch(runtime, layout, box, defines, real)[1]
+
+
 def sppp_batch(n, pixels, seed, eps=None):
     batch = draw_sppp(np.random.default_rng(seed), n, pixels, eps=eps)
     return batch, float(np.float32(0.5 + batch.eps))
@@ -160,6 +174,28 @@ def test_lattice_cells_are_squares(runtime):
     assert device.bounded.all()
     np.testing.assert_allclose(device.areas, h * h, rtol=1e-6)
     assert_same_cells(device, host, rtol=1e-6)
+    # Four cells meet at every vertex: the two walks round a cell may take different
+    # zero-length edges there and miss each other; the one-way walk then decides the cell
+    status = cell_status(runtime, grid, aux, 0.5 + h)
+    assert ((status & device_cells.STATUS_WALKED) != 0).all()
+    assert ((status & device_cells.STATUS_WALKED_ONE_WAY) != 0).any()
+
+
+# 4a. One nucleus among k neighbours on a circle (a regular k-gon cell): the two walks round
+# the cell meet at an edge they both find (even k) or at an edge the clockwise walk found first
+# (odd k), without the one-way walk; the area is the k-gon's, k (r / 2)^2 tan(pi / k)
+@pytest.mark.parametrize("k", range(3, 11))
+def test_walks_both_ways_meet_on_odd_and_even_cells(runtime, area_rtol, k):
+    r = 0.2
+    angles = 2 * np.pi * np.arange(k) / k + 0.1
+    ring = r * np.column_stack([np.cos(angles), np.sin(angles)])
+    centre = np.zeros((1, 2))
+    status = cell_status(runtime, centre, ring)
+    bits = device_cells.STATUS_BOUNDED | device_cells.STATUS_WALKED
+    assert status[0] & (bits | device_cells.STATUS_WALKED_ONE_WAY) == bits
+    device, host = both(runtime, centre, offsets_of([1]), ring, offsets_of([k]), None)
+    assert_same_cells(device, host, area_rtol)
+    np.testing.assert_allclose(device.areas[0], k * (r / 2) ** 2 * np.tan(np.pi / k), rtol=1e-6)
 
 
 # 4b. The walk decides almost every cell of random pixels (the clipping search, which gives the

@@ -5,7 +5,8 @@ The device counterpart of clrender.estimators.qhull_cells.sppp_cells (SciPy Qhul
 the same cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas
 result, so the estimators vor, vor_sn and fvor can use either. kernels/voronoi_cells.cl sorts
 each pixel's nuclei into a grid; then, per traced nucleus, walks around its cell among the
-nuclei of the 3 x 3 grid block around it (next neighbour = first crossing bisector) and clips
+nuclei of the 3 x 3 grid block around it (next neighbour = first crossing bisector; both ways
+round at once, meeting half-way: two independent chains of steps) and clips
 that polygon with any nucleus beyond the block that lies in a disc through the nucleus centred
 on a vertex, which proves the cell exact; cells the walk cannot decide are clipped from a box
 (see the kernel's header). stats.walked_cells counts the walked cells (about 99.98 % of random
@@ -81,6 +82,7 @@ SUMS_PER_PIXEL = 14
 MOMENTS_PER_PIXEL = 6  # pixel_moments: sum f, sum f^2
 SUMS_REDRAW, SUMS_FALLBACK = 1, 2
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
+STATUS_WALKED_ONE_WAY = 16  # diagnostic: walked one way only (a tie stopped the two-way walk)
 # Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
 GRID_NUCLEI_PER_CELL = 3.5
 MAX_GRID_SIDE = 256
