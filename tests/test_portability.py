@@ -134,7 +134,14 @@ def test_listing_selectors_and_header_agree(tmp_path, monkeypatch):
     device through clrender's PYOPENCL_CTX parsing, and a real pytest child on a selector
     passes and names the same device in its header."""
     listed = portability.list_devices(dict(os.environ))
-    assert listed == portability.describe_devices() and listed
+    # Memory sizes may follow the memory free at the moment (PoCL's CPU device): they differ
+    # between two listings on a busy machine, everything else must not
+    varying = ("global_mem_bytes", "max_alloc_bytes")
+
+    def fixed(devices):
+        return [{k: v for k, v in device.items() if k not in varying} for device in devices]
+
+    assert fixed(listed) == fixed(portability.describe_devices()) and listed
     for device in listed:
         monkeypatch.setenv("PYOPENCL_CTX", device["selector"])
         assert describe_device(select_device()) == device["identity"]
