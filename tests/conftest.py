@@ -49,3 +49,15 @@ def single_precision(runtime) -> bool:
 def no_fp64(monkeypatch):
     """Run the test as on a device without double precision (the single-precision paths)."""
     monkeypatch.setenv(NO_FP64_VARIABLE, "1")
+
+
+@pytest.fixture(scope="session")
+def cluster():
+    """One Dask LocalCluster of 2 worker processes for every cluster test (tests/test_cluster*):
+    starting one and compiling the kernels on its workers costs seconds, so it is shared. A test
+    that kills a worker leaves it to its nanny, which starts a new one."""
+    pytest.importorskip("distributed")
+    from clrender.cluster import DaskExecutor
+
+    with DaskExecutor(workers=2) as executor:
+        yield executor

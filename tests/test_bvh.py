@@ -9,7 +9,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from geometry_device import device_intersect, device_occluded, device_surface
-from scene_texts import lit_room
+from scene_texts import lit_room, mesh_text, random_shapes_text
 
 from clrender.bvh import (
     BINARY_NODE_DTYPE,
@@ -36,43 +36,12 @@ from clrender.wavefront import WavefrontPathTracer
 HEADER = lit_room(16)
 
 
-def toml_rows(array) -> str:
-    return (
-        "[" + ", ".join("[" + ", ".join(repr(float(x)) for x in row) + "]" for row in array) + "]"
-    )
-
-
-def mesh_text(positions, indices, normals=None, material="white") -> str:
-    text = f'\n[[shapes]]\ntype = "mesh"\nmaterial = "{material}"\n'
-    text += f"positions = {toml_rows(positions)}\n"
-    text += "indices = [" + ", ".join(f"[{i}, {j}, {k}]" for i, j, k in indices) + "]\n"
-    if normals is not None:
-        text += f"normals = {toml_rows(normals)}\n"
-    return text
-
-
 def random_scene(tmp_path, seed, quads=20, spheres=10, triangles=60, normals=False):
     """Quads, spheres and a mesh of scattered small triangles in [-1, 1]^3 (plus the light)."""
     rng = np.random.default_rng(seed)
-    text = HEADER
-    for _ in range(quads):
-        corner = rng.uniform(-1, 1, 3)
-        edge1, edge2 = rng.normal(size=(2, 3)) * 0.3
-        text += (
-            f'\n[[shapes]]\ntype = "quad"\ncorner = {corner.tolist()}\n'
-            f'edge1 = {edge1.tolist()}\nedge2 = {edge2.tolist()}\nmaterial = "white"\n'
-        )
-    for _ in range(spheres):
-        center = rng.uniform(-1, 1, 3)
-        text += (
-            f'\n[[shapes]]\ntype = "sphere"\ncenter = {center.tolist()}\n'
-            f'radius = {rng.uniform(0.05, 0.2)}\nmaterial = "white"\n'
-        )
-    centres = rng.uniform(-1, 1, (triangles, 1, 3))
-    positions = (centres + rng.normal(size=(triangles, 3, 3)) * 0.25).reshape(-1, 3)
-    indices = np.arange(3 * triangles).reshape(-1, 3)
-    vertex_normals = rng.normal(size=positions.shape) if normals else None
-    text += mesh_text(positions, indices, vertex_normals)
+    text = HEADER + random_shapes_text(
+        rng, quads, spheres, triangles, 0.3, (0.05, 0.2), 0.25, normals
+    )
     path = tmp_path / f"random-{seed}.toml"
     path.write_text(text)
     return load_scene(path)

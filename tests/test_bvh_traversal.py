@@ -7,7 +7,7 @@ import numpy as np
 import pyopencl as cl
 import pytest
 from geometry_device import device_intersect, device_occluded
-from scene_texts import lit_room
+from scene_texts import lit_room, mesh_text, random_shapes_text
 
 from clrender.bvh import BVH_MAX_DEPTH, BVH_NODE_DTYPE, build_bvh, build_wide_bvh
 from clrender.errors import ClrenderError
@@ -29,34 +29,10 @@ from clrender.scene_device import (
 HEADER = lit_room(16)
 
 
-def mesh_text(positions, indices) -> str:
-    rows = ", ".join("[" + ", ".join(repr(float(x)) for x in p) + "]" for p in positions)
-    faces = ", ".join(f"[{i}, {j}, {k}]" for i, j, k in indices)
-    return (
-        f'\n[[shapes]]\ntype = "mesh"\nmaterial = "white"\npositions = [{rows}]\n'
-        f"indices = [{faces}]\n"
-    )
-
-
 def mixed_scene(tmp_path, seed, quads=40, spheres=15, triangles=300):
     """Random quads, spheres and small triangles in [-1, 1]^3 (plus the light quad)."""
     rng = np.random.default_rng(seed)
-    text = HEADER
-    for _ in range(quads):
-        corner = rng.uniform(-1, 1, 3)
-        edge1, edge2 = rng.normal(size=(2, 3)) * 0.2
-        text += (
-            f'\n[[shapes]]\ntype = "quad"\ncorner = {corner.tolist()}\n'
-            f'edge1 = {edge1.tolist()}\nedge2 = {edge2.tolist()}\nmaterial = "white"\n'
-        )
-    for _ in range(spheres):
-        text += (
-            f'\n[[shapes]]\ntype = "sphere"\ncenter = {rng.uniform(-1, 1, 3).tolist()}\n'
-            f'radius = {rng.uniform(0.03, 0.15)}\nmaterial = "white"\n'
-        )
-    centres = rng.uniform(-1, 1, (triangles, 1, 3))
-    positions = (centres + rng.normal(size=(triangles, 3, 3)) * 0.1).reshape(-1, 3)
-    text += mesh_text(positions, np.arange(3 * triangles).reshape(-1, 3))
+    text = HEADER + random_shapes_text(rng, quads, spheres, triangles, 0.2, (0.03, 0.15), 0.1)
     path = tmp_path / f"mixed-{seed}.toml"
     path.write_text(text)
     return load_scene(path)

@@ -14,7 +14,6 @@ from clrender.cli import main
 from clrender.cluster import (
     ClusterError,
     ClusterTaskError,
-    DaskExecutor,
     LocalExecutor,
     RenderJob,
     make_executor,
@@ -31,12 +30,6 @@ pytest.importorskip("distributed")
 pytestmark = pytest.mark.device  # the workers open the device PYOPENCL_CTX names
 
 MAX_DEPTH = 8
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    with DaskExecutor(workers=2) as executor:
-        yield executor
 
 
 def local_and_job(runtime, scene, settings):

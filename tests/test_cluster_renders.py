@@ -17,7 +17,6 @@ pytest.importorskip("distributed")
 pytest.importorskip("matplotlib")
 common = pytest.importorskip("common")
 
-from clrender.cluster import DaskExecutor  # noqa: E402
 from clrender.imageio import read_exr  # noqa: E402
 
 pytestmark = pytest.mark.device  # the workers open the device PYOPENCL_CTX names
@@ -36,12 +35,6 @@ TIMING_FIELDS = {
     "worker",
     "workers",
 }
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    with DaskExecutor(workers=2) as executor:
-        yield executor
 
 
 def run_here_and_there(tmp_path, monkeypatch, cluster, main, argv) -> tuple[Path, Path]:

@@ -12,7 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from clrender.cluster import DaskExecutor, LocalExecutor
+from clrender.cluster import LocalExecutor
 
 pytest.importorskip("distributed")
 
@@ -22,12 +22,6 @@ if str(BENCH) not in sys.path:
 
 pytest.importorskip("matplotlib")
 TIMES = ("seconds", "seconds_by_n", "us_per_pixel")
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    with DaskExecutor(workers=2) as executor:
-        yield executor
 
 
 def assert_same(a, b, where="results"):
