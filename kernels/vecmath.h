@@ -118,14 +118,6 @@ CL_INLINE float Lanes_Min(float8 v)
     return v2.x < v2.y ? v2.x : v2.y;
 }
 
-// Smallest of the 8 integer lanes.
-CL_INLINE int Lanes_MinInt(int8 v)
-{
-    int4 v4 = v.lo < v.hi ? v.lo : v.hi;
-    int2 v2 = v4.lo < v4.hi ? v4.lo : v4.hi;
-    return v2.x < v2.y ? v2.x : v2.y;
-}
-
 // ----------------------------------------------------------------------------- approximations
 
 // sin(2 pi u), and cos(2 pi u) in *cos_out, for u in [0, 1] (azimuth sampling): u is reduced
