@@ -444,18 +444,24 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
     return t;
 }
 
-// The BVH's closest hit and any hit (shadow rays): called, not inlined (unlike every other
-// device function): inlined into the path tracer, the traversal's code slowed the brute-force
-// path sharing the kernel by about 5 % (bench/primitive_scaling.py); the calls cost the BVH
-// nothing measurable.
-__attribute__((noinline)) float BVH_Intersect(const SceneData *scene, float3 o, float3 d,
-                                              float tmax, int *prim)
+// The BVH's closest hit and any hit (shadow rays). On PoCL (CLRENDER_BVH_CALLED, set by
+// clrender/runtime.py build_options) they are called, not inlined (unlike every other device
+// function): inlined into the path tracer, the traversal's code slowed the brute-force path
+// sharing the kernel by about 5 % (bench/primitive_scaling.py), and the calls cost the BVH
+// nothing measurable. Elsewhere they are inlined: Intel's CPU runtime returns wrong hits from
+// the called form (tests/test_bvh.py, tests/test_mesh_emitters.py fail there).
+#ifdef CLRENDER_BVH_CALLED
+#define BVH_FUNCTION __attribute__((noinline))
+#else
+#define BVH_FUNCTION CL_INLINE
+#endif
+
+BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
 {
     return BVH_Traverse(scene, o, d, tmax, false, prim);
 }
 
-__attribute__((noinline)) bool BVH_Occluded(const SceneData *scene, float3 o, float3 d,
-                                            float tmax)
+BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
     int prim;
     BVH_Traverse(scene, o, d, tmax, true, &prim);

@@ -226,3 +226,15 @@ def test_a_successful_build_log_is_shown_only_when_asked(runtime, tmp_path, monk
         runtime.build("chatty.cl", {"ASKED": asked})  # its own defines: built, not cached
     # (asked, the device's own log may come too: Intel's does)
     assert (cl.CompilerWarning in [w.category for w in caught]) == asked
+
+
+def test_platform_defines_choose_the_bvh_call_on_pocl_only(runtime):
+    # PoCL calls the BVH traversal (faster there), every other platform inlines it (Intel's CPU
+    # runtime returns wrong hits from the called form): kernels/geometry.h BVH_FUNCTION
+    from clrender.runtime import build_options
+
+    assert "-DCLRENDER_BVH_CALLED" in build_options((), "Portable Computing Language")
+    assert "-DCLRENDER_BVH_CALLED" not in build_options((), "Intel(R) OpenCL")
+    platform = runtime.device.platform.name.strip()
+    expected = platform == "Portable Computing Language"
+    assert ("-DCLRENDER_BVH_CALLED" in build_options((), platform)) == expected
