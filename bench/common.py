@@ -23,6 +23,7 @@ parts match (the file name and its metadata).
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import os
@@ -405,6 +406,17 @@ def image_errors(image: np.ndarray, ref: np.ndarray, ref_variance: np.ndarray) -
 
 # ---------------------------------------------------------------------------------------------
 # Machine and outputs
+
+
+def positive_int(text: str) -> int:
+    """argparse type of options that count work per task: a positive integer."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
 
 
 def add_executor_options(parser) -> None:

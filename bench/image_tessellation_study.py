@@ -47,7 +47,12 @@ import matplotlib  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import add_executor_options, executor_from_args, executor_label  # noqa: E402
+from common import (  # noqa: E402
+    add_executor_options,
+    executor_from_args,
+    executor_label,
+    positive_int,
+)
 
 from clrender.analytic import analytic_functions  # noqa: E402
 from clrender.cluster import LocalExecutor  # noqa: E402
@@ -276,14 +281,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=2024)
     parser.add_argument(
         "--runs-per-task",
-        type=int,
+        type=positive_int,
         default=1,
         help="runs per task (default 1; the numbers do not depend on it)",
     )
     add_executor_options(parser)
     args = parser.parse_args(argv)
-    if args.runs_per_task < 1:
-        parser.error(f"--runs-per-task must be a positive integer, got {args.runs_per_task}")
     size = args.size or (8 if args.quick else 16)
     runs = args.runs or (4 if args.quick else 24)
     start = time.perf_counter()

@@ -56,7 +56,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from analytic_study import FUNCTIONS  # noqa: E402
 from bootstrap import ratio_interval  # noqa: E402
-from common import add_executor_options, executor_from_args, executor_label  # noqa: E402
+from common import (  # noqa: E402
+    add_executor_options,
+    executor_from_args,
+    executor_label,
+    positive_int,
+)
 from figures import caption, draw_caption, report_caption  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
@@ -1441,15 +1446,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument(
         "--task-blocks",
-        type=int,
+        type=positive_int,
         default=1,
         help="blocks per task (default 1; the numbers do not depend on it)",
     )
     add_executor_options(parser)
-    args = parser.parse_args(argv)
-    if args.task_blocks < 1:
-        parser.error(f"--task-blocks must be a positive integer, got {args.task_blocks}")
-    return args
+    return parser.parse_args(argv)
 
 
 def measure(cfg: Config, executor=None, task_blocks: int = 1) -> tuple[dict, dict[int, Runs]]:
