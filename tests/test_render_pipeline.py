@@ -14,17 +14,22 @@ from clrender.radiance import DeviceRadiance, SampleRadiance
 from clrender.sampling import make_sampler
 
 WIDTH, HEIGHT = 40, 24
+# The tiling identities' image: odd sides, so that tiles split rows; a few rows (one-pixel
+# tiles make a host call a pixel, so the size sets the test's time)
+TILING_WIDTH, TILING_HEIGHT = 17, 9
 
 
-def analytic_source(runtime, scene="analytic:mix"):
-    return AnalyticSource.for_scene(scene, runtime.queue, WIDTH, HEIGHT)
+def analytic_source(runtime, scene="analytic:mix", width=WIDTH, height=HEIGHT):
+    return AnalyticSource.for_scene(scene, runtime.queue, width, height)
 
 
-def settings(sampler="sppp", estimator="vor_sn", spp=16, eps=None, **options):
+def settings(
+    sampler="sppp", estimator="vor_sn", spp=16, eps=None, width=WIDTH, height=HEIGHT, **options
+):
     config = (
         make_sampler(sampler, spp, eps=eps) if sampler == "sppp" else make_sampler(sampler, spp)
     )
-    return RenderSettings(WIDTH, HEIGHT, config, estimator, seed=5, **options)
+    return RenderSettings(width, height, config, estimator, seed=5, **options)
 
 
 # --- determinism ---------------------------------------------------------------------------
@@ -43,11 +48,12 @@ def settings(sampler="sppp", estimator="vor_sn", spp=16, eps=None, **options):
     ],
 )
 def test_image_is_bit_identical_whatever_the_tiling_and_overlap(runtime, sampler, estimator):
-    source = analytic_source(runtime)
-    reference = render(runtime, source, settings(sampler, estimator)).film.image()
+    size = dict(width=TILING_WIDTH, height=TILING_HEIGHT)
+    source = analytic_source(runtime, **size)
+    reference = render(runtime, source, settings(sampler, estimator, **size)).film.image()
     # One big tile, 1-pixel tiles, and an odd tile length that splits rows, each both ways.
     for tile_samples, overlap in [(10**8, False), (1, True), (13 * 17, False), (13 * 17, True)]:
-        options = dict(tile_samples=tile_samples, overlap=overlap)
+        options = dict(tile_samples=tile_samples, overlap=overlap, **size)
         image = render(runtime, source, settings(sampler, estimator, **options)).film.image()
         assert np.array_equal(image, reference), (tile_samples, overlap)
 
