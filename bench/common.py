@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import os
 import subprocess
@@ -48,7 +49,7 @@ from clrender.cluster import (
 from clrender.imageio import read_exr, srgb_encode, write_atomically, write_exr
 from clrender.pipeline import RenderResult, RenderSettings, render
 from clrender.radiance import PathTracerSource
-from clrender.runtime import Runtime, create_runtime
+from clrender.runtime import Runtime, create_runtime, kernels_dir
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
@@ -300,6 +301,21 @@ def reference_path(scene: str, size: tuple[int, int], spp: int) -> Path:
     return REFERENCE_DIR / f"{name}.exr"
 
 
+def reference_fingerprint(scene: str) -> str:
+    """What a scene's reference depends on besides the settings in its file name: the scene as
+    the device gets it (camera, materials, every shape and emitter, whatever file it came from)
+    and the kernel sources that trace it; 16 hex digits of their SHA-256. A cached reference
+    whose fingerprint differs is rendered anew (an edited scene or a changed kernel)."""
+    loaded = load_scene(scene)
+    digest = hashlib.sha256(repr(loaded.camera).encode())
+    for name in ("materials", "quads", "spheres", "emitters", "triangles", "triangle_normals"):
+        digest.update(np.ascontiguousarray(getattr(loaded, name)).tobytes())
+    for source in sorted(kernels_dir().glob("*")):
+        if source.suffix in (".cl", ".h") and not source.stem.endswith("_test"):
+            digest.update(source.name.encode() + source.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def reference(
     runtime: Runtime,
     scene: str,
@@ -318,6 +334,7 @@ def reference(
         "parts": REFERENCE_PARTS,
         "max_depth": MAX_DEPTH,
         "sampler": REFERENCE_SAMPLER,
+        "fingerprint": reference_fingerprint(scene),
     }
     if path.exists() and var_path.exists():
         image, meta = read_exr(path)
@@ -328,6 +345,7 @@ def reference(
                 read_exr(var_path)[0].astype(np.float64),
                 {**want, "path": str(path), "cached": True, "wall_s": float(meta["wall_s"])},
             )
+        log(f"reference: {path.name} is of other settings, another scene or other kernels")
     image, variance, wall = render_reference(runtime, scene, size, spp, log, executor)
     REFERENCE_DIR.mkdir(parents=True, exist_ok=True)
     write_exr(path, image, {**want, "wall_s": wall, "estimator": "mc"})

@@ -505,3 +505,40 @@ def test_11_veach_study_errors_by_region_from_the_geometry(tmp_path):
     assert mixed["ratio"] == pytest.approx(1.0) and mixed["verdict"] == "tie"
     report = (tmp_path / "report.md").read_text()
     assert "python bench/veach_study.py --quick" in report and "outline light r=1" in report
+
+
+def test_10_cached_references_follow_the_scene_and_the_kernels(tmp_path, monkeypatch):
+    """A cached reference serves the same scene and kernels only: an edited scene or a changed
+    kernel source renders it anew (a test kernel does not)."""
+    import shutil
+
+    from clrender.runtime import kernels_dir
+
+    renders = []
+
+    def fake_render(runtime, scene, size, spp, log, executor):
+        renders.append(scene)
+        return np.full((*size[::-1], 3), 0.5), np.full((*size[::-1], 3), 1e-4), 1.0
+
+    monkeypatch.setattr(common, "render_reference", fake_render)
+    kernels = tmp_path / "kernels"
+    shutil.copytree(kernels_dir(), kernels)
+    monkeypatch.setenv("CLRENDER_KERNELS_DIR", str(kernels))
+
+    def fetch():
+        return common.reference(None, "cornell-box", (8, 4), 16, log=lambda _: None)[2]
+
+    assert not fetch()["cached"] and fetch()["cached"] and len(renders) == 1
+    (kernels / "bsdf_test.cl").write_text((kernels / "bsdf_test.cl").read_text() + "\n")
+    assert fetch()["cached"]
+    (kernels / "bsdf.h").write_text((kernels / "bsdf.h").read_text() + "\n// changed\n")
+    assert not fetch()["cached"] and fetch()["cached"] and len(renders) == 2
+    real_load = common.load_scene
+
+    def edited(name):
+        scene = real_load(name)
+        scene.materials["albedo"][0] *= 0.5
+        return scene
+
+    monkeypatch.setattr(common, "load_scene", edited)
+    assert not fetch()["cached"] and len(renders) == 3
