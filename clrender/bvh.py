@@ -216,42 +216,58 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
     until it has BVH_WIDTH children (Wald et al. 2008); vectorised over the nodes of a level."""
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
-    size = (binary["upper"] - binary["lower"]).astype(np.float64)
-    area = size[:, 0] * size[:, 1] + size[:, 1] * size[:, 2] + size[:, 2] * size[:, 0]
-    interior = binary["count"] < 0
+    # The binary nodes as rows of 8 words, and a last row for an empty lane (box 0, -1, -1)
+    rows = np.empty((len(binary) + 1, 8), np.float32)
+    rows[:-1] = binary.view(np.float32).reshape(-1, 8)
+    rows[-1] = 0.0
+    row_words = rows.view(np.int32)
+    row_words[-1, 3] = row_words[-1, 7] = -1
+    offset = row_words[:, 3]
+    x, y, z = ((rows[:, 4 + axis] - rows[:, axis]).astype(np.float64) for axis in range(3))
+    area = x * y + y * z + z * x
+    # The area of an interior node (the one to open), -1 for a leaf or an empty lane
+    opening = np.where(row_words[:, 7] < 0, area, -1.0)
+    opening[-1] = -1.0
+    empty = len(binary)
     levels = []
     roots = np.array([0])  # the binary node each wide node of the level starts from
     next_index = 1
     while len(roots):
         count = len(roots)
-        rows = np.arange(count)
-        slots = np.full((count, BVH_WIDTH), -1)
+        slots = np.full((count, BVH_WIDTH), empty)
         slots[:, 0] = roots
-        for _ in range(BVH_WIDTH - 1):
-            filled = slots >= 0
-            opened = np.maximum(slots, 0)
-            score = np.where(filled & interior[opened], area[opened], -1.0)
+        # Lanes 0 .. filled - 1 are full while a node grows; it stops growing for good when
+        # none of them is interior (score < 0)
+        score = np.full((count, BVH_WIDTH), -1.0)
+        score[:, 0] = opening[roots]
+        flat_slots, flat_score = slots.reshape(-1), score.reshape(-1)
+        for filled in range(1, BVH_WIDTH):
             widest = np.argmax(score, axis=1)
-            empty = np.argmax(~filled, axis=1)
-            grow = np.flatnonzero((score[rows, widest] >= 0.0) & (~filled).any(axis=1))
-            parent = slots[grow, widest[grow]]
-            slots[grow, widest[grow]] = binary["offset"][parent]
-            slots[grow, empty[grow]] = binary["offset"][parent] + 1
-        filled = slots >= 0
-        member = np.maximum(slots, 0)
-        is_node = filled & interior[member]
-        rank = (np.cumsum(is_node.reshape(-1)) - 1).reshape(slots.shape)
-        wide = np.zeros(count, BVH_NODE_DTYPE)
-        wide["child"] = np.where(is_node, next_index + rank, binary["offset"][member])
-        wide["child"][~filled] = -1
-        wide["count"] = np.where(is_node, 0, binary["count"][member])
-        wide["count"][~filled] = -1
-        wide["lower"] = np.where(filled[:, None, :], binary["lower"][member].transpose(0, 2, 1), 0)
-        wide["upper"] = np.where(filled[:, None, :], binary["upper"][member].transpose(0, 2, 1), 0)
-        levels.append(wide)
+            widest += np.arange(0, count * BVH_WIDTH, BVH_WIDTH)
+            widest = widest[flat_score[widest] >= 0.0]
+            if len(widest) == 0:
+                break
+            first_child = offset[flat_slots[widest]]
+            second = widest - widest % BVH_WIDTH + filled
+            flat_slots[widest], flat_slots[second] = first_child, first_child + 1
+            flat_score[widest], flat_score[second] = opening[first_child], opening[first_child + 1]
+        # Each lane's node, leaf or empty lane: box, child, count (0 for a node)
+        lanes = np.take(rows, slots, axis=0)  # (count, BVH_WIDTH, 8)
+        lane_words = lanes.view(np.int32)
+        is_node = lane_words[:, :, 7] < 0
+        is_node &= slots != empty
+        wide = np.empty((count, 8, BVH_WIDTH), np.float32)
+        wide[:, 0:3] = lanes[:, :, 0:3].transpose(0, 2, 1)
+        wide[:, 3:6] = lanes[:, :, 4:7].transpose(0, 2, 1)
+        wide_words = wide.view(np.int32)
+        child = lane_words[:, :, 3]
+        child[is_node] = next_index + np.arange(np.count_nonzero(is_node))
+        wide_words[:, 6] = child
+        wide_words[:, 7] = np.where(is_node, 0, lane_words[:, :, 7])
+        levels.append(wide.reshape(count, -1))
         roots = slots[is_node]
         next_index += len(roots)
-    return np.concatenate(levels)
+    return np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
 
 
 def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
