@@ -17,6 +17,7 @@ from clrender.bvh import (
     BVH_MAX_DEPTH,
     BVH_NODE_DTYPE,
     BVH_WIDTH,
+    KEY_BITS,
     LEAF_MAX,
     PLOC_RADIUS,
     TRAVERSAL_COST,
@@ -423,7 +424,8 @@ def test_bvh_sah_cost_is_near_a_full_sweep_build():
 
 def test_nearest_clusters_match_a_pairwise_search():
     """_nearest_clusters against every pair within PLOC_RADIUS, one cluster at a time, with
-    the same float32 areas; repeated boxes make ties (closer first, then even forwards)."""
+    the same float32 areas (their last KEY_BITS bits cleared); repeated boxes make ties (closer
+    first, then even forwards)."""
     rng = np.random.default_rng(23)
     low = rng.uniform(-1, 1, (120, 3)).astype(np.float32)
     high = low + rng.uniform(0, 0.3, (120, 3)).astype(np.float32)
@@ -431,18 +433,19 @@ def test_nearest_clusters_match_a_pairwise_search():
     low[repeat[:30]], high[repeat[:30]] = low[repeat[30:]], high[repeat[30:]]
     low[40:60], high[40:60] = low[40], high[40]  # a run of equal boxes
     boxes = np.concatenate([low.T, -high.T])
-    scale = np.float32(0.7)
-    nearest, area = _nearest_clusters(boxes, scale)
+    nearest, area = _nearest_clusters(boxes, np.empty((7, 120), np.float32))
     for i in range(120):
         candidates = []
         for j in range(max(0, i - PLOC_RADIUS), min(120, i + PLOC_RADIUS + 1)):
             if j != i:
                 x, y, z = (
-                    (np.maximum(high[i, a], high[j, a]) - np.minimum(low[i, a], low[j, a])) * scale
+                    np.maximum(high[i, a], high[j, a]) - np.minimum(low[i, a], low[j, a])
                     for a in range(3)
                 )
+                bits = np.float32(x * y + y * z + z * x).view(np.int32)
+                rounded = (bits & ~np.int32(2**KEY_BITS - 1)).view(np.float32)
                 preferred = (j > i) == (i % 2 == 0)
-                candidates.append((x * y + y * z + z * x, abs(j - i), not preferred, j))
+                candidates.append((rounded, abs(j - i), not preferred, j))
         best = min(candidates)
         assert nearest[i] == best[3] and area[i] == best[0]
     np.testing.assert_array_equal(nearest[40:60], np.arange(40, 60) ^ 1)
