@@ -151,19 +151,16 @@ def _balanced_height(size: np.ndarray) -> np.ndarray:
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
 
 
-def _balanced_ranges(prims, morton_order, cluster_box, first, length, depth) -> tuple:
+def _balanced_ranges(prims, morton_keys, cluster_box, first, length, depth) -> tuple:
     """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
-    primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) in Morton order
-    and halved until at most LEAF_MAX (or at the cap), its root at depth[k]. Returns the nodes'
-    (depth, first, length, split, boxes (6, nodes)), in no particular order."""
-    count = len(prims)
-    rank = np.empty(count, np.int64)
-    rank[morton_order] = np.arange(count)
+    primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) by their
+    morton_keys and halved until at most LEAF_MAX (or at the cap), its root at depth[k].
+    Returns the nodes' (depth, first, length, split, boxes (6, nodes)), in no order."""
     # The subtrees' positions in `prims`, one after the other (a spare column at the end)
     ends = np.cumsum(length)
     positions = np.arange(ends[-1]) + np.repeat(first - (ends - length), length)
     members = prims[positions]
-    order = np.lexsort((rank[members], np.repeat(np.arange(len(first)), length)))
+    order = np.lexsort((morton_keys[members], np.repeat(np.arange(len(first)), length)))
     prims[positions] = members[order]
     position_box = np.zeros((6, len(positions) + 1), np.float32)
     position_box[:, :-1] = np.take(cluster_box, members[order], axis=1)
@@ -285,9 +282,8 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # The clusters still open, in the Morton order of the primitives' centroids, with their
     # boxes in units of the scene's extent (so that float32 areas neither overflow nor
     # underflow: exact minima of the primitives' scaled boxes)
-    keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
-    morton_order = (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
-    active = morton_order.astype(np.int32)
+    morton_keys = _morton_keys(0.5 * (lower32 + upper32))
+    active = (np.sort(morton_keys) & np.uint64(0xFFFFFFFF)).astype(np.int32)
     boxes = np.take(cluster_box[:, :count], active, axis=1)
     scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
     boxes *= np.float32(1.0 / max(scene_extent, 1e-30))
@@ -364,42 +360,45 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         start[below_right] = start[merged] + size[below_left]
     prims = np.empty(count, np.uint32)
     prims[start[:count]] = np.arange(count, dtype=np.uint32)
-    # The nodes: the tree's clusters, and the balanced trees' ranges
+    # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
+    # then the balanced trees' ranges
     clusters = np.flatnonzero(in_tree & ~rebuilt)
-    node_depth, node_first = depth[clusters], start[clusters]
-    node_length, node_split = size[clusters], split[clusters]
-    node_box = np.take(cluster_box, clusters, axis=1)
+    parts = [(depth[clusters], start[clusters], size[clusters], split[clusters], None, clusters)]
     roots = np.flatnonzero(rebuilt)
     if len(roots):
         ranges = _balanced_ranges(
-            prims, morton_order, cluster_box, start[roots], size[roots], depth[roots]
+            prims, morton_keys, cluster_box, start[roots], size[roots], depth[roots]
         )
-        node_depth, node_first, node_length, node_split = (
-            np.concatenate([mine, theirs])
-            for mine, theirs in zip(
-                (node_depth, node_first, node_length, node_split), ranges[:4], strict=True
-            )
-        )
-        node_box = np.concatenate([node_box, ranges[4]], axis=1)
+        parts.append((*ranges, None))
+    nodes = sum(len(part[0]) for part in parts)
+    record = np.empty((nodes, 8), np.float32)
+    words = record.view(np.int32)
+    node_depth, node_first = np.empty(nodes, np.int32), np.empty(nodes, np.int32)
+    end = 0
+    for node_level, first, length, is_split, box, ids in parts:
+        rows = slice(end, end + len(first))
+        end = rows.stop
+        box = np.take(cluster_box, ids, axis=1) if box is None else box
+        record[rows, 0:3] = box[:3].T
+        np.negative(box[3:].T, out=record[rows, 4:7])
+        words[rows, 3] = first
+        words[rows, 7] = np.where(is_split, -1, length)
+        node_depth[rows], node_first[rows] = node_level, first
     # Breadth first: by depth, then by first position (a level's ranges are disjoint); so the
     # k-th split node's children are nodes 2k + 1 and 2k + 2. One sort of packed keys.
-    nodes = len(node_depth)
     bits = max(count, nodes).bit_length()
     if 2 * bits + BVH_MAX_DEPTH.bit_length() < 64:
         key = (node_depth.astype(np.int64) << bits | node_first) << bits | np.arange(nodes)
         order = np.sort(key) & ((1 << bits) - 1)
     else:
         order = np.lexsort((node_first, node_depth))
-    node_split = node_split[order]
-    lower = np.take(node_box[:3], order, axis=1)
-    upper = np.negative(np.take(node_box[3:], order, axis=1))
-    # The records: box, first child or primitive, count or -1 - split axis
-    record = np.empty((nodes, 8), np.float32)
-    record[:, 0:3] = lower.T
-    record[:, 4:7] = upper.T
-    x, y, z = upper - lower
-    widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))  # informative
-    words = record.view(np.int32)
-    words[:, 3] = np.where(node_split, 2 * np.cumsum(node_split) - 1, node_first[order])
-    words[:, 7] = np.where(node_split, -1 - widest, node_length[order])
+    record = np.take(record.view(np.dtype((np.void, 32))).reshape(-1), order)
+    words = record.view(np.int32).reshape(nodes, 8)
+    # Split nodes: first child, and -1 - the axis of largest extent (informative)
+    parents = np.flatnonzero(words[:, 7] < 0)
+    box = np.take(words.view(np.float32), parents, axis=0)
+    x, y, z = (box[:, 4 + axis] - box[:, axis] for axis in range(3))
+    widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
+    words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
+    words[parents, 7] = -1 - widest
     return record.view(BINARY_NODE_DTYPE).reshape(-1), prims
