@@ -33,6 +33,9 @@ import numpy as np
 BINARY_NODE_DTYPE = np.dtype(
     [("lower", "<f4", 3), ("offset", "<i4"), ("upper", "<f4", 3), ("count", "<i4")]
 )
+# A cluster of the build (host only), as the bottom-up pass gathers it in one piece: its box
+# (lower, -upper: a union is a minimum), primitives, height and SAH cost.
+CLUSTER_DTYPE = np.dtype([("box", "<f4", 6), ("size", "<i4"), ("height", "<i4"), ("cost", "<f8")])
 BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
 # The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
 # arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
@@ -74,9 +77,9 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _half_area(box: np.ndarray) -> np.ndarray:
-    """Half the surface area (float64) of boxes stored as rows (lower, -upper) x 6."""
-    size = (-box[3:] - box[:3]).astype(np.float64)
-    return size[0] * size[1] + size[1] * size[2] + size[2] * size[0]
+    """Half the surface area (float64) of boxes (n, 6): lower, -upper."""
+    x, y, z = ((-box[:, 3 + axis] - box[:, axis]).astype(np.float64) for axis in range(3))
+    return x * y + y * z + z * x
 
 
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -151,19 +154,19 @@ def _balanced_height(size: np.ndarray) -> np.ndarray:
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
 
 
-def _balanced_ranges(prims, morton_keys, cluster_box, first, length, depth) -> tuple:
+def _balanced_ranges(prims, morton_keys, cluster, first, length, depth) -> tuple:
     """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
     primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) by their
     morton_keys and halved until at most LEAF_MAX (or at the cap), its root at depth[k].
-    Returns the nodes' (depth, first, length, split, boxes (6, nodes)), in no order."""
+    Returns the nodes' (depth, first, length, split, boxes (nodes, 6)), in no order."""
     # The subtrees' positions in `prims`, one after the other (a spare column at the end)
     ends = np.cumsum(length)
     positions = np.arange(ends[-1]) + np.repeat(first - (ends - length), length)
     members = prims[positions]
     order = np.lexsort((morton_keys[members], np.repeat(np.arange(len(first)), length)))
     prims[positions] = members[order]
-    position_box = np.zeros((6, len(positions) + 1), np.float32)
-    position_box[:, :-1] = np.take(cluster_box, members[order], axis=1)
+    position_box = np.zeros((len(positions) + 1, 6), np.float32)
+    position_box[:-1] = np.take(cluster, members[order])["box"]
     # Level by level: a range longer than LEAF_MAX splits into halves (the first takes the odd
     # one); each node's range is also kept in the compact positions (low)
     levels = []
@@ -181,7 +184,7 @@ def _balanced_ranges(prims, morton_keys, cluster_box, first, length, depth) -> t
     )
     # Boxes: one reduceat over (low, high) pairs, the second of each pair discarded
     bounds = np.stack([low, low + length], axis=1).reshape(-1)
-    box = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
+    box = np.minimum.reduceat(position_box, bounds, axis=0)[::2]
     return depth, first, length, split, box
 
 
@@ -274,9 +277,10 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # Clusters: every primitive (ids 0 .. N - 1), then every merge of two (ids N .. 2N - 2),
     # with boxes as rows (lower, -upper): a union is a minimum
     total = 2 * count - 1
-    cluster_box = np.empty((6, total), np.float32)
-    cluster_box[:3, :count] = lower32
-    np.negative(upper32, out=cluster_box[3:, :count])
+    cluster = np.empty(total, CLUSTER_DTYPE)
+    cluster_box = cluster["box"]
+    cluster_box[:count, :3] = lower32.T
+    np.negative(upper32.T, out=cluster_box[:count, 3:])
     left = np.full(total, -1, np.int32)
     right = np.full(total, -1, np.int32)
     # The clusters still open, in the Morton order of the primitives' centroids, with their
@@ -284,7 +288,9 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # underflow: exact minima of the primitives' scaled boxes)
     morton_keys = _morton_keys(0.5 * (lower32 + upper32))
     active = (np.sort(morton_keys) & np.uint64(0xFFFFFFFF)).astype(np.int32)
-    boxes = np.take(cluster_box[:, :count], active, axis=1)
+    boxes = np.empty((6, count), np.float32)
+    boxes[:3] = np.take(lower32, active, axis=1)
+    boxes[3:] = np.negative(np.take(upper32, active, axis=1))
     scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
     boxes *= np.float32(1.0 / max(scene_extent, 1e-30))
     work = np.empty((7, count), np.float32)
@@ -310,28 +316,24 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     rounds = list(zip(round_first[:-1], round_first[1:], strict=True))
     # Bottom up, a round at a time: the merged clusters' boxes and sizes; leaves where the SAH
     # finds them cheaper than their subtree, and the subtrees' heights (leaves 0)
-    size = np.ones(total, np.int32)
-    area = np.empty(total, np.float64)
-    area[:count] = _half_area(cluster_box[:, :count])
-    cost = area.copy()  # a primitive: a leaf of one
+    cluster["size"][:count] = 1
+    cluster["height"][:count] = 0
+    cluster["cost"][:count] = _half_area(cluster_box[:count])  # a leaf of one
     leaf = np.ones(total, bool)
-    height = np.zeros(total, np.int32)
     for first, end in rounds:
         merged = slice(first, end)
-        below_left, below_right = left[merged], right[merged]
-        box = np.minimum(
-            np.take(cluster_box, below_left, axis=1),
-            np.take(cluster_box, below_right, axis=1),
-            out=cluster_box[:, merged],
-        )
-        merged_size = np.add(size[below_left], size[below_right], out=size[merged])
-        merged_area = area[merged] = _half_area(box)
-        subtree = TRAVERSAL_COST * merged_area + cost[below_left] + cost[below_right]
-        as_leaf = np.where(merged_size <= LEAF_MAX, merged_size * merged_area, np.inf)
-        leaf[merged] = as_leaf <= subtree
-        cost[merged] = np.minimum(as_leaf, subtree)
-        below = np.maximum(height[below_left], height[below_right])
-        height[merged] = np.where(leaf[merged], 0, 1 + below)
+        below_left, below_right = np.take(cluster, left[merged]), np.take(cluster, right[merged])
+        box = np.minimum(below_left["box"], below_right["box"])
+        size = below_left["size"] + below_right["size"]
+        area = _half_area(box)
+        subtree = TRAVERSAL_COST * area + below_left["cost"] + below_right["cost"]
+        as_leaf = np.where(size <= LEAF_MAX, size * area, np.inf)
+        is_leaf = leaf[merged] = as_leaf <= subtree
+        below = np.maximum(below_left["height"], below_right["height"])
+        record = cluster[merged]
+        record["box"], record["size"] = box, size
+        record["cost"], record["height"] = np.minimum(as_leaf, subtree), (1 + below) * ~is_leaf
+    size, height = cluster["size"], cluster["height"]
     # Top down, a round at a time: each cluster's first position in `prims` (its left child's
     # first) and depth; the tree's nodes (below no leaf) and those split. A node whose subtree
     # exceeds the depth cap and one of whose children could not be fitted either (too deep
@@ -367,7 +369,7 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     roots = np.flatnonzero(rebuilt)
     if len(roots):
         ranges = _balanced_ranges(
-            prims, morton_keys, cluster_box, start[roots], size[roots], depth[roots]
+            prims, morton_keys, cluster, start[roots], size[roots], depth[roots]
         )
         parts.append((*ranges, None))
     nodes = sum(len(part[0]) for part in parts)
@@ -378,9 +380,9 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     for node_level, first, length, is_split, box, ids in parts:
         rows = slice(end, end + len(first))
         end = rows.stop
-        box = np.take(cluster_box, ids, axis=1) if box is None else box
-        record[rows, 0:3] = box[:3].T
-        np.negative(box[3:].T, out=record[rows, 4:7])
+        box = np.take(cluster, ids)["box"] if box is None else box
+        record[rows, 0:3] = box[:, :3]
+        np.negative(box[:, 3:], out=record[rows, 4:7])
         words[rows, 3] = first
         words[rows, 7] = np.where(is_split, -1, length)
         node_depth[rows], node_first[rows] = node_level, first
