@@ -586,7 +586,9 @@ def test_nearest_clusters_match_a_pairwise_search():
     low[repeat[:30]], high[repeat[:30]] = low[repeat[30:]], high[repeat[30:]]
     low[40:60], high[40:60] = low[40], high[40]  # a run of equal boxes
     boxes = np.concatenate([low.T, -high.T])
-    nearest, area = _nearest_clusters(boxes, np.empty((7, 120), np.float32))
+    nearest, area = _nearest_clusters(
+        boxes, np.empty((7, 120), np.float32), np.arange(120, dtype=np.int32)
+    )
     for i in range(120):
         candidates = []
         for j in range(max(0, i - PLOC_RADIUS), min(120, i + PLOC_RADIUS + 1)):
