@@ -10,11 +10,11 @@ open cluster finds its nearest among the PLOC_RADIUS clusters before and after i
 merge into one (in the place of the first), until one cluster is left. The merges are the
 binary tree; a bottom-up pass with the surface-area heuristic (SAH) makes a subtree of at most
 LEAF_MAX primitives a leaf where that is cheaper. Written in NumPy: each merge round (and each
-round of the bottom-up passes, each level of the output) is a handful of whole-array operations,
-so the Python loops run per round (about 150 for 1 M triangles) and per level, never per
-primitive or node. 1 M triangles build in about 0.9 s of CPU (4 to 5 times faster than the
-former top-down binned-SAH build), into trees of an SAH cost 17 % lower that trace 9-20 % faster
-(bench/bvh_scaling.py; README).
+round of the bottom-up and top-down passes) is a handful of whole-array operations, so the
+Python loops run per round (about 150 for 1 M triangles), never per primitive or node; the
+output is put breadth first by one sort. 1 M triangles build in about 0.5 s of CPU (the former
+top-down binned-SAH build took 4-5 s), into trees of an SAH cost 17 % lower that trace 9-20 %
+faster (bench/bvh_scaling.py; README).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
@@ -53,7 +53,9 @@ BVH_NODE_DTYPE = np.dtype(
 BVH_MAX_DEPTH = 40
 MORTON_BITS = 10  # per axis: Morton codes of 30 bits
 # Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
-# 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer)
+# 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer; 3
+# builds 5 % faster, trees 0.8 % cheaper at 1 M triangles but 0.2 % dearer at 10 000, rays/s
+# within the noise: kept at 4)
 PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
