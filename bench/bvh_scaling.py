@@ -6,12 +6,13 @@ Cornell boxes and the quad scenes of primitive_scaling.py traced with and withou
 
 Triangles: a sphere of radius 0.5 tessellated in latitude/longitude (two triangles per cell,
 none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, traced at depth 8
-as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: clrender.bvh's
-binary build on the whole scene's primitive bounds, and the whole way from the primitives
-(primitive_bounds, the binary build, its collapse to 8-wide nodes), wall and CPU time, median of
---repeats; the binary tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and
-quad scenes: the same launch by brute force and through the BVH, alternating, so the two rates
-come from the same stretch of machine load. Rates are per CPU-second x compute units (as
+as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: the whole way
+from the scene's primitives to what the device receives (scene_device.pack_bvh's steps:
+primitive_bounds, clrender.bvh's binary build and its collapse to 8-wide nodes, the leaf records
+of pack_bvh_leaves), each step's CPU and wall time and their total, medians of --repeats; the
+binary tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
+the same launch by brute force and through the BVH, alternating, so the two rates come from the
+same stretch of machine load. Rates are per CPU-second x compute units (as
 trace_throughput.py), robust to a shared machine.
 Output: JSON (default bench/results/bvh_scaling.json).
 """
@@ -37,6 +38,7 @@ from clrender.scene import load_scene
 from clrender.scene_device import (
     BRUTE_FORCE_LIMIT,
     brute_force_cost,
+    pack_bvh_leaves,
     pack_triangles,
     primitive_bounds,
 )
@@ -95,27 +97,33 @@ def rays_per_second(runtime, tracer, sets, size, repeats):
 
 
 def build_times(scene, repeats):
-    """build_bvh's time on the primitives' bounds; and the whole way from the primitives to
-    the device's nodes (primitive_bounds, build_wide_bvh: build_bvh and collapse_bvh)."""
-    walls, cpus, total_walls, total_cpus = [], [], [], []
+    """The whole way from the scene's primitives to what the device receives, as
+    scene_device.pack_bvh takes it, stage by stage (CPU and wall time, medians of `repeats`):
+    primitive_bounds, build_bvh (the binary tree), collapse_bvh (8-wide nodes) and
+    pack_bvh_leaves (the leaf records); and the binary tree's SAH cost."""
+    stages = ("bounds", "build", "collapse", "leaves")
+    cpus = {stage: [] for stage in (*stages, "total_build")}
+    walls = {stage: [] for stage in (*stages, "total_build")}
     for _ in range(repeats):
-        cpu0, wall0 = time.process_time(), time.perf_counter()
+        marks = [(time.process_time(), time.perf_counter())]
         bounds = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
-        cpu1, wall1 = time.process_time(), time.perf_counter()
-        nodes, _ = build_bvh(*bounds)
-        walls.append(time.perf_counter() - wall1)
-        cpus.append(time.process_time() - cpu1)
-        collapse_bvh(nodes)
-        total_walls.append(time.perf_counter() - wall0)
-        total_cpus.append(time.process_time() - cpu0)
-    return {
-        "build_wall_s": statistics.median(walls),
-        "build_cpu_s": statistics.median(cpus),
-        "total_build_wall_s": statistics.median(total_walls),
-        "total_build_cpu_s": statistics.median(total_cpus),
-        "nodes": len(nodes),
-        "sah_cost": sah_cost(nodes),
-    }
+        marks.append((time.process_time(), time.perf_counter()))
+        binary, prims = build_bvh(*bounds)
+        marks.append((time.process_time(), time.perf_counter()))
+        wide = collapse_bvh(binary)
+        marks.append((time.process_time(), time.perf_counter()))
+        pack_bvh_leaves(wide, prims, scene.quads, len(scene.spheres), scene.triangles)
+        marks.append((time.process_time(), time.perf_counter()))
+        for stage, before, after in zip(stages, marks[:-1], marks[1:], strict=True):
+            cpus[stage].append(after[0] - before[0])
+            walls[stage].append(after[1] - before[1])
+        cpus["total_build"].append(marks[-1][0] - marks[0][0])
+        walls["total_build"].append(marks[-1][1] - marks[0][1])
+    row = {}
+    for stage in cpus:
+        row[f"{stage}_cpu_s"] = statistics.median(cpus[stage])
+        row[f"{stage}_wall_s"] = statistics.median(walls[stage])
+    return {**row, "nodes": len(binary), "sah_cost": sah_cost(binary)}
 
 
 def compare(runtime, scene, sets, size, repeats, label):
@@ -189,10 +197,10 @@ def main(argv=None):
         out["triangles"].append(row)
         rate = f"{row['rays_per_s'] / 1e6:6.2f} M rays/s" if "rays_per_s" in row else ""
         print(
-            f"{row['triangles']:8d} triangles: build {row['build_wall_s']:7.3f} s wall "
-            f"{row['build_cpu_s']:7.3f} s CPU (from the primitives to the device's nodes "
-            f"{row['total_build_wall_s']:7.3f} s wall {row['total_build_cpu_s']:7.3f} s CPU), "
-            f"SAH cost {row['sah_cost']:6.2f}  {rate}",
+            f"{row['triangles']:8d} triangles: CPU s bounds {row['bounds_cpu_s']:.3f}, binary "
+            f"build {row['build_cpu_s']:.3f}, collapse {row['collapse_cpu_s']:.3f}, leaf records "
+            f"{row['leaves_cpu_s']:.3f}; the whole way {row['total_build_cpu_s']:.3f} s CPU "
+            f"{row['total_build_wall_s']:.3f} s wall; SAH cost {row['sah_cost']:6.2f}  {rate}",
             flush=True,
         )
     if not args.skip_render:

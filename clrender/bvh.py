@@ -10,11 +10,11 @@ open cluster finds its nearest among the PLOC_RADIUS clusters before and after i
 merge into one (in the place of the first), until one cluster is left. The merges are the
 binary tree; a bottom-up pass with the surface-area heuristic (SAH) makes a subtree of at most
 LEAF_MAX primitives a leaf where that is cheaper. Written in NumPy: each merge round (and each
-round of the bottom-up passes, each level of the output) is a handful of whole-array operations,
-so the Python loops run per round (about 150 for 1 M triangles) and per level, never per
-primitive or node. 1 M triangles build in about 0.9 s of CPU (4 to 5 times faster than the
-former top-down binned-SAH build), into trees of an SAH cost 17 % lower that trace 9-20 % faster
-(bench/bvh_scaling.py; README).
+round of the bottom-up and top-down passes) is a handful of whole-array operations, so the
+Python loops run per round (about 150 for 1 M triangles), never per primitive or node; the
+output is put breadth first by one sort. 1 M triangles build in about 0.5 s of CPU (the former
+top-down binned-SAH build took 4-5 s), into trees of an SAH cost 17 % lower that trace 9-20 %
+faster (bench/bvh_scaling.py; README).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
@@ -33,6 +33,9 @@ import numpy as np
 BINARY_NODE_DTYPE = np.dtype(
     [("lower", "<f4", 3), ("offset", "<i4"), ("upper", "<f4", 3), ("count", "<i4")]
 )
+# A cluster of the build (host only), as the bottom-up pass gathers it in one piece: its box
+# (lower, -upper: a union is a minimum), primitives, height and SAH cost.
+CLUSTER_DTYPE = np.dtype([("box", "<f4", 6), ("size", "<i4"), ("height", "<i4"), ("cost", "<f8")])
 BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
 # The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
 # arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
@@ -50,7 +53,9 @@ BVH_NODE_DTYPE = np.dtype(
 BVH_MAX_DEPTH = 40
 MORTON_BITS = 10  # per axis: Morton codes of 30 bits
 # Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
-# 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer)
+# 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer; 3
+# builds 5 % faster, trees 0.8 % cheaper at 1 M triangles but 0.2 % dearer at 10 000, rays/s
+# within the noise: kept at 4)
 PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
@@ -74,9 +79,9 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _half_area(box: np.ndarray) -> np.ndarray:
-    """Half the surface area (float64) of boxes stored as rows (lower, -upper) x 6."""
-    size = (-box[3:] - box[:3]).astype(np.float64)
-    return size[0] * size[1] + size[1] * size[2] + size[2] * size[0]
+    """Half the surface area (float64) of boxes (n, 6): lower, -upper."""
+    x, y, z = ((-box[:, 3 + axis] - box[:, axis]).astype(np.float64) for axis in range(3))
+    return x * y + y * z + z * x
 
 
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -103,93 +108,95 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
     return (code.astype(np.uint64) << np.uint64(32)) | np.arange(len(code), dtype=np.uint64)
 
 
-def _nearest_clusters(boxes: np.ndarray, scale: np.float32) -> tuple[np.ndarray, np.ndarray]:
-    """For clusters in Morton order with boxes (6 rows: lower, -upper), the index of each one's
-    nearest among the PLOC_RADIUS clusters before and after it, the one whose union with it has
-    the least surface area (areas of extents x `scale`: float32 without overflow), and that
-    area. Ties go to the closer in the order, then (same distance) an even index looks forwards
-    and an odd one backwards, so equal boxes pair up (2k, 2k + 1)."""
+# Low bits of an area's float32 bits that _nearest_clusters replaces by the candidate's step
+# and side (ties: areas equal to 2^-20 break by distance then side)
+KEY_BITS = 4
+
+
+def _nearest_clusters(boxes: np.ndarray, work: np.ndarray, index: np.ndarray) -> tuple:
+    """For clusters in Morton order with boxes (6 rows: lower, -upper, float32, in units where
+    areas do not overflow), the index of each one's nearest among the PLOC_RADIUS clusters
+    before and after it, the one whose union with it has the least surface area, and that
+    area (its last KEY_BITS bits zero). Ties (areas equal but for those bits) go to the closer
+    in the order, then (same distance) an even index looks forwards and an odd one backwards,
+    so equal boxes pair up (2k, 2k + 1). work: float32 scratch of at least (7, clusters);
+    index: int32 0, 1, 2, ... (at least as many)."""
     n = boxes.shape[1]
-    parity = np.arange(n, dtype=np.int64) & 1
-    # One int64 key per candidate, least for the nearest: the area's float32 bits (ordered as
-    # integers, areas being >= 0), then the distance, then 0 on the preferred side
-    best = np.full(n, np.iinfo(np.int64).max, np.int64)
+    index = index[:n]
+    parity = index & 1
+    # One int32 key per candidate, least for the nearest: the area's float32 bits (ordered as
+    # integers, areas being >= 0) with the last KEY_BITS bits: the distance, then 0 on the
+    # preferred side
+    best = np.full(n, np.iinfo(np.int32).max, np.int32)
+    low_bits = (1 << KEY_BITS) - 1
     for step in range(1, min(PLOC_RADIUS, n - 1) + 1):
-        # Union of cluster i and cluster i + step
-        union = np.minimum(boxes[:, :-step], boxes[:, step:])
-        x, y, z = ((-union[3 + axis] - union[axis]) * scale for axis in range(3))
-        area = (x * y + y * z + z * x).view(np.int32).astype(np.int64) << 8 | step << 1
-        np.minimum(best[:-step], area | parity[:-step], out=best[:-step])  # i looks forwards
-        np.minimum(best[step:], area | (1 - parity[step:]), out=best[step:])  # i + step back
-    step = (best >> 1) & 127
-    forwards = (best & 1) == parity
-    nearest = np.where(forwards, np.arange(n) + step, np.arange(n) - step)
-    area = (best >> 8).astype(np.int32).view(np.float32)
-    return nearest, area
-
-
-def _cluster_table(cluster_box, left, right, start, size, height, leaf) -> np.ndarray:
-    """One record (48 bytes) per cluster, so that a level's nodes take theirs in one gather:
-    box (lower, -upper), left, right, first position in `prims`, size, height, leaf (int32)."""
-    table = np.empty((len(left), 12), np.int32)
-    table[:, :6] = cluster_box.T.view(np.int32)
-    for column, values in enumerate((left, right, start, size, height, leaf), start=6):
-        table[:, column] = values
-    return table.view(np.dtype((np.void, 48))).reshape(-1)
-
-
-def _range_children(children, parent_span, parent_is_range, table, position_box) -> tuple:
-    """The next level where some nodes are ranges: children (cluster ids, two a split parent;
-    a range's are placeholders) become (nodes, span, box (nodes, 6)): a cluster's children
-    their merged clusters with their boxes, a range's its two halves with theirs."""
-    pairs = children.reshape(-1, 2)
-    pairs[parent_is_range] = -1
-    span = np.zeros((len(pairs), 2, 2), np.int64)
-    low, high = parent_span[parent_is_range, 0], parent_span[parent_is_range, 1]
-    middle = low + (high - low + 1) // 2
-    span[parent_is_range, 0, 0], span[parent_is_range, 0, 1] = low, middle
-    span[parent_is_range, 1, 0], span[parent_is_range, 1, 1] = middle, high
-    box = np.take(table, np.maximum(pairs, 0)).view(np.int32).reshape(len(pairs), 2, 12)
-    box = box[:, :, :6].view(np.float32).copy()
-    if parent_is_range.any():
-        left_box, right_box = _range_boxes(position_box, low, middle, high)
-        box[parent_is_range, 0], box[parent_is_range, 1] = left_box.T, right_box.T
-    return pairs.reshape(-1), span.reshape(-1, 2), box.reshape(-1, 6)
+        count = n - step
+        # Union of cluster i and cluster i + step, and minus its extent
+        union = work[:6, :count]
+        np.minimum(boxes[:, :count], boxes[:, step:], out=union)
+        extent = np.add(union[:3], union[3:], out=union[:3])
+        area, product = work[6, :count], work[3, :count]
+        np.multiply(extent[0], extent[1], out=area)
+        area += np.multiply(extent[1], extent[2], out=product)
+        area += np.multiply(extent[2], extent[0], out=product)
+        key = area.view(np.int32)
+        key |= low_bits
+        key -= low_bits - (step << 1)
+        key |= parity[:count]  # i looks forwards: preferred if even
+        np.minimum(best[:count], key, out=best[:count])
+        if step % 2 == 0:
+            key ^= 1  # i + step looks backwards: preferred if odd
+        np.minimum(best[step:], key, out=best[step:])
+    # nearest: i + step, or i - step where the key's side is not i's preferred one (integer
+    # arithmetic: many times faster than np.where here)
+    nearest = best >> 1
+    nearest &= low_bits >> 1
+    sign = best & 1
+    sign ^= parity
+    sign *= -2
+    sign += 1
+    nearest *= sign
+    nearest += index
+    return nearest, (best & ~low_bits).view(np.float32)
 
 
 def _balanced_height(size: np.ndarray) -> np.ndarray:
     """Height of a balanced tree (halves each split) with leaves of at most LEAF_MAX."""
-    return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int64)
+    return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
 
 
-def _rebuild_in_morton_order(prims, morton_order, spans, cluster_box, position_box):
-    """Sorts each range spans[k] of `prims` (in place) in Morton order, and returns
-    position_box (allocated on the first call: (6, N + 1)) with those positions' boxes."""
-    count = len(prims)
-    if position_box is None:
-        position_box = np.zeros((6, count + 1), np.float32)
-    rank = np.empty(count, np.int64)
-    rank[morton_order] = np.arange(count)
-    lengths = spans[:, 1] - spans[:, 0]
-    ends = np.cumsum(lengths)
-    positions = np.arange(ends[-1]) + np.repeat(spans[:, 0] - (ends - lengths), lengths)
+def _balanced_ranges(prims, morton_keys, cluster, first, length, depth) -> tuple:
+    """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
+    primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) by their
+    morton_keys and halved until at most LEAF_MAX (or at the cap), its root at depth[k].
+    Returns the nodes' (depth, first, length, split, boxes (nodes, 6)), in no order."""
+    # The subtrees' positions in `prims`, one after the other (a spare column at the end)
+    ends = np.cumsum(length)
+    positions = np.arange(ends[-1]) + np.repeat(first - (ends - length), length)
     members = prims[positions]
-    order = np.lexsort((rank[members], np.repeat(np.arange(len(spans)), lengths)))
+    order = np.lexsort((morton_keys[members], np.repeat(np.arange(len(first)), length)))
     prims[positions] = members[order]
-    position_box[:, positions] = np.take(cluster_box, members[order], axis=1)
-    return position_box
-
-
-def _range_boxes(position_box: np.ndarray, start, middle, end) -> tuple:
-    """Boxes (6 rows) of the positions [start, middle) and [middle, end) (disjoint ranges;
-    position_box has a spare last column): one reduceat over the ranges in ascending order."""
-    order = np.argsort(start, kind="stable")
-    bounds = np.stack([start[order], middle[order], end[order]], axis=1).reshape(-1)
-    reduced = np.minimum.reduceat(position_box, bounds, axis=1).reshape(6, -1, 3)
-    left = np.empty((6, len(start)), np.float32)
-    right = np.empty((6, len(start)), np.float32)
-    left[:, order], right[:, order] = reduced[:, :, 0], reduced[:, :, 1]
-    return left, right
+    position_box = np.zeros((len(positions) + 1, 6), np.float32)
+    position_box[:-1] = np.take(cluster, members[order])["box"]
+    # Level by level: a range longer than LEAF_MAX splits into halves (the first takes the odd
+    # one); each node's range is also kept in the compact positions (low)
+    levels = []
+    low = ends - length
+    while len(first):
+        split = (length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
+        levels.append((depth, first, length, split, low))
+        half = (length[split] + 1) // 2
+        first = np.stack([first[split], first[split] + half], axis=1).reshape(-1)
+        low = np.stack([low[split], low[split] + half], axis=1).reshape(-1)
+        length = np.stack([half, length[split] - half], axis=1).reshape(-1)
+        depth = np.repeat(depth[split] + 1, 2)
+    depth, first, length, split, low = (
+        np.concatenate(column) for column in zip(*levels, strict=True)
+    )
+    # Boxes: one reduceat over (low, high) pairs, the second of each pair discarded
+    bounds = np.stack([low, low + length], axis=1).reshape(-1)
+    box = np.minimum.reduceat(position_box, bounds, axis=0)[::2]
+    return depth, first, length, split, box
 
 
 def sah_cost(nodes: np.ndarray) -> float:
@@ -216,42 +223,58 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
     until it has BVH_WIDTH children (Wald et al. 2008); vectorised over the nodes of a level."""
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
-    size = (binary["upper"] - binary["lower"]).astype(np.float64)
-    area = size[:, 0] * size[:, 1] + size[:, 1] * size[:, 2] + size[:, 2] * size[:, 0]
-    interior = binary["count"] < 0
+    # The binary nodes as rows of 8 words, and a last row for an empty lane (box 0, -1, -1)
+    rows = np.empty((len(binary) + 1, 8), np.float32)
+    rows[:-1] = binary.view(np.float32).reshape(-1, 8)
+    rows[-1] = 0.0
+    row_words = rows.view(np.int32)
+    row_words[-1, 3] = row_words[-1, 7] = -1
+    offset = row_words[:, 3]
+    x, y, z = ((rows[:, 4 + axis] - rows[:, axis]).astype(np.float64) for axis in range(3))
+    area = x * y + y * z + z * x
+    # The area of an interior node (the one to open), -1 for a leaf or an empty lane
+    opening = np.where(row_words[:, 7] < 0, area, -1.0)
+    opening[-1] = -1.0
+    empty = len(binary)
     levels = []
     roots = np.array([0])  # the binary node each wide node of the level starts from
     next_index = 1
     while len(roots):
         count = len(roots)
-        rows = np.arange(count)
-        slots = np.full((count, BVH_WIDTH), -1)
+        slots = np.full((count, BVH_WIDTH), empty)
         slots[:, 0] = roots
-        for _ in range(BVH_WIDTH - 1):
-            filled = slots >= 0
-            opened = np.maximum(slots, 0)
-            score = np.where(filled & interior[opened], area[opened], -1.0)
+        # Lanes 0 .. filled - 1 are full while a node grows; it stops growing for good when
+        # none of them is interior (score < 0)
+        score = np.full((count, BVH_WIDTH), -1.0)
+        score[:, 0] = opening[roots]
+        flat_slots, flat_score = slots.reshape(-1), score.reshape(-1)
+        for filled in range(1, BVH_WIDTH):
             widest = np.argmax(score, axis=1)
-            empty = np.argmax(~filled, axis=1)
-            grow = np.flatnonzero((score[rows, widest] >= 0.0) & (~filled).any(axis=1))
-            parent = slots[grow, widest[grow]]
-            slots[grow, widest[grow]] = binary["offset"][parent]
-            slots[grow, empty[grow]] = binary["offset"][parent] + 1
-        filled = slots >= 0
-        member = np.maximum(slots, 0)
-        is_node = filled & interior[member]
-        rank = (np.cumsum(is_node.reshape(-1)) - 1).reshape(slots.shape)
-        wide = np.zeros(count, BVH_NODE_DTYPE)
-        wide["child"] = np.where(is_node, next_index + rank, binary["offset"][member])
-        wide["child"][~filled] = -1
-        wide["count"] = np.where(is_node, 0, binary["count"][member])
-        wide["count"][~filled] = -1
-        wide["lower"] = np.where(filled[:, None, :], binary["lower"][member].transpose(0, 2, 1), 0)
-        wide["upper"] = np.where(filled[:, None, :], binary["upper"][member].transpose(0, 2, 1), 0)
-        levels.append(wide)
+            widest += np.arange(0, count * BVH_WIDTH, BVH_WIDTH)
+            widest = widest[flat_score[widest] >= 0.0]
+            if len(widest) == 0:
+                break
+            first_child = offset[flat_slots[widest]]
+            second = widest - widest % BVH_WIDTH + filled
+            flat_slots[widest], flat_slots[second] = first_child, first_child + 1
+            flat_score[widest], flat_score[second] = opening[first_child], opening[first_child + 1]
+        # Each lane's node, leaf or empty lane: box, child, count (0 for a node)
+        lanes = np.take(rows, slots, axis=0)  # (count, BVH_WIDTH, 8)
+        lane_words = lanes.view(np.int32)
+        is_node = lane_words[:, :, 7] < 0
+        is_node &= slots != empty
+        wide = np.empty((count, 8, BVH_WIDTH), np.float32)
+        wide[:, 0:3] = lanes[:, :, 0:3].transpose(0, 2, 1)
+        wide[:, 3:6] = lanes[:, :, 4:7].transpose(0, 2, 1)
+        wide_words = wide.view(np.int32)
+        child = lane_words[:, :, 3]
+        child[is_node] = next_index + np.arange(np.count_nonzero(is_node))
+        wide_words[:, 6] = child
+        wide_words[:, 7] = np.where(is_node, 0, lane_words[:, :, 7])
+        levels.append(wide.reshape(count, -1))
         roots = slots[is_node]
         next_index += len(roots)
-    return np.concatenate(levels)
+    return np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
 
 
 def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -265,24 +288,29 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # Clusters: every primitive (ids 0 .. N - 1), then every merge of two (ids N .. 2N - 2),
     # with boxes as rows (lower, -upper): a union is a minimum
     total = 2 * count - 1
-    cluster_box = np.empty((6, total), np.float32)
-    cluster_box[:3, :count] = lower32
-    np.negative(upper32, out=cluster_box[3:, :count])
-    left = np.full(total, -1, np.int64)
-    right = np.full(total, -1, np.int64)
-    size = np.ones(total, np.int64)
-    # The clusters still open, in the Morton order of the primitives' centroids
-    keys = np.sort(_morton_keys(0.5 * (lower32 + upper32)))
-    morton_order = (keys & np.uint64(0xFFFFFFFF)).astype(np.int64)
-    active = morton_order.copy()
-    boxes = np.take(cluster_box[:, :count], active, axis=1)
+    cluster = np.empty(total, CLUSTER_DTYPE)
+    cluster_box = cluster["box"]
+    cluster_box[:count, :3] = lower32.T
+    np.negative(upper32.T, out=cluster_box[:count, 3:])
+    left = np.full(total, -1, np.int32)
+    right = np.full(total, -1, np.int32)
+    # The clusters still open, in the Morton order of the primitives' centroids, with their
+    # boxes in units of the scene's extent (so that float32 areas neither overflow nor
+    # underflow: exact minima of the primitives' scaled boxes)
+    morton_keys = _morton_keys(0.5 * (lower32 + upper32))
+    active = (np.sort(morton_keys) & np.uint64(0xFFFFFFFF)).astype(np.int32)
+    boxes = np.empty((6, count), np.float32)
+    boxes[:3] = np.take(lower32, active, axis=1)
+    boxes[3:] = np.negative(np.take(upper32, active, axis=1))
     scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
-    scale = np.float32(1.0 / max(scene_extent, 1e-30))
+    boxes *= np.float32(1.0 / max(scene_extent, 1e-30))
+    work = np.empty((7, count), np.float32)
+    numbers = np.arange(count, dtype=np.int32)
     # Merge rounds: mutual nearest clusters merge (the merge takes the first one's place)
     round_first = [count]  # first cluster id of each round's merges, then the next id
     while len(active) > 1:
-        nearest, area = _nearest_clusters(boxes, scale)
-        index = np.arange(len(active))
+        index = numbers[: len(active)]
+        nearest, area = _nearest_clusters(boxes, work, index)
         lead = np.flatnonzero((nearest[nearest] == index) & (nearest > index))
         if len(lead) == 0:  # no mutual pair (ties): the closest pair merges
             closest = int(np.argmin(area))
@@ -291,99 +319,100 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         partner = nearest[lead]
         merged = slice(round_first[-1], round_first[-1] + len(lead))
         left[merged], right[merged] = active[lead], active[partner]
-        size[merged] = size[left[merged]] + size[right[merged]]
-        np.minimum(
-            np.take(boxes, lead, axis=1),
-            np.take(boxes, partner, axis=1),
-            out=cluster_box[:, merged],
-        )
+        boxes[:, lead] = np.minimum(np.take(boxes, lead, axis=1), np.take(boxes, partner, axis=1))
         active[lead] = np.arange(merged.start, merged.stop)
-        boxes[:, lead] = cluster_box[:, merged]
         keep = np.ones(len(active), bool)
         keep[partner] = False
         active, boxes = active[keep], np.compress(keep, boxes, axis=1)
         round_first.append(round_first[-1] + len(lead))
     rounds = list(zip(round_first[:-1], round_first[1:], strict=True))
-    # Leaves where the SAH finds them cheaper than their subtree, and the subtrees' heights
-    # (leaves 0): bottom up, a round at a time
-    area = _half_area(cluster_box)
-    cost = area.copy()  # a primitive: a leaf of one
+    # Bottom up, a round at a time: the merged clusters' boxes and sizes; leaves where the SAH
+    # finds them cheaper than their subtree, and the subtrees' heights (leaves 0)
+    cluster["size"][:count] = 1
+    cluster["height"][:count] = 0
+    cluster["cost"][:count] = _half_area(cluster_box[:count])  # a leaf of one
     leaf = np.ones(total, bool)
-    height = np.zeros(total, np.int64)
     for first, end in rounds:
         merged = slice(first, end)
-        below_left, below_right = left[merged], right[merged]
-        subtree = TRAVERSAL_COST * area[merged] + cost[below_left] + cost[below_right]
-        as_leaf = np.where(size[merged] <= LEAF_MAX, size[merged] * area[merged], np.inf)
-        leaf[merged] = as_leaf <= subtree
-        cost[merged] = np.minimum(as_leaf, subtree)
-        below = np.maximum(height[below_left], height[below_right])
-        height[merged] = np.where(leaf[merged], 0, 1 + below)
-    # Each cluster's primitives are a range of `prims`, its left child's first (top down)
-    start = np.zeros(total, np.int64)
+        below_left, below_right = np.take(cluster, left[merged]), np.take(cluster, right[merged])
+        box = np.minimum(below_left["box"], below_right["box"])
+        size = below_left["size"] + below_right["size"]
+        area = _half_area(box)
+        subtree = TRAVERSAL_COST * area + below_left["cost"] + below_right["cost"]
+        as_leaf = np.where(size <= LEAF_MAX, size * area, np.inf)
+        is_leaf = leaf[merged] = as_leaf <= subtree
+        below = np.maximum(below_left["height"], below_right["height"])
+        record = cluster[merged]
+        record["box"], record["size"] = box, size
+        record["cost"], record["height"] = np.minimum(as_leaf, subtree), (1 + below) * ~is_leaf
+    size, height = cluster["size"], cluster["height"]
+    # Top down, a round at a time: each cluster's first position in `prims` (its left child's
+    # first) and depth; the tree's nodes (below no leaf) and those split. A node whose subtree
+    # exceeds the depth cap and one of whose children could not be fitted either (too deep
+    # itself and too large to rebuild) is rebuilt as a balanced tree over its primitives.
+    start = np.zeros(total, np.int32)
+    depth = np.zeros(total, np.int32)
+    in_tree = np.zeros(total, bool)
+    in_tree[active[0]] = True
+    split = np.zeros(total, bool)
+    rebuilt = np.zeros(total, bool)
     for first, end in reversed(rounds):
         merged = slice(first, end)
-        start[left[merged]] = start[merged]
-        start[right[merged]] = start[merged] + size[left[merged]]
+        below_left, below_right = left[merged], right[merged]
+        room = BVH_MAX_DEPTH - depth[merged]
+        deep = in_tree[merged] & (height[merged] > room)
+        if deep.any():
+            fits = [
+                np.minimum(height[child], _balanced_height(size[child])) < room
+                for child in (below_left, below_right)
+            ]
+            rebuilt[merged] = deep & ~(fits[0] & fits[1])
+        split[merged] = in_tree[merged] & ~leaf[merged] & ~rebuilt[merged] & (room > 0)
+        in_tree[below_left] = in_tree[below_right] = split[merged]
+        depth[below_left] = depth[below_right] = depth[merged] + 1
+        start[below_left] = start[merged]
+        start[below_right] = start[merged] + size[below_left]
     prims = np.empty(count, np.uint32)
     prims[start[:count]] = np.arange(count, dtype=np.uint32)
-    # The nodes, breadth first: a level's split nodes' children make the next level. A node is
-    # a cluster, or a range of `prims` (a subtree too deep for the cap, rebuilt as a balanced
-    # tree over its primitives in Morton order: node -1, span[k] its range)
-    table = _cluster_table(cluster_box, left, right, start, size, height, leaf)
-    levels = []  # per depth: the nodes' records, (nodes, 8) words of BINARY_NODE_DTYPE
-    nodes = active
-    span = None  # (nodes, 2) once some node is a range
-    box = None  # (nodes, 6) boxes, carried from the level before once some node is a range
-    position_box = None  # boxes of the rebuilt primitives by position in `prims`
-    next_index = 1
-    for depth in range(BVH_MAX_DEPTH + 1):
-        room = BVH_MAX_DEPTH - depth
-        fields = np.take(table, np.maximum(nodes, 0)).view(np.int32).reshape(-1, 12)
-        left_of, right_of, first_prim, size_of, height_of, leaf_of = fields[:, 6:].T
-        box = fields[:, :6].view(np.float32) if span is None else box
-        # Too deep: a cluster whose subtree exceeds the cap and one of whose children could
-        # not be fitted either (too deep itself and too large to rebuild) becomes a range
-        convert = (height_of > room) & (nodes >= 0)
-        deep = np.flatnonzero(convert)
-        if len(deep):
-            child_fits = [
-                np.minimum(height[child], _balanced_height(size[child])) < room
-                for child in (left_of[deep], right_of[deep])
-            ]
-            convert[deep[child_fits[0] & child_fits[1]]] = False
-        if convert.any():
-            span = np.zeros((len(nodes), 2), np.int64) if span is None else span
-            span[convert, 0], span[convert, 1] = (
-                first_prim[convert],
-                first_prim[convert] + size_of[convert],
-            )
-            position_box = _rebuild_in_morton_order(
-                prims, morton_order, span[convert], cluster_box, position_box
-            )
-            nodes = np.where(convert, -1, nodes)
-        is_range = nodes < 0
-        length = size_of if span is None else np.where(is_range, span[:, 1] - span[:, 0], size_of)
-        if span is not None:
-            first_prim = np.where(is_range, span[:, 0], first_prim)
-        split = np.where(is_range, length > LEAF_MAX, leaf_of == 0) & (depth < BVH_MAX_DEPTH)
-        # The level's records: box, first child or primitive, count or -1 - split axis
-        record = np.empty((len(nodes), 8), np.float32)
-        record[:, 0:3] = box[:, 0:3]
-        np.negative(box[:, 3:6], out=record[:, 4:7])
-        widest = np.argmax(record[:, 4:7] - record[:, 0:3], axis=1)  # informative only
-        words = record.view(np.int32)
-        words[:, 3] = np.where(split, next_index + 2 * (np.cumsum(split) - 1), first_prim)
-        words[:, 7] = np.where(split, -1 - widest, length)
-        levels.append(record)
-        # Children: a cluster's two merged clusters, a range's two halves
-        parents = np.flatnonzero(split)
-        nodes = np.stack([left_of[parents], right_of[parents]], axis=1).reshape(-1)
-        if span is not None:
-            nodes, span, box = _range_children(
-                nodes, span[parents], is_range[parents], table, position_box
-            )
-        next_index += len(nodes)
-        if len(nodes) == 0:
-            break
-    return np.concatenate(levels).view(BINARY_NODE_DTYPE).reshape(-1), prims
+    # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
+    # then the balanced trees' ranges
+    clusters = np.flatnonzero(in_tree & ~rebuilt)
+    parts = [(depth[clusters], start[clusters], size[clusters], split[clusters], None, clusters)]
+    roots = np.flatnonzero(rebuilt)
+    if len(roots):
+        ranges = _balanced_ranges(
+            prims, morton_keys, cluster, start[roots], size[roots], depth[roots]
+        )
+        parts.append((*ranges, None))
+    nodes = sum(len(part[0]) for part in parts)
+    record = np.empty((nodes, 8), np.float32)
+    words = record.view(np.int32)
+    node_depth, node_first = np.empty(nodes, np.int32), np.empty(nodes, np.int32)
+    end = 0
+    for node_level, first, length, is_split, box, ids in parts:
+        rows = slice(end, end + len(first))
+        end = rows.stop
+        box = np.take(cluster, ids)["box"] if box is None else box
+        record[rows, 0:3] = box[:, :3]
+        np.negative(box[:, 3:], out=record[rows, 4:7])
+        words[rows, 3] = first
+        words[rows, 7] = np.where(is_split, -1, length)
+        node_depth[rows], node_first[rows] = node_level, first
+    # Breadth first: by depth, then by first position (a level's ranges are disjoint); so the
+    # k-th split node's children are nodes 2k + 1 and 2k + 2. One sort of packed keys.
+    bits = max(count, nodes).bit_length()
+    if 2 * bits + BVH_MAX_DEPTH.bit_length() < 64:
+        key = (node_depth.astype(np.int64) << bits | node_first) << bits | np.arange(nodes)
+        order = np.sort(key) & ((1 << bits) - 1)
+    else:
+        order = np.lexsort((node_first, node_depth))
+    record = np.take(record.view(np.dtype((np.void, 32))).reshape(-1), order)
+    words = record.view(np.int32).reshape(nodes, 8)
+    # Split nodes: first child, and -1 - the axis of largest extent (informative)
+    parents = np.flatnonzero(words[:, 7] < 0)
+    box = np.take(words.view(np.float32), parents, axis=0)
+    x, y, z = (box[:, 4 + axis] - box[:, axis] for axis in range(3))
+    widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
+    words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
+    words[parents, 7] = -1 - widest
+    return record.view(BINARY_NODE_DTYPE).reshape(-1), prims

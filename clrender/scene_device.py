@@ -348,21 +348,37 @@ def pack_bvh(
     return pack_bvh_leaves(nodes, prims, quads, len(spheres), triangles)
 
 
-def _field_words(dtype: np.dtype, name: str) -> int:
-    """Word offset of a field in a record of 4-byte members."""
-    return dtype.fields[name][1] // 4
+def _ranks_within(group: np.ndarray, groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """For items sorted by group (ids 0 .. groups - 1): each item's rank within its group,
+    and each group's item count."""
+    per_group = np.bincount(group, minlength=groups)
+    first = np.cumsum(per_group) - per_group
+    return np.arange(len(group)) - first[group], per_group
 
 
-def _fill_block_lanes(words, block_start, lane, dtype, values: dict) -> None:
-    """Write per-member values (name: (N, rows) or (N,) arrays of 4-byte items) into the lanes
-    `lane` of the blocks (dtype: structure of arrays, BLOCK_WIDTH lanes a row) at word
-    block_start."""
-    for name, value in values.items():
-        rows = int(np.prod(value.shape[1:], dtype=int))
-        bits = np.ascontiguousarray(value).view(np.uint32).reshape(len(lane), rows)
-        first = block_start + _field_words(dtype, name) + lane
-        for row in range(rows):
-            words[first + row * BVH_BLOCK_WIDTH] = bits[:, row]
+def _lane_blocks(block_count: int, slot: np.ndarray, values: np.ndarray, unused: np.ndarray):
+    """Blocks (block_count, rows x BVH_BLOCK_WIDTH words, uint32) in structure of arrays: row r
+    of a block holds its lanes' r-th values. values (items, rows) go to the lanes `slot` (block
+    x BVH_BLOCK_WIDTH + lane); the other lanes get `unused` (rows,)."""
+    rows = values.shape[1]
+    lanes = np.empty((block_count * BVH_BLOCK_WIDTH, rows), np.uint32)
+    lanes[:] = unused
+    lanes[slot] = values
+    blocks = lanes.reshape(block_count, BVH_BLOCK_WIDTH, rows).transpose(0, 2, 1)
+    return blocks.reshape(block_count, rows * BVH_BLOCK_WIDTH)
+
+
+def _write_blocks(words: np.ndarray, base: np.ndarray, blocks: np.ndarray) -> None:
+    """words[base[k] ..] = blocks[k] for every block: 64-byte rows at a time where the blocks
+    are whole rows at row starts (triangle blocks), else word by word."""
+    width = blocks.shape[1]
+    if width % BVH_LEAF_ALIGN == 0 and not np.any(base % BVH_LEAF_ALIGN):
+        row = np.dtype((np.void, 4 * BVH_LEAF_ALIGN))
+        per_block = width // BVH_LEAF_ALIGN
+        rows = (base // BVH_LEAF_ALIGN)[:, None] + np.arange(per_block)
+        words.view(row)[rows.reshape(-1)] = np.ascontiguousarray(blocks).view(row).reshape(-1)
+    else:
+        words[base[:, None] + np.arange(width)] = blocks
 
 
 def pack_bvh_leaves(
@@ -382,86 +398,88 @@ def pack_bvh_leaves(
     nodes = nodes.copy()
     quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
     first_triangle = len(quads) + sphere_count
-    leaf_node, leaf_lane = np.nonzero(nodes["count"] > 0)
-    start = nodes["child"][leaf_node, leaf_lane].astype(np.int64)
-    count = nodes["count"][leaf_node, leaf_lane].astype(np.int64)
-    _, record_of_leaf = np.unique(leaf_node, return_inverse=True)
-    records = int(record_of_leaf.max(initial=-1)) + 1
-    # Every record's members in lane and leaf order, grouped by kind (0 triangle, 1 quad,
-    # 2 sphere; a stable sort)
-    leaf_of = np.repeat(np.arange(len(start)), count)
-    ids = prims[start[leaf_of] + np.arange(len(leaf_of)) - (np.cumsum(count) - count)[leaf_of]]
-    record_of = record_of_leaf[leaf_of]
-    kind = np.where(ids >= first_triangle, 0, np.where(ids < len(quads), 1, 2))
-    order = np.argsort(3 * record_of + kind, kind="stable")
-    ids, kind = ids[order].astype(np.int64), kind[order]
-    per_kind = [np.bincount(record_of[kind == k], minlength=records) for k in range(3)]
-    members = per_kind[0] + per_kind[1] + per_kind[2]
-    rank = np.arange(len(record_of)) - (np.cumsum(members) - members)[record_of]
-    triangle_blocks = -(-per_kind[0] // BVH_BLOCK_WIDTH)
-    quad_blocks = -(-per_kind[1] // BVH_BLOCK_WIDTH)
-    packed = (triangle_blocks, quad_blocks, per_kind[2])
+    # One record per node with leaves; its leaves in lane order (row-major, as boolean masks)
+    child, count = nodes["child"], nodes["count"]
+    is_leaf = count > 0
+    leaves_per_node = np.count_nonzero(is_leaf, axis=1)
+    leaves_per_record = leaves_per_node[leaves_per_node > 0]
+    records = len(leaves_per_record)
+    record_of_leaf = np.repeat(np.arange(records), leaves_per_record)
+    start = child[is_leaf].astype(np.int64)
+    leaf_count = count[is_leaf].astype(np.int64)
+    # Every record's members, its leaves' primitives in lane and leaf order
+    first_member = np.cumsum(leaf_count) - leaf_count
+    ids = prims[np.arange(int(leaf_count.sum())) + np.repeat(start - first_member, leaf_count)]
+    record_of = np.repeat(record_of_leaf, leaf_count)
+    # Members by kind, each keeping its order within the record
+    is_triangle = ids >= first_triangle
+    is_quad = ids < len(quads)
+    triangle_ids, quad_ids = ids[is_triangle], ids[is_quad]
+    sphere_ids = ids[~(is_triangle | is_quad)]
+    triangle_rank, triangles_per = _ranks_within(record_of[is_triangle], records)
+    quad_rank, quads_per = _ranks_within(record_of[is_quad], records)
+    sphere_rank, spheres_per = _ranks_within(record_of[~(is_triangle | is_quad)], records)
+    triangle_blocks = -(-triangles_per // BVH_BLOCK_WIDTH)
+    quad_blocks = -(-quads_per // BVH_BLOCK_WIDTH)
+    packed = (triangle_blocks, quad_blocks, spheres_per)
     fields = np.zeros(records, np.int64)
     for value, (shift, bits) in zip(packed, BVH_LEAF_FIELDS, strict=True):
         if records and value.max() >= 2**bits:
             raise ClrenderError(
-                f"BVH: a leaf of {int(count.max())} primitives in one place, more than the "
+                f"BVH: a leaf of {int(leaf_count.max())} primitives in one place, more than the "
                 "device's leaf records hold: spread out the coincident shapes"
             )
         fields |= value << shift
     # Each record: triangle blocks, quad blocks, sphere ids (padded to BVH_LEAF_ALIGN)
     triangle_words = TRIANGLE_BLOCK_DTYPE.itemsize // 4
     quad_words = quad_dtype.itemsize // 4
-    size = triangle_words * triangle_blocks + quad_words * quad_blocks + per_kind[2]
+    size = triangle_words * triangle_blocks + quad_words * quad_blocks + spheres_per
     size = -(-size // BVH_LEAF_ALIGN) * BVH_LEAF_ALIGN
     offset = np.cumsum(size) - size
     quads_at = offset + triangle_words * triangle_blocks
     spheres_at = quads_at + quad_words * quad_blocks
     words = np.zeros(int(size.sum()), np.uint32)
-    # Unused lanes: id -1; a quad's plane_d -1 with a zero normal (t = -inf, never a hit)
-    lanes = np.arange(BVH_BLOCK_WIDTH)
-    for blocks, first, block_words, dtype, unused in (
-        (triangle_blocks, offset, triangle_words, TRIANGLE_BLOCK_DTYPE, {"id": -1}),
-        (quad_blocks, quads_at, quad_words, quad_dtype, {"quad": -1, "plane_d": -1.0}),
-    ):
-        block_leaf = np.repeat(np.arange(records), blocks)
-        block_rank = np.arange(len(block_leaf)) - (np.cumsum(blocks) - blocks)[block_leaf]
-        base = first[block_leaf] + block_words * block_rank
-        for name, value in unused.items():
-            bits = np.array(value, dtype.fields[name][0].base).view(np.uint32)
-            words[(base + _field_words(dtype, name))[:, None] + lanes] = bits
-    # Each member into its block and lane (from its rank among the record's members of its kind)
-    kind_rank = rank - np.where(kind >= 1, per_kind[0][record_of], 0)
-    kind_rank -= np.where(kind == 2, per_kind[1][record_of], 0)
-    is_triangle = kind == 0
-    triangle_rank = kind_rank[is_triangle]
-    triangle_ids = ids[is_triangle]
-    tri = triangles[triangle_ids - first_triangle]
-    _fill_block_lanes(
-        words,
-        offset[record_of[is_triangle]] + triangle_words * (triangle_rank // BVH_BLOCK_WIDTH),
-        triangle_rank % BVH_BLOCK_WIDTH,
-        TRIANGLE_BLOCK_DTYPE,
-        {"p0": tri["p0"], "p1": tri["p1"], "p2": tri["p2"], "id": triangle_ids.astype(np.int32)},
+    # Triangle blocks: p0, p1, p2 (the first 9 words of a Triangle), id; unused lanes id -1
+    minus_one = np.uint32(0xFFFFFFFF)
+    block_first = np.cumsum(triangle_blocks) - triangle_blocks
+    slot = BVH_BLOCK_WIDTH * block_first[record_of[is_triangle]] + triangle_rank
+    triangle_rows = np.ascontiguousarray(triangles, TRIANGLE_DTYPE).view(np.uint32)
+    triangle_rows = triangle_rows.reshape(len(triangles), TRIANGLE_DTYPE.itemsize // 4)
+    values = np.empty((len(triangle_ids), 10), np.uint32)
+    values[:, :9] = np.take(triangle_rows, triangle_ids - first_triangle, axis=0)[:, :9]
+    values[:, 9] = triangle_ids
+    unused = np.zeros(10, np.uint32)
+    unused[9] = minus_one
+    blocks = _lane_blocks(int(triangle_blocks.sum()), slot, values, unused)
+    block_record = np.repeat(np.arange(records), triangle_blocks)
+    base = offset[block_record] + triangle_words * (
+        np.arange(len(blocks)) - block_first[block_record]
     )
-    is_quad = kind == 1
-    quad_rank = kind_rank[is_quad]
-    quad_ids = ids[is_quad]
+    _write_blocks(words, base, blocks)
+    # Quad blocks: corner, normal, u_dual, v_dual, plane_d, quad id (lower and upper unused);
+    # unused lanes id -1, plane_d -1 with a zero normal (t = -inf, never a hit)
+    quad_names = ("corner", "normal", "u_dual", "v_dual", "plane_d")
+    block_first = np.cumsum(quad_blocks) - quad_blocks
+    slot = BVH_BLOCK_WIDTH * block_first[record_of[is_quad]] + quad_rank
     quad = quads[quad_ids]
-    _fill_block_lanes(
-        words,
-        quads_at[record_of[is_quad]] + quad_words * (quad_rank // BVH_BLOCK_WIDTH),
-        quad_rank % BVH_BLOCK_WIDTH,
-        quad_dtype,
-        {
-            **{key: quad[key] for key in ("corner", "normal", "u_dual", "v_dual", "plane_d")},
-            "quad": quad_ids.astype(np.int32),
-        },
+    values = np.empty((len(quad_ids), 14), np.uint32)
+    values[:, :12] = np.concatenate([quad[name] for name in quad_names[:4]], axis=1).view(np.uint32)
+    values[:, 12] = quad["plane_d"].view(np.uint32)
+    values[:, 13] = quad_ids
+    unused = np.zeros(14, np.uint32)
+    unused[12] = np.float32(-1.0).view(np.uint32)
+    unused[13] = minus_one
+    blocks = _lane_blocks(int(quad_blocks.sum()), slot, values, unused)
+    block_record = np.repeat(np.arange(records), quad_blocks)
+    base = quads_at[block_record] + quad_words * (
+        np.arange(len(blocks)) - block_first[block_record]
     )
-    is_sphere = kind == 2
-    words[spheres_at[record_of[is_sphere]] + kind_rank[is_sphere]] = ids[is_sphere]
-    nodes["child"][leaf_node, leaf_lane] = offset[record_of_leaf]
-    nodes["count"][leaf_node, leaf_lane] = fields[record_of_leaf]
+    _write_blocks(words, base, blocks)
+    # Sphere ids
+    words[spheres_at[record_of[~(is_triangle | is_quad)]] + sphere_rank] = sphere_ids
+    # Every leaf lane: its record's first word and packed counts
+    child[is_leaf] = offset[record_of_leaf]
+    count[is_leaf] = fields[record_of_leaf]
     return nodes, words
 
 

@@ -17,6 +17,7 @@ from clrender.bvh import (
     BVH_MAX_DEPTH,
     BVH_NODE_DTYPE,
     BVH_WIDTH,
+    KEY_BITS,
     LEAF_MAX,
     PLOC_RADIUS,
     TRAVERSAL_COST,
@@ -24,12 +25,22 @@ from clrender.bvh import (
     _nearest_clusters,
     build_bvh,
     build_wide_bvh,
+    collapse_bvh,
     padded_bounds,
     sah_cost,
 )
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
-from clrender.scene_device import NORMALS_DTYPE, TRIANGLE_DTYPE, primitive_bounds
+from clrender.scene_device import (
+    BVH_BLOCK_WIDTH,
+    BVH_LEAF_ALIGN,
+    NORMALS_DTYPE,
+    TRIANGLE_BLOCK_DTYPE,
+    TRIANGLE_DTYPE,
+    pack_bvh_leaves,
+    primitive_bounds,
+    quad_block_dtype,
+)
 from clrender.trace import PathTracer
 from clrender.wavefront import WavefrontPathTracer
 
@@ -336,6 +347,149 @@ def test_bvh_of_heavy_tailed_boxes_keeps_small_leaves_within_the_depth_cap():
     assert nodes["count"].max() <= LEAF_MAX
 
 
+def degenerate_bounds(shape):
+    """Bounds (lower, upper) of inputs that strain the build: one primitive, two, coincident
+    points (boxes of zero size), boxes along a line, a flat grid of equal boxes."""
+    if shape == "one":
+        return np.zeros((1, 3)), np.ones((1, 3))
+    if shape == "two":
+        return np.array([[0.0, 0, 0], [2, 0, 0]]), np.array([[1.0, 1, 1], [3, 1, 1]])
+    if shape == "coincident points":
+        point = np.full((3000, 3), 0.25)
+        return point, point
+    if shape == "a line":
+        t = np.linspace(-1.0, 1.0, 5000)[:, None] * np.array([[1.0, 0.5, 0.25]])
+        return t, t + 1e-4
+    x, y = np.meshgrid(np.arange(100.0), np.arange(60.0), indexing="ij")
+    lower = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    return lower, lower + [1.0, 1.0, 0.0]
+
+
+@pytest.mark.parametrize("shape", ["one", "two", "coincident points", "a line", "a flat grid"])
+def test_bvh_of_degenerate_inputs_keeps_every_invariant(shape):
+    """Each primitive exactly once, boxes holding their children, leaves of at most LEAF_MAX,
+    depth within the cap; and the 8-wide tree reaches each primitive once."""
+    lower, upper = degenerate_bounds(shape)
+    nodes, prims = build_bvh(lower, upper)
+    assert_valid_bvh(lower, upper, nodes, prims)
+    assert nodes["count"].max() <= LEAF_MAX
+    wide, wide_prims = build_wide_bvh(lower, upper)
+    np.testing.assert_array_equal(wide_prims, prims)
+    leaf = wide["count"] > 0
+    reached = np.concatenate(
+        [prims[c : c + n] for c, n in zip(wide["child"][leaf], wide["count"][leaf], strict=True)]
+    )
+    np.testing.assert_array_equal(np.sort(reached), np.arange(len(lower)))
+
+
+def reference_collapse(binary):
+    """collapse_bvh one node at a time: from a binary node, open the interior child of largest
+    area (the first of equals in lane order) into its two children, the second in the first
+    empty lane, until BVH_WIDTH lanes or no interior lane; wide nodes numbered in a queue."""
+    extent = (binary["upper"] - binary["lower"]).astype(np.float64)
+    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
+    wide = []
+    queue = [0]
+    while len(wide) < len(queue):
+        lanes = [queue[len(wide)]]
+        while len(lanes) < BVH_WIDTH:
+            interior = [k for k, node in enumerate(lanes) if binary["count"][node] < 0]
+            if not interior:
+                break
+            opened = max(interior, key=lambda k: (area[lanes[k]], -k))
+            first = int(binary["offset"][lanes[opened]])
+            lanes[opened] = first
+            lanes.append(first + 1)
+        node = np.zeros((), BVH_NODE_DTYPE)
+        node["child"], node["count"] = -1, -1
+        for lane, index in enumerate(lanes):
+            node["lower"][:, lane] = binary["lower"][index]
+            node["upper"][:, lane] = binary["upper"][index]
+            if binary["count"][index] < 0:
+                node["child"][lane], node["count"][lane] = len(queue), 0
+                queue.append(index)
+            else:
+                node["child"][lane] = binary["offset"][index]
+                node["count"][lane] = binary["count"][index]
+        wide.append(node)
+    return np.array(wide, BVH_NODE_DTYPE)
+
+
+@pytest.mark.parametrize("shape", ["random", "two", "a flat grid"])
+def test_collapse_equals_a_node_by_node_reference(shape):
+    if shape == "random":
+        rng = np.random.default_rng(31)
+        lower = rng.uniform(-1, 1, (4000, 3))
+        upper = lower + rng.exponential(0.02, (4000, 3))
+    else:
+        lower, upper = degenerate_bounds(shape)
+    binary, _ = build_bvh(lower, upper)
+    assert collapse_bvh(binary).tobytes() == reference_collapse(binary).tobytes()
+
+
+def reference_leaf_records(nodes, prims, quads, sphere_count, triangles):
+    """pack_bvh_leaves one node at a time, through the block dtypes' fields."""
+    nodes = nodes.copy()
+    first_triangle = len(quads) + sphere_count
+    quad_block = quad_block_dtype(BVH_BLOCK_WIDTH)
+    words = []
+    for node in nodes:
+        lanes = np.flatnonzero(node["count"] > 0)
+        if len(lanes) == 0:
+            continue
+        members = np.concatenate(
+            [
+                prims[c : c + n]
+                for c, n in zip(node["child"][lanes], node["count"][lanes], strict=True)
+            ]
+        )
+        kinds = (
+            [m for m in members if m >= first_triangle],
+            [m for m in members if m < len(quads)],
+            [m for m in members if len(quads) <= m < first_triangle],
+        )
+        record = []
+        triangle_blocks = np.zeros(-(-len(kinds[0]) // BVH_BLOCK_WIDTH), TRIANGLE_BLOCK_DTYPE)
+        triangle_blocks["id"] = -1
+        for k, member in enumerate(kinds[0]):
+            block, lane = triangle_blocks[k // BVH_BLOCK_WIDTH], k % BVH_BLOCK_WIDTH
+            for name in ("p0", "p1", "p2"):
+                block[name][:, lane] = triangles[member - first_triangle][name]
+            block["id"][lane] = member
+        quad_blocks = np.zeros(-(-len(kinds[1]) // BVH_BLOCK_WIDTH), quad_block)
+        quad_blocks["quad"], quad_blocks["plane_d"] = -1, -1.0
+        for k, member in enumerate(kinds[1]):
+            block, lane = quad_blocks[k // BVH_BLOCK_WIDTH], k % BVH_BLOCK_WIDTH
+            for name in ("corner", "normal", "u_dual", "v_dual"):
+                block[name][:, lane] = quads[member][name]
+            block["plane_d"][lane], block["quad"][lane] = quads[member]["plane_d"], member
+        record = np.concatenate(
+            [
+                triangle_blocks.view(np.uint32),
+                quad_blocks.view(np.uint32),
+                np.array(kinds[2], np.uint32),
+            ]
+        )
+        record = np.concatenate([record, np.zeros(-len(record) % BVH_LEAF_ALIGN, np.uint32)])
+        node["child"][lanes] = sum(len(r) for r in words)
+        node["count"][lanes] = len(triangle_blocks) | len(quad_blocks) << 16 | len(kinds[2]) << 24
+        words.append(record)
+    return nodes, np.concatenate(words)
+
+
+def test_leaf_records_equal_a_node_by_node_reference(tmp_path):
+    scene = random_scene(tmp_path, 33, quads=150, spheres=80, triangles=1500)
+    wide, prims = build_wide_bvh(*primitive_bounds(scene.quads, scene.spheres, scene.triangles))
+    args = (wide, prims, scene.quads, len(scene.spheres), scene.triangles)
+    nodes, words = pack_bvh_leaves(*args)
+    reference_nodes, reference_words = reference_leaf_records(*args)
+    assert nodes.tobytes() == reference_nodes.tobytes()
+    np.testing.assert_array_equal(words, reference_words)
+    # Every kind shares some record with another kind
+    counts = nodes["count"][nodes["count"] > 0]
+    assert np.any((counts & 0xFFFF) * ((counts >> 16) & 0xFF)) and np.any(counts >> 24)
+
+
 def test_sah_cost_of_a_hand_built_tree():
     """Root [0, 2] x [0, 1] x [0, 1] (half area 5) over leaves [0, 1]^3 (3 primitives) and
     [1, 2] x [0, 1] x [0, 1] (1): (5 x TRAVERSAL_COST + 3 x 3 + 3 x 1) / 5."""
@@ -423,7 +577,8 @@ def test_bvh_sah_cost_is_near_a_full_sweep_build():
 
 def test_nearest_clusters_match_a_pairwise_search():
     """_nearest_clusters against every pair within PLOC_RADIUS, one cluster at a time, with
-    the same float32 areas; repeated boxes make ties (closer first, then even forwards)."""
+    the same float32 areas (their last KEY_BITS bits cleared); repeated boxes make ties (closer
+    first, then even forwards)."""
     rng = np.random.default_rng(23)
     low = rng.uniform(-1, 1, (120, 3)).astype(np.float32)
     high = low + rng.uniform(0, 0.3, (120, 3)).astype(np.float32)
@@ -431,18 +586,21 @@ def test_nearest_clusters_match_a_pairwise_search():
     low[repeat[:30]], high[repeat[:30]] = low[repeat[30:]], high[repeat[30:]]
     low[40:60], high[40:60] = low[40], high[40]  # a run of equal boxes
     boxes = np.concatenate([low.T, -high.T])
-    scale = np.float32(0.7)
-    nearest, area = _nearest_clusters(boxes, scale)
+    nearest, area = _nearest_clusters(
+        boxes, np.empty((7, 120), np.float32), np.arange(120, dtype=np.int32)
+    )
     for i in range(120):
         candidates = []
         for j in range(max(0, i - PLOC_RADIUS), min(120, i + PLOC_RADIUS + 1)):
             if j != i:
                 x, y, z = (
-                    (np.maximum(high[i, a], high[j, a]) - np.minimum(low[i, a], low[j, a])) * scale
+                    np.maximum(high[i, a], high[j, a]) - np.minimum(low[i, a], low[j, a])
                     for a in range(3)
                 )
+                bits = np.float32(x * y + y * z + z * x).view(np.int32)
+                rounded = (bits & ~np.int32(2**KEY_BITS - 1)).view(np.float32)
                 preferred = (j > i) == (i % 2 == 0)
-                candidates.append((x * y + y * z + z * x, abs(j - i), not preferred, j))
+                candidates.append((rounded, abs(j - i), not preferred, j))
         best = min(candidates)
         assert nearest[i] == best[3] and area[i] == best[0]
     np.testing.assert_array_equal(nearest[40:60], np.arange(40, 60) ^ 1)
