@@ -752,28 +752,32 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
                 | (one_way ? VORONOI_WALKED_ONE_WAY : 0);
 }
 
-// One work-item per (pixel, grid cell): the cells of the grid cell's traced nuclei, which
-// share one copy of their 3 x 3 block of grid cells.
+// One work-item per (pixel, grid cell that can hold traced nuclei): the cells of the grid
+// cell's traced nuclei, which share one copy of their 3 x 3 block of grid cells. Traced nuclei
+// lie in the span_side x span_side grid cells from (span_lo, span_lo) (the host bounds them:
+// the strip's outer cells hold only auxiliary nuclei and get no work-item).
 __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
-                                 int grid_side, float half_extent, float start_box,
-                                 float inside_box, __global const uint *offsets,
-                                 __global const uint *cell_start,
+                                 int grid_side, int span_lo, int span_side, float half_extent,
+                                 float start_box, float inside_box,
+                                 __global const uint *offsets, __global const uint *cell_start,
                                  __global const float2 *sorted_points,
                                  __global const uint *sorted_index, __global area_real *areas,
                                  __global uchar *status)
 {
-    // This work-item's pixel p and grid cell c, and where the pixel's nuclei and grid are
-    uint cells = (uint)(grid_side * grid_side);
+    // This work-item's pixel p and grid cell g (c in the grid), and where the pixel's nuclei
+    // and grid are
+    uint span_cells = (uint)(span_side * span_side);
     uint id = get_global_id(0);
-    if (id >= pixel_count * cells)
+    if (id >= pixel_count * span_cells)
         return;
-    uint p = id / cells, c = id - p * cells;
+    uint p = id / span_cells, r = id - p * span_cells;
+    int2 g = (int2)(span_lo + (int)(r % (uint)span_side), span_lo + (int)(r / (uint)span_side));
+    uint c = (uint)(g.y * grid_side + g.x);
     __global const uint *traced_offsets = offsets;
     __global const uint *aux_offsets = offsets + pixel_count + 1;
     uint base = traced_offsets[p] + aux_offsets[p];
     uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
-    __global const uint *start = cell_start + (size_t)p * (cells + 1);
-    int2 g = (int2)((int)(c % (uint)grid_side), (int)(c / (uint)grid_side));
+    __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
 
     // The cell of each traced nucleus of c, gathering the 3 x 3 block on the first one
     VoronoiNeighbourhood hood;

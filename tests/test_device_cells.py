@@ -78,6 +78,7 @@ def cell_status(runtime, traced, aux, box=None):
         offsets_of([len(rounded(aux))]),
         max(float(np.abs(flat).max()), 0.5),
         device_cells.grid_side(len(flat), 1),
+        float(np.abs(rounded(traced)).max()),
     )
     defines, real = device_cells._precision_setup(runtime, "auto")
     return device_cells._launch(runtime, layout, box, defines, real)[1]
@@ -277,6 +278,36 @@ def test_device_sample_sets_match_host(runtime, area_rtol):
         box,
     )
     assert_same_cells(device, host, area_rtol)
+
+
+# 7a. Only the grid cells that can hold traced nuclei get a work-item (traced_span): every
+# traced sample of device sample sets falls in the span by the kernel's own float32 index, and
+# the span leaves the strip's outer cells out (else this checks nothing)
+@pytest.mark.parametrize("n", [64, 256, 1024])
+def test_traced_span_holds_every_traced_sample(runtime, n):
+    config = make_sampler("sppp", n)
+    sets = generate_sample_sets(runtime, config, 5, np.arange(400, dtype=np.uint32))
+    layout = device_cells._sample_set_layout(sets)
+    first, count = device_cells.traced_span(layout)
+    side, half = layout.grid_side, np.float32(layout.half_extent)
+    inv_cell = np.float32(side) / (np.float32(2.0) * half)
+    traced = sets.to_host(runtime.queue).traced.astype(np.float32)
+    index = np.clip(np.floor((traced + half) * inv_cell).astype(np.int64), 0, side - 1)
+    assert index.min() >= first and index.max() < first + count
+    assert count < side
+
+
+# 7a'. Traced nuclei anywhere in the grid, its border cells too (a span of the whole grid):
+# their cells are all computed, as Qhull's
+def test_traced_nuclei_in_border_grid_cells_match_qhull(runtime, area_rtol):
+    rng = np.random.default_rng(23)
+    traced = rng.uniform(-3.0, 3.0, (3000, 2))
+    traced = traced[np.abs(traced).max(axis=1) > 2.6]  # a frame: the grid's outer cells
+    aux = rng.uniform(-3.2, 3.2, (40, 2))
+    offsets, aux_offsets = offsets_of([len(traced)]), offsets_of([len(aux)])
+    device, host = both(runtime, traced, offsets, aux, aux_offsets, 3.0)
+    assert_same_cells(device, host, area_rtol)
+    assert host.bounded.mean() > 0.9
 
 
 # 7b. A pixel's cells do not depend on the launch it is part of (tiling invariance)
