@@ -103,11 +103,13 @@ CL_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, in
 
 // One pixel per work-item: counting sort of its nuclei into grid cells, written from slot
 // base = traced_offsets[p] + aux_offsets[p] of sorted_points, with each nucleus's index in
-// positions in sorted_index (traced nuclei: below traced_total).
+// positions in sorted_index (traced nuclei: below traced_total). cell_of (scratch, as long as
+// sorted_points) keeps each nucleus's grid cell from the counting pass for the fill pass.
 __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
                                  float half_extent, __global const float2 *positions,
                                  __global const uint *offsets, __global uint *cell_start,
-                                 __global float2 *sorted_points, __global uint *sorted_index)
+                                 __global float2 *sorted_points, __global uint *sorted_index,
+                                 __global uint *cell_of)
 {
     uint p = get_global_id(0);
     if (p >= pixel_count)
@@ -120,14 +122,20 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
     uint t0 = traced_offsets[p], t1 = traced_offsets[p + 1];
     uint a0 = traced_total + aux_offsets[p], a1 = traced_total + aux_offsets[p + 1];
     uint base = t0 + aux_offsets[p];
+    __global uint *cell = cell_of + base;  // traced nuclei first, then auxiliary ones
 
     // Count the nuclei of each grid cell
     for (int c = 0; c <= cells; ++c)
         start[c] = 0u;
-    for (uint j = t0; j < t1; ++j)
-        start[VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side)] += 1u;
-    for (uint j = a0; j < a1; ++j)
-        start[VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side)] += 1u;
+    uint k = 0u;
+    for (uint j = t0; j < t1; ++j, ++k) {
+        cell[k] = (uint)VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side);
+        start[cell[k]] += 1u;
+    }
+    for (uint j = a0; j < a1; ++j, ++k) {
+        cell[k] = (uint)VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side);
+        start[cell[k]] += 1u;
+    }
 
     // Inclusive prefix sums: start[c] becomes the end of cell c
     uint running = 0u;
@@ -139,15 +147,13 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
 
     // Fill back to front: each decrement leaves start[c] at the first slot of cell c
     for (uint j = a1; j > a0; --j) {
-        float2 x = positions[j - 1u];
-        uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
-        sorted_points[base + s] = x;
+        uint s = --start[cell[--k]];
+        sorted_points[base + s] = positions[j - 1u];
         sorted_index[base + s] = j - 1u;
     }
     for (uint j = t1; j > t0; --j) {
-        float2 x = positions[j - 1u];
-        uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
-        sorted_points[base + s] = x;
+        uint s = --start[cell[--k]];
+        sorted_points[base + s] = positions[j - 1u];
         sorted_index[base + s] = j - 1u;
     }
 }

@@ -535,6 +535,7 @@ def _enqueue_cells(
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
     sorted_index = runtime.allocate(4 * total)
+    cell_of = runtime.allocate(4 * total)  # the grid build's scratch
     areas_buf = runtime.allocate(area_bytes * traced)
     status_buf = runtime.allocate(traced)
     half = np.float32(layout.half_extent)
@@ -552,6 +553,7 @@ def _enqueue_cells(
         cell_start,
         sorted_points,
         sorted_index,
+        cell_of,
     )
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
     span_first, span_side = traced_span(layout)
