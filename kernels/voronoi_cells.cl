@@ -6,12 +6,12 @@
 //     grid_side x grid_side grid over [-half_extent, half_extent]^2 (counting sort: counts,
 //     prefix sums, fill), so a cell's nuclei are contiguous and a row of cells is one range;
 //     each sorted nucleus keeps its index (sorted_index: traced nuclei below traced_total).
-//   voronoi_cell_areas: one work-item per (pixel, grid cell) copies the nuclei of the 3 x 3
-//     block of grid cells around it once, then does each traced nucleus of its grid cell. It
-//     walks around the nucleus among the block's nuclei: from the nearest nucleus (always
-//     a Voronoi neighbour), each edge ends where the first other bisector crosses it, whose
-//     nucleus is the next neighbour; two walks, one each way round, until they meet (two
-//     independent chains of steps, which the processor overlaps). That is the exact
+//   voronoi_cell_areas: one work-item per (pixel, grid cell that can hold traced nuclei) copies
+//     the nuclei of the 3 x 3 block of grid cells around it once, then does each traced nucleus
+//     of its grid cell. It walks around the nucleus among the block's nuclei: from the nearest
+//     nucleus (always a Voronoi neighbour), each edge ends where the first other bisector
+//     crosses it, whose nucleus is the next neighbour; two walks, one each way round, until
+//     they meet (two independent chains of steps, which the processor overlaps). That is the exact
 //     cell among the block's nuclei; a nucleus outside the block can only change it if it is
 //     closer than the nucleus to one of its vertices (inside a disc through the nucleus centred
 //     on a vertex), so the grid cells meeting those discs' bounding box are searched and their
