@@ -11,6 +11,14 @@ Reported per traced nucleus, as medians over K repeats after a warm-up run: wall
 process CPU time (all threads: PoCL's workers for the device, Qhull's one thread for the host),
 plus the largest relative area difference between the two and the host-fallback pixel count.
 The machine is shared: compare CPU times first. JSON goes to bench/results/ (git-ignored).
+
+    python bench/device_voronoi_speed.py --stages [--repeats K]
+
+instead accounts for what a vor_sn render does beyond an mc_n render over the same SPPP
+samples, stage by stage, on one render tile (4096 pixels) at n = 64 and 256: the auxiliary
+nuclei (sample sets drawn with them against without), the grid build, the cell kernel, and the
+per-pixel Voronoi sums against the plain sums mc_n forms; medians of K runs (alternating),
+CPU seconds per tile and per 256 x 256 image (16 such tiles).
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clrender.estimators import device_cells
 from clrender.estimators.device_cells import device_sppp_cells, resolve_precision
 from clrender.estimators.qhull_cells import sppp_cells
 from clrender.runtime import create_runtime
@@ -82,15 +91,123 @@ def measure(runtime, n: int, pixels: int, repeats: int, precision: str) -> dict:
     }
 
 
+# --stages: a render tile of 4096 pixels; a 256 x 256 image is 16 of them
+STAGE_PIXELS, IMAGE_PIXELS = 4096, 256 * 256
+
+
+def stage_accounting(runtime, n: int, repeats: int) -> dict:
+    """CPU (and wall) seconds per tile of each stage vor_sn adds to an mc_n render, medians of
+    alternating runs, each ended by a queue finish."""
+    from dataclasses import replace
+
+    config = make_sampler("sppp", n)
+    pixels = np.arange(STAGE_PIXELS, dtype=np.uint32)
+    sets = generate_sample_sets(runtime, config, 1, pixels)
+    radiance = runtime.upload(
+        np.random.default_rng(0).random((sets.traced_total, 3), dtype=np.float32)
+    )
+    layout = device_cells._sample_set_layout(sets)
+    box = float(np.float32(0.5 + config.eps))
+    defines = device_cells.kernel_defines(runtime, "auto")
+    traced, total = layout.traced_total, layout.traced_total + int(layout.aux_offsets[-1])
+    side = layout.grid_side
+    offsets = runtime.upload(
+        np.concatenate([layout.traced_offsets, layout.aux_offsets]).astype(np.uint32)
+    )
+    grid = [runtime.allocate(4 * STAGE_PIXELS * (side * side + 1))]
+    grid += [runtime.allocate(8 * total), runtime.allocate(4 * total), runtime.allocate(4 * total)]
+    build = runtime.kernel(device_cells.KERNEL_FILE, "voronoi_build_grid", defines)
+
+    def build_grid():
+        runtime.launch_1d(
+            build,
+            STAGE_PIXELS,
+            np.uint32(STAGE_PIXELS),
+            np.uint32(traced),
+            np.int32(side),
+            np.float32(layout.half_extent),
+            layout.positions,
+            offsets,
+            *grid,
+        )
+
+    stages = {
+        "sample sets with auxiliary nuclei": lambda: generate_sample_sets(
+            runtime, config, 1, pixels
+        ),
+        "sample sets without": lambda: generate_sample_sets(
+            runtime, replace(config, n_aux=0), 1, pixels
+        ),
+        "grid build": build_grid,
+        "grid build + cell kernel": lambda: device_cells._enqueue_cells(
+            runtime, layout, box, defines, 8
+        ),
+        "cells + Voronoi sums (device_sppp_sums)": lambda: device_cells.device_sppp_sums(
+            runtime, sets, radiance, box
+        ),
+        "plain sums (device_plain_sums, mc_n)": lambda: device_cells.device_plain_sums(
+            runtime, sets, radiance
+        ),
+    }
+    runs = {name: [] for name in stages}
+    for repeat in range(repeats + 1):
+        for name, stage in stages.items():
+            wall0, cpu0 = time.perf_counter(), time.process_time()
+            stage()
+            runtime.queue.finish()
+            if repeat:  # the first round warms up
+                runs[name].append((time.perf_counter() - wall0, time.process_time() - cpu0))
+    cpu = {name: float(np.median([r[1] for r in rows])) for name, rows in runs.items()}
+    wall = {name: float(np.median([r[0] for r in rows])) for name, rows in runs.items()}
+    with_cells = cpu["grid build + cell kernel"]
+    extra = {
+        "auxiliary nuclei": cpu["sample sets with auxiliary nuclei"] - cpu["sample sets without"],
+        "grid build": cpu["grid build"],
+        "cell kernel": with_cells - cpu["grid build"],
+        "sums beyond the plain sums": cpu["cells + Voronoi sums (device_sppp_sums)"]
+        - with_cells
+        - cpu["plain sums (device_plain_sums, mc_n)"],
+    }
+    extra["total"] = sum(extra.values())
+    tiles = IMAGE_PIXELS / STAGE_PIXELS
+    return {
+        "n": n,
+        "pixels": STAGE_PIXELS,
+        "traced_nuclei": traced,
+        "aux_nuclei": total - traced,
+        "cpu_s_per_tile": cpu,
+        "wall_s_per_tile": wall,
+        "extra_cpu_s_per_image": {name: value * tiles for name, value in extra.items()},
+    }
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1/8 of the pixels, 3 repeats")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--precision", default="auto", help="auto, single, mixed or double")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    parser.add_argument(
+        "--stages", action="store_true", help="vor_sn's stages beyond mc_n, per tile and image"
+    )
     args = parser.parse_args(argv)
     runtime = create_runtime()
     repeats = 3 if args.quick else args.repeats
+    if args.stages:
+        report = {"device": runtime.describe(), "repeats": repeats, "stages": []}
+        for n in (64, 256):
+            row = stage_accounting(runtime, n, repeats)
+            report["stages"].append(row)
+            print(f"n={n}: {row['traced_nuclei']} traced, {row['aux_nuclei']} auxiliary nuclei")
+            for name, value in row["cpu_s_per_tile"].items():
+                print(f"  {name:42s} {1e3 * value:8.2f} ms CPU per tile")
+            for name, value in row["extra_cpu_s_per_image"].items():
+                print(f"  extra: {name:35s} {value:6.2f} CPU-s per 256 x 256 image")
+        out = args.out.with_name("device_voronoi_stages.json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {out}")
+        return
     rows = []
     for n, pixels in CASES:
         row = measure(

@@ -387,7 +387,7 @@ def _launch_fill(
         fill = runtime.kernel("sampling.cl", "fill_auxiliary")
         runtime.launch_1d(
             fill,
-            config.n_aux * pixel_count,
+            (config.n_aux + 7) // 8 * pixel_count,  # a work-item per 8 nuclei of a pixel
             np.uint32(pixel_count),
             np.uint32(seed),
             np.float32(config.eps),

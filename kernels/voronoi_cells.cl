@@ -6,12 +6,12 @@
 //     grid_side x grid_side grid over [-half_extent, half_extent]^2 (counting sort: counts,
 //     prefix sums, fill), so a cell's nuclei are contiguous and a row of cells is one range;
 //     each sorted nucleus keeps its index (sorted_index: traced nuclei below traced_total).
-//   voronoi_cell_areas: one work-item per (pixel, grid cell) copies the nuclei of the 3 x 3
-//     block of grid cells around it once, then does each traced nucleus of its grid cell. It
-//     walks around the nucleus among the block's nuclei: from the nearest nucleus (always
-//     a Voronoi neighbour), each edge ends where the first other bisector crosses it, whose
-//     nucleus is the next neighbour; two walks, one each way round, until they meet (two
-//     independent chains of steps, which the processor overlaps). That is the exact
+//   voronoi_cell_areas: one work-item per (pixel, grid cell that can hold traced nuclei) copies
+//     the nuclei of the 3 x 3 block of grid cells around it once, then does each traced nucleus
+//     of its grid cell. It walks around the nucleus among the block's nuclei: from the nearest
+//     nucleus (always a Voronoi neighbour), each edge ends where the first other bisector
+//     crosses it, whose nucleus is the next neighbour; two walks, one each way round, until
+//     they meet (two independent chains of steps, which the processor overlaps). That is the exact
 //     cell among the block's nuclei; a nucleus outside the block can only change it if it is
 //     closer than the nucleus to one of its vertices (inside a disc through the nucleus centred
 //     on a vertex), so the grid cells meeting those discs' bounding box are searched and their
@@ -103,11 +103,13 @@ CL_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, in
 
 // One pixel per work-item: counting sort of its nuclei into grid cells, written from slot
 // base = traced_offsets[p] + aux_offsets[p] of sorted_points, with each nucleus's index in
-// positions in sorted_index (traced nuclei: below traced_total).
+// positions in sorted_index (traced nuclei: below traced_total). cell_of (scratch, as long as
+// sorted_points) keeps each nucleus's grid cell from the counting pass for the fill pass.
 __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
                                  float half_extent, __global const float2 *positions,
                                  __global const uint *offsets, __global uint *cell_start,
-                                 __global float2 *sorted_points, __global uint *sorted_index)
+                                 __global float2 *sorted_points, __global uint *sorted_index,
+                                 __global uint *cell_of)
 {
     uint p = get_global_id(0);
     if (p >= pixel_count)
@@ -120,14 +122,20 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
     uint t0 = traced_offsets[p], t1 = traced_offsets[p + 1];
     uint a0 = traced_total + aux_offsets[p], a1 = traced_total + aux_offsets[p + 1];
     uint base = t0 + aux_offsets[p];
+    __global uint *cell = cell_of + base;  // traced nuclei first, then auxiliary ones
 
     // Count the nuclei of each grid cell
     for (int c = 0; c <= cells; ++c)
         start[c] = 0u;
-    for (uint j = t0; j < t1; ++j)
-        start[VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side)] += 1u;
-    for (uint j = a0; j < a1; ++j)
-        start[VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side)] += 1u;
+    uint k = 0u;
+    for (uint j = t0; j < t1; ++j, ++k) {
+        cell[k] = (uint)VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side);
+        start[cell[k]] += 1u;
+    }
+    for (uint j = a0; j < a1; ++j, ++k) {
+        cell[k] = (uint)VoronoiGrid_CellOf(positions[j], half_extent, inv_cell, grid_side);
+        start[cell[k]] += 1u;
+    }
 
     // Inclusive prefix sums: start[c] becomes the end of cell c
     uint running = 0u;
@@ -139,15 +147,13 @@ __kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_s
 
     // Fill back to front: each decrement leaves start[c] at the first slot of cell c
     for (uint j = a1; j > a0; --j) {
-        float2 x = positions[j - 1u];
-        uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
-        sorted_points[base + s] = x;
+        uint s = --start[cell[--k]];
+        sorted_points[base + s] = positions[j - 1u];
         sorted_index[base + s] = j - 1u;
     }
     for (uint j = t1; j > t0; --j) {
-        float2 x = positions[j - 1u];
-        uint s = --start[VoronoiGrid_CellOf(x, half_extent, inv_cell, grid_side)];
-        sorted_points[base + s] = x;
+        uint s = --start[cell[--k]];
+        sorted_points[base + s] = positions[j - 1u];
         sorted_index[base + s] = j - 1u;
     }
 }
@@ -752,28 +758,32 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
                 | (one_way ? VORONOI_WALKED_ONE_WAY : 0);
 }
 
-// One work-item per (pixel, grid cell): the cells of the grid cell's traced nuclei, which
-// share one copy of their 3 x 3 block of grid cells.
+// One work-item per (pixel, grid cell that can hold traced nuclei): the cells of the grid
+// cell's traced nuclei, which share one copy of their 3 x 3 block of grid cells. Traced nuclei
+// lie in the span_side x span_side grid cells from (span_lo, span_lo) (the host bounds them:
+// the strip's outer cells hold only auxiliary nuclei and get no work-item).
 __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
-                                 int grid_side, float half_extent, float start_box,
-                                 float inside_box, __global const uint *offsets,
-                                 __global const uint *cell_start,
+                                 int grid_side, int span_lo, int span_side, float half_extent,
+                                 float start_box, float inside_box,
+                                 __global const uint *offsets, __global const uint *cell_start,
                                  __global const float2 *sorted_points,
                                  __global const uint *sorted_index, __global area_real *areas,
                                  __global uchar *status)
 {
-    // This work-item's pixel p and grid cell c, and where the pixel's nuclei and grid are
-    uint cells = (uint)(grid_side * grid_side);
+    // This work-item's pixel p and grid cell g (c in the grid), and where the pixel's nuclei
+    // and grid are
+    uint span_cells = (uint)(span_side * span_side);
     uint id = get_global_id(0);
-    if (id >= pixel_count * cells)
+    if (id >= pixel_count * span_cells)
         return;
-    uint p = id / cells, c = id - p * cells;
+    uint p = id / span_cells, r = id - p * span_cells;
+    int2 g = (int2)(span_lo + (int)(r % (uint)span_side), span_lo + (int)(r / (uint)span_side));
+    uint c = (uint)(g.y * grid_side + g.x);
     __global const uint *traced_offsets = offsets;
     __global const uint *aux_offsets = offsets + pixel_count + 1;
     uint base = traced_offsets[p] + aux_offsets[p];
     uint count = traced_offsets[p + 1] - traced_offsets[p] + aux_offsets[p + 1] - aux_offsets[p];
-    __global const uint *start = cell_start + (size_t)p * (cells + 1);
-    int2 g = (int2)((int)(c % (uint)grid_side), (int)(c / (uint)grid_side));
+    __global const uint *start = cell_start + (size_t)p * (uint)(grid_side * grid_side + 1);
 
     // The cell of each traced nucleus of c, gathering the 3 x 3 block on the first one
     VoronoiNeighbourhood hood;

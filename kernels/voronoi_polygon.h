@@ -256,13 +256,90 @@ __attribute__((noinline)) area_real VoronoiPolygon_AreaSkipping(const VoronoiPol
     return 0.5f * twice_area;
 }
 
+// 8 lanes of area_real, and their comparison masks
+#if defined(VORONOI_DOUBLE) || defined(VORONOI_AREA_DOUBLE)
+typedef double8 area_real8;
+typedef long8 area_mask8;
+#else
+typedef float8 area_real8;
+typedef int8 area_mask8;
+#endif
+
+// Shoelace area of a polygon of at most 8 edges over its recomputed corners as the 8 lanes of
+// vectors (lane k: corner k, from the bisectors of edges k - 1 and k, as in
+// VoronoiPolygon_Vertex), summed pairwise; inside: all corners (absolute) lie in
+// [-inside_box, inside_box]^2; *parallel: two consecutive edges are parallel (the area is then
+// not valid: VoronoiPolygon_AreaSkipping skips their corner). Written on vectors: the compiler
+// leaves the loop form scalar for fewer than 8 corners.
+CL_INLINE area_real VoronoiPolygon_Area8(const VoronoiPolygon *poly, float2 nucleus,
+                                         area_real inside_box, bool *inside, bool *parallel)
+{
+    // The edges' neighbours in lanes; lanes past the count hold the nucleus (masked below)
+    int count = poly->count;
+    union {
+        float8 v;
+        float lane[8];
+    } ex, ey;
+    for (int k = 0; k < 8; ++k) {
+        ex.lane[k] = k < count ? poly->ex[k] : nucleus.x;
+        ey.lane[k] = k < count ? poly->ey[k] : nucleus.y;
+    }
+    const area_mask8 lanes = (area_mask8)(0, 1, 2, 3, 4, 5, 6, 7);
+    area_mask8 valid = lanes < (area_mask8)count;
+
+    // Corner k from edge k - 1 (edge count - 1 for corner 0) and edge k, relative to x
+    area_real2 x = AREA_REAL2(nucleus);
+    float8 prev_x = __builtin_shufflevector((float8)(poly->ex[count - 1]), ex.v, 0, 8, 9, 10,
+                                            11, 12, 13, 14);
+    float8 prev_y = __builtin_shufflevector((float8)(poly->ey[count - 1]), ey.v, 0, 8, 9, 10,
+                                            11, 12, 13, 14);
+    area_real8 ax = __builtin_convertvector(prev_x, area_real8) - x.x;
+    area_real8 ay = __builtin_convertvector(prev_y, area_real8) - x.y;
+    area_real8 bx = __builtin_convertvector(ex.v, area_real8) - x.x;
+    area_real8 by = __builtin_convertvector(ey.v, area_real8) - x.y;
+    area_real8 ca = 0.5f * (ax * ax + ay * ay), cb = 0.5f * (bx * bx + by * by);
+    area_real8 det;
+    {
+        // As VoronoiPolygon_Det: exactly 0 for parallel edges
+#pragma OPENCL FP_CONTRACT OFF
+        det = ax * by - ay * bx;
+    }
+    area_real8 vx = (ca * by - cb * ay) / det, vy = (ax * cb - bx * ca) / det;
+    area_real8 absolute_x = x.x + vx, absolute_y = x.y + vy;
+    area_mask8 in_box = (VORONOI_ABS(absolute_x) <= inside_box)
+                        & (VORONOI_ABS(absolute_y) <= inside_box);
+
+    // Twice the area: corner k against corner k + 1 (corner 0 after the last)
+    area_real8 next_x = __builtin_shufflevector(vx, vx, 1, 2, 3, 4, 5, 6, 7, 0);
+    area_real8 next_y = __builtin_shufflevector(vy, vy, 1, 2, 3, 4, 5, 6, 7, 0);
+    area_mask8 last = lanes == (area_mask8)(count - 1);
+    next_x = last ? (area_real8)(vx.s0) : next_x;
+    next_y = last ? (area_real8)(vy.s0) : next_y;
+    area_real8 twice = valid ? vx * next_y - vy * next_x : (area_real8)(0);
+
+    // Over the lanes: bit 0 a parallel pair, bit 1 a corner outside the box; the sum
+    area_mask8 flags = (valid & (det == 0) & 1) | (valid & ~in_box & 2);
+    flags.lo |= flags.hi;
+    flags.s01 |= flags.s23;
+    *parallel = ((flags.s0 | flags.s1) & 1) != 0;
+    *inside = ((flags.s0 | flags.s1) & 2) == 0;
+    twice.lo += twice.hi;
+    twice.s01 += twice.s23;
+    return 0.5f * (twice.s0 + twice.s1);
+}
+
 // Shoelace area over the recomputed corners; inside: all corners (absolute) lie in
-// [-inside_box, inside_box]^2. The corners are computed first, in a loop without branches
-// (the compiler vectorises it), then summed in order: the same arithmetic as
+// [-inside_box, inside_box]^2. Up to 8 corners (most cells) in VoronoiPolygon_Area8; more are
+// computed first, in a loop without branches, then summed in order: the same arithmetic as
 // VoronoiPolygon_AreaSkipping, which takes over when two edges are collinear.
 CL_INLINE area_real VoronoiPolygon_Area(const VoronoiPolygon *poly, float2 nucleus,
                                         area_real inside_box, bool *inside)
 {
+    if (poly->count <= 8) {
+        bool parallel;
+        area_real area = VoronoiPolygon_Area8(poly, nucleus, inside_box, inside, &parallel);
+        return parallel ? VoronoiPolygon_AreaSkipping(poly, nucleus, inside_box, inside) : area;
+    }
     area_real2 x = AREA_REAL2(nucleus);
     int count = poly->count;
     area_real cx[VORONOI_MAX_VERTICES], cy[VORONOI_MAX_VERTICES];

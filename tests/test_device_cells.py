@@ -78,6 +78,7 @@ def cell_status(runtime, traced, aux, box=None):
         offsets_of([len(rounded(aux))]),
         max(float(np.abs(flat).max()), 0.5),
         device_cells.grid_side(len(flat), 1),
+        float(np.abs(rounded(traced)).max()),
     )
     defines, real = device_cells._precision_setup(runtime, "auto")
     return device_cells._launch(runtime, layout, box, defines, real)[1]
@@ -277,6 +278,36 @@ def test_device_sample_sets_match_host(runtime, area_rtol):
         box,
     )
     assert_same_cells(device, host, area_rtol)
+
+
+# 7a. Only the grid cells that can hold traced nuclei get a work-item (traced_span): every
+# traced sample of device sample sets falls in the span by the kernel's own float32 index, and
+# the span leaves the strip's outer cells out (else this checks nothing)
+@pytest.mark.parametrize("n", [64, 256, 1024])
+def test_traced_span_holds_every_traced_sample(runtime, n):
+    config = make_sampler("sppp", n)
+    sets = generate_sample_sets(runtime, config, 5, np.arange(400, dtype=np.uint32))
+    layout = device_cells._sample_set_layout(sets)
+    first, count = device_cells.traced_span(layout)
+    side, half = layout.grid_side, np.float32(layout.half_extent)
+    inv_cell = np.float32(side) / (np.float32(2.0) * half)
+    traced = sets.to_host(runtime.queue).traced.astype(np.float32)
+    index = np.clip(np.floor((traced + half) * inv_cell).astype(np.int64), 0, side - 1)
+    assert index.min() >= first and index.max() < first + count
+    assert count < side
+
+
+# 7a'. Traced nuclei anywhere in the grid, its border cells too (a span of the whole grid):
+# their cells are all computed, as Qhull's
+def test_traced_nuclei_in_border_grid_cells_match_qhull(runtime, area_rtol):
+    rng = np.random.default_rng(23)
+    traced = rng.uniform(-3.0, 3.0, (3000, 2))
+    traced = traced[np.abs(traced).max(axis=1) > 2.6]  # a frame: the grid's outer cells
+    aux = rng.uniform(-3.2, 3.2, (40, 2))
+    offsets, aux_offsets = offsets_of([len(traced)]), offsets_of([len(aux)])
+    device, host = both(runtime, traced, offsets, aux, aux_offsets, 3.0)
+    assert_same_cells(device, host, area_rtol)
+    assert host.bounded.mean() > 0.9
 
 
 # 7b. A pixel's cells do not depend on the launch it is part of (tiling invariance)
@@ -520,8 +551,69 @@ def test_polygon_area_skips_corners_of_parallel_edges(runtime, precision):
         cl.enqueue_copy(runtime.queue, area, area_buf)
         cl.enqueue_copy(runtime.queue, inside, inside_buf)
         np.testing.assert_allclose(area, expected, rtol=SINGLE_RTOL if single else AREA_RTOL)
-        assert area[0] == area[1]  # the same arithmetic on both paths
+        # The same corners on both paths, summed in another order (pairwise over 8 lanes)
+        np.testing.assert_allclose(area[0], area[1], rtol=1e-6 if single else 1e-14)
         assert inside.tolist() == [1, 1]
+
+
+def run_polygon_area(runtime, precision, nucleus, edges):
+    """(VoronoiPolygon_Area, its inside flag) of one polygon on the device."""
+    import pyopencl as cl
+
+    from clrender.runtime import build_options
+
+    defines = device_cells.kernel_defines(runtime, precision)
+    program = cl.Program(runtime.context, POLYGON_AREA_KERNEL).build(
+        options=build_options(tuple(sorted(defines.items())))
+    )
+    single = device_cells.resolve_precision(runtime, precision) == "single"
+    area = np.zeros(2, np.float32 if single else np.float64)
+    inside = np.zeros(2, np.int32)
+    area_buf, inside_buf = runtime.allocate(area.nbytes), runtime.allocate(inside.nbytes)
+    cl.Kernel(program, "polygon_area")(
+        runtime.queue,
+        (1,),
+        (1,),
+        np.int32(len(edges)),
+        cl.cltypes.make_float2(*nucleus),
+        runtime.upload(np.ascontiguousarray(edges, np.float32)),
+        area_buf,
+        inside_buf,
+    )
+    cl.enqueue_copy(runtime.queue, area, area_buf)
+    cl.enqueue_copy(runtime.queue, inside, inside_buf)
+    return float(area[0]), bool(inside[0])
+
+
+# 11b. Polygons of 3 to 12 edges (8 lanes hold up to 8 corners; more take the loop): areas
+# equal the exact ones, inside flags the corners' (some polygons cross the box x = 1/2)
+@pytest.mark.parametrize("precision", ["single", "auto", "double"])
+@pytest.mark.parametrize("k", [3, 4, 5, 7, 8, 9, 12])
+def test_polygon_area_of_k_edges(runtime, precision, k):
+    if precision == "double" and not has_fp64(runtime.device):
+        pytest.skip("no cl_khr_fp64 on this device")
+    single = device_cells.resolve_precision(runtime, precision) == "single"
+    rng = np.random.default_rng(k)
+    for nucleus_x in (0.1, 0.49):
+        nucleus = np.array([nucleus_x, 0.2], np.float32)
+        angles = np.linspace(0, 2 * np.pi, k, endpoint=False) + rng.uniform(0, 0.5, k)
+        distances = rng.uniform(0.08, 0.13, k)
+        neighbours = nucleus + distances[:, None] * np.c_[np.cos(angles), np.sin(angles)]
+        neighbours = neighbours.astype(np.float32)
+        nucleus64, edges64 = nucleus.astype(np.float64), neighbours.astype(np.float64)
+        expected = bisector_polygon_area(nucleus64, edges64)
+        corners = [
+            np.linalg.solve(
+                np.array([a - nucleus64, b - nucleus64]),
+                0.5
+                * np.array([(a - nucleus64) @ (a + nucleus64), (b - nucleus64) @ (b + nucleus64)]),
+            )
+            for a, b in zip(np.roll(edges64, 1, axis=0), edges64, strict=True)
+        ]
+        area, inside = run_polygon_area(runtime, precision, nucleus, neighbours)
+        np.testing.assert_allclose(area, expected, rtol=SINGLE_RTOL if single else AREA_RTOL)
+        assert inside == bool(np.all(np.abs(corners) <= 0.5))
+        assert inside == (nucleus_x < 0.3)
 
 
 # 15. Coincident nuclei share their cell equally, as on the host: every nucleus of a batch

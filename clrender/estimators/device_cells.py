@@ -117,6 +117,7 @@ class _Layout:
     aux_offsets: np.ndarray  # (P + 1,) int64, relative to the first auxiliary nucleus
     half_extent: float  # the grid covers [-half_extent, half_extent]^2
     grid_side: int  # cells per side of every pixel's grid
+    traced_extent: float  # the traced nuclei lie in [-traced_extent, traced_extent]^2
     kind: str = "sppp"  # "periodic": the auxiliary nuclei are torus translates
     intensity: float = 1.0  # the sampler's n (PixelSums.n)
 
@@ -169,7 +170,8 @@ def device_sppp_cells_from_arrays(
     extent = float(np.abs(flat).max()) if len(flat) else 0.5
     buffer, upload = runtime.upload_async(flat)  # held until _cells has read its results
     side = grid_side(len(flat), len(offsets) - 1)
-    layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side)
+    traced_extent = float(np.abs(traced32).max()) if len(traced32) else 0.0
+    layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side, traced_extent)
 
     def fetch(wanted: np.ndarray) -> SampleSets:
         return SampleSets(traced32, offsets, 1.0, aux32, aux_offsets, 0.0).subset(wanted)
@@ -428,6 +430,7 @@ def _sample_set_layout(sample_sets: DeviceSampleSets) -> _Layout:
         aux_offsets,
         0.5 + config.eps,
         grid_side(config.n + config.n_aux, 1),
+        0.5,  # traced samples lie in W
         intensity=config.n,
     )
 
@@ -460,6 +463,7 @@ def _periodic_layout(
         (TORUS_COPIES - 1) * traced_offsets,
         1.5,
         grid_side(TORUS_COPIES * mean_count, 1),
+        0.5,  # wrapped into [-1/2, 1/2)^2
         kind="periodic",
         intensity=mean_count,
     )
@@ -531,6 +535,7 @@ def _enqueue_cells(
     cell_start = runtime.allocate(4 * pixels * (side * side + 1))
     sorted_points = runtime.allocate(8 * total)
     sorted_index = runtime.allocate(4 * total)
+    cell_of = runtime.allocate(4 * total)  # the grid build's scratch
     areas_buf = runtime.allocate(area_bytes * traced)
     status_buf = runtime.allocate(traced)
     half = np.float32(layout.half_extent)
@@ -548,14 +553,18 @@ def _enqueue_cells(
         cell_start,
         sorted_points,
         sorted_index,
+        cell_of,
     )
     compute = runtime.kernel(KERNEL_FILE, "voronoi_cell_areas", defines)
+    span_first, span_side = traced_span(layout)
     runtime.launch_1d(
         compute,
-        pixels * side * side,
+        pixels * span_side * span_side,
         np.uint32(pixels),
         np.uint32(traced),
         np.int32(side),
+        np.int32(span_first),
+        np.int32(span_side),
         half,
         np.float32(layout.half_extent * START_BOX_SCALE),
         np.float32(box if box is not None else np.inf),
@@ -567,6 +576,23 @@ def _enqueue_cells(
         status_buf,
     )
     return areas_buf, status_buf, offsets, upload
+
+
+def traced_span(layout: _Layout) -> tuple[int, int]:
+    """(first, count): the grid rows (and columns) that can hold traced nuclei, the same in x
+    and y. A nucleus at x goes to grid column floor((x + half_extent) grid_side / (2
+    half_extent)), clamped (VoronoiGrid_Index), which rises with x: the columns of -traced_extent
+    and +traced_extent bound those of the traced nuclei. Both ends are widened by 1e-4 cell,
+    far more than the float rounding of the device's index."""
+    side, half = layout.grid_side, layout.half_extent
+    cell = 2.0 * half / side
+    reach = layout.traced_extent + 1e-4 * cell
+
+    def index(x: float) -> int:
+        return min(max(math.floor((x + half) / cell), 0), side - 1)
+
+    first = index(-reach)
+    return first, index(reach) - first + 1
 
 
 def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndarray:
