@@ -111,6 +111,8 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
 # Low bits of an area's float32 bits that _nearest_clusters replaces by the candidate's step
 # and side (ties: areas equal to 2^-20 break by distance then side)
 KEY_BITS = 4
+# The key's low bits hold the step (1 .. PLOC_RADIUS) above one side bit
+assert PLOC_RADIUS < 2 ** (KEY_BITS - 1), "PLOC_RADIUS does not fit the merge keys' KEY_BITS"
 
 
 def _nearest_clusters(boxes: np.ndarray, work: np.ndarray, index: np.ndarray) -> tuple:

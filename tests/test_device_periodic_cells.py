@@ -168,3 +168,31 @@ def test_sums_flag_undecided_pixels_for_the_host(runtime, monkeypatch):
     radiance = np.ones((sets.traced_total, 3), np.float32)
     device = device_periodic_sums(runtime, sets, runtime.upload(radiance))
     assert device.fallback.sum() > 20 and not device.redraw.any()
+
+
+# 6. Positions outside W are refused (the kernel's grid spans W's copies only); a nucleus that
+# no work-item of the cell kernel reaches (its span made too narrow on purpose) is left
+# undecided and recomputed on the host, never given a stale area
+def test_positions_outside_w_are_refused(runtime):
+    traced, offsets = random_pixels(np.full(2, 16), seed=4)
+    traced[5] = (-0.7, 0.1)
+    with pytest.raises(device_cells.ParameterError, match=r"\(-0\.7.*at index 5"):
+        device_periodic_cells_from_arrays(runtime, traced, offsets)
+
+
+def test_nuclei_outside_the_span_are_recomputed_on_the_host(runtime, monkeypatch):
+    traced, offsets = random_pixels(np.full(30, 64), seed=5)
+    # Fill the buffer pool with bounded-looking garbage first
+    device_periodic_cells_from_arrays(runtime, traced, offsets)
+    full_span = device_cells.traced_span
+
+    def narrow_span(layout):
+        first, count = full_span(layout)
+        return first + 1, count - 2
+
+    monkeypatch.setattr(device_cells, "traced_span", narrow_span)
+    device = device_periodic_cells_from_arrays(runtime, traced, offsets)
+    assert device.stats.recomputed_pixels == 30
+    np.testing.assert_allclose(
+        device.areas, periodic_cells(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
+    )

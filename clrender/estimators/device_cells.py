@@ -200,6 +200,13 @@ def device_periodic_cells_from_arrays(
     uploaded as float32; no inside-box flags."""
     empty = np.zeros((0, 2))
     traced32, _ = _check_arrays(positions, offsets, empty, np.zeros(len(np.asarray(offsets))))
+    outside = np.flatnonzero((np.abs(traced32) > 0.5).any(axis=1))
+    if len(outside):  # the kernel wraps x = 1/2 only, and its grid spans W's copies
+        x, y = np.asarray(positions, np.float64).reshape(-1, 2)[outside[0]]
+        raise ParameterError(
+            f"torus cells need positions in W = [-1/2, 1/2]^2, got ({x:g}, {y:g}) at index "
+            f"{outside[0]}"
+        )
     offsets = np.asarray(offsets, np.int64)
     buffer, upload = runtime.upload_async(traced32)
     defines = kernel_defines(runtime, precision)
@@ -538,6 +545,10 @@ def _enqueue_cells(
     cell_of = runtime.allocate(4 * total)  # the grid build's scratch
     areas_buf = runtime.allocate(area_bytes * traced)
     status_buf = runtime.allocate(traced)
+    # Undecided until a work-item decides: a nucleus no work-item reached costs a host
+    # recomputation, never a stale area
+    if traced:
+        cl.enqueue_fill_buffer(runtime.queue, status_buf, np.uint8(STATUS_FALLBACK), 0, traced)
     half = np.float32(layout.half_extent)
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
