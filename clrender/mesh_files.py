@@ -14,12 +14,14 @@ different normals becomes one vertex per (position, normal) pair. Faces with nor
 corners and not on others are refused.
 
 Large files without Python work per line: a binary PLY file whose faces are all triangles is
-memory-mapped as arrays (plyfile's known_list_len); an OBJ file in the regular form exporters
-write (no indented lines, one face form throughout, indices to elements defined before) is
-parsed by whole byte columns in NumPy, any other OBJ file line by line (which also names the
-line of an error). On 1 M random triangles (500 k vertices), `python bench/mesh_file_speed.py`:
-binary PLY 0.06 s (plyfile face by face 7.2 s), OBJ 1.9 s (line by line 4.8 s). ASCII PLY files
-are still read line by line by plyfile.
+memory-mapped as arrays (plyfile's known_list_len); an ASCII PLY file of vertices then faces
+(one record a line, nothing else) is parsed as two blocks of numbers in NumPy; an OBJ file in
+the regular form exporters write (no indented lines, one face form throughout, indices to
+elements defined before) is parsed by whole byte columns in NumPy, any other OBJ file line by
+line (which also names the line of an error). Any other PLY file is read by plyfile, record by
+record. On 1 M random triangles (500 k vertices), `python bench/mesh_file_speed.py`: binary PLY
+0.06 s (plyfile face by face 7.2 s), ASCII PLY 1.5 s (plyfile 15.9 s), OBJ 1.9 s (line by line
+4.8 s).
 
 Every problem is a `MeshFileError` (a ValueError) with a one-line message naming the path;
 scene.py turns it into a SceneError naming the shape.
@@ -78,6 +80,13 @@ def read_ply(path: Path) -> MeshData:
     face's length); other files are read face by face by plyfile."""
     from plyfile import PlyData, PlyElementParseError
 
+    with open(path, "rb") as stream:
+        ascii_file = stream.read(64).startswith(ASCII_PLY_START)
+    if ascii_file:
+        blocks = ascii_ply_blocks(path.read_bytes())
+        if blocks is not None:
+            vertex, corners, sizes = blocks
+            return _ply_mesh(path, vertex, ["vertex", "face"], corners, sizes)
     try:
         try:
             ply = PlyData.read(str(path), known_list_len=TRIANGLE_LISTS)
@@ -92,15 +101,6 @@ def read_ply(path: Path) -> MeshData:
     names = [element.name for element in ply.elements]
     if "vertex" not in names:
         raise MeshFileError(f"{path}: no 'vertex' element (elements: {', '.join(names)})")
-    vertex = ply["vertex"].data
-    fields = vertex.dtype.names or ()
-    if not all(axis in fields for axis in "xyz"):
-        raise MeshFileError(f"{path}: vertices lack x, y, z (properties: {', '.join(fields)})")
-    positions = np.stack([vertex[axis] for axis in "xyz"], axis=1).astype(np.float64)
-    normals = None
-    if all(name in fields for name in ("nx", "ny", "nz")):
-        normals = np.stack([vertex[name] for name in ("nx", "ny", "nz")], axis=1)
-        normals = normals.astype(np.float64)
     if "face" not in names:
         raise MeshFileError(f"{path}: the file has no triangles (no 'face' element)")
     face = ply["face"].data
@@ -116,7 +116,112 @@ def read_ply(path: Path) -> MeshData:
     else:
         sizes = np.fromiter(map(len, lists), np.int64, len(lists))
         corners = np.concatenate(lists).astype(np.int64) if len(lists) else np.zeros(0, np.int64)
+    return _ply_mesh(path, ply["vertex"].data, names, corners, sizes)
+
+
+def _ply_mesh(path: Path, vertex: np.ndarray, names: list[str], corners, sizes) -> MeshData:
+    """The mesh of a PLY file's vertex records (x, y, z, and nx, ny, nz if all present) and its
+    faces' corners (sizes[k] of them for face k)."""
+    fields = vertex.dtype.names or ()
+    if not all(axis in fields for axis in "xyz"):
+        raise MeshFileError(f"{path}: vertices lack x, y, z (properties: {', '.join(fields)})")
+    positions = np.stack([vertex[axis] for axis in "xyz"], axis=1).astype(np.float64)
+    normals = None
+    if all(name in fields for name in ("nx", "ny", "nz")):
+        normals = np.stack([vertex[name] for name in ("nx", "ny", "nz")], axis=1)
+        normals = normals.astype(np.float64)
     return MeshData(positions, _fans(corners, sizes, path), normals)
+
+
+ASCII_PLY_START = b"ply\nformat ascii 1.0\n"
+# PLY scalar types as NumPy's (plyfile's names and the PLY 1.0 specification's)
+PLY_SCALARS = {
+    **dict.fromkeys(("char", "int8"), "i1"),
+    **dict.fromkeys(("uchar", "uint8"), "u1"),
+    **dict.fromkeys(("short", "int16"), "i2"),
+    **dict.fromkeys(("ushort", "uint16"), "u2"),
+    **dict.fromkeys(("int", "int32"), "i4"),
+    **dict.fromkeys(("uint", "uint32"), "u4"),
+    **dict.fromkeys(("float", "float32"), "f4"),
+    **dict.fromkeys(("double", "float64"), "f8"),
+}
+
+
+def ascii_ply_blocks(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """An ASCII PLY file made of a vertex element of scalar properties, then a face element
+    whose one property is its vertex index list, each record on a line of its own: read as two
+    blocks of numbers in NumPy (no Python work per line). (vertex records with the declared
+    types, the faces' corners, corners per face), or None for any other file (plyfile then
+    reads it, and words any error)."""
+    end = data.find(b"end_header\n")
+    if end < 0 or data[end - 1 : end] != b"\n":
+        return None
+    header = data[:end].decode("ascii", "replace").split("\n")[2:-1]
+    elements: list[tuple[str, int, list[list[str]]]] = []
+    for line in header:
+        words = line.split()
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "element" and len(words) == 3 and words[2].isdigit():
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property" and elements:
+            elements[-1][2].append(words[1:])
+        else:
+            return None
+    if [name for name, _, _ in elements] != ["vertex", "face"]:
+        return None
+    (_, vertex_count, vertex_properties), (_, face_count, face_properties) = elements
+    if vertex_count == 0 or face_count == 0:
+        return None
+    if not all(len(p) == 2 and p[0] in PLY_SCALARS for p in vertex_properties):
+        return None
+    if not (
+        len(face_properties) == 1
+        and len(face_properties[0]) == 4
+        and face_properties[0][0] == "list"
+        and face_properties[0][3] in ("vertex_indices", "vertex_index")
+    ):
+        return None
+    text = np.frombuffer(data, np.uint8)[end + len(b"end_header\n") :]
+    line_end = np.flatnonzero(text == ord("\n"))
+    records = vertex_count + face_count
+    if len(line_end) < records or not BLANK_BYTES[text[line_end[records - 1] :]].all():
+        return None  # fewer lines, or text after the faces
+    vertex_end = line_end[vertex_count - 1] + 1
+    blocks = (text[:vertex_end], text[vertex_end : line_end[records - 1] + 1])
+    word_counts = []
+    for block, lines in zip(blocks, (vertex_count, face_count), strict=True):
+        blank = BLANK_BYTES[block]
+        starts = np.flatnonzero(~blank & np.r_[True, blank[:-1]])
+        line = np.searchsorted(np.flatnonzero(block == ord("\n")), starts)
+        word_counts.append(np.bincount(line, minlength=lines))
+    if len(word_counts[0]) != vertex_count or len(word_counts[1]) != face_count:
+        return None
+    if (word_counts[0] != len(vertex_properties)).any():
+        return None
+    try:
+        with warnings.catch_warnings():  # text that is not all numbers (see regular_obj_...)
+            warnings.simplefilter("error", DeprecationWarning)
+            values = np.fromstring(blocks[0].tobytes() + b" 0", np.float64, sep=" ")[:-1]
+            face_words = np.fromstring(blocks[1].tobytes() + b" 0", np.int64, sep=" ")[:-1]
+    except (ValueError, DeprecationWarning):
+        return None
+    if len(values) != vertex_count * len(vertex_properties):
+        return None
+    if len(face_words) != word_counts[1].sum():
+        return None
+    first = np.cumsum(word_counts[1]) - word_counts[1]
+    sizes = face_words[first]
+    if (sizes != word_counts[1] - 1).any():
+        return None
+    is_corner = np.ones(len(face_words), bool)
+    is_corner[first] = False
+    dtype = np.dtype([(name, PLY_SCALARS[kind]) for kind, name in vertex_properties])
+    vertex = np.empty(vertex_count, dtype)
+    columns = values.reshape(vertex_count, len(vertex_properties))
+    for k, name in enumerate(dtype.names):
+        vertex[name] = columns[:, k]
+    return vertex, face_words[is_corner], sizes
 
 
 def _fans(corners: np.ndarray, sizes: np.ndarray, path: Path) -> np.ndarray:

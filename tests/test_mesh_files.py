@@ -1,7 +1,7 @@
 """The mesh file readers' fast paths (clrender/mesh_files.py) against their general readers:
-OBJ text parsed by whole byte columns against the line-by-line reader, and binary PLY files of
-triangles memory-mapped against plyfile's face-by-face reading, on random files of every
-statement form the readers accept."""
+OBJ text parsed by whole byte columns against the line-by-line reader, binary PLY files of
+triangles memory-mapped and ASCII PLY files parsed in two blocks against plyfile's
+record-by-record reading, on random files of every statement form the readers accept."""
 
 import numpy as np
 import pytest
@@ -9,6 +9,7 @@ from plyfile import PlyData, PlyElement
 
 from clrender.mesh_files import (
     MeshFileError,
+    ascii_ply_blocks,
     obj_statements_by_line,
     read_mesh_file,
     read_ply,
@@ -148,3 +149,125 @@ def test_truncated_binary_ply_is_a_one_line_error(tmp_path):
         read_mesh_file(path)
     assert "cut.ply: not a readable PLY file" in str(info.value)
     assert "\n" not in str(info.value)
+
+
+def random_ascii_ply(rng, normals=False, colours=False, polygons=False, spacing=" ") -> str:
+    """An ASCII PLY text of random vertices (x, y, z as float or double; optional normals and
+    uchar colours) and faces of 3 (or 3-6) corners, with comments, in the given word spacing."""
+    kinds = rng.choice(["float", "double"], 3)
+    properties = [(kind, axis) for kind, axis in zip(kinds, "xyz", strict=True)]
+    properties += [("float", n) for n in ("nx", "ny", "nz")] if normals else []
+    properties += [("uchar", c) for c in ("red", "green", "blue")] if colours else []
+    count = int(rng.integers(3, 40))
+    faces = [
+        rng.choice(count, int(rng.integers(3, 7)) if polygons else 3, replace=False)
+        for _ in range(int(rng.integers(1, 50)))
+    ]
+    lines = ["ply", "format ascii 1.0", "comment random", "obj_info test"]
+    lines += [f"element vertex {count}"] + [f"property {k} {n}" for k, n in properties]
+    lines += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
+    lines.append("end_header")
+    for _ in range(count):
+        words = [f"{x:.9g}" for x in rng.normal(size=len(properties) - 3 * colours)]
+        words += [str(c) for c in rng.integers(0, 256, 3)] if colours else []
+        lines.append(spacing.join(words) + (spacing if rng.random() < 0.2 else ""))
+    lines += [spacing.join(str(v) for v in [len(f), *f]) for f in faces]
+    return "\n".join(lines) + "\n"
+
+
+def assert_blocks_equal_plyfile(path):
+    """The fast path's vertex records, corners and sizes equal plyfile's own reading."""
+    blocks = ascii_ply_blocks(path.read_bytes())
+    assert blocks is not None
+    vertex, corners, sizes = blocks
+    ply = PlyData.read(str(path), mmap=False)
+    expected = ply["vertex"].data
+    assert vertex.dtype == expected.dtype
+    for name in expected.dtype.names:
+        np.testing.assert_array_equal(vertex[name], expected[name])
+    lists = ply["face"].data["vertex_indices"]
+    np.testing.assert_array_equal(sizes, [len(f) for f in lists])
+    np.testing.assert_array_equal(corners, np.concatenate(lists))
+
+
+@pytest.mark.parametrize("seed", range(24))
+def test_ascii_ply_blocks_equal_plyfile(tmp_path, seed):
+    rng = np.random.default_rng(seed)
+    path = tmp_path / "m.ply"
+    path.write_text(
+        random_ascii_ply(
+            rng,
+            normals=seed % 2 == 1,
+            colours=seed % 3 == 1,
+            polygons=seed % 4 >= 2,
+            spacing=[" ", "  ", "\t", " \t "][seed % 4],
+        )
+    )
+    assert_blocks_equal_plyfile(path)
+    mesh = read_ply(path)  # the whole way, against plyfile's reading of the same file
+    ply = PlyData.read(str(path), mmap=False)
+    vertex = ply["vertex"].data
+    np.testing.assert_array_equal(mesh.positions, np.stack([vertex[a] for a in "xyz"], 1))
+    assert (mesh.normals is not None) == (seed % 2 == 1)
+    expected = [
+        [f[0], f[k], f[k + 1]]
+        for f in ply["face"].data["vertex_indices"]
+        for k in range(1, len(f) - 1)
+    ]
+    np.testing.assert_array_equal(mesh.indices, expected)
+
+
+# A regular file, and changes that make the block parser leave it to plyfile (which reads it,
+# or refuses it in one line)
+REGULAR_ASCII_PLY = (
+    "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+    "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+    "0 0 0\n0.5 0.25 1\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n"
+)
+IRREGULAR_ASCII_PLY = {
+    "an edge element": ("end_header", "element edge 0\nend_header"),
+    "a face property": ("vertex_indices\n", "vertex_indices\nproperty uchar flags\n"),
+    "faces before vertices": (
+        "element vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+        "element face 2\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n0.5 0.25 1\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n",
+        "element face 2\nproperty list uchar int vertex_indices\nelement vertex 4\n"
+        "property float x\nproperty float y\nproperty float z\nend_header\n"
+        "3 0 1 2\n3 0 2 3\n0 0 0\n0.5 0.25 1\n1 1 0\n0 1 0\n",
+    ),
+    "a vertex line short of a number": ("\n0.5 0.25 1\n", "\n0.5 0.25\n"),
+    "two vertices on one line": ("\n0.5 0.25 1\n", "\n0.5 0.25 1 "),
+    "a face's count not its corners": ("\n3 0 1 2\n", "\n4 0 1 2\n"),
+    "text after the faces": ("3 0 2 3\n", "3 0 2 3\njunk\n"),
+    "a word that is no number": ("\n0.5 0.25 1\n", "\n0.5 x 1\n"),
+    "no final newline": ("3 0 2 3\n", "3 0 2 3"),
+    "a list property on vertices": (
+        "property float z",
+        "property float z\nproperty list uchar int extra",
+    ),
+}
+
+
+def test_the_regular_ascii_ply_takes_the_block_parser(tmp_path):
+    path = tmp_path / "m.ply"
+    path.write_text(REGULAR_ASCII_PLY)
+    assert_blocks_equal_plyfile(path)
+
+
+@pytest.mark.parametrize("case", list(IRREGULAR_ASCII_PLY))
+def test_irregular_ascii_ply_is_left_to_plyfile(tmp_path, case):
+    old, new = IRREGULAR_ASCII_PLY[case]
+    assert REGULAR_ASCII_PLY.count(old) == 1, case
+    path = tmp_path / "m.ply"
+    path.write_text(REGULAR_ASCII_PLY.replace(old, new))
+    assert ascii_ply_blocks(path.read_bytes()) is None
+    try:
+        ply = PlyData.read(str(path), mmap=False)
+        vertex = ply["vertex"].data
+    except Exception:
+        with pytest.raises(MeshFileError, match="m.ply: ") as info:
+            read_ply(path)
+        assert "\n" not in str(info.value)
+        return
+    mesh = read_ply(path)  # plyfile's reading, as before the block parser
+    np.testing.assert_array_equal(mesh.positions, np.stack([vertex[a] for a in "xyz"], 1))
