@@ -4,8 +4,10 @@
 // given by its global index and its redraw number. Two passes:
 //   count_samples: how many traced samples each pixel gets (n, or N ~ Poisson(n) for SPPP);
 //   (the host turns the counts into offsets with a prefix sum)
-//   fill_traced: one work-item per traced slot writes one position; fill_auxiliary: one per
-//   8 auxiliary nuclei of a pixel writes them (8-wide vectors).
+//   fill_traced: one work-item per 8 traced samples of a pixel writes them (8-wide vectors;
+//   SPPP's groups found from per-pixel group offsets, a second prefix sum on the host);
+//   fill_traced_from_sampler: one work-item per traced sample whose position comes from a path
+//   sampler; fill_auxiliary: one per 8 auxiliary nuclei of a pixel writes them (8-wide vectors).
 // Output layout, one contiguous float2 buffer: all traced samples, pixel by pixel
 // (traced_offsets), then all auxiliary nuclei, pixel by pixel (n_aux each). Auxiliary nuclei are
 // never traced; they only shape Voronoi cells.
@@ -35,14 +37,6 @@ __kernel void count_samples(uint pixel_count, uint seed, int positions_kind, uin
         return;
     bool poisson = positions_kind == POSITIONS_SPPP;
     counts[p] = poisson ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
-}
-
-// Jittered strata: sample s falls in stratum (s mod m, s div m) of an m x m grid.
-inline float2 Sampling_StratifiedPosition(uint s, uint strata, float2 jitter)
-{
-    float2 cell = (float2)((float)(s % strata), (float)(s / strata));
-    // Rounding may land on the edge: keep the point strictly inside W like the other samplers.
-    return clamp((cell + jitter) / (float)strata - 0.5f, -0x1.fffffep-2f, 0x1.fffffep-2f);
 }
 
 // Points uniform by area over the strip W' \ W, 8 at once (lane k from the four uniforms
@@ -129,14 +123,16 @@ __kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, uint 
     // Their positions: a jittered stratum in order, else uniform in W
     float8 x, y;
     if (positions_kind == POSITIONS_STRATIFIED_IN_ORDER) {
-        // s div strata in float is exact: s < strata^2 <= 2^20 keeps the quotient 1/strata
-        // away from the next integer, far more than rounding
+        // Jittered stratum (s mod m, s div m) of the m x m grid, m = strata: s div m in float is
+        // exact, since s < m^2 <= 2^20 keeps s / m at least 1/m from the next integer; rounding
+        // may land on the edge: the point is kept strictly inside W like the other samplers
         uint8 row = __builtin_convertvector(__builtin_convertvector(s, float8) / (float)strata,
                                             uint8);
-        float8 column = __builtin_convertvector(s - row * strata, float8);
+        float8 cell_x = __builtin_convertvector(s - row * strata, float8);
+        float8 cell_y = __builtin_convertvector(row, float8);
         float8 lower = (float8)(-0x1.fffffep-2f), upper = (float8)(0x1.fffffep-2f);
-        x = (column + Sampling_ToUnit8(c0)) / (float)strata - 0.5f;
-        y = (__builtin_convertvector(row, float8) + Sampling_ToUnit8(c1)) / (float)strata - 0.5f;
+        x = (cell_x + Sampling_ToUnit8(c0)) / (float)strata - 0.5f;
+        y = (cell_y + Sampling_ToUnit8(c1)) / (float)strata - 0.5f;
         x = x < lower ? lower : (x > upper ? upper : x);
         y = y < lower ? lower : (y > upper ? upper : y);
     } else {
@@ -145,7 +141,8 @@ __kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, uint 
     }
     // The pixel's toroidal shift, if asked for (Sampler_ToroidalShift, one draw for the group)
     if (toroidal_shift) {
-        float4 shift = Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, SAMPLER_SHIFT_DIMENSION, redraw);
+        float4 shift =
+            Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, SAMPLER_SHIFT_DIMENSION, redraw);
         x += shift.x;
         y += shift.y;
         x = x >= 0.5f ? x - 1.0f : x;
