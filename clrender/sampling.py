@@ -332,10 +332,9 @@ def generate_sample_sets(
         seed,
         pixels_buf,
         redraws_buf,
+        offsets,
         offsets_buf,
         positions,
-        len(pixels),
-        int(offsets[-1]),
         path_arguments,
         image_width,
     )
@@ -358,21 +357,22 @@ def _launch_fill(
     seed: int,
     pixels_buf: cl.Buffer,
     redraws_buf: cl.Buffer,
+    offsets: np.ndarray,
     offsets_buf: cl.Buffer,
     positions: cl.Buffer,
-    pixel_count: int,
-    traced_total: int,
     path_arguments: tuple,
     image_width: int,
 ) -> None:
-    if traced_total:
-        fill = runtime.kernel("sampling.cl", "fill_traced")
+    """Fill the traced samples (a work-item per 8 samples of a pixel, or per sample for a path
+    sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel)."""
+    pixel_count, traced_total = len(offsets) - 1, int(offsets[-1])
+    if traced_total and config.kind.positions == POSITIONS_FROM_SAMPLER:
+        fill = runtime.kernel("sampling.cl", "fill_traced_from_sampler")
         runtime.launch_1d(
             fill,
             traced_total,
             np.uint32(pixel_count),
             np.uint32(seed),
-            np.int32(config.kind.positions),
             *path_arguments[:3],
             np.uint32(image_width),
             *path_arguments[3:],
@@ -381,6 +381,25 @@ def _launch_fill(
             pixels_buf,
             redraws_buf,
             offsets_buf,
+            positions,
+        )
+    elif traced_total:
+        group_total, group_offsets_buf = _traced_groups(runtime, config, offsets, offsets_buf)
+        fill = runtime.kernel("sampling.cl", "fill_traced")
+        runtime.launch_1d(
+            fill,
+            group_total,
+            np.uint32(pixel_count),
+            np.uint32(seed),
+            np.int32(config.kind.positions),
+            np.uint32(config.n),
+            np.uint32(config.strata),
+            np.int32(config.toroidal_shift),
+            np.uint32(group_total),
+            pixels_buf,
+            redraws_buf,
+            offsets_buf,
+            group_offsets_buf,
             positions,
         )
     if config.n_aux and pixel_count:
@@ -397,6 +416,20 @@ def _launch_fill(
             redraws_buf,
             positions,
         )
+
+
+def _traced_groups(
+    runtime: Runtime, config: SamplerConfig, offsets: np.ndarray, offsets_buf: cl.Buffer
+) -> tuple[int, cl.Buffer]:
+    """fill_traced's work: the number of groups of up to 8 traced samples of one pixel, and for
+    SPPP (variable counts) each pixel's first group, a prefix sum of ceil(count / 8) (fixed
+    counts find the pixel by a division: the traced offsets stand in, unread)."""
+    pixel_count = len(offsets) - 1
+    if not config.is_sppp:
+        return (config.n + 7) // 8 * pixel_count, offsets_buf
+    group_offsets = np.zeros(pixel_count + 1, np.int64)
+    np.cumsum((np.diff(offsets) + 7) // 8, out=group_offsets[1:])
+    return int(group_offsets[-1]), runtime.upload(group_offsets.astype(np.uint32))
 
 
 def count_samples(

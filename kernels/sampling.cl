@@ -4,8 +4,10 @@
 // given by its global index and its redraw number. Two passes:
 //   count_samples: how many traced samples each pixel gets (n, or N ~ Poisson(n) for SPPP);
 //   (the host turns the counts into offsets with a prefix sum)
-//   fill_traced: one work-item per traced slot writes one position; fill_auxiliary: one per
-//   8 auxiliary nuclei of a pixel writes them (8-wide vectors).
+//   fill_traced: one work-item per 8 traced samples of a pixel writes them (8-wide vectors;
+//   SPPP's groups found from per-pixel group offsets, a second prefix sum on the host);
+//   fill_traced_from_sampler: one work-item per traced sample whose position comes from a path
+//   sampler; fill_auxiliary: one per 8 auxiliary nuclei of a pixel writes them (8-wide vectors).
 // Output layout, one contiguous float2 buffer: all traced samples, pixel by pixel
 // (traced_offsets), then all auxiliary nuclei, pixel by pixel (n_aux each). Auxiliary nuclei are
 // never traced; they only shape Voronoi cells.
@@ -35,14 +37,6 @@ __kernel void count_samples(uint pixel_count, uint seed, int positions_kind, uin
         return;
     bool poisson = positions_kind == POSITIONS_SPPP;
     counts[p] = poisson ? Poisson_Sample(mean, seed, pixels[p], redraws[p]) : n;
-}
-
-// Jittered strata: sample s falls in stratum (s mod m, s div m) of an m x m grid.
-inline float2 Sampling_StratifiedPosition(uint s, uint strata, float2 jitter)
-{
-    float2 cell = (float2)((float)(s % strata), (float)(s / strata));
-    // Rounding may land on the edge: keep the point strictly inside W like the other samplers.
-    return clamp((cell + jitter) / (float)strata - 0.5f, -0x1.fffffep-2f, 0x1.fffffep-2f);
 }
 
 // Points uniform by area over the strip W' \ W, 8 at once (lane k from the four uniforms
@@ -88,34 +82,110 @@ CL_INLINE float8 Sampling_ToUnit8(uint8 bits)
     return (__builtin_convertvector(bits >> 9, float8) + 0.5f) * 0x1p-23f;
 }
 
-// Traced sample s of pixel p: its position (dimensions 0 and 1 of its sample).
-__kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, int paths_kind,
-                          uint fixed_count, uint strata, uint image_width,
-                          uint zsobol_log2_count, uint zsobol_bits, int toroidal_shift,
-                          uint traced_total, __global const uint *pixels,
-                          __global const uint *redraws, __global const uint *traced_offsets,
-                          __global float2 *positions)
+// Rng_ToCentered on 8 lanes: (k + 1/2) 2^-24 - 1/2 from the top 24 bits, exactly.
+CL_INLINE float8 Sampling_ToCentered8(uint8 bits)
+{
+    int8 k = __builtin_convertvector(bits >> 8, int8) - 0x800000;
+    return (__builtin_convertvector(k, float8) + 0.5f) * 0x1p-24f;
+}
+
+// 16 floats to a 4-byte aligned address (vstore16 without the call).
+typedef float Float16Unaligned __attribute__((ext_vector_type(16), aligned(4)));
+
+// Traced samples 8 g .. 8 g + 7 of pixel p (those below its count), for positions drawn
+// straight from Philox (independent, SPPP) or a jittered stratum in order: each sample's
+// dimension 0 (counter (s, 0, redraw, 0), key (seed, pixel); Rng_Centered2 or Rng_Uniform4),
+// 8 lanes at once. The pixel of a group: by a division for fixed counts, for SPPP by searching
+// group_offsets (pixel p's groups are [group_offsets[p], group_offsets[p + 1])).
+__kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, uint fixed_count,
+                          uint strata, int toroidal_shift, uint group_total,
+                          __global const uint *pixels, __global const uint *redraws,
+                          __global const uint *traced_offsets,
+                          __global const uint *group_offsets, __global float2 *positions)
+{
+    uint id = get_global_id(0);
+    if (id >= group_total)
+        return;
+    uint p, first;
+    if (positions_kind == POSITIONS_SPPP) {
+        p = Launch_OwnerPixel(group_offsets, pixel_count, id);
+        first = 8u * (id - group_offsets[p]);
+    } else {
+        uint groups = (fixed_count + 7u) / 8u;
+        p = id / groups;
+        first = 8u * (id - p * groups);
+    }
+    uint pixel = pixels[p], redraw = redraws[p];
+    // The eight samples' dimension-0 bits
+    uint8 s = first + (uint8)(0u, 1u, 2u, 3u, 4u, 5u, 6u, 7u);
+    uint8 c0 = s, c1 = 0u, c2 = redraw, c3 = 0u;
+    Sampling_Philox8(&c0, &c1, &c2, &c3, (uint2)(seed, pixel));
+    // Their positions: a jittered stratum in order, else uniform in W
+    float8 x, y;
+    if (positions_kind == POSITIONS_STRATIFIED_IN_ORDER) {
+        // Jittered stratum (s mod m, s div m) of the m x m grid, m = strata: s div m in float is
+        // exact, since s < m^2 <= 2^20 keeps s / m at least 1/m from the next integer; rounding
+        // may land on the edge: the point is kept strictly inside W like the other samplers
+        uint8 row = __builtin_convertvector(__builtin_convertvector(s, float8) / (float)strata,
+                                            uint8);
+        float8 cell_x = __builtin_convertvector(s - row * strata, float8);
+        float8 cell_y = __builtin_convertvector(row, float8);
+        float8 lower = (float8)(-0x1.fffffep-2f), upper = (float8)(0x1.fffffep-2f);
+        x = (cell_x + Sampling_ToUnit8(c0)) / (float)strata - 0.5f;
+        y = (cell_y + Sampling_ToUnit8(c1)) / (float)strata - 0.5f;
+        x = x < lower ? lower : (x > upper ? upper : x);
+        y = y < lower ? lower : (y > upper ? upper : y);
+    } else {
+        x = Sampling_ToCentered8(c0);
+        y = Sampling_ToCentered8(c1);
+    }
+    // The pixel's toroidal shift, if asked for (Sampler_ToroidalShift, one draw for the group)
+    if (toroidal_shift) {
+        float4 shift =
+            Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, SAMPLER_SHIFT_DIMENSION, redraw);
+        x += shift.x;
+        y += shift.y;
+        x = x >= 0.5f ? x - 1.0f : x;
+        y = y >= 0.5f ? y - 1.0f : y;
+        x = x > -SAMPLER_BELOW_HALF ? x : -SAMPLER_BELOW_HALF;
+        y = y > -SAMPLER_BELOW_HALF ? y : -SAMPLER_BELOW_HALF;
+    }
+    // Stored interleaved, the whole group at once when full, else lane by lane
+    union {
+        float16 v;
+        float2 lane[8];
+    } xy;
+    xy.v = __builtin_shufflevector(x, y, 0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15);
+    uint count = traced_offsets[p + 1] - traced_offsets[p] - first;
+    __global float2 *out = positions + traced_offsets[p] + first;
+    if (count >= 8u) {
+        *(__global Float16Unaligned *)out = xy.v;
+    } else {
+        for (uint k = 0; k < count; ++k)
+            out[k] = xy.lane[k];
+    }
+}
+
+// Traced sample s of pixel p, for positions from a path sampler (dimensions 0 and 1 of its
+// sample: stratified, sobol, zsobol; kernels/sampler.h): one work-item per sample.
+__kernel void fill_traced_from_sampler(uint pixel_count, uint seed, int paths_kind,
+                                       uint fixed_count, uint strata, uint image_width,
+                                       uint zsobol_log2_count, uint zsobol_bits,
+                                       int toroidal_shift, uint traced_total,
+                                       __global const uint *pixels, __global const uint *redraws,
+                                       __global const uint *traced_offsets,
+                                       __global float2 *positions)
 {
     uint i = get_global_id(0);
     if (i >= traced_total)
         return;
-    // Fixed-count samplers find the pixel by a division, SPPP by searching the offsets.
-    uint p = positions_kind == POSITIONS_SPPP ? Launch_OwnerPixel(traced_offsets, pixel_count, i)
-                                              : i / fixed_count;
+    uint p = i / fixed_count;
     uint s = i - traced_offsets[p];
     uint pixel = pixels[p], redraw = redraws[p];
-    float2 position;
-    // Its position: the path sampler's, a jittered stratum in order, else uniform in W
-    if (positions_kind == POSITIONS_FROM_SAMPLER) {
-        Sampler sampler = Sampler_Make(paths_kind, seed, pixel, s, redraw, fixed_count, strata,
-                                       image_width, zsobol_log2_count, zsobol_bits);
-        position = Sampler_Position(&sampler);
-    } else if (positions_kind == POSITIONS_STRATIFIED_IN_ORDER) {
-        float4 u = Rng_Uniform4(seed, pixel, s, 0u, redraw);
-        position = Sampling_StratifiedPosition(s, strata, u.xy);
-    } else {
-        position = Rng_Centered2(seed, pixel, s, 0u, redraw);
-    }
+    // Its position from the path sampler
+    Sampler sampler = Sampler_Make(paths_kind, seed, pixel, s, redraw, fixed_count, strata,
+                                   image_width, zsobol_log2_count, zsobol_bits);
+    float2 position = Sampler_Position(&sampler);
     // The pixel's toroidal shift, if asked for
     positions[i] = toroidal_shift ? Sampler_ToroidalShift(seed, pixel, redraw, position)
                                   : position;

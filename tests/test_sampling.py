@@ -331,3 +331,54 @@ def test_bad_seed_is_rejected(runtime, seed):
 def test_an_empty_pixel_list_gives_empty_sets(runtime):
     sets = host_sets(runtime, make_sampler("sppp", 16), 1, np.array([], np.uint32))
     assert sets.traced.shape == (0, 2) and sets.aux.shape == (0, 2)
+
+
+RNG_PIXEL_STREAM, SHIFT_DIMENSION = 0xFFFFFFFF, 0x7FFFFFFF  # kernels/rng.h, sampler.h
+BELOW_HALF = np.float32(0.5 - 2.0**-25)  # the largest float32 below 1/2
+
+
+def traced_reference(config, seed, pixels, redraws, counts):
+    """NumPy twin of fill_traced (clrender.rng's Philox, float32 arithmetic in the kernel's
+    order): sample s of a pixel from dimension 0 of its own counter (s, 0, redraw, 0) under key
+    (seed, pixel); a stratum in order or uniform in W; then the pixel's toroidal shift."""
+    pixel_of, redraw_of = np.repeat(pixels, counts), np.repeat(redraws, counts)
+    s = np.concatenate([np.arange(c) for c in counts]).astype(np.int64)
+    if config.name == "stratified-pixel":
+        m = config.strata
+        u = rng.uniform4(seed, pixel_of, s, 0, redraw_of)[:, :2]
+        cell = np.column_stack([s % m, s // m]).astype(np.float32)
+        positions = np.clip((cell + u) / np.float32(m) - np.float32(0.5), -BELOW_HALF, BELOW_HALF)
+    else:
+        positions = rng.centered2(seed, pixel_of, s, 0, redraw_of)
+    if config.toroidal_shift:
+        shift = rng.uniform4(seed, pixel_of, RNG_PIXEL_STREAM, SHIFT_DIMENSION, redraw_of)
+        positions = positions + shift[:, :2]
+        positions = np.where(positions >= np.float32(0.5), positions - np.float32(1), positions)
+        positions = np.maximum(positions, -BELOW_HALF)
+    return positions.astype(np.float32)
+
+
+@pytest.mark.parametrize(
+    "sampler, counts",
+    [
+        ("independent", [1, 2, 7, 8, 9, 15, 17, 64, 255, 1000]),
+        ("stratified-pixel", [1, 4, 9, 49, 64, 81, 961]),
+        ("sppp", [1, 3, 8, 13, 64, 257, 1000]),
+    ],
+)
+@pytest.mark.parametrize("toroidal_shift", [False, True])
+def test_traced_positions_equal_the_numpy_reference(runtime, sampler, counts, toroidal_shift):
+    """fill_traced draws 8 samples of a pixel per work-item: every sample, each lane of a
+    group, partial last groups and (SPPP) pixels of 0, 1 or many samples must be exactly the
+    reference's, under several seeds and redraw numbers."""
+    rs = np.random.default_rng(8)
+    pixels = rs.choice(1 << 20, 23, replace=False).astype(np.uint32)
+    redraws = rs.integers(0, 5, len(pixels)).astype(np.uint32)
+    for n in counts:
+        config = make_sampler(sampler, n, toroidal_shift=toroidal_shift)
+        for seed in (0, 77, 2**32 - 1):
+            sets = host_sets(runtime, config, seed, pixels, redraws)
+            if not config.is_sppp:
+                assert np.all(sets.counts == n)
+            expected = traced_reference(config, seed, pixels, redraws, sets.counts)
+            np.testing.assert_array_equal(sets.traced, expected, err_msg=f"n={n} seed={seed}")
