@@ -352,7 +352,7 @@ def test_nee_with_mis_matches_bsdf_sampling_alone(runtime, cornell_scenes):
     assert images[0].mean() > 0.1
 
 
-@pytest.mark.parametrize("brute_force_limit", [192, -1])
+@pytest.mark.parametrize("brute_force_limit", [2**62, -1])
 def test_wavefront_matches_the_megakernel_with_mesh_lights(
     runtime, cornell_scenes, brute_force_limit
 ):
