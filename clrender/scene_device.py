@@ -381,6 +381,23 @@ def _write_blocks(words: np.ndarray, base: np.ndarray, blocks: np.ndarray) -> No
         words[base[:, None] + np.arange(width)] = blocks
 
 
+def _write_record_blocks(words, blocks, first_word, block_words, member_at, values, unused):
+    """One kind's blocks of every record: blocks[r] of block_words words from word
+    first_word[r] of record r; the members (record, rank among the record's members of the
+    kind: member_at) in lane rank % BVH_BLOCK_WIDTH of block rank // BVH_BLOCK_WIDTH with their
+    values (members, rows), the other lanes `unused` (rows,)."""
+    record, rank = member_at
+    block_first = np.cumsum(blocks) - blocks
+    lane_blocks = _lane_blocks(
+        int(blocks.sum()), BVH_BLOCK_WIDTH * block_first[record] + rank, values, unused
+    )
+    block_record = np.repeat(np.arange(len(blocks)), blocks)
+    base = first_word[block_record] + block_words * (
+        np.arange(len(lane_blocks)) - block_first[block_record]
+    )
+    _write_blocks(words, base, lane_blocks)
+
+
 def pack_bvh_leaves(
     nodes: np.ndarray,
     prims: np.ndarray,
@@ -441,8 +458,6 @@ def pack_bvh_leaves(
     words = np.zeros(int(size.sum()), np.uint32)
     # Triangle blocks: p0, p1, p2 (the first 9 words of a Triangle), id; unused lanes id -1
     minus_one = np.uint32(0xFFFFFFFF)
-    block_first = np.cumsum(triangle_blocks) - triangle_blocks
-    slot = BVH_BLOCK_WIDTH * block_first[record_of[is_triangle]] + triangle_rank
     triangle_rows = np.ascontiguousarray(triangles, TRIANGLE_DTYPE).view(np.uint32)
     triangle_rows = triangle_rows.reshape(len(triangles), TRIANGLE_DTYPE.itemsize // 4)
     values = np.empty((len(triangle_ids), 10), np.uint32)
@@ -450,17 +465,11 @@ def pack_bvh_leaves(
     values[:, 9] = triangle_ids
     unused = np.zeros(10, np.uint32)
     unused[9] = minus_one
-    blocks = _lane_blocks(int(triangle_blocks.sum()), slot, values, unused)
-    block_record = np.repeat(np.arange(records), triangle_blocks)
-    base = offset[block_record] + triangle_words * (
-        np.arange(len(blocks)) - block_first[block_record]
-    )
-    _write_blocks(words, base, blocks)
+    member_at = (record_of[is_triangle], triangle_rank)
+    _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, values, unused)
     # Quad blocks: corner, normal, u_dual, v_dual, plane_d, quad id (lower and upper unused);
     # unused lanes id -1, plane_d -1 with a zero normal (t = -inf, never a hit)
     quad_names = ("corner", "normal", "u_dual", "v_dual", "plane_d")
-    block_first = np.cumsum(quad_blocks) - quad_blocks
-    slot = BVH_BLOCK_WIDTH * block_first[record_of[is_quad]] + quad_rank
     quad = quads[quad_ids]
     values = np.empty((len(quad_ids), 14), np.uint32)
     values[:, :12] = np.concatenate([quad[name] for name in quad_names[:4]], axis=1).view(np.uint32)
@@ -469,12 +478,8 @@ def pack_bvh_leaves(
     unused = np.zeros(14, np.uint32)
     unused[12] = np.float32(-1.0).view(np.uint32)
     unused[13] = minus_one
-    blocks = _lane_blocks(int(quad_blocks.sum()), slot, values, unused)
-    block_record = np.repeat(np.arange(records), quad_blocks)
-    base = quads_at[block_record] + quad_words * (
-        np.arange(len(blocks)) - block_first[block_record]
-    )
-    _write_blocks(words, base, blocks)
+    member_at = (record_of[is_quad], quad_rank)
+    _write_record_blocks(words, quad_blocks, quads_at, quad_words, member_at, values, unused)
     # Sphere ids
     words[spheres_at[record_of[~(is_triangle | is_quad)]] + sphere_rank] = sphere_ids
     # Every leaf lane: its record's first word and packed counts
