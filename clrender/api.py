@@ -96,7 +96,8 @@ def render(
     cluster, bit-identical to the local render (default: this process).
     Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB of the (first) estimator,
     `.images`, `.layers` (per-pixel sample counts, redraws, variance), `.stats` (with times per
-    stage and per estimator), `.settings`. Bad arguments raise ParameterError (a ClrenderError)
+    stage and per estimator), `.settings`, `.max_depth` and `.russian_roulette` (None for an
+    analytic image). Bad arguments raise ParameterError (a ClrenderError)
     with a one-line message; a poor estimator/sampler pair warns (EstimatorWarning).
     One render at a time per process and device: renders share the device's runtime (its
     compiled programs), so calls from several threads must be serialised by the caller.

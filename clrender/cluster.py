@@ -446,4 +446,14 @@ def render_on(
         stats.interrupted = True
     stats.wall_seconds = time.perf_counter() - start
     first_name = job.estimators[0]
-    return RenderResult(films[first_name], stats, settings, films, layers, first_draw)
+    paths = not isinstance(job.scene, str)  # (an analytic image has none)
+    return RenderResult(
+        films[first_name],
+        stats,
+        settings,
+        films,
+        layers,
+        first_draw,
+        max_depth=job.max_depth if paths else None,
+        russian_roulette=job.russian_roulette if paths else None,
+    )

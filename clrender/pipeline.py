@@ -281,6 +281,10 @@ class RenderResult:
     # draw 0's layers, when image-level estimators (which keep draw 0) share the render with
     # rejecting ones (whose redrawn pixels' layers are in `layers`)
     first_draw_layers: PixelLayers | None = None
+    # The paths the radiance came from: scattering vertices per path and whether Russian
+    # roulette ended them (None for sources without paths, such as analytic images)
+    max_depth: int | None = None
+    russian_roulette: bool | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film
@@ -830,6 +834,7 @@ def render(
     start = time.perf_counter()
     pipeline.run(tiles, progress)
     pipeline.stats.wall_seconds = time.perf_counter() - start
+    tracer = getattr(source, "tracer", None)
     return RenderResult(
         pipeline.film,
         pipeline.stats,
@@ -837,4 +842,6 @@ def render(
         pipeline.films,
         pipeline.layers,
         pipeline.first_draw_layers,
+        max_depth=None if tracer is None else tracer.max_depth,
+        russian_roulette=None if tracer is None else tracer.russian_roulette,
     )

@@ -51,6 +51,15 @@ def test_render_returns_the_image_as_float32_array():
     assert result.image.dtype == np.float32
     assert result.settings.estimator.name == "mc"
     assert result.film.complete
+    assert result.max_depth is None and result.russian_roulette is None  # no paths
+
+
+def test_render_result_says_which_paths_it_traced():
+    for depth, roulette in ((3, True), (5, False)):
+        result = clrender.render(
+            "cornell-box", spp=4, resolution=(8, 6), max_depth=depth, russian_roulette=roulette
+        )
+        assert (result.max_depth, result.russian_roulette) == (depth, roulette)
 
 
 def test_render_equals_the_pipeline_with_the_same_settings(runtime):

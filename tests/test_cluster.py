@@ -24,6 +24,7 @@ from clrender.errors import ParameterError
 from clrender.pipeline import RenderSettings, render
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
+from clrender.trace import DEFAULT_MAX_DEPTH
 
 pytest.importorskip("distributed")
 
@@ -177,3 +178,5 @@ def test_the_python_api_renders_on_an_executor(cluster):
     local = clrender.render("cornell-box", **kwargs)
     distributed = clrender.render("cornell-box", executor=cluster, **kwargs)
     assert_same_render(local, distributed)
+    assert (distributed.max_depth, distributed.russian_roulette) == (local.max_depth, False)
+    assert local.max_depth == DEFAULT_MAX_DEPTH
