@@ -507,7 +507,7 @@ def test_11_veach_study_errors_by_region_from_the_geometry(tmp_path):
     assert "python bench/veach_study.py --quick" in report and "outline light r=1" in report
 
 
-def test_10_cached_references_follow_the_scene_and_the_kernels(tmp_path, monkeypatch):
+def test_12_cached_references_follow_the_scene_and_the_kernels(tmp_path, monkeypatch):
     """A cached reference serves the same scene and kernels only: an edited scene or a changed
     kernel source renders it anew (a test kernel does not)."""
     import shutil
