@@ -356,46 +356,33 @@ def _ranks_within(group: np.ndarray, groups: int) -> tuple[np.ndarray, np.ndarra
     return np.arange(len(group)) - first[group], per_group
 
 
-def _lane_blocks(block_count: int, slot: np.ndarray, values: np.ndarray, unused: np.ndarray):
-    """Blocks (block_count, rows x BVH_BLOCK_WIDTH words, uint32) in structure of arrays: row r
-    of a block holds its lanes' r-th values. values (items, rows) go to the lanes `slot` (block
-    x BVH_BLOCK_WIDTH + lane); the other lanes get `unused` (rows,)."""
-    rows = values.shape[1]
-    lanes = np.empty((block_count * BVH_BLOCK_WIDTH, rows), np.uint32)
-    lanes[:] = unused
-    lanes[slot] = values
-    blocks = lanes.reshape(block_count, BVH_BLOCK_WIDTH, rows).transpose(0, 2, 1)
-    return blocks.reshape(block_count, rows * BVH_BLOCK_WIDTH)
-
-
-def _write_blocks(words: np.ndarray, base: np.ndarray, blocks: np.ndarray) -> None:
-    """words[base[k] ..] = blocks[k] for every block: 64-byte rows at a time where the blocks
-    are whole rows at row starts (triangle blocks), else word by word."""
-    width = blocks.shape[1]
-    if width % BVH_LEAF_ALIGN == 0 and not np.any(base % BVH_LEAF_ALIGN):
-        row = np.dtype((np.void, 4 * BVH_LEAF_ALIGN))
-        per_block = width // BVH_LEAF_ALIGN
-        rows = (base // BVH_LEAF_ALIGN)[:, None] + np.arange(per_block)
-        words.view(row)[rows.reshape(-1)] = np.ascontiguousarray(blocks).view(row).reshape(-1)
-    else:
-        words[base[:, None] + np.arange(width)] = blocks
-
-
-def _write_record_blocks(words, blocks, first_word, block_words, member_at, values, unused):
+def _write_record_blocks(words, blocks, first_word, block_words, member_at, rows, unused):
     """One kind's blocks of every record: blocks[r] of block_words words from word
-    first_word[r] of record r; the members (record, rank among the record's members of the
-    kind: member_at) in lane rank % BVH_BLOCK_WIDTH of block rank // BVH_BLOCK_WIDTH with their
-    values (members, rows), the other lanes `unused` (rows,)."""
+    first_word[r] of record r, in structure of arrays (row k of a block: its BVH_BLOCK_WIDTH
+    lanes' k-th words). The members (record, rank among the record's members of the kind:
+    member_at) go to lane rank % BVH_BLOCK_WIDTH of block rank // BVH_BLOCK_WIDTH with their
+    rows: (first row, (members, k) uint32 values) pairs; the blocks' other lanes get `unused`
+    (a value per row). Written in place when the kind's blocks follow each other in `words`
+    (a scene of one kind), else through one array of blocks."""
     record, rank = member_at
+    count = int(blocks.sum())
     block_first = np.cumsum(blocks) - blocks
-    lane_blocks = _lane_blocks(
-        int(blocks.sum()), BVH_BLOCK_WIDTH * block_first[record] + rank, values, unused
-    )
     block_record = np.repeat(np.arange(len(blocks)), blocks)
-    base = first_word[block_record] + block_words * (
-        np.arange(len(lane_blocks)) - block_first[block_record]
-    )
-    _write_blocks(words, base, lane_blocks)
+    base = first_word[block_record] + block_words * (np.arange(count) - block_first[block_record])
+    height = len(unused)
+    in_place = count > 0 and base[-1] - base[0] == block_words * (count - 1)
+    if in_place:
+        span = words[base[0] : base[0] + block_words * count]
+        target = span.reshape(count, block_words // BVH_BLOCK_WIDTH, BVH_BLOCK_WIDTH)[:, :height]
+    else:
+        target = np.empty((count, height, BVH_BLOCK_WIDTH), np.uint32)
+    target[:] = np.asarray(unused, np.uint32)[None, :, None]
+    slot = BVH_BLOCK_WIDTH * block_first[record] + rank
+    block, lane = slot // BVH_BLOCK_WIDTH, slot % BVH_BLOCK_WIDTH
+    for first_row, values in rows:
+        target[block, first_row : first_row + values.shape[1], lane] = values
+    if not in_place and count:
+        words[base[:, None] + np.arange(height * BVH_BLOCK_WIDTH)] = target.reshape(count, -1)
 
 
 def pack_bvh_leaves(
@@ -460,13 +447,13 @@ def pack_bvh_leaves(
     minus_one = np.uint32(0xFFFFFFFF)
     triangle_rows = np.ascontiguousarray(triangles, TRIANGLE_DTYPE).view(np.uint32)
     triangle_rows = triangle_rows.reshape(len(triangles), TRIANGLE_DTYPE.itemsize // 4)
-    values = np.empty((len(triangle_ids), 10), np.uint32)
-    values[:, :9] = np.take(triangle_rows, triangle_ids - first_triangle, axis=0)[:, :9]
-    values[:, 9] = triangle_ids
+    vertices = triangle_rows[:, :9][triangle_ids - first_triangle]
+    id_row = triangle_ids.astype(np.uint32)[:, None]
     unused = np.zeros(10, np.uint32)
     unused[9] = minus_one
     member_at = (record_of[is_triangle], triangle_rank)
-    _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, values, unused)
+    rows = ((0, vertices), (9, id_row))
+    _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, rows, unused)
     # Quad blocks: corner, normal, u_dual, v_dual, plane_d, quad id (lower and upper unused);
     # unused lanes id -1, plane_d -1 with a zero normal (t = -inf, never a hit)
     quad_names = ("corner", "normal", "u_dual", "v_dual", "plane_d")
@@ -479,7 +466,8 @@ def pack_bvh_leaves(
     unused[12] = np.float32(-1.0).view(np.uint32)
     unused[13] = minus_one
     member_at = (record_of[is_quad], quad_rank)
-    _write_record_blocks(words, quad_blocks, quads_at, quad_words, member_at, values, unused)
+    rows = ((0, values),)
+    _write_record_blocks(words, quad_blocks, quads_at, quad_words, member_at, rows, unused)
     # Sphere ids
     words[spheres_at[record_of[~(is_triangle | is_quad)]] + sphere_rank] = sphere_ids
     # Every leaf lane: its record's first word and packed counts
