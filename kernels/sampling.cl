@@ -123,11 +123,13 @@ __kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, uint 
     // Their positions: a jittered stratum in order, else uniform in W
     float8 x, y;
     if (positions_kind == POSITIONS_STRATIFIED_IN_ORDER) {
-        // Jittered stratum (s mod m, s div m) of the m x m grid, m = strata: s div m in float is
-        // exact, since s < m^2 <= 2^20 keeps s / m at least 1/m from the next integer; rounding
-        // may land on the edge: the point is kept strictly inside W like the other samplers
-        uint8 row = __builtin_convertvector(__builtin_convertvector(s, float8) / (float)strata,
-                                            uint8);
+        // Jittered stratum (s mod m, s div m) of the m x m grid, m = strata: s div m is the
+        // integer part of (s + 1/2) / m, which lies at least 1/(2m) >= 2^-11 from any integer
+        // (s < m^2 <= 2^20, s + 1/2 exact in float): so even a division within OpenCL's 2.5 ulp
+        // (not correctly rounded) truncates right. Rounding may land the point on the edge: it
+        // is kept strictly inside W like the other samplers
+        float8 middle = __builtin_convertvector(s, float8) + 0.5f;
+        uint8 row = __builtin_convertvector(middle / (float)strata, uint8);
         float8 cell_x = __builtin_convertvector(s - row * strata, float8);
         float8 cell_y = __builtin_convertvector(row, float8);
         float8 lower = (float8)(-0x1.fffffep-2f), upper = (float8)(0x1.fffffep-2f);
