@@ -492,46 +492,47 @@ def main(argv=None) -> None:
     exact = np.array([e for _, e in FUNCTIONS.values()])
     args.out.mkdir(parents=True, exist_ok=True)
 
-    executor = executor_from_args(args)
+    with executor_from_args(args) as executor:
+        # Table 2 (its runs from stream (seed, 2), the sweep's from (seed, 3))
+        start = time.perf_counter()
+        estimates, redraw_stats = run_estimates(table_n, runs, (args.seed, 2), executor)
+        table_ms = time_estimators(table_n, timing_pixels, rng)
+        table = {}
+        for f_index, function in enumerate(FUNCTIONS):
+            table[function] = {}
+            for name in ESTIMATOR_NAMES:
+                s = summarise(estimates[name], exact, boot_rng)
+                table[function][name] = {
+                    key: np.asarray(v)[f_index].tolist() for key, v in s.items()
+                }
+                table[function][name]["ms"] = table_ms[name]
+        print(table2_markdown(table, runs, table_n))
+        took = time.perf_counter() - start
+        print(f"redraw statistics: {redraw_stats}; Table 2 took {took:.0f} s")
 
-    # Table 2 (its runs from stream (seed, 2), the sweep's from (seed, 3))
-    start = time.perf_counter()
-    estimates, redraw_stats = run_estimates(table_n, runs, (args.seed, 2), executor)
-    table_ms = time_estimators(table_n, timing_pixels, rng)
-    table = {}
-    for f_index, function in enumerate(FUNCTIONS):
-        table[function] = {}
-        for name in ESTIMATOR_NAMES:
-            s = summarise(estimates[name], exact, boot_rng)
-            table[function][name] = {key: np.asarray(v)[f_index].tolist() for key, v in s.items()}
-            table[function][name]["ms"] = table_ms[name]
-    print(table2_markdown(table, runs, table_n))
-    print(f"redraw statistics: {redraw_stats}; Table 2 took {time.perf_counter() - start:.0f} s")
-
-    # Figure 2 and 3 sweep
-    sweep = {"n": sweep_ns, "summaries": [], "ms": [], "redraw_stats": []}
-    for n in sweep_ns:
-        estimates_n, stats_n = run_estimates(n, sweep_runs, (args.seed, 3), executor)
-        sweep["summaries"].append(
-            {
-                name: to_lists(summarise(estimates_n[name], exact, boot_rng))
-                for name in ESTIMATOR_NAMES
-            }
-        )
-        sweep["ms"].append(time_estimators(n, timing_pixels, rng))
-        sweep["redraw_stats"].append(stats_n)
-        print(f"sweep n = {n}: done ({stats_n})", flush=True)
-    slopes = {}
-    for f_index, function in enumerate(FUNCTIONS):
-        slopes[function] = {}
-        for name in ESTIMATOR_NAMES:
-            stds = [s[name]["std"][f_index] for s in sweep["summaries"]]
-            slopes[function][name] = {
-                "measured": fit_slope(sweep_ns, stds, slope_n_min),
-                "predicted": predicted_slope(function, name),
-            }
-    print(slopes_markdown(slopes, slope_n_min))
-    executor.close()
+        # Figure 2 and 3 sweep
+        sweep = {"n": sweep_ns, "summaries": [], "ms": [], "redraw_stats": []}
+        for n in sweep_ns:
+            estimates_n, stats_n = run_estimates(n, sweep_runs, (args.seed, 3), executor)
+            sweep["summaries"].append(
+                {
+                    name: to_lists(summarise(estimates_n[name], exact, boot_rng))
+                    for name in ESTIMATOR_NAMES
+                }
+            )
+            sweep["ms"].append(time_estimators(n, timing_pixels, rng))
+            sweep["redraw_stats"].append(stats_n)
+            print(f"sweep n = {n}: done ({stats_n})", flush=True)
+        slopes = {}
+        for f_index, function in enumerate(FUNCTIONS):
+            slopes[function] = {}
+            for name in ESTIMATOR_NAMES:
+                stds = [s[name]["std"][f_index] for s in sweep["summaries"]]
+                slopes[function][name] = {
+                    "measured": fit_slope(sweep_ns, stds, slope_n_min),
+                    "predicted": predicted_slope(function, name),
+                }
+        print(slopes_markdown(slopes, slope_n_min))
 
     config = {
         "table_n": table_n,

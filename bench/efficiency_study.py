@@ -501,11 +501,8 @@ def main(argv=None) -> None:
     if args.perf_ratio:
         run_perf_ratio(process_runtime(), args)
         return
-    executor = executor_from_args(args)
-    try:
+    with executor_from_args(args) as executor:
         run_study(executor, args, argv)
-    finally:
-        executor.close()
 
 
 if __name__ == "__main__":

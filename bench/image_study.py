@@ -473,11 +473,8 @@ def report(results: dict, args, argv) -> str:
 def main(argv=None) -> None:
     args = parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    executor = executor_from_args(args)
-    try:
+    with executor_from_args(args) as executor:
         run(args, executor, argv)
-    finally:
-        executor.close()
 
 
 def run(args, executor, argv) -> None:

@@ -290,11 +290,8 @@ def main(argv: list[str] | None = None) -> None:
     size = args.size or (8 if args.quick else 16)
     runs = args.runs or (4 if args.quick else 24)
     start = time.perf_counter()
-    executor = executor_from_args(args)
-    try:
+    with executor_from_args(args) as executor:
         by_n = study_ns(size, runs, args.seed, executor, args.runs_per_task)
-    finally:
-        executor.close()
     results = {
         "size": size,
         "runs": runs,

@@ -960,11 +960,9 @@ def main(argv=None) -> None:
         "machine_before": machine(),
         "pixels": {},
     }
-    try:
+    with executor:
         for name in args.pixels:
             study_probe(study, name, executor, results["pixels"])
-    finally:
-        executor.close()
     results["machine"] = machine()
     results["seconds"] = time.perf_counter() - start
     write_json(args.out / "results.json", results)

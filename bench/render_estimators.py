@@ -60,11 +60,8 @@ def parse_args(argv=None):
 
 def main(argv=None) -> None:
     args = parse_args(argv)
-    executor = executor_from_args(args)
-    try:
+    with executor_from_args(args) as executor:
         run(args, executor)
-    finally:
-        executor.close()
 
 
 def run(args, executor) -> None:

@@ -823,11 +823,8 @@ def main(argv=None) -> dict:
     if args.rebuild:
         results = json.loads((args.out / "results.json").read_text())
     else:
-        executor = executor_from_args(args)
-        try:
+        with executor_from_args(args) as executor:
             results = run(args, argv, executor)
-        finally:
-            executor.close()
     analyse(results, args.out)
     print("\n".join(results["conclusion"]))
     return results

@@ -1586,11 +1586,8 @@ def main(argv=None) -> None:
     # The bootstrap's stream; the measurements have their own (see Blocks)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
-    executor = executor_from_args(args)
-    try:
+    with executor_from_args(args) as executor:
         measured, all_runs = measure(cfg, executor, args.task_blocks)
-    finally:
-        executor.close()
     results = analyse(cfg, measured, all_runs, rng)
     results["config"] = {
         "quick": cfg.quick,

@@ -322,11 +322,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def main(argv=None) -> None:
     args = parse_args(argv)
-    executor = executor_from_args(args)
-    try:
+    with executor_from_args(args) as executor:
         run(args, executor, argv)
-    finally:
-        executor.close()
 
 
 def run(args, executor, argv) -> None:

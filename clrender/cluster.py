@@ -83,7 +83,21 @@ class ClusterTaskError(ClrenderError):
 # --------------------------------------------------------------------------------- executors
 
 
-class LocalExecutor:
+class ClosingExecutor:
+    """An executor as a context manager: `with make_executor(...) as executor:` closes it
+    (its cluster, if it made one) however the block ends."""
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class LocalExecutor(ClosingExecutor):
     """Runs tasks in this process, in order (no Dask)."""
 
     workers = 1
@@ -93,11 +107,8 @@ class LocalExecutor:
         for index, item in enumerate(items):
             yield index, function(item, *common)
 
-    def close(self) -> None:
-        pass
 
-
-class DaskExecutor:
+class DaskExecutor(ClosingExecutor):
     """Tasks on a Dask cluster: a LocalCluster of `workers` processes, or the scheduler at
     `scheduler` (an address such as tcp://host:8786)."""
 
@@ -164,12 +175,6 @@ class DaskExecutor:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
-
-    def __enter__(self) -> DaskExecutor:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def shipped(function: Callable) -> Callable | bytes:
