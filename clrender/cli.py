@@ -645,6 +645,16 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"clrender: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except MemoryError as err:
+        if args.debug:
+            raise
+        detail = f" ({err})" if str(err) else ""
+        print(
+            f"clrender: error: out of host memory{detail}: render fewer pixels or samples per "
+            "pixel, or lower --tile-samples",
+            file=sys.stderr,
+        )
+        return EXIT_USAGE
     except KeyboardInterrupt as interrupt:
         if args.debug:
             raise

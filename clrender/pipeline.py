@@ -90,7 +90,7 @@ from clrender.estimators.pixel import estimate_all
 from clrender.estimators.redraw import estimate_with_redraw
 from clrender.estimators.registry import Estimator, PixelSums, check_compatible
 from clrender.estimators.variance import PixelMoments, mc_variance
-from clrender.film import Film, PixelLayers, check_image_memory
+from clrender.film import Film, PixelLayers, check_image_memory, physical_memory
 from clrender.radiance import RadianceSource
 from clrender.runtime import Runtime, thread_build_seconds
 from clrender.samples import SampleSets
@@ -98,6 +98,10 @@ from clrender.sampling import SamplerConfig, check_seed, generate_sample_sets, m
 from clrender.sppp import auxiliary_count
 
 DEFAULT_TILE_SAMPLES = 4_000_000
+# The least host memory a sample of a tile in flight takes (measured peak over a baseline on a
+# one-pixel render of 5 M samples: 20 B for mc summed on the device, 45 B for vor_sn): a tile
+# needing more than the machine has at this rate cannot render.
+MIN_BYTES_PER_TILE_SAMPLE = 20
 # Where the SPPP Voronoi cells of vor, vor_sn and fvor are computed: the device kernel
 # (clrender.estimators.device_cells; exact, pixels it cannot certify recomputed with Qhull) or Qhull
 # on the host (clrender.estimators.qhull_cells). Redraws always use Qhull.
@@ -158,6 +162,7 @@ class RenderSettings:
                 f"unknown Voronoi backend {self.voronoi_backend!r}; accepted: "
                 f"{', '.join(VORONOI_BACKENDS)}"
             )
+        check_tile_memory(self)
 
     def check_fields(self) -> None:
         """One-line ParameterErrors for values of the wrong type or range (the Python API's
@@ -371,15 +376,37 @@ class TileEstimate:
     compile_seconds: float = 0.0  # program builds on the estimator thread
 
 
-def pixels_per_tile(settings: RenderSettings) -> int:
-    """Tile length in pixels: within the sample budget, and about TARGET_TILE_COUNT tiles. The
-    budget counts every nucleus a pixel's cells hold: auxiliary ones, torus translates."""
+def tile_nuclei_per_pixel(settings: RenderSettings) -> int:
+    """The samples a pixel adds to its tile: traced and auxiliary ones, or its torus translates
+    when the device computes periodic cells."""
     per_pixel = settings.sampler.n + settings.sampler.n_aux
     if "periodic" in settings.device_cell_kinds:
         per_pixel = max(per_pixel, settings.sampler.n * TORUS_COPIES)
-    budget = max(1, settings.tile_samples // per_pixel)
+    return per_pixel
+
+
+def pixels_per_tile(settings: RenderSettings) -> int:
+    """Tile length in pixels: within the sample budget, and about TARGET_TILE_COUNT tiles. The
+    budget counts every nucleus a pixel's cells hold (tile_nuclei_per_pixel)."""
+    budget = max(1, settings.tile_samples // tile_nuclei_per_pixel(settings))
     spread = max(MIN_TILE_PIXELS, math.ceil(settings.pixel_count / TARGET_TILE_COUNT))
     return min(budget, spread)
+
+
+def check_tile_memory(settings: RenderSettings, memory: int | None = None) -> None:
+    """ParameterError, before any work, if one tile's samples cannot fit in host memory: a
+    pixel's samples are never split between tiles, so a huge spp makes a huge tile whatever
+    tile_samples says."""
+    memory = physical_memory() if memory is None else memory
+    per_pixel = tile_nuclei_per_pixel(settings)
+    samples = min(pixels_per_tile(settings), settings.pixel_count) * per_pixel
+    need = samples * MIN_BYTES_PER_TILE_SAMPLE
+    if memory is not None and need > memory:
+        raise ParameterError(
+            f"a tile of {samples:,} samples ({per_pixel:,} a pixel, never split between tiles) "
+            f"needs at least {need / 2**30:.1f} GiB of host memory, more than this machine's "
+            f"{memory / 2**30:.1f} GiB: use fewer samples per pixel (or fewer per tile)"
+        )
 
 
 def plan_tiles(settings: RenderSettings) -> range:

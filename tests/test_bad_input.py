@@ -437,6 +437,55 @@ def test_a_resolution_beyond_the_machine_is_refused_before_any_device(capsys, mo
     assert_one_line_error(status, err, "a 65536x65536 image needs about 468.0 GiB")
 
 
+def test_a_pixel_whose_samples_cannot_fit_is_refused_before_any_device(
+    capsys, tmp_path, monkeypatch
+):
+    import clrender.pipeline as pipeline
+
+    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(pipeline, "physical_memory", lambda: 2**30)
+    # 60 M samples of one pixel at >= 20 B each: 1.1 GiB, over the 1 GiB given
+    argv = ["render", "analytic", "--res", "1x1", "--sampler", "independent"]
+    status, _, err = run_cli(capsys, *argv, "--spp", "60000000")
+    assert_one_line_error(
+        status, err, "a tile of 60,000,000 samples", "at least 1.1 GiB", "this machine's 1.0 GiB"
+    )
+    # 50 M fit (0.93 GiB): refused later only for the missing device, not for memory
+    with pytest.raises(AssertionError, match="runtime was created"):
+        cli.main([*argv, "--spp", "50000000", "-o", str(tmp_path / "o.exr")])
+
+
+def test_tile_memory_counts_the_pixels_of_a_tile_and_their_auxiliary_nuclei():
+    from clrender.errors import ParameterError
+    from clrender.pipeline import (
+        MIN_BYTES_PER_TILE_SAMPLE,
+        RenderSettings,
+        check_tile_memory,
+        pixels_per_tile,
+    )
+    from clrender.sampling import make_sampler
+
+    settings = RenderSettings(64, 64, make_sampler("sppp", 256), "vor_sn", tile_samples=10**5)
+    per_pixel = 256 + settings.sampler.n_aux
+    assert settings.sampler.n_aux > 0
+    need = pixels_per_tile(settings) * per_pixel * MIN_BYTES_PER_TILE_SAMPLE
+    check_tile_memory(settings, memory=need)
+    with pytest.raises(ParameterError, match=f"{per_pixel:,} a pixel"):
+        check_tile_memory(settings, memory=need - 1)
+    # A 1x1 image: its tile is the one pixel, not the 256 pixels of a minimum tile
+    one = RenderSettings(1, 1, make_sampler("independent", 1000), "mc")
+    check_tile_memory(one, memory=1000 * MIN_BYTES_PER_TILE_SAMPLE)
+
+
+def test_running_out_of_host_memory_is_one_line(capsys, monkeypatch):
+    def exhausted(*args, **kwargs):
+        raise MemoryError("Unable to allocate 3.20 GiB for an array")
+
+    monkeypatch.setattr(cli, "create_runtime", exhausted)
+    status, _, err = run_cli(capsys, "render", "analytic", *FAST[:-2], "-o", "unused.exr")
+    assert_one_line_error(status, err, "out of host memory (Unable to allocate 3.20 GiB")
+
+
 # --- the Python API checks its arguments with the same one-line messages -----------------------
 
 
