@@ -383,3 +383,44 @@ def test_traced_positions_equal_the_numpy_reference(runtime, sampler, counts, to
                 assert np.all(sets.counts == n)
             expected = traced_reference(config, seed, pixels, redraws, sets.counts)
             np.testing.assert_array_equal(sets.traced, expected, err_msg=f"n={n} seed={seed}")
+
+
+@pytest.mark.parametrize(
+    "sampler, n", [("independent", 13), ("stratified-pixel", 9), ("sppp", 13)]
+)
+def test_traced_positions_stay_inside_their_pixels_range(runtime, sampler, n):
+    """A pixel's last group of 8 holds fewer samples: its work-item must store those alone.
+    Each pixel is filled on its own into a buffer followed by guard words (no auxiliary nuclei
+    after it to overwrite a stray store): the guard stays intact, the samples are the
+    reference's."""
+    import pyopencl as cl
+
+    from dataclasses import replace
+
+    from clrender.sampling import _launch_fill
+
+    config = replace(make_sampler(sampler, n), n_aux=0)
+    guard = np.full(16, np.float32(-7.25), np.float32)
+    for pixel in np.array([5, 901, 4000], np.uint32):
+        pixels, redraws = np.array([pixel], np.uint32), np.zeros(1, np.uint32)
+        expected = host_sets(runtime, config, 3, pixels, redraws).traced
+        count = len(expected)
+        assert count % 8, "a partial last group is the point of the test"
+        offsets = np.array([0, count], np.uint32)
+        out = np.concatenate([np.zeros(2 * count, np.float32), guard])
+        positions = runtime.upload(out)
+        _launch_fill(
+            runtime,
+            config,
+            3,
+            runtime.upload(pixels),
+            runtime.upload(redraws),
+            offsets,
+            runtime.upload(offsets),
+            positions,
+            (),
+            1024,
+        )
+        cl.enqueue_copy(runtime.queue, out, positions)
+        np.testing.assert_array_equal(out[2 * count :], guard, err_msg=f"pixel {pixel}")
+        np.testing.assert_array_equal(out[: 2 * count].reshape(-1, 2), expected)
