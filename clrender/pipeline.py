@@ -33,9 +33,10 @@ falls back to the mc estimate of the last draw (counted as `unresolved_pixels`).
 Non-finite radiance is counted, and its pixels flagged: see clrender.film.
 
 Voronoi cells: with `voronoi_backend = "device"` (the default) the SPPP cells of vor, vor_sn
-and fvor, and pvor's cells on the torus, are computed by a device kernel queued right after the
-tracing, and a second kernel forms each pixel's weighted sums
-(clrender.estimators.device_cells.device_sppp_sums, device_periodic_sums): no per-sample array
+and fvor, pvor's cells on the torus and cvor's cells clipped to W, are computed by a device
+kernel queued right after the tracing, and a second kernel forms each pixel's weighted sums
+(clrender.estimators.device_cells.device_sppp_sums, device_periodic_sums,
+device_clipped_sums): no per-sample array
 comes back, and the host stage only divides. A tile with a cell the kernel cannot
 certify has those pixels settled on the host (their samples read back, cells by Qhull). With
 "qhull" the host computes the cells with Qhull.
@@ -78,8 +79,10 @@ import pyopencl as cl
 from clrender.errors import ParameterError
 from clrender.estimators import image
 from clrender.estimators.device_cells import (
+    MIRROR_COPIES,
     TORUS_COPIES,
     DeviceSums,
+    device_clipped_sums,
     device_periodic_sums,
     device_plain_sums,
     device_sppp_sums,
@@ -203,7 +206,7 @@ class RenderSettings:
     @property
     def device_cell_kinds(self) -> tuple[str, ...]:
         """The kinds of Voronoi cells the device computes for the tiles ("sppp": vor, vor_sn,
-        fvor; "periodic": pvor), each with its per-pixel sums."""
+        fvor; "periodic": pvor; "clipped": cvor), each with its per-pixel sums."""
         if self.voronoi_backend != "device":
             return ()
         kinds = [entry.cells for entry in self.estimators if entry.device_sums]
@@ -222,7 +225,7 @@ class RenderSettings:
     @property
     def device_cells(self) -> bool:
         """Whether the tiles' cells come from the device kernel (the SPPP cells of vor, vor_sn,
-        fvor; pvor's torus cells)."""
+        fvor; pvor's torus cells; cvor's cells clipped to W)."""
         return bool(self.device_cell_kinds)
 
     @property
@@ -378,10 +381,12 @@ class TileEstimate:
 
 def tile_nuclei_per_pixel(settings: RenderSettings) -> int:
     """The samples a pixel adds to its tile: traced and auxiliary ones, or its torus translates
-    when the device computes periodic cells."""
+    (mirror images) when the device computes periodic (clipped) cells."""
     per_pixel = settings.sampler.n + settings.sampler.n_aux
     if "periodic" in settings.device_cell_kinds:
         per_pixel = max(per_pixel, settings.sampler.n * TORUS_COPIES)
+    if "clipped" in settings.device_cell_kinds:
+        per_pixel = max(per_pixel, settings.sampler.n * MIRROR_COPIES)
     return per_pixel
 
 
@@ -462,7 +467,7 @@ def trace_tile(
     clock: StageClock | None = None,
 ) -> TileSamples:
     """Device stage: draw the pixels' sample sets and get their radiance. For each kind in
-    device_kinds ("sppp", "periodic"), that kind of Voronoi cells and each pixel's weighted
+    device_kinds ("sppp", "periodic", "clipped"), that kind of Voronoi cells and each pixel's weighted
     sums are formed on the device after the tracing, and only the sums come back (if the kernel
     left pixels undecided, the samples come back too and the host settles those pixels with
     Qhull); "plain" forms each pixel's sum f and sum f^2 alone (RenderSettings.
@@ -484,6 +489,8 @@ def trace_tile(
                 sums[kind] = device_plain_sums(runtime, device_sets, radiance.buffer)
             elif kind == "periodic":
                 sums[kind] = device_periodic_sums(runtime, device_sets, radiance.buffer)
+            elif kind == "clipped":
+                sums[kind] = device_clipped_sums(runtime, device_sets, radiance.buffer)
             else:
                 sums[kind] = device_sppp_sums(
                     runtime, device_sets, radiance.buffer, sppp_box(sampler)

@@ -35,6 +35,9 @@
 // Torus cells (pvor) use the same two kernels: voronoi_periodic_copies first writes each traced
 // nucleus and its 8 translates as the pixel's "auxiliary" nuclei, among which a traced nucleus's
 // cell is exactly its cell on the torus W.
+// Cells clipped to W (cvor) too: voronoi_mirror_copies writes each traced nucleus's mirror
+// images in W's four sides as the pixel's "auxiliary" nuclei, among which a traced nucleus's cell
+// is exactly its cell among the pixel's traced nuclei clipped to W.
 
 #include "voronoi_polygon.h"
 
@@ -79,6 +82,33 @@ __kernel void voronoi_periodic_copies(uint traced_total, __global const float2 *
         for (int dx = -1; dx <= 1; ++dx)
             if (dx != 0 || dy != 0)
                 copies[k++] = x + (float2)((float)dx, (float)dy);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Mirror copies
+
+// One work-item per traced nucleus j: the nucleus goes to slot j, its mirror images in the lines
+// x = 1/2, x = -1/2, y = 1/2, y = -1/2 to slots traced_total + 4 j + k, so pixel p's mirrors
+// start at 4 traced_offsets[p]. The bisector of a nucleus and its mirror in a side is that
+// side's line, and for a point z of W a mirror q' is never nearer than its nucleus q (z and q
+// lie on the same side of the mirror line): the cells among nuclei and mirrors are exactly the
+// nuclei's cells clipped to W, all bounded. Mirrors are rounded to float (about 6e-8), which
+// moves a side by half that. A nucleus on a side would coincide with its mirror and share its
+// cell: nuclei are taken to the nearest float strictly inside W first (the host reference moves
+// them 1e-9 inside; samplers never draw a point on a side).
+__kernel void voronoi_mirror_copies(uint traced_total, __global const float2 *positions,
+                                    __global float2 *nuclei)
+{
+    uint j = get_global_id(0);
+    if (j >= traced_total)
+        return;
+    float2 x = clamp(positions[j], -0x1.fffffep-2f, 0x1.fffffep-2f);
+    nuclei[j] = x;
+    __global float2 *mirrors = nuclei + traced_total + 4 * (size_t)j;
+    mirrors[0] = (float2)(1.0f - x.x, x.y);
+    mirrors[1] = (float2)(-1.0f - x.x, x.y);
+    mirrors[2] = (float2)(x.x, 1.0f - x.y);
+    mirrors[3] = (float2)(x.x, -1.0f - x.y);
 }
 
 // ---------------------------------------------------------------------------------------------

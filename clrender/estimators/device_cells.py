@@ -1,5 +1,5 @@
-"""Voronoi cell areas of per-pixel SPPP sample sets, and of sample sets on the torus, on the
-OpenCL device.
+"""Voronoi cell areas of per-pixel SPPP sample sets, of sample sets on the torus and of sample
+sets clipped to W, on the OpenCL device.
 
 The device counterpart of clrender.estimators.qhull_cells.sppp_cells (SciPy Qhull on the host):
 the same cells (each pixel's W nuclei among its W + auxiliary nuclei), the same CellAreas
@@ -29,6 +29,10 @@ Entry points:
   device_periodic_sums(runtime, sample_sets, radiance)
                                                    the same for pvor's cells on the torus W
                                                    (qhull_cells.periodic_cells on the host)
+  device_clipped_cells_from_arrays(runtime, positions, offsets)
+  device_clipped_sums(runtime, sample_sets, radiance)
+                                                   the same for cvor's cells clipped to W
+                                                   (qhull_cells.clipped_cells on the host)
 
 Torus cells: a first kernel writes each traced nucleus (wrapped into [-1/2, 1/2)^2) and its 8
 translates by (i, j) in {-1, 0, 1}^2, and the translates play the auxiliary nuclei: a torus cell
@@ -36,6 +40,12 @@ lies in x + [-1/2, 1/2]^2, where the nearest copy of every nucleus is one of the
 traced cell is exact and bounded (no redraw). The translates are rounded to float32, which moves
 them by up to 6e-8: areas agree with Qhull's on the exact translates to about 1e-7 (relative),
 and a pixel's areas sum to 1 within that.
+
+Cells clipped to W: a first kernel writes each traced nucleus and its 4 mirror images in W's
+sides, and the mirrors play the auxiliary nuclei: the bisector of a nucleus and its mirror is
+the side, and no mirror is nearer than its nucleus to a point of W, so every traced cell is
+exactly its cell among the pixel's nuclei clipped to W, bounded. The mirrors are rounded to
+float32 as the translates are, with the same effect on areas (a side moves by up to 3e-8).
 
 Cells the kernel cannot decide (more than VORONOI_MAX_VERTICES vertices during clipping, a
 bounded cell reaching beyond the start box, exactly collinear neighbours) flag their pixel;
@@ -67,6 +77,7 @@ from clrender.estimators.pixel import cell_sums
 from clrender.estimators.qhull_cells import (
     CellAreas,
     TessellationStats,
+    clipped_cells,
     periodic_cells,
     sppp_cells,
 )
@@ -97,14 +108,20 @@ PRECISIONS = ("auto", "single", "mixed", "double")
 FetchPixels = Callable[[np.ndarray], SampleSets]
 # Torus cells: every traced nucleus has itself and 8 translates in the layout.
 TORUS_COPIES = 9
+# Clipped cells: every traced nucleus has itself and its 4 mirror images in W's sides.
+MIRROR_COPIES = 5
 # The tessellations the device computes, and their host reference for the pixels it leaves.
-CELL_KINDS = ("sppp", "periodic")
+CELL_KINDS = ("sppp", "periodic", "clipped")
+# Those whose every cell is bounded (no redraw: an unbounded one means the kernel failed).
+BOUNDED_KINDS = ("periodic", "clipped")
 
 
 def host_cells(kind: str, sets: SampleSets, box: float | None) -> CellAreas:
     """Qhull's cells of a kind for some pixels' sample sets (the device's fallback)."""
     if kind == "periodic":
         return periodic_cells(sets.traced, sets.offsets)
+    if kind == "clipped":
+        return clipped_cells(sets.traced, sets.offsets)
     return sppp_cells(sets.traced, sets.offsets, sets.aux, sets.aux_offsets, box)
 
 
@@ -118,7 +135,8 @@ class _Layout:
     half_extent: float  # the grid covers [-half_extent, half_extent]^2
     grid_side: int  # cells per side of every pixel's grid
     traced_extent: float  # the traced nuclei lie in [-traced_extent, traced_extent]^2
-    kind: str = "sppp"  # "periodic": the auxiliary nuclei are torus translates
+    kind: str = "sppp"  # "periodic": the auxiliary nuclei are torus translates; "clipped":
+    # mirror images
     intensity: float = 1.0  # the sampler's n (PixelSums.n)
 
     @property
@@ -198,20 +216,36 @@ def device_periodic_cells_from_arrays(
 ) -> CellAreas:
     """Cells on the torus W of each pixel's nuclei (qhull_cells.periodic_cells' arguments),
     uploaded as float32; no inside-box flags."""
+    return _copies_cells_from_arrays(runtime, positions, offsets, precision, "periodic")
+
+
+def device_clipped_cells_from_arrays(
+    runtime: Runtime, positions: np.ndarray, offsets: np.ndarray, precision: str = "auto"
+) -> CellAreas:
+    """Cells of each pixel's nuclei among themselves clipped to W (qhull_cells.clipped_cells'
+    arguments), uploaded as float32; no inside-box flags."""
+    return _copies_cells_from_arrays(runtime, positions, offsets, precision, "clipped")
+
+
+def _copies_cells_from_arrays(
+    runtime: Runtime, positions: np.ndarray, offsets: np.ndarray, precision: str, kind: str
+) -> CellAreas:
+    """Torus or clipped cells (kind) of arrays, whose positions must lie in W."""
     empty = np.zeros((0, 2))
     traced32, _ = _check_arrays(positions, offsets, empty, np.zeros(len(np.asarray(offsets))))
     outside = np.flatnonzero((np.abs(traced32) > 0.5).any(axis=1))
-    if len(outside):  # the kernel wraps x = 1/2 only, and its grid spans W's copies
+    if len(outside):  # the kernels wrap (mirror) W's points only, and the grid spans W's copies
         x, y = np.asarray(positions, np.float64).reshape(-1, 2)[outside[0]]
+        what = "torus cells" if kind == "periodic" else "cells clipped to W"
         raise ParameterError(
-            f"torus cells need positions in W = [-1/2, 1/2]^2, got ({x:g}, {y:g}) at index "
+            f"{what} need positions in W = [-1/2, 1/2]^2, got ({x:g}, {y:g}) at index "
             f"{outside[0]}"
         )
     offsets = np.asarray(offsets, np.int64)
     buffer, upload = runtime.upload_async(traced32)
     defines = kernel_defines(runtime, precision)
     mean_count = len(traced32) / max(len(offsets) - 1, 1)
-    layout = _periodic_layout(runtime, buffer, offsets, mean_count, defines)
+    layout = _copies_layout(runtime, buffer, offsets, mean_count, defines, kind)
 
     def fetch(wanted: np.ndarray) -> SampleSets:
         return SampleSets(traced32, offsets, 1.0).subset(wanted)
@@ -254,13 +288,30 @@ def device_periodic_sums(
     """The PixelSums of pvor (area and weighted; no kept sums: NaN, as on the host) for a
     launch's sample sets, from their cells on the torus W, all on the device. No pixel is
     redrawn: a cell the kernel leaves undecided or unbounded flags its pixel as fallback."""
+    return _copies_sums(runtime, sample_sets, radiance, precision, "periodic")
+
+
+def device_clipped_sums(
+    runtime: Runtime, sample_sets: DeviceSampleSets, radiance, precision: str = "auto"
+) -> DeviceSums:
+    """The PixelSums of cvor (area and weighted; no kept sums: NaN, as on the host) for a
+    launch's sample sets, from their cells clipped to W, all on the device; as
+    device_periodic_sums otherwise."""
+    return _copies_sums(runtime, sample_sets, radiance, precision, "clipped")
+
+
+def _copies_sums(
+    runtime: Runtime, sample_sets: DeviceSampleSets, radiance, precision: str, kind: str
+) -> DeviceSums:
+    """device_periodic_sums or device_clipped_sums (kind)."""
     defines = kernel_defines(runtime, precision)
-    layout = _periodic_layout(
+    layout = _copies_layout(
         runtime,
         sample_sets.positions,
         np.asarray(sample_sets.traced_offsets, np.int64),
         sample_sets.config.n,
         defines,
+        kind,
     )
     device = _device_sums(runtime, layout, radiance, None, precision)
     nan = np.full(layout.pixel_count, np.nan)
@@ -367,7 +418,7 @@ def settle_undecided(
     kind: str = "sppp",
 ) -> DeviceSums:
     """device with the pixels it flagged as undecided (device.fallback) settled on the host:
-    their cells (of the kind: "sppp" or "periodic") by Qhull from the host copy of the sample
+    their cells (of the kind: "sppp", "periodic" or "clipped") by Qhull from the host copy of the sample
     sets (float32 as on the device), their sums from `values` ((T, C), the traced samples'
     radiance with non-finite rows zeroed), their redraw flags from the cells."""
     pixels = np.flatnonzero(device.fallback)
@@ -442,23 +493,27 @@ def _sample_set_layout(sample_sets: DeviceSampleSets) -> _Layout:
     )
 
 
-def _periodic_layout(
+def _copies_layout(
     runtime: Runtime,
     positions: cl.Buffer,
     traced_offsets: np.ndarray,
     mean_count: float,
     defines: dict[str, object],
+    kind: str,
 ) -> _Layout:
-    """Queue the torus copies of a launch's traced nuclei (voronoi_periodic_copies); their
-    layout: the wrapped nuclei, then 8 translates each (pixel p's from 8 traced_offsets[p]).
-    mean_count (the sampler's n) sizes the grid, so a pixel's cells do not depend on the
-    launch."""
+    """Queue the copies of a launch's traced nuclei that make their cells those of the kind:
+    torus translates ("periodic", voronoi_periodic_copies: the wrapped nuclei, then 8 translates
+    each, pixel p's from 8 traced_offsets[p]) or mirror images ("clipped",
+    voronoi_mirror_copies: the nuclei, then 4 mirrors each); their layout. Either way the copies
+    lie in W's 3 x 3 neighbourhood at the density of the nuclei in W: mean_count (the sampler's
+    n) sizes the grid, so a pixel's cells do not depend on the launch."""
+    copies = TORUS_COPIES if kind == "periodic" else MIRROR_COPIES
     traced = int(traced_offsets[-1])
-    nuclei = runtime.allocate(8 * TORUS_COPIES * max(traced, 1))
+    nuclei = runtime.allocate(8 * copies * max(traced, 1))
     if traced:
-        copies = runtime.kernel(KERNEL_FILE, "voronoi_periodic_copies", defines)
+        name = "voronoi_periodic_copies" if kind == "periodic" else "voronoi_mirror_copies"
         runtime.launch_1d(
-            copies,
+            runtime.kernel(KERNEL_FILE, name, defines),
             traced,
             np.uint32(traced),
             positions,
@@ -467,11 +522,11 @@ def _periodic_layout(
     return _Layout(
         nuclei,
         traced_offsets,
-        (TORUS_COPIES - 1) * traced_offsets,
+        (copies - 1) * traced_offsets,
         1.5,
         grid_side(TORUS_COPIES * mean_count, 1),
-        0.5,  # wrapped into [-1/2, 1/2)^2
-        kind="periodic",
+        0.5,  # in W (wrapped into [-1/2, 1/2)^2 on the torus)
+        kind=kind,
         intensity=mean_count,
     )
 
@@ -495,8 +550,8 @@ def _cells(
         TessellationStats(walked_cells=int(((status & STATUS_WALKED) != 0).sum())),
     )
     undecided = (status & STATUS_FALLBACK) != 0
-    if layout.kind == "periodic":
-        undecided |= ~bounded  # never expected: every torus cell is bounded
+    if layout.kind in BOUNDED_KINDS:
+        undecided |= ~bounded  # never expected: every torus or clipped cell is bounded
     fallback = _fallback_pixels(layout.traced_offsets, undecided)
     if fallback.size:
         _recompute_on_host(cells, layout, fallback, fetch, box)

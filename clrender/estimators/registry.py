@@ -132,7 +132,7 @@ class Estimator:
     device_sums: bool = False  # the device can form its cells and sums (kernels/voronoi_*.cl)
 
     def __post_init__(self) -> None:
-        device_kinds = ("sppp", "periodic")  # clrender.estimators.device_cells.CELL_KINDS
+        device_kinds = ("sppp", "periodic", "clipped")  # device_cells.CELL_KINDS
         if self.cells not in CELL_KINDS or (self.device_sums and self.cells not in device_kinds):
             raise ValueError(f"estimator {self.name!r}: cells {self.cells!r} / device_sums")
 
@@ -190,6 +190,7 @@ ESTIMATORS: dict[str, Estimator] = {
             "clipped Voronoi E_C: cells of the W nuclei alone clipped to W (biased near edges)",
             weighted_sum,
             cells="clipped",
+            device_sums=True,
         ),
         Estimator(
             "pvor",
