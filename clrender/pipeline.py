@@ -467,10 +467,10 @@ def trace_tile(
     clock: StageClock | None = None,
 ) -> TileSamples:
     """Device stage: draw the pixels' sample sets and get their radiance. For each kind in
-    device_kinds ("sppp", "periodic", "clipped"), that kind of Voronoi cells and each pixel's weighted
-    sums are formed on the device after the tracing, and only the sums come back (if the kernel
-    left pixels undecided, the samples come back too and the host settles those pixels with
-    Qhull); "plain" forms each pixel's sum f and sum f^2 alone (RenderSettings.
+    device_kinds ("sppp", "periodic", "clipped"), that kind of Voronoi cells and each pixel's
+    weighted sums are formed on the device after the tracing, and only the sums come back (if
+    the kernel left pixels undecided, the samples come back too and the host settles those
+    pixels with Qhull); "plain" forms each pixel's sum f and sum f^2 alone (RenderSettings.
     device_sum_kinds). With host_samples (or without device kinds) the sample sets and radiance
     come to the host as well."""
     clock = clock or StageClock(RenderStats())

@@ -52,12 +52,15 @@ def test_single_precision_device_cells_give_the_qhull_image(runtime, no_fp64):
     assert not np.array_equal(image, qhull.film.image())  # float32 sums: not the same bits
 
 
-# pvor's torus cells: the device rounds each translate to float32 (up to 6e-8), Qhull does not
+# pvor's torus cells and cvor's clipped cells: the device rounds each translate or mirror image
+# to float32 (up to 6e-8), Qhull does not
+@pytest.mark.parametrize("estimator", ["pvor", "cvor"])
 @pytest.mark.parametrize("sampler", ["independent", "sobol", "sppp"])
-def test_device_and_qhull_torus_cells_give_the_same_image(runtime, sampler):
-    device = render_image(runtime, "pvor", "device", sampler=sampler).film.image()
-    qhull = render_image(runtime, "pvor", "qhull", sampler=sampler).film.image()
-    np.testing.assert_allclose(device, qhull, rtol=1e-6, atol=1e-7)
+def test_device_and_qhull_copy_cells_give_the_same_image(runtime, estimator, sampler):
+    device = render_image(runtime, estimator, "device", sampler=sampler)
+    qhull = render_image(runtime, estimator, "qhull", sampler=sampler).film.image()
+    assert device.settings.device_cells
+    np.testing.assert_allclose(device.film.image(), qhull, rtol=1e-6, atol=1e-7)
 
 
 def test_forced_rejections_agree_between_backends(runtime):
@@ -75,7 +78,7 @@ def test_qhull_backend_is_bit_identical_whatever_the_tiling(runtime):
     assert np.array_equal(tiled.film.image(), reference)
 
 
-def test_only_sppp_and_torus_cell_estimators_use_the_device_cells():
+def test_only_sppp_torus_and_clipped_cell_estimators_use_the_device_cells():
     sampler = make_sampler("sppp", 16)
     for estimator, expected in [
         ("vor", True),
@@ -83,7 +86,7 @@ def test_only_sppp_and_torus_cell_estimators_use_the_device_cells():
         ("fvor", True),
         ("mc", False),
         ("pvor", True),
-        ("cvor", False),
+        ("cvor", True),
         ("ivor", False),
     ]:
         assert RenderSettings(4, 4, sampler, estimator).device_cells is expected, estimator
@@ -95,7 +98,9 @@ def test_unknown_backend_lists_the_accepted_ones():
         RenderSettings(4, 4, make_sampler("sppp", 16), "vor", voronoi_backend="gpu")
 
 
-@pytest.mark.parametrize("estimator, sampler", [("fvor", "sppp"), ("pvor", "independent")])
+@pytest.mark.parametrize(
+    "estimator, sampler", [("fvor", "sppp"), ("pvor", "independent"), ("cvor", "sobol")]
+)
 def test_device_backend_is_bit_identical_whatever_the_tiling(runtime, estimator, sampler):
     reference = render_image(runtime, estimator, "device", sampler=sampler).film.image()
     tiled = render_image(
@@ -113,6 +118,7 @@ def test_pixels_with_undecided_cells_are_settled_on_the_host(runtime, monkeypatc
     device = render_image(runtime, "vor_sn", "device").film.image()
     qhull = render_image(runtime, "vor_sn", "qhull").film.image()
     np.testing.assert_allclose(device, qhull, rtol=1e-9, atol=1e-12)
-    torus_device = render_image(runtime, "pvor", "device", sampler="sobol")
-    torus_qhull = render_image(runtime, "pvor", "qhull", sampler="sobol").film.image()
-    np.testing.assert_allclose(torus_device.film.image(), torus_qhull, rtol=1e-6, atol=1e-7)
+    for estimator in ("pvor", "cvor"):
+        copies_device = render_image(runtime, estimator, "device", sampler="sobol")
+        copies_qhull = render_image(runtime, estimator, "qhull", sampler="sobol").film.image()
+        np.testing.assert_allclose(copies_device.film.image(), copies_qhull, rtol=1e-6, atol=1e-7)

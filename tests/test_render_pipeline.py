@@ -43,6 +43,7 @@ def settings(
         ("stratified", "pvor"),
         ("sppp", "ivor_sn"),
         ("sobol", "pvor"),
+        ("independent", "cvor"),
         ("zsobol", "mc"),
         ("sppp-sobol", "vor_sn"),
     ],
@@ -68,18 +69,25 @@ def test_tiles_cover_the_image_in_order_within_the_sample_budget():
     assert len(plan_tiles(settings(tile_samples=10**9))) == 4  # 960 px, MIN_TILE_PIXELS 256
 
 
-def test_device_torus_cells_count_their_translates_in_the_sample_budget():
-    # pvor's device cells hold each traced nucleus and its 8 translates: 9 n nuclei a pixel
-    for backend, per_pixel in [("device", 9 * 16), ("qhull", 16)]:
+def test_device_torus_and_clipped_cells_count_their_copies_in_the_sample_budget():
+    # pvor's device cells hold each traced nucleus and its 8 translates: 9 n nuclei a pixel;
+    # cvor's its 4 mirror images: 5 n
+    for estimator, backend, per_pixel in [
+        ("pvor", "device", 9 * 16),
+        ("pvor", "qhull", 16),
+        ("cvor", "device", 5 * 16),
+        ("cvor", "qhull", 16),
+        (["cvor", "pvor"], "device", 9 * 16),
+    ]:
         config = RenderSettings(
             WIDTH,
             HEIGHT,
             make_sampler("independent", 16),
-            "pvor",
+            estimator,
             tile_samples=2000,
             voronoi_backend=backend,
         )
-        assert pixels_per_tile(config) == 2000 // per_pixel
+        assert pixels_per_tile(config) == 2000 // per_pixel, (estimator, backend)
 
 
 def test_different_seeds_give_different_images(runtime):

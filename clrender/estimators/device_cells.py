@@ -238,8 +238,7 @@ def _copies_cells_from_arrays(
         x, y = np.asarray(positions, np.float64).reshape(-1, 2)[outside[0]]
         what = "torus cells" if kind == "periodic" else "cells clipped to W"
         raise ParameterError(
-            f"{what} need positions in W = [-1/2, 1/2]^2, got ({x:g}, {y:g}) at index "
-            f"{outside[0]}"
+            f"{what} need positions in W = [-1/2, 1/2]^2, got ({x:g}, {y:g}) at index {outside[0]}"
         )
     offsets = np.asarray(offsets, np.int64)
     buffer, upload = runtime.upload_async(traced32)
@@ -418,9 +417,9 @@ def settle_undecided(
     kind: str = "sppp",
 ) -> DeviceSums:
     """device with the pixels it flagged as undecided (device.fallback) settled on the host:
-    their cells (of the kind: "sppp", "periodic" or "clipped") by Qhull from the host copy of the sample
-    sets (float32 as on the device), their sums from `values` ((T, C), the traced samples'
-    radiance with non-finite rows zeroed), their redraw flags from the cells."""
+    their cells (of the kind: "sppp", "periodic" or "clipped") by Qhull from the host copy of
+    the sample sets (float32 as on the device), their sums from `values` ((T, C), the traced
+    samples' radiance with non-finite rows zeroed), their redraw flags from the cells."""
     pixels = np.flatnonzero(device.fallback)
     subset = host_sets.subset(pixels)
     cells = host_cells(kind, subset, box)
