@@ -207,7 +207,7 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "--voronoi-backend",
         default="device",
         metavar="NAME",
-        help="where vor, vor_sn, fvor and pvor get their Voronoi cells: device (an OpenCL "
+        help="where vor, vor_sn, fvor, cvor and pvor get their Voronoi cells: device (an OpenCL "
         "kernel, exact, default) or qhull (SciPy's Qhull on the host)",
     )
     add(
