@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from cell_sets import random_pixels, single
 
-from clrender.estimators import device_cells
 from clrender.estimators.device_cells import device_clipped_cells_from_arrays, device_clipped_sums
 from clrender.estimators.pixel import cell_sums
 from clrender.estimators.qhull_cells import clipped_cells, sppp_cells
@@ -47,16 +47,6 @@ def float32_mirrors(traced: np.ndarray, offsets: np.ndarray):
         1,
     ).reshape(-1, 2)
     return nuclei.astype(np.float64), mirrors.astype(np.float64), 4 * np.asarray(offsets)
-
-
-def random_pixels(counts, seed):
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    traced = np.random.default_rng(seed).uniform(-0.5, 0.5, (offsets[-1], 2))
-    return traced.astype(np.float32).astype(np.float64), offsets
-
-
-def single(runtime, precision="auto") -> bool:
-    return device_cells.resolve_precision(runtime, precision) == "single"
 
 
 def exact_atol(runtime) -> float:
@@ -158,48 +148,4 @@ def test_device_sums_match_host_sums(runtime, precision):
     assert np.isnan(device.sums.kept_area).all()  # cvor has no W' filter (as on the host)
 
 
-# 5. Cells the kernel cannot finish (vertex overflow), or that no work-item reaches (its span
-# made too narrow on purpose), are recomputed on the host exactly; positions outside W are
-# refused (the grid spans W's neighbourhood only)
-def test_overflow_falls_back_to_host(runtime, monkeypatch):
-    monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
-    traced, offsets = random_pixels(np.full(30, 16), seed=2)
-    device = device_clipped_cells_from_arrays(runtime, traced, offsets)
-    assert device.stats.recomputed_pixels > 15
-    np.testing.assert_allclose(
-        device.areas, clipped_cells(traced, offsets).areas, rtol=0, atol=EXACT_ATOL
-    )
-
-
-def test_sums_flag_undecided_pixels_for_the_host(runtime, monkeypatch):
-    monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
-    sets = generate_sample_sets(
-        runtime, make_sampler("independent", 16), 2, np.arange(40, dtype=np.uint32)
-    )
-    radiance = np.ones((sets.traced_total, 3), np.float32)
-    device = device_clipped_sums(runtime, sets, runtime.upload(radiance))
-    assert device.fallback.sum() > 20 and not device.redraw.any()
-
-
-def test_nuclei_outside_the_span_are_recomputed_on_the_host(runtime, monkeypatch):
-    traced, offsets = random_pixels(np.full(30, 64), seed=5)
-    device_clipped_cells_from_arrays(runtime, traced, offsets)  # the buffer pool, filled
-    full_span = device_cells.traced_span
-
-    def narrow_span(layout):
-        first, count = full_span(layout)
-        return first + 1, count - 2
-
-    monkeypatch.setattr(device_cells, "traced_span", narrow_span)
-    device = device_clipped_cells_from_arrays(runtime, traced, offsets)
-    assert device.stats.recomputed_pixels == 30
-    np.testing.assert_allclose(
-        device.areas, clipped_cells(traced, offsets).areas, rtol=0, atol=EXACT_ATOL
-    )
-
-
-def test_positions_outside_w_are_refused(runtime):
-    traced, offsets = random_pixels(np.full(2, 16), seed=4)
-    traced[5] = (0.1, 0.5001)
-    with pytest.raises(device_cells.ParameterError, match=r"clipped to W.*\(0\.1, 0\.5001\)"):
-        device_clipped_cells_from_arrays(runtime, traced, offsets)
+# 5. Undecided cells and positions outside W: tests/test_device_periodic_cells.py, for both kinds

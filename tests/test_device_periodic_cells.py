@@ -5,20 +5,26 @@ voronoi_periodic_copies then the SPPP cell kernels) against two host references:
   among their float32-rounded translates, which is what the device sees: to 1e-9 relative;
 - the exact torus: qhull_cells.periodic_cells (float64 translates): to 1e-7 in area, the
   rounding of a translate to float32 (up to 6e-8) times a cell's perimeter.
+
+Section 5 (undecided cells settled on the host, positions outside W refused) also covers cvor's
+cells clipped to W, which share the torus cells' path (tests/test_device_clipped_cells.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from cell_sets import random_pixels, single
 
 from clrender.estimators import device_cells
 from clrender.estimators.device_cells import (
+    device_clipped_cells_from_arrays,
+    device_clipped_sums,
     device_periodic_cells_from_arrays,
     device_periodic_sums,
 )
 from clrender.estimators.pixel import cell_sums
-from clrender.estimators.qhull_cells import periodic_cells, sppp_cells
+from clrender.estimators.qhull_cells import clipped_cells, periodic_cells, sppp_cells
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 
@@ -38,16 +44,6 @@ def float32_torus_copies(traced: np.ndarray, offsets: np.ndarray):
     nuclei = np.where(nuclei >= 0.5, nuclei - np.float32(1), nuclei)
     translates = (nuclei[:, None, :] + SHIFTS.astype(np.float32)).reshape(-1, 2)
     return nuclei.astype(np.float64), translates.astype(np.float64), 8 * np.asarray(offsets)
-
-
-def random_pixels(counts, seed):
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    traced = np.random.default_rng(seed).uniform(-0.5, 0.5, (offsets[-1], 2))
-    return traced.astype(np.float32).astype(np.float64), offsets
-
-
-def single(runtime, precision="auto") -> bool:
-    return device_cells.resolve_precision(runtime, precision) == "single"
 
 
 def exact_atol(runtime) -> float:
@@ -149,41 +145,55 @@ def test_device_sums_match_host_sums(runtime, precision):
     assert np.isnan(device.sums.kept_area).all()  # pvor has no W' filter (as on the host)
 
 
-# 5. Cells the kernel cannot finish (vertex overflow) are recomputed on the host exactly
-def test_overflow_falls_back_to_host(runtime, monkeypatch):
+# 5. Cells the kernel cannot finish (vertex overflow) are recomputed on the host exactly; so
+# are nuclei no work-item of the cell kernel reaches (its span made too narrow on purpose):
+# never a stale area. Positions outside W are refused (the kernels' grid spans W's copies
+# only). For the torus cells and the cells clipped to W (mirror images) alike.
+COPY_KINDS = {
+    "periodic": (device_periodic_cells_from_arrays, device_periodic_sums, periodic_cells),
+    "clipped": (device_clipped_cells_from_arrays, device_clipped_sums, clipped_cells),
+}
+
+
+@pytest.mark.parametrize("kind", COPY_KINDS)
+def test_overflow_falls_back_to_host(runtime, monkeypatch, kind):
+    from_arrays, _, host_reference = COPY_KINDS[kind]
     monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
     traced, offsets = random_pixels(np.full(30, 16), seed=2)
-    device = device_periodic_cells_from_arrays(runtime, traced, offsets)
+    device = from_arrays(runtime, traced, offsets)
     assert device.stats.recomputed_pixels > 15
     np.testing.assert_allclose(
-        device.areas, periodic_cells(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
+        device.areas, host_reference(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
     )
 
 
-def test_sums_flag_undecided_pixels_for_the_host(runtime, monkeypatch):
+@pytest.mark.parametrize("kind", COPY_KINDS)
+def test_sums_flag_undecided_pixels_for_the_host(runtime, monkeypatch, kind):
+    _, sums, _ = COPY_KINDS[kind]
     monkeypatch.setattr(device_cells, "MAX_VERTICES", 5)
     sets = generate_sample_sets(
         runtime, make_sampler("independent", 16), 2, np.arange(40, dtype=np.uint32)
     )
     radiance = np.ones((sets.traced_total, 3), np.float32)
-    device = device_periodic_sums(runtime, sets, runtime.upload(radiance))
+    device = sums(runtime, sets, runtime.upload(radiance))
     assert device.fallback.sum() > 20 and not device.redraw.any()
 
 
-# 6. Positions outside W are refused (the kernel's grid spans W's copies only); a nucleus that
-# no work-item of the cell kernel reaches (its span made too narrow on purpose) is left
-# undecided and recomputed on the host, never given a stale area
-def test_positions_outside_w_are_refused(runtime):
+@pytest.mark.parametrize("kind", COPY_KINDS)
+def test_positions_outside_w_are_refused(runtime, kind):
+    from_arrays, _, _ = COPY_KINDS[kind]
     traced, offsets = random_pixels(np.full(2, 16), seed=4)
     traced[5] = (-0.7, 0.1)
     with pytest.raises(device_cells.ParameterError, match=r"\(-0\.7.*at index 5"):
-        device_periodic_cells_from_arrays(runtime, traced, offsets)
+        from_arrays(runtime, traced, offsets)
 
 
-def test_nuclei_outside_the_span_are_recomputed_on_the_host(runtime, monkeypatch):
+@pytest.mark.parametrize("kind", COPY_KINDS)
+def test_nuclei_outside_the_span_are_recomputed_on_the_host(runtime, monkeypatch, kind):
+    from_arrays, _, host_reference = COPY_KINDS[kind]
     traced, offsets = random_pixels(np.full(30, 64), seed=5)
     # Fill the buffer pool with bounded-looking garbage first
-    device_periodic_cells_from_arrays(runtime, traced, offsets)
+    from_arrays(runtime, traced, offsets)
     full_span = device_cells.traced_span
 
     def narrow_span(layout):
@@ -191,8 +201,8 @@ def test_nuclei_outside_the_span_are_recomputed_on_the_host(runtime, monkeypatch
         return first + 1, count - 2
 
     monkeypatch.setattr(device_cells, "traced_span", narrow_span)
-    device = device_periodic_cells_from_arrays(runtime, traced, offsets)
+    device = from_arrays(runtime, traced, offsets)
     assert device.stats.recomputed_pixels == 30
     np.testing.assert_allclose(
-        device.areas, periodic_cells(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
+        device.areas, host_reference(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
     )
