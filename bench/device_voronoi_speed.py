@@ -19,6 +19,17 @@ samples, stage by stage, on one render tile (4096 pixels) at n = 64 and 256: the
 nuclei (sample sets drawn with them against without), the grid build, the cell kernel, and the
 per-pixel Voronoi sums against the plain sums mc_n forms; medians of K runs (alternating),
 CPU seconds per tile and per 256 x 256 image (16 such tiles).
+
+    python bench/device_voronoi_speed.py --variants - VORONOI_NO_SIDE_TEST,X=2 [--n N]
+
+instead times kernel variants against each other: the grid build and cell kernel (the kernel's
+own build options plus each variant's, comma-separated NAME or NAME=VALUE; "-" adds none) on
+one tile (4096 pixels, 1024 above n = 256), alternating the variants in one process, the order
+reversed every other round, for --repeats rounds (default 7; use 20 or more). Per variant: the
+median and least CPU per tile, the median and quartiles of its ratio to the first variant's
+time in the same round, and whether its areas and status bytes are bit for bit the first
+variant's. On a shared machine separate runs of one kernel differ by 10 % and more; ratios
+within a round resolve 1 to 2 %.
 """
 
 from __future__ import annotations
@@ -93,6 +104,66 @@ def measure(runtime, n: int, pixels: int, repeats: int, precision: str) -> dict:
 
 # --stages: a render tile of 4096 pixels; a 256 x 256 image is 16 of them
 STAGE_PIXELS, IMAGE_PIXELS = 4096, 256 * 256
+
+
+def parse_defines(variant: str) -> dict[str, object]:
+    """Build options of one --variants argument: NAME or NAME=VALUE, comma-separated; "-" none."""
+    defines: dict[str, object] = {}
+    for item in filter(None, variant.split(",")):
+        if item != "-":
+            name, _, value = item.partition("=")
+            defines[name] = value if value else True
+    return defines
+
+
+def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
+    """CPU seconds of the grid build and cell kernel per tile for each variant's build options,
+    alternating in one process; ratios to the first variant within each round."""
+    import pyopencl as cl
+
+    config = make_sampler("sppp", n)
+    pixels = STAGE_PIXELS if n <= 256 else STAGE_PIXELS // 4
+    sets = generate_sample_sets(runtime, config, 1, np.arange(pixels, dtype=np.uint32))
+    layout = device_cells._sample_set_layout(sets)
+    box = float(np.float32(0.5 + config.eps))
+    base, real = device_cells._precision_setup(runtime, "auto")
+    size = np.dtype(real).itemsize
+    options = [{**base, **parse_defines(variant)} for variant in variants]
+    outputs = []
+    for defines in options:  # builds the kernels; the results to compare
+        areas_buf, status_buf, _, _ = device_cells._enqueue_cells(
+            runtime, layout, box, defines, size
+        )
+        areas = np.empty(layout.traced_total, real)
+        status = np.empty(layout.traced_total, np.uint8)
+        cl.enqueue_copy(runtime.queue, areas, areas_buf)
+        cl.enqueue_copy(runtime.queue, status, status_buf)
+        outputs.append((areas, status))
+    cpu = np.zeros((len(options), rounds))
+    for r in range(rounds):
+        order = range(len(options)) if r % 2 == 0 else reversed(range(len(options)))
+        for k in order:
+            runtime.queue.finish()
+            cpu0 = time.process_time()
+            device_cells._enqueue_cells(runtime, layout, box, options[k], size)
+            runtime.queue.finish()
+            cpu[k, r] = time.process_time() - cpu0
+    rows = []
+    for k, variant in enumerate(variants):
+        ratio = cpu[k] / cpu[0]
+        rows.append(
+            {
+                "variant": variant,
+                "median_cpu_s_per_tile": float(np.median(cpu[k])),
+                "least_cpu_s_per_tile": float(cpu[k].min()),
+                "ratio_to_first": [float(np.quantile(ratio, q)) for q in (0.25, 0.5, 0.75)],
+                "identical_to_first": bool(
+                    np.array_equal(outputs[k][0], outputs[0][0], equal_nan=True)
+                    and np.array_equal(outputs[k][1], outputs[0][1])
+                ),
+            }
+        )
+    return {"n": n, "pixels": pixels, "traced_nuclei": layout.traced_total, "variants": rows}
 
 
 def stage_accounting(runtime, n: int, repeats: int) -> dict:
@@ -190,9 +261,28 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--stages", action="store_true", help="vor_sn's stages beyond mc_n, per tile and image"
     )
+    parser.add_argument(
+        "--variants", nargs="+", metavar="DEFINES", help="cell kernel build options to compare"
+    )
+    parser.add_argument("--n", type=int, default=256, help="SPPP n of --variants")
     args = parser.parse_args(argv)
     runtime = create_runtime()
     repeats = 3 if args.quick else args.repeats
+    if args.variants:
+        report = compare_variants(runtime, args.n, args.variants, repeats)
+        report.update(device=runtime.describe(), rounds=repeats)
+        for row in report["variants"]:
+            q25, median, q75 = row["ratio_to_first"]
+            print(
+                f"{row['variant']:32s} {1e3 * row['median_cpu_s_per_tile']:8.1f} ms CPU per tile"
+                f" (least {1e3 * row['least_cpu_s_per_tile']:.1f})  ratio to first {median:.3f}"
+                f" [{q25:.3f}, {q75:.3f}]  identical: {row['identical_to_first']}"
+            )
+        out = args.out.with_name("device_voronoi_variants.json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {out}")
+        return
     if args.stages:
         report = {"device": runtime.describe(), "repeats": repeats, "stages": []}
         for n in (64, 256):

@@ -644,3 +644,25 @@ def test_duplicated_nuclei_share_their_cells_as_on_the_host(runtime, area_rtol, 
     np.testing.assert_allclose(device.areas[bounded], host.areas[bounded], rtol=area_rtol)
     # the two copies of a nucleus got the same half of its cell
     np.testing.assert_array_equal(device.areas[0::2], device.areas[1::2])
+
+
+# 16. bench/device_voronoi_speed.py --variants times build options of the cell kernel against
+# each other in one process and tells which give the first variant's cells bit for bit: the
+# default spelled out does; a block too small for any walk (the clipping search, the same cells
+# within rounding) does not
+def test_variant_timing_tells_identical_kernels_apart(runtime):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import device_voronoi_speed
+
+    assert device_voronoi_speed.parse_defines("-") == {}
+    assert device_voronoi_speed.parse_defines("A,B=2") == {"A": True, "B": "2"}
+    report = device_voronoi_speed.compare_variants(
+        runtime, 16, ["-", "VORONOI_BLOCK_CAPACITY=64", "VORONOI_BLOCK_CAPACITY=8"], 2
+    )
+    rows = report["variants"]
+    assert [row["identical_to_first"] for row in rows] == [True, True, False]
+    assert rows[0]["ratio_to_first"] == [1.0, 1.0, 1.0]
+    assert all(row["least_cpu_s_per_tile"] > 0 for row in rows)
