@@ -33,9 +33,6 @@ import numpy as np
 BINARY_NODE_DTYPE = np.dtype(
     [("lower", "<f4", 3), ("offset", "<i4"), ("upper", "<f4", 3), ("count", "<i4")]
 )
-# A cluster of the build (host only), as the bottom-up pass gathers it in one piece: its box
-# (lower, -upper: a union is a minimum), primitives, height and SAH cost.
-CLUSTER_DTYPE = np.dtype([("box", "<f4", 6), ("size", "<i4"), ("height", "<i4"), ("cost", "<f8")])
 BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
 # The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
 # arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
@@ -167,7 +164,7 @@ def _balanced_height(size: np.ndarray) -> np.ndarray:
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
 
 
-def _balanced_ranges(prims, morton_keys, cluster, first, length, depth) -> tuple:
+def _balanced_ranges(prims, morton_keys, cluster_box, first, length, depth) -> tuple:
     """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
     primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) by their
     morton_keys and halved until at most LEAF_MAX (or at the cap), its root at depth[k].
@@ -179,7 +176,7 @@ def _balanced_ranges(prims, morton_keys, cluster, first, length, depth) -> tuple
     order = np.lexsort((morton_keys[members], np.repeat(np.arange(len(first)), length)))
     prims[positions] = members[order]
     position_box = np.zeros((len(positions) + 1, 6), np.float32)
-    position_box[:-1] = np.take(cluster, members[order])["box"]
+    np.take(cluster_box, members[order], axis=0, out=position_box[:-1])
     # Level by level: a range longer than LEAF_MAX splits into halves (the first takes the odd
     # one); each node's range is also kept in the compact positions (low)
     levels = []
@@ -290,77 +287,141 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     # Clusters: every primitive (ids 0 .. N - 1), then every merge of two (ids N .. 2N - 2),
     # with boxes as rows (lower, -upper): a union is a minimum
     total = 2 * count - 1
-    cluster = np.empty(total, CLUSTER_DTYPE)
-    cluster_box = cluster["box"]
+    cluster_box = np.empty((total, 6), np.float32)
     cluster_box[:count, :3] = lower32.T
     np.negative(upper32.T, out=cluster_box[:count, 3:])
-    left = np.full(total, -1, np.int32)
-    right = np.full(total, -1, np.int32)
     # The clusters still open, in the Morton order of the primitives' centroids, with their
     # boxes in units of the scene's extent (so that float32 areas neither overflow nor
     # underflow: exact minima of the primitives' scaled boxes)
     morton_keys = _morton_keys(0.5 * (lower32 + upper32))
     active = (np.sort(morton_keys) & np.uint64(0xFFFFFFFF)).astype(np.int32)
     boxes = np.empty((6, count), np.float32)
-    boxes[:3] = np.take(lower32, active, axis=1)
-    boxes[3:] = np.negative(np.take(upper32, active, axis=1))
+    np.take(lower32, active, axis=1, out=boxes[:3])
+    np.take(upper32, active, axis=1, out=boxes[3:])
+    np.negative(boxes[3:], out=boxes[3:])
     scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
     boxes *= np.float32(1.0 / max(scene_extent, 1e-30))
+    children, rounds, root = _merge_rounds(boxes, active)
+    del boxes
+    size, height, leaf = _bottom_up(cluster_box, children, rounds)
+    start, depth, in_tree, split, rebuilt = _top_down(children, rounds, root, size, height, leaf)
+    prims = np.empty(count, np.uint32)
+    prims[start[:count]] = np.arange(count, dtype=np.uint32)
+    # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
+    # then the balanced trees' ranges
+    clusters = np.flatnonzero(in_tree & ~rebuilt)
+    parts = [
+        (depth[clusters], start[clusters], size[clusters], split[clusters], cluster_box[clusters])
+    ]
+    roots = np.flatnonzero(rebuilt)
+    if len(roots):
+        parts.append(
+            _balanced_ranges(
+                prims, morton_keys, cluster_box, start[roots], size[roots], depth[roots]
+            )
+        )
+    return _breadth_first_nodes(parts, count), prims
+
+
+def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
+    """PLOC's merge rounds over the clusters `active` (ids, in Morton order; boxes: 6 rows,
+    lower then -upper, float32, in units where areas neither overflow nor underflow): mutually
+    nearest clusters merge (the merge takes the first one's place and the next cluster id,
+    N, N + 1, ...) until one is left. Returns (children, rounds, root): children (N - 1, 2) of
+    each merge; rounds, (first, end) cluster ids of each round's merges; the last cluster.
+    Overwrites boxes and active."""
+    count = len(active)
+    children = np.empty((max(count - 1, 0), 2), np.int32)
     work = np.empty((7, count), np.float32)
     numbers = np.arange(count, dtype=np.int32)
-    # Merge rounds: mutual nearest clusters merge (the merge takes the first one's place)
-    round_first = [count]  # first cluster id of each round's merges, then the next id
-    while len(active) > 1:
-        index = numbers[: len(active)]
-        nearest, area = _nearest_clusters(boxes, work, index)
-        lead = np.flatnonzero((nearest[nearest] == index) & (nearest > index))
+    kept = np.empty(count, bool)
+    rounds = []
+    first = count  # the next merge's cluster id
+    n = count
+    while n > 1:
+        index = numbers[:n]
+        nearest, area = _nearest_clusters(boxes[:, :n], work, index)
+        lead = np.flatnonzero((np.take(nearest, nearest) == index) & (nearest > index))
         if len(lead) == 0:  # no mutual pair (ties): the closest pair merges
             closest = int(np.argmin(area))
             lead = np.array([min(closest, nearest[closest])])
             nearest[lead] = max(closest, nearest[closest])
-        partner = nearest[lead]
-        merged = slice(round_first[-1], round_first[-1] + len(lead))
-        left[merged], right[merged] = active[lead], active[partner]
-        boxes[:, lead] = np.minimum(np.take(boxes, lead, axis=1), np.take(boxes, partner, axis=1))
-        active[lead] = np.arange(merged.start, merged.stop)
-        keep = np.ones(len(active), bool)
+        partner = np.take(nearest, lead)
+        end = first + len(lead)
+        np.take(active[:n], lead, out=children[first - count : end - count, 0])
+        np.take(active[:n], partner, out=children[first - count : end - count, 1])
+        union = np.minimum(
+            np.take(boxes[:, :n], lead, axis=1), np.take(boxes[:, :n], partner, axis=1)
+        )
+        boxes[:, lead] = union
+        active[lead] = numbers[first - count : end - count] + count
+        # Compaction in place: a kept cluster moves to the same or a lower position
+        keep = kept[:n]
+        keep[:] = True
         keep[partner] = False
-        active, boxes = active[keep], np.compress(keep, boxes, axis=1)
-        round_first.append(round_first[-1] + len(lead))
-    rounds = list(zip(round_first[:-1], round_first[1:], strict=True))
-    # Bottom up, a round at a time: the merged clusters' boxes and sizes; leaves where the SAH
-    # finds them cheaper than their subtree, and the subtrees' heights (leaves 0)
-    cluster["size"][:count] = 1
-    cluster["height"][:count] = 0
-    cluster["cost"][:count] = _half_area(cluster_box[:count])  # a leaf of one
+        m = n - len(lead)
+        np.compress(keep, active[:n], out=active[:m])
+        for row in boxes:
+            np.compress(keep, row[:n], out=row[:m])
+        rounds.append((first, end))
+        first, n = end, m
+    return children, rounds, int(active[0])
+
+
+def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> tuple:
+    """Bottom up, a round at a time: the merged clusters' boxes (into cluster_box) and sizes;
+    leaves where the SAH finds them cheaper than their subtree, and the subtrees' heights
+    (leaves 0). Returns (size, height, leaf) of every cluster."""
+    total = len(cluster_box)
+    count = total - len(children)
+    size = np.empty(total, np.int32)
+    size[:count] = 1
+    height = np.zeros(total, np.int32)
     leaf = np.ones(total, bool)
+    cost = np.empty(total, np.float64)
+    cost[:count] = _half_area(cluster_box[:count])  # a leaf of one
     for first, end in rounds:
-        merged = slice(first, end)
-        below_left, below_right = np.take(cluster, left[merged]), np.take(cluster, right[merged])
-        box = np.minimum(below_left["box"], below_right["box"])
-        size = below_left["size"] + below_right["size"]
+        below = children[first - count : end - count]
+        below_left, below_right = below[:, 0], below[:, 1]
+        box = cluster_box[first:end]
+        np.minimum(
+            np.take(cluster_box, below_left, axis=0),
+            np.take(cluster_box, below_right, axis=0),
+            out=box,
+        )
+        merged_size = size[first:end]
+        np.add(np.take(size, below_left), np.take(size, below_right), out=merged_size)
         area = _half_area(box)
-        subtree = TRAVERSAL_COST * area + below_left["cost"] + below_right["cost"]
-        as_leaf = np.where(size <= LEAF_MAX, size * area, np.inf)
-        is_leaf = leaf[merged] = as_leaf <= subtree
-        below = np.maximum(below_left["height"], below_right["height"])
-        record = cluster[merged]
-        record["box"], record["size"] = box, size
-        record["cost"], record["height"] = np.minimum(as_leaf, subtree), (1 + below) * ~is_leaf
-    size, height = cluster["size"], cluster["height"]
-    # Top down, a round at a time: each cluster's first position in `prims` (its left child's
-    # first) and depth; the tree's nodes (below no leaf) and those split. A node whose subtree
-    # exceeds the depth cap and one of whose children could not be fitted either (too deep
-    # itself and too large to rebuild) is rebuilt as a balanced tree over its primitives.
+        subtree = TRAVERSAL_COST * area
+        subtree += np.take(cost, below_left)
+        subtree += np.take(cost, below_right)
+        as_leaf = np.where(merged_size <= LEAF_MAX, merged_size * area, np.inf)
+        is_leaf = leaf[first:end] = as_leaf <= subtree
+        np.minimum(as_leaf, subtree, out=cost[first:end])
+        higher = np.maximum(np.take(height, below_left), np.take(height, below_right)) + 1
+        higher[is_leaf] = 0
+        height[first:end] = higher
+    return size, height, leaf
+
+
+def _top_down(children, rounds, root, size, height, leaf) -> tuple:
+    """Top down, a round at a time: each cluster's first position in `prims` (its left child's
+    first) and depth; the tree's nodes (below no leaf) and those split. A node whose subtree
+    exceeds the depth cap and one of whose children could not be fitted either (too deep
+    itself and too large to rebuild) is rebuilt as a balanced tree over its primitives.
+    Returns (start, depth, in_tree, split, rebuilt) of every cluster."""
+    total = len(size)
+    count = total - len(children)
     start = np.zeros(total, np.int32)
     depth = np.zeros(total, np.int32)
     in_tree = np.zeros(total, bool)
-    in_tree[active[0]] = True
+    in_tree[root] = True
     split = np.zeros(total, bool)
     rebuilt = np.zeros(total, bool)
     for first, end in reversed(rounds):
         merged = slice(first, end)
-        below_left, below_right = left[merged], right[merged]
+        below = children[first - count : end - count]
+        below_left, below_right = below[:, 0], below[:, 1]
         room = BVH_MAX_DEPTH - depth[merged]
         deep = in_tree[merged] & (height[merged] > room)
         if deep.any():
@@ -374,34 +435,27 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
         depth[below_left] = depth[below_right] = depth[merged] + 1
         start[below_left] = start[merged]
         start[below_right] = start[merged] + size[below_left]
-    prims = np.empty(count, np.uint32)
-    prims[start[:count]] = np.arange(count, dtype=np.uint32)
-    # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
-    # then the balanced trees' ranges
-    clusters = np.flatnonzero(in_tree & ~rebuilt)
-    parts = [(depth[clusters], start[clusters], size[clusters], split[clusters], None, clusters)]
-    roots = np.flatnonzero(rebuilt)
-    if len(roots):
-        ranges = _balanced_ranges(
-            prims, morton_keys, cluster, start[roots], size[roots], depth[roots]
-        )
-        parts.append((*ranges, None))
+    return start, depth, in_tree, split, rebuilt
+
+
+def _breadth_first_nodes(parts: list, count: int) -> np.ndarray:
+    """BINARY_NODE_DTYPE nodes from parts of (depth, first, length, split, boxes (n, 6)) records,
+    put breadth first: by depth, then by first position (a level's ranges are disjoint); so the
+    k-th split node's children are nodes 2k + 1 and 2k + 2."""
     nodes = sum(len(part[0]) for part in parts)
     record = np.empty((nodes, 8), np.float32)
     words = record.view(np.int32)
     node_depth, node_first = np.empty(nodes, np.int32), np.empty(nodes, np.int32)
     end = 0
-    for node_level, first, length, is_split, box, ids in parts:
+    for node_level, first, length, is_split, box in parts:
         rows = slice(end, end + len(first))
         end = rows.stop
-        box = np.take(cluster, ids)["box"] if box is None else box
         record[rows, 0:3] = box[:, :3]
         np.negative(box[:, 3:], out=record[rows, 4:7])
         words[rows, 3] = first
         words[rows, 7] = np.where(is_split, -1, length)
         node_depth[rows], node_first[rows] = node_level, first
-    # Breadth first: by depth, then by first position (a level's ranges are disjoint); so the
-    # k-th split node's children are nodes 2k + 1 and 2k + 2. One sort of packed keys.
+    # One sort of packed keys
     bits = max(count, nodes).bit_length()
     if 2 * bits + BVH_MAX_DEPTH.bit_length() < 64:
         key = (node_depth.astype(np.int64) << bits | node_first) << bits | np.arange(nodes)
@@ -417,4 +471,4 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
     words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
     words[parents, 7] = -1 - widest
-    return record.view(BINARY_NODE_DTYPE).reshape(-1), prims
+    return record.view(BINARY_NODE_DTYPE).reshape(-1)
