@@ -76,9 +76,11 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _half_area(box: np.ndarray) -> np.ndarray:
-    """Half the surface area (float64) of boxes (n, 6): lower, -upper."""
-    x, y, z = ((-box[:, 3 + axis] - box[:, axis]).astype(np.float64) for axis in range(3))
-    return x * y + y * z + z * x
+    """Half the surface area (float64) of boxes as 6 rows: lower, -upper."""
+    x, y, z = (np.add(box[axis], box[3 + axis], dtype=np.float64) for axis in range(3))
+    area = x * y
+    area += (x + y) * z
+    return area
 
 
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -110,35 +112,39 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
 KEY_BITS = 4
 # The key's low bits hold the step (1 .. PLOC_RADIUS) above one side bit
 assert PLOC_RADIUS < 2 ** (KEY_BITS - 1), "PLOC_RADIUS does not fit the merge keys' KEY_BITS"
+NEAREST_ROWS = 11  # rows of _nearest_clusters' scratch
 
 
-def _nearest_clusters(boxes: np.ndarray, work: np.ndarray, index: np.ndarray) -> tuple:
+def _nearest_clusters(
+    boxes: np.ndarray, work: np.ndarray, index: np.ndarray, radius: int = PLOC_RADIUS
+) -> tuple:
     """For clusters in Morton order with boxes (6 rows: lower, -upper, float32, in units where
-    areas do not overflow), the index of each one's nearest among the PLOC_RADIUS clusters
+    areas do not overflow), the index of each one's nearest among the `radius` clusters
     before and after it, the one whose union with it has the least surface area, and that
     area (its last KEY_BITS bits zero). Ties (areas equal but for those bits) go to the closer
     in the order, then (same distance) an even index looks forwards and an odd one backwards,
-    so equal boxes pair up (2k, 2k + 1). work: float32 scratch of at least (7, clusters);
+    so equal boxes pair up (2k, 2k + 1). work: float32 scratch of at least (NEAREST_ROWS,
+    clusters), which holds the two results (int32, float32 rows: valid until its next use);
     index: int32 0, 1, 2, ... (at least as many)."""
     n = boxes.shape[1]
     index = index[:n]
-    parity = index & 1
+    union, area, product = work[:6], work[6], work[3]
+    best, nearest, sign, parity = (work[row, :n].view(np.int32) for row in range(7, 11))
+    np.bitwise_and(index, 1, out=parity)
     # One int32 key per candidate, least for the nearest: the area's float32 bits (ordered as
     # integers, areas being >= 0) with the last KEY_BITS bits: the distance, then 0 on the
     # preferred side
-    best = np.full(n, np.iinfo(np.int32).max, np.int32)
+    best.fill(np.iinfo(np.int32).max)
     low_bits = (1 << KEY_BITS) - 1
-    for step in range(1, min(PLOC_RADIUS, n - 1) + 1):
+    for step in range(1, min(radius, n - 1) + 1):
         count = n - step
         # Union of cluster i and cluster i + step, and minus its extent
-        union = work[:6, :count]
-        np.minimum(boxes[:, :count], boxes[:, step:], out=union)
-        extent = np.add(union[:3], union[3:], out=union[:3])
-        area, product = work[6, :count], work[3, :count]
-        np.multiply(extent[0], extent[1], out=area)
-        area += np.multiply(extent[1], extent[2], out=product)
-        area += np.multiply(extent[2], extent[0], out=product)
-        key = area.view(np.int32)
+        np.minimum(boxes[:, :count], boxes[:, step:], out=union[:, :count])
+        extent = np.add(union[:3, :count], union[3:, :count], out=union[:3, :count])
+        np.multiply(extent[0], extent[1], out=area[:count])
+        area[:count] += np.multiply(extent[1], extent[2], out=product[:count])
+        area[:count] += np.multiply(extent[2], extent[0], out=product[:count])
+        key = area[:count].view(np.int32)
         key |= low_bits
         key -= low_bits - (step << 1)
         key |= parity[:count]  # i looks forwards: preferred if even
@@ -148,15 +154,16 @@ def _nearest_clusters(boxes: np.ndarray, work: np.ndarray, index: np.ndarray) ->
         np.minimum(best[step:], key, out=best[step:])
     # nearest: i + step, or i - step where the key's side is not i's preferred one (integer
     # arithmetic: many times faster than np.where here)
-    nearest = best >> 1
+    np.right_shift(best, 1, out=nearest)
     nearest &= low_bits >> 1
-    sign = best & 1
+    np.bitwise_and(best, 1, out=sign)
     sign ^= parity
     sign *= -2
     sign += 1
     nearest *= sign
     nearest += index
-    return nearest, (best & ~low_bits).view(np.float32)
+    nearest_area = np.bitwise_and(best, ~low_bits, out=sign)
+    return nearest, nearest_area.view(np.float32)
 
 
 def _balanced_height(size: np.ndarray) -> np.ndarray:
@@ -164,19 +171,19 @@ def _balanced_height(size: np.ndarray) -> np.ndarray:
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
 
 
-def _balanced_ranges(prims, morton_keys, cluster_box, first, length, depth) -> tuple:
+def _balanced_ranges(ranks, cluster_box, first, length, depth) -> tuple:
     """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
-    primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) by their
-    morton_keys and halved until at most LEAF_MAX (or at the cap), its root at depth[k].
-    Returns the nodes' (depth, first, length, split, boxes (nodes, 6)), in no order."""
-    # The subtrees' positions in `prims`, one after the other (a spare column at the end)
+    primitives (their Morton ranks), ranks[first[k] .. first[k] + length[k] - 1], sorted (in
+    place) and halved until at most LEAF_MAX (or at the cap), its root at depth[k]. Returns
+    the nodes' (depth, first, length, split, boxes (6 rows)), in no order."""
+    # The subtrees' positions in `ranks`, one after the other (a spare column at the end)
     ends = np.cumsum(length)
     positions = np.arange(ends[-1]) + np.repeat(first - (ends - length), length)
-    members = prims[positions]
-    order = np.lexsort((morton_keys[members], np.repeat(np.arange(len(first)), length)))
-    prims[positions] = members[order]
-    position_box = np.zeros((len(positions) + 1, 6), np.float32)
-    np.take(cluster_box, members[order], axis=0, out=position_box[:-1])
+    members = ranks[positions]
+    members = members[np.lexsort((members, np.repeat(np.arange(len(first)), length)))]
+    ranks[positions] = members
+    position_box = np.zeros((6, len(positions) + 1), np.float32)
+    np.take(cluster_box, members, axis=1, out=position_box[:, :-1])
     # Level by level: a range longer than LEAF_MAX splits into halves (the first takes the odd
     # one); each node's range is also kept in the compact positions (low)
     levels = []
@@ -194,7 +201,7 @@ def _balanced_ranges(prims, morton_keys, cluster_box, first, length, depth) -> t
     )
     # Boxes: one reduceat over (low, high) pairs, the second of each pair discarded
     bounds = np.stack([low, low + length], axis=1).reshape(-1)
-    box = np.minimum.reduceat(position_box, bounds, axis=0)[::2]
+    box = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
     return depth, first, length, split, box
 
 
@@ -284,42 +291,45 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     if count == 0:
         return np.zeros(0, BINARY_NODE_DTYPE), np.zeros(0, np.uint32)
     lower32, upper32 = padded_bounds(lower, upper)
-    # Clusters: every primitive (ids 0 .. N - 1), then every merge of two (ids N .. 2N - 2),
-    # with boxes as rows (lower, -upper): a union is a minimum
+    # The primitives in the Morton order of their centroids (their ranks: cluster ids 0 .. N -
+    # 1, so that merges gather nearby boxes), then every merge of two (ids N .. 2N - 2), with
+    # boxes as 6 rows (lower, -upper): a union is a minimum
+    primitive = (np.sort(_morton_keys(0.5 * (lower32 + upper32))) & np.uint64(0xFFFFFFFF)).astype(
+        np.int32
+    )
     total = 2 * count - 1
-    cluster_box = np.empty((total, 6), np.float32)
-    cluster_box[:count, :3] = lower32.T
-    np.negative(upper32.T, out=cluster_box[:count, 3:])
-    # The clusters still open, in the Morton order of the primitives' centroids, with their
-    # boxes in units of the scene's extent (so that float32 areas neither overflow nor
-    # underflow: exact minima of the primitives' scaled boxes)
-    morton_keys = _morton_keys(0.5 * (lower32 + upper32))
-    active = (np.sort(morton_keys) & np.uint64(0xFFFFFFFF)).astype(np.int32)
-    boxes = np.empty((6, count), np.float32)
-    np.take(lower32, active, axis=1, out=boxes[:3])
-    np.take(upper32, active, axis=1, out=boxes[3:])
-    np.negative(boxes[3:], out=boxes[3:])
-    scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
-    boxes *= np.float32(1.0 / max(scene_extent, 1e-30))
-    children, rounds, root = _merge_rounds(boxes, active)
+    cluster_box = np.empty((6, total), np.float32)
+    np.take(lower32, primitive, axis=1, out=cluster_box[:3, :count])
+    np.take(upper32, primitive, axis=1, out=cluster_box[3:, :count])
+    np.negative(cluster_box[3:, :count], out=cluster_box[3:, :count])
+    del lower32, upper32
+    # The merge rounds' boxes in units of the scene's extent (so that float32 areas neither
+    # overflow nor underflow: exact minima of the primitives' scaled boxes)
+    low = cluster_box[:, :count].min(axis=1)
+    scene_extent = float((-low[3:] - low[:3]).max())
+    boxes = np.multiply(cluster_box[:, :count], np.float32(1.0 / max(scene_extent, 1e-30)))
+    children, rounds, root = _merge_rounds(boxes, np.arange(count, dtype=np.int32))
     del boxes
     size, height, leaf = _bottom_up(cluster_box, children, rounds)
     start, depth, in_tree, split, rebuilt = _top_down(children, rounds, root, size, height, leaf)
-    prims = np.empty(count, np.uint32)
-    prims[start[:count]] = np.arange(count, dtype=np.uint32)
+    ranks = np.empty(count, np.int32)
+    ranks[start[:count]] = np.arange(count, dtype=np.int32)
     # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
     # then the balanced trees' ranges
     clusters = np.flatnonzero(in_tree & ~rebuilt)
     parts = [
-        (depth[clusters], start[clusters], size[clusters], split[clusters], cluster_box[clusters])
+        (
+            depth[clusters],
+            start[clusters],
+            size[clusters],
+            split[clusters],
+            np.take(cluster_box, clusters, axis=1),
+        )
     ]
     roots = np.flatnonzero(rebuilt)
     if len(roots):
-        parts.append(
-            _balanced_ranges(
-                prims, morton_keys, cluster_box, start[roots], size[roots], depth[roots]
-            )
-        )
+        parts.append(_balanced_ranges(ranks, cluster_box, start[roots], size[roots], depth[roots]))
+    prims = np.take(primitive, ranks).view(np.uint32)
     return _breadth_first_nodes(parts, count), prims
 
 
@@ -332,8 +342,11 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
     Overwrites boxes and active."""
     count = len(active)
     children = np.empty((max(count - 1, 0), 2), np.int32)
-    work = np.empty((7, count), np.float32)
+    work = np.empty((NEAREST_ROWS, count), np.float32)
     numbers = np.arange(count, dtype=np.int32)
+    # The next round's boxes and each cluster's partner (itself if it does not merge)
+    next_boxes = np.empty_like(boxes)
+    partner_of = np.empty(count, np.int32)
     kept = np.empty(count, bool)
     rounds = []
     first = count  # the next merge's cluster id
@@ -348,21 +361,24 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
             nearest[lead] = max(closest, nearest[closest])
         partner = np.take(nearest, lead)
         end = first + len(lead)
-        np.take(active[:n], lead, out=children[first - count : end - count, 0])
-        np.take(active[:n], partner, out=children[first - count : end - count, 1])
-        union = np.minimum(
-            np.take(boxes[:, :n], lead, axis=1), np.take(boxes[:, :n], partner, axis=1)
-        )
-        boxes[:, lead] = union
+        np.take(active, lead, out=children[first - count : end - count, 0])
+        np.take(active, partner, out=children[first - count : end - count, 1])
         active[lead] = numbers[first - count : end - count] + count
-        # Compaction in place: a kept cluster moves to the same or a lower position
+        # The clusters left, in order (a merge in the place of its first): their boxes, the
+        # union of their own and their partner's
         keep = kept[:n]
-        keep[:] = True
+        keep.fill(True)
         keep[partner] = False
-        m = n - len(lead)
-        np.compress(keep, active[:n], out=active[:m])
-        for row in boxes:
-            np.compress(keep, row[:n], out=row[:m])
+        left = np.flatnonzero(keep)
+        m = len(left)
+        pairs = partner_of[:n]
+        pairs[:] = index
+        pairs[lead] = partner
+        other = np.take(pairs, left)
+        for row, next_row in zip(boxes, next_boxes, strict=True):
+            np.minimum(np.take(row[:n], left), np.take(row[:n], other), out=next_row[:m])
+        active = np.take(active, left)
+        boxes, next_boxes = next_boxes, boxes
         rounds.append((first, end))
         first, n = end, m
     return children, rounds, int(active[0])
@@ -372,21 +388,21 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
     """Bottom up, a round at a time: the merged clusters' boxes (into cluster_box) and sizes;
     leaves where the SAH finds them cheaper than their subtree, and the subtrees' heights
     (leaves 0). Returns (size, height, leaf) of every cluster."""
-    total = len(cluster_box)
+    total = cluster_box.shape[1]
     count = total - len(children)
     size = np.empty(total, np.int32)
     size[:count] = 1
     height = np.zeros(total, np.int32)
     leaf = np.ones(total, bool)
     cost = np.empty(total, np.float64)
-    cost[:count] = _half_area(cluster_box[:count])  # a leaf of one
+    cost[:count] = _half_area(cluster_box[:, :count])  # a leaf of one
     for first, end in rounds:
         below = children[first - count : end - count]
         below_left, below_right = below[:, 0], below[:, 1]
-        box = cluster_box[first:end]
+        box = cluster_box[:, first:end]
         np.minimum(
-            np.take(cluster_box, below_left, axis=0),
-            np.take(cluster_box, below_right, axis=0),
+            np.take(cluster_box, below_left, axis=1),
+            np.take(cluster_box, below_right, axis=1),
             out=box,
         )
         merged_size = size[first:end]
@@ -439,7 +455,7 @@ def _top_down(children, rounds, root, size, height, leaf) -> tuple:
 
 
 def _breadth_first_nodes(parts: list, count: int) -> np.ndarray:
-    """BINARY_NODE_DTYPE nodes from parts of (depth, first, length, split, boxes (n, 6)) records,
+    """BINARY_NODE_DTYPE nodes from parts of (depth, first, length, split, boxes (6 rows)) records,
     put breadth first: by depth, then by first position (a level's ranges are disjoint); so the
     k-th split node's children are nodes 2k + 1 and 2k + 2."""
     nodes = sum(len(part[0]) for part in parts)
@@ -450,8 +466,8 @@ def _breadth_first_nodes(parts: list, count: int) -> np.ndarray:
     for node_level, first, length, is_split, box in parts:
         rows = slice(end, end + len(first))
         end = rows.stop
-        record[rows, 0:3] = box[:, :3]
-        np.negative(box[:, 3:], out=record[rows, 4:7])
+        record[rows, 0:3] = box[:3].T
+        np.negative(box[3:].T, out=record[rows, 4:7])
         words[rows, 3] = first
         words[rows, 7] = np.where(is_split, -1, length)
         node_depth[rows], node_first[rows] = node_level, first

@@ -19,6 +19,7 @@ from clrender.bvh import (
     BVH_WIDTH,
     KEY_BITS,
     LEAF_MAX,
+    NEAREST_ROWS,
     PLOC_RADIUS,
     TRAVERSAL_COST,
     _morton_keys,
@@ -594,7 +595,7 @@ def test_nearest_clusters_match_a_pairwise_search():
     low[40:60], high[40:60] = low[40], high[40]  # a run of equal boxes
     boxes = np.concatenate([low.T, -high.T])
     nearest, area = _nearest_clusters(
-        boxes, np.empty((7, 120), np.float32), np.arange(120, dtype=np.int32)
+        boxes, np.empty((NEAREST_ROWS, 120), np.float32), np.arange(120, dtype=np.int32)
     )
     for i in range(120):
         candidates = []
