@@ -171,40 +171,6 @@ def _balanced_height(size: np.ndarray) -> np.ndarray:
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
 
 
-def _balanced_ranges(ranks, cluster_box, first, length, depth) -> tuple:
-    """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
-    primitives (their Morton ranks), ranks[first[k] .. first[k] + length[k] - 1], sorted (in
-    place) and halved until at most LEAF_MAX (or at the cap), its root at depth[k]. Returns
-    the nodes' (depth, first, length, split, boxes (6 rows)), in no order."""
-    # The subtrees' positions in `ranks`, one after the other (a spare column at the end)
-    ends = np.cumsum(length)
-    positions = np.arange(ends[-1]) + np.repeat(first - (ends - length), length)
-    members = ranks[positions]
-    members = members[np.lexsort((members, np.repeat(np.arange(len(first)), length)))]
-    ranks[positions] = members
-    position_box = np.zeros((6, len(positions) + 1), np.float32)
-    np.take(cluster_box, members, axis=1, out=position_box[:, :-1])
-    # Level by level: a range longer than LEAF_MAX splits into halves (the first takes the odd
-    # one); each node's range is also kept in the compact positions (low)
-    levels = []
-    low = ends - length
-    while len(first):
-        split = (length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
-        levels.append((depth, first, length, split, low))
-        half = (length[split] + 1) // 2
-        first = np.stack([first[split], first[split] + half], axis=1).reshape(-1)
-        low = np.stack([low[split], low[split] + half], axis=1).reshape(-1)
-        length = np.stack([half, length[split] - half], axis=1).reshape(-1)
-        depth = np.repeat(depth[split] + 1, 2)
-    depth, first, length, split, low = (
-        np.concatenate(column) for column in zip(*levels, strict=True)
-    )
-    # Boxes: one reduceat over (low, high) pairs, the second of each pair discarded
-    bounds = np.stack([low, low + length], axis=1).reshape(-1)
-    box = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
-    return depth, first, length, split, box
-
-
 def sah_cost(nodes: np.ndarray) -> float:
     """A binary tree's (BINARY_NODE_DTYPE) surface-area-heuristic cost: interior nodes' areas x
     TRAVERSAL_COST plus leaves' areas x their primitives, over the root's area."""
@@ -311,26 +277,24 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     children, rounds, root = _merge_rounds(boxes, np.arange(count, dtype=np.int32))
     del boxes
     size, height, leaf = _bottom_up(cluster_box, children, rounds)
-    start, depth, in_tree, split, rebuilt = _top_down(children, rounds, root, size, height, leaf)
-    ranks = np.empty(count, np.int32)
-    ranks[start[:count]] = np.arange(count, dtype=np.int32)
-    # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
-    # then the balanced trees' ranges
-    clusters = np.flatnonzero(in_tree & ~rebuilt)
-    parts = [
-        (
-            depth[clusters],
-            start[clusters],
-            size[clusters],
-            split[clusters],
-            np.take(cluster_box, clusters, axis=1),
-        )
-    ]
-    roots = np.flatnonzero(rebuilt)
-    if len(roots):
-        parts.append(_balanced_ranges(ranks, cluster_box, start[roots], size[roots], depth[roots]))
+    # Each primitive's position in the leaves' order (a cluster's primitives follow each other,
+    # its left child's first), and the tree's nodes breadth first
+    ranks = _leaf_order(children, rounds, root, size)
+    cluster, first, length, split = _tree_levels(children, root, size, height, leaf)
+    # The nodes' boxes: the clusters', and for a balanced tree's node the union of its range
+    # (a rebuilt subtree's primitives sorted by rank, their Morton order)
+    box = np.take(cluster_box, cluster, axis=1)
+    ranged = np.flatnonzero(cluster < 0)
+    if len(ranged):
+        roots = ranged[(cluster[ranged] == REBUILT_ROOT)]
+        for start, end in zip(first[roots], first[roots] + length[roots], strict=True):
+            ranks[start:end].sort()
+        position_box = np.empty((6, count + 1), np.float32)  # a spare column at the end
+        np.take(cluster_box, ranks, axis=1, out=position_box[:, :-1])
+        bounds = np.stack([first[ranged], first[ranged] + length[ranged]], axis=1).reshape(-1)
+        box[:, ranged] = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
     prims = np.take(primitive, ranks).view(np.uint32)
-    return _breadth_first_nodes(parts, count), prims
+    return _binary_nodes(box, first, length, split), prims
 
 
 def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
@@ -420,70 +384,89 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
     return size, height, leaf
 
 
-def _top_down(children, rounds, root, size, height, leaf) -> tuple:
-    """Top down, a round at a time: each cluster's first position in `prims` (its left child's
-    first) and depth; the tree's nodes (below no leaf) and those split. A node whose subtree
-    exceeds the depth cap and one of whose children could not be fitted either (too deep
-    itself and too large to rebuild) is rebuilt as a balanced tree over its primitives.
-    Returns (start, depth, in_tree, split, rebuilt) of every cluster."""
-    total = len(size)
-    count = total - len(children)
-    start = np.zeros(total, np.int32)
-    depth = np.zeros(total, np.int32)
-    in_tree = np.zeros(total, bool)
-    in_tree[root] = True
-    split = np.zeros(total, bool)
-    rebuilt = np.zeros(total, bool)
+def _leaf_order(children: np.ndarray, rounds: list, root: int, size: np.ndarray) -> np.ndarray:
+    """Top down, a round at a time: each cluster's first position in the leaves' order (its
+    left child's first, its right child's after the left's primitives). Returns the
+    primitives (cluster ids 0 .. N - 1) in that order."""
+    count = len(size) - len(children)
+    start = np.empty(len(size), np.int32)
+    start[root] = 0
     for first, end in reversed(rounds):
-        merged = slice(first, end)
         below = children[first - count : end - count]
-        below_left, below_right = below[:, 0], below[:, 1]
-        room = BVH_MAX_DEPTH - depth[merged]
-        deep = in_tree[merged] & (height[merged] > room)
-        if deep.any():
-            fits = [
-                np.minimum(height[child], _balanced_height(size[child])) < room
-                for child in (below_left, below_right)
-            ]
-            rebuilt[merged] = deep & ~(fits[0] & fits[1])
-        split[merged] = in_tree[merged] & ~leaf[merged] & ~rebuilt[merged] & (room > 0)
-        in_tree[below_left] = in_tree[below_right] = split[merged]
-        depth[below_left] = depth[below_right] = depth[merged] + 1
-        start[below_left] = start[merged]
-        start[below_right] = start[merged] + size[below_left]
-    return start, depth, in_tree, split, rebuilt
+        below_left = below[:, 0]
+        merged_start = start[first:end]
+        start[below_left] = merged_start
+        start[below[:, 1]] = merged_start + np.take(size, below_left)
+    ranks = np.empty(count, np.int32)
+    ranks[start[:count]] = np.arange(count, dtype=np.int32)
+    return ranks
 
 
-def _breadth_first_nodes(parts: list, count: int) -> np.ndarray:
-    """BINARY_NODE_DTYPE nodes from parts of (depth, first, length, split, boxes (6 rows)) records,
-    put breadth first: by depth, then by first position (a level's ranges are disjoint); so the
-    k-th split node's children are nodes 2k + 1 and 2k + 2."""
-    nodes = sum(len(part[0]) for part in parts)
+# A node of a balanced tree (_tree_levels' cluster): the root of one, other nodes of one
+REBUILT_ROOT, BALANCED_NODE = -1, -2
+
+
+def _tree_levels(children, root, size, height, leaf) -> tuple:
+    """Top down, a level at a time: the tree's nodes breadth first, (cluster, first, length,
+    split) each (cluster REBUILT_ROOT or BALANCED_NODE for a balanced tree's; first, length:
+    its range of the leaves' order), a level's nodes in order of position, the children of a
+    split node next to each other; so the k-th split node's children are nodes 2k + 1, 2k + 2.
+    A cluster whose subtree exceeds the depth cap and one of whose children could not be
+    fitted either (too deep itself and too large to rebuild) is rebuilt as a balanced tree
+    over its primitives, halved until at most LEAF_MAX (or at the cap)."""
+    count = len(size) - len(children)
+    cluster = np.array([root], np.int32)
+    first = np.zeros(1, np.int32)
+    length = size[cluster]
+    levels = []
+    for depth in range(BVH_MAX_DEPTH + 1):
+        room = BVH_MAX_DEPTH - depth
+        ranged = cluster < 0
+        merged = np.maximum(cluster, 0)  # clusters (primitives are leaves: never split)
+        deep = np.flatnonzero((np.take(height, merged) > room) & ~ranged)
+        if len(deep):
+            below = children[cluster[deep] - count]
+            fits = np.minimum(height[below], _balanced_height(size[below])) < room
+            rebuilt = deep[~fits.all(axis=1)]
+            cluster[rebuilt] = REBUILT_ROOT
+            ranged[rebuilt] = True
+        is_leaf = np.take(leaf, merged)
+        is_leaf[ranged] = length[ranged] <= LEAF_MAX
+        split = ~is_leaf if room > 0 else np.zeros(len(cluster), bool)
+        levels.append((cluster, first, length, split))
+        parents = np.flatnonzero(split)
+        if len(parents) == 0:
+            break
+        # The next level: each split node's two children (a balanced tree's: the halves of its
+        # range, the first taking the odd one)
+        parent_first, parent_length = first[parents], length[parents]
+        below = children[np.maximum(cluster[parents] - count, 0)]
+        left_length = np.take(size, below[:, 0])
+        halved = np.flatnonzero(cluster[parents] < 0)
+        if len(halved):
+            below[halved] = BALANCED_NODE
+            left_length[halved] = (parent_length[halved] + 1) // 2
+        cluster = below.reshape(-1)
+        first = np.stack([parent_first, parent_first + left_length], axis=1).reshape(-1)
+        length = np.stack([left_length, parent_length - left_length], axis=1).reshape(-1)
+    return tuple(np.concatenate(column) for column in zip(*levels, strict=True))
+
+
+def _binary_nodes(box, first, length, split) -> np.ndarray:
+    """BINARY_NODE_DTYPE nodes, breadth first, from their boxes (6 rows: lower, -upper),
+    ranges of `prims` (first, length) and whether they are split (the k-th split node's
+    children being nodes 2k + 1, 2k + 2)."""
+    nodes = len(first)
     record = np.empty((nodes, 8), np.float32)
     words = record.view(np.int32)
-    node_depth, node_first = np.empty(nodes, np.int32), np.empty(nodes, np.int32)
-    end = 0
-    for node_level, first, length, is_split, box in parts:
-        rows = slice(end, end + len(first))
-        end = rows.stop
-        record[rows, 0:3] = box[:3].T
-        np.negative(box[3:].T, out=record[rows, 4:7])
-        words[rows, 3] = first
-        words[rows, 7] = np.where(is_split, -1, length)
-        node_depth[rows], node_first[rows] = node_level, first
-    # One sort of packed keys
-    bits = max(count, nodes).bit_length()
-    if 2 * bits + BVH_MAX_DEPTH.bit_length() < 64:
-        key = (node_depth.astype(np.int64) << bits | node_first) << bits | np.arange(nodes)
-        order = np.sort(key) & ((1 << bits) - 1)
-    else:
-        order = np.lexsort((node_first, node_depth))
-    record = np.take(record.view(np.dtype((np.void, 32))).reshape(-1), order)
-    words = record.view(np.int32).reshape(nodes, 8)
-    # Split nodes: first child, and -1 - the axis of largest extent (informative)
-    parents = np.flatnonzero(words[:, 7] < 0)
-    box = np.take(words.view(np.float32), parents, axis=0)
-    x, y, z = (box[:, 4 + axis] - box[:, axis] for axis in range(3))
+    record[:, 0:3] = box[:3].T
+    np.negative(box[3:].T, out=record[:, 4:7])
+    # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
+    # (informative)
+    words[:, 3] = first
+    words[:, 7] = length
+    parents = np.flatnonzero(split)
+    x, y, z = (-np.take(box[3 + axis], parents) - np.take(box[axis], parents) for axis in range(3))
     widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
     words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
     words[parents, 7] = -1 - widest
