@@ -70,9 +70,12 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
     of the padding itself, so each box still holds its primitive."""
     lower = np.asarray(lower).T.astype(np.float32, order="C")
     upper = np.asarray(upper).T.astype(np.float32, order="C")
-    magnitude = np.maximum(np.abs(lower).max(axis=0), np.abs(upper).max(axis=0))
-    pad = np.float32(BOUNDS_PADDING) * magnitude + np.float32(1e-30)
-    return lower - pad, upper + pad
+    pad = np.maximum(np.abs(lower).max(axis=0), np.abs(upper).max(axis=0))
+    pad *= np.float32(BOUNDS_PADDING)
+    pad += np.float32(1e-30)
+    lower -= pad
+    upper += pad
+    return lower, upper
 
 
 def _half_area(box: np.ndarray) -> np.ndarray:
@@ -91,6 +94,15 @@ def _spread_bits(q: np.ndarray) -> np.ndarray:
     return (q | (q << np.uint32(2))) & np.uint32(0x09249249)
 
 
+# Each axis' cell index (0 .. 2^MORTON_BITS - 1) spread to its bits of a Morton sort key:
+# bits 32-61, x highest of each triple
+MORTON_SPREAD = [
+    _spread_bits(np.arange(1 << MORTON_BITS, dtype=np.uint32)).astype(np.uint64)
+    << np.uint64(32 + 2 - axis)
+    for axis in range(3)
+]
+
+
 def _morton_keys(centroid: np.ndarray) -> np.ndarray:
     """Unique uint64 sort keys of centroids (3, N): the Morton code of each centroid's cell in
     a grid of 2^MORTON_BITS cells a side over their bounds (bits 32-61, x highest of each
@@ -100,11 +112,14 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
     cells = 1 << MORTON_BITS
     with np.errstate(divide="ignore"):
         scale = np.where(extent > 0.0, cells / extent, 0.0).astype(np.float32)
-    code = np.zeros(centroid.shape[1], np.uint32)
+    keys = np.arange(centroid.shape[1], dtype=np.uint64)
     for axis in range(3):
-        cell = ((centroid[axis] - low[axis]) * scale[axis]).astype(np.uint32)
-        code |= _spread_bits(np.minimum(cell, np.uint32(cells - 1))) << np.uint32(2 - axis)
-    return (code.astype(np.uint64) << np.uint64(32)) | np.arange(len(code), dtype=np.uint64)
+        cell = np.subtract(centroid[axis], low[axis])
+        cell *= scale[axis]
+        cell = cell.astype(np.uint32)
+        np.minimum(cell, np.uint32(cells - 1), out=cell)
+        keys |= np.take(MORTON_SPREAD[axis], cell)
+    return keys
 
 
 # Low bits of an area's float32 bits that _nearest_clusters replaces by the candidate's step
