@@ -316,11 +316,11 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
     """PLOC's merge rounds over the clusters `active` (ids, in Morton order; boxes: 6 rows,
     lower then -upper, float32, in units where areas neither overflow nor underflow): mutually
     nearest clusters merge (the merge takes the first one's place and the next cluster id,
-    N, N + 1, ...) until one is left. Returns (children, rounds, root): children (N - 1, 2) of
-    each merge; rounds, (first, end) cluster ids of each round's merges; the last cluster.
-    Overwrites boxes and active."""
+    N, N + 1, ...) until one is left. Returns (children, rounds, root): children (2, N - 1),
+    each merge's left and right; rounds, (first, end) cluster ids of each round's merges; the
+    last cluster. Overwrites boxes and active."""
     count = len(active)
-    children = np.empty((max(count - 1, 0), 2), np.int32)
+    children = np.empty((2, max(count - 1, 0)), np.int32)
     work = np.empty((NEAREST_ROWS, count), np.float32)
     numbers = np.arange(count, dtype=np.int32)
     # The next round's boxes and each cluster's partner (itself if it does not merge)
@@ -340,8 +340,8 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
             nearest[lead] = max(closest, nearest[closest])
         partner = np.take(nearest, lead)
         end = first + len(lead)
-        np.take(active, lead, out=children[first - count : end - count, 0])
-        np.take(active, partner, out=children[first - count : end - count, 1])
+        np.take(active, lead, out=children[0, first - count : end - count])
+        np.take(active, partner, out=children[1, first - count : end - count])
         active[lead] = numbers[first - count : end - count] + count
         # The clusters left, in order (a merge in the place of its first): their boxes, the
         # union of their own and their partner's
@@ -368,7 +368,7 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
     leaves where the SAH finds them cheaper than their subtree, and the subtrees' heights
     (leaves 0). Returns (size, height, leaf) of every cluster."""
     total = cluster_box.shape[1]
-    count = total - len(children)
+    count = total - children.shape[1]
     size = np.empty(total, np.int32)
     size[:count] = 1
     height = np.zeros(total, np.int32)
@@ -376,8 +376,7 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
     cost = np.empty(total, np.float64)
     cost[:count] = _half_area(cluster_box[:, :count])  # a leaf of one
     for first, end in rounds:
-        below = children[first - count : end - count]
-        below_left, below_right = below[:, 0], below[:, 1]
+        below_left, below_right = children[:, first - count : end - count]
         box = cluster_box[:, first:end]
         np.minimum(
             np.take(cluster_box, below_left, axis=1),
@@ -403,15 +402,14 @@ def _leaf_order(children: np.ndarray, rounds: list, root: int, size: np.ndarray)
     """Top down, a round at a time: each cluster's first position in the leaves' order (its
     left child's first, its right child's after the left's primitives). Returns the
     primitives (cluster ids 0 .. N - 1) in that order."""
-    count = len(size) - len(children)
+    count = len(size) - children.shape[1]
     start = np.empty(len(size), np.int32)
     start[root] = 0
     for first, end in reversed(rounds):
-        below = children[first - count : end - count]
-        below_left = below[:, 0]
+        below_left, below_right = children[:, first - count : end - count]
         merged_start = start[first:end]
         start[below_left] = merged_start
-        start[below[:, 1]] = merged_start + np.take(size, below_left)
+        start[below_right] = merged_start + np.take(size, below_left)
     ranks = np.empty(count, np.int32)
     ranks[start[:count]] = np.arange(count, dtype=np.int32)
     return ranks
@@ -429,59 +427,68 @@ def _tree_levels(children, root, size, height, leaf) -> tuple:
     A cluster whose subtree exceeds the depth cap and one of whose children could not be
     fitted either (too deep itself and too large to rebuild) is rebuilt as a balanced tree
     over its primitives, halved until at most LEAF_MAX (or at the cap)."""
-    count = len(size) - len(children)
+    count = len(size) - children.shape[1]
     cluster = np.array([root], np.int32)
     first = np.zeros(1, np.int32)
     length = size[cluster]
+    # A node's height is at most its root's less its depth: no subtree can reach below the cap
+    # (nor be rebuilt) unless the whole tree does
+    capped = height[root] > BVH_MAX_DEPTH
     levels = []
     for depth in range(BVH_MAX_DEPTH + 1):
         room = BVH_MAX_DEPTH - depth
-        ranged = cluster < 0
-        merged = np.maximum(cluster, 0)  # clusters (primitives are leaves: never split)
-        deep = np.flatnonzero((np.take(height, merged) > room) & ~ranged)
-        if len(deep):
-            below = children[cluster[deep] - count]
-            fits = np.minimum(height[below], _balanced_height(size[below])) < room
-            rebuilt = deep[~fits.all(axis=1)]
-            cluster[rebuilt] = REBUILT_ROOT
-            ranged[rebuilt] = True
-        is_leaf = np.take(leaf, merged)
-        is_leaf[ranged] = length[ranged] <= LEAF_MAX
+        if capped:
+            ranged = cluster < 0
+            merged = np.maximum(cluster, 0)  # clusters (primitives are leaves: never split)
+            deep = np.flatnonzero((np.take(height, merged) > room) & ~ranged)
+            if len(deep):
+                below = np.take(children, cluster[deep] - count, axis=1)
+                fits = np.minimum(height[below], _balanced_height(size[below])) < room
+                rebuilt = deep[~fits.all(axis=0)]
+                cluster[rebuilt] = REBUILT_ROOT
+                ranged[rebuilt] = True
+            is_leaf = np.take(leaf, merged)
+            is_leaf[ranged] = length[ranged] <= LEAF_MAX
+        else:
+            is_leaf = np.take(leaf, cluster)
         split = ~is_leaf if room > 0 else np.zeros(len(cluster), bool)
         levels.append((cluster, first, length, split))
         parents = np.flatnonzero(split)
         if len(parents) == 0:
             break
         # The next level: each split node's two children (a balanced tree's: the halves of its
-        # range, the first taking the odd one)
-        parent_first, parent_length = first[parents], length[parents]
-        below = children[np.maximum(cluster[parents] - count, 0)]
-        left_length = np.take(size, below[:, 0])
-        halved = np.flatnonzero(cluster[parents] < 0)
-        if len(halved):
-            below[halved] = BALANCED_NODE
+        # range, the first taking the odd one), next to each other
+        parent_cluster = np.take(cluster, parents)
+        parent_first, parent_length = np.take(first, parents), np.take(length, parents)
+        below = np.take(children, np.maximum(parent_cluster - count, 0), axis=1)
+        left_length = np.take(size, below[0])
+        if capped:
+            halved = np.flatnonzero(parent_cluster < 0)
+            below[:, halved] = BALANCED_NODE
             left_length[halved] = (parent_length[halved] + 1) // 2
-        cluster = below.reshape(-1)
+        cluster = below.T.reshape(-1)
         first = np.stack([parent_first, parent_first + left_length], axis=1).reshape(-1)
         length = np.stack([left_length, parent_length - left_length], axis=1).reshape(-1)
     return tuple(np.concatenate(column) for column in zip(*levels, strict=True))
 
 
 def _binary_nodes(box, first, length, split) -> np.ndarray:
-    """BINARY_NODE_DTYPE nodes, breadth first, from their boxes (6 rows: lower, -upper),
+    """BINARY_NODE_DTYPE nodes, breadth first, from their boxes (6 rows: lower, -upper; made
+    lower, upper in place),
     ranges of `prims` (first, length) and whether they are split (the k-th split node's
     children being nodes 2k + 1, 2k + 2)."""
     nodes = len(first)
     record = np.empty((nodes, 8), np.float32)
     words = record.view(np.int32)
     record[:, 0:3] = box[:3].T
-    np.negative(box[3:].T, out=record[:, 4:7])
+    np.negative(box[3:], out=box[3:])
+    record[:, 4:7] = box[3:].T
     # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
     # (informative)
     words[:, 3] = first
     words[:, 7] = length
     parents = np.flatnonzero(split)
-    x, y, z = (-np.take(box[3 + axis], parents) - np.take(box[axis], parents) for axis in range(3))
+    x, y, z = (np.take(box[3 + axis], parents) - np.take(box[axis], parents) for axis in range(3))
     widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
     words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
     words[parents, 7] = -1 - widest
