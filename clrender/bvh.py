@@ -128,6 +128,7 @@ KEY_BITS = 4
 # The key's low bits hold the step (1 .. PLOC_RADIUS) above one side bit
 assert PLOC_RADIUS < 2 ** (KEY_BITS - 1), "PLOC_RADIUS does not fit the merge keys' KEY_BITS"
 NEAREST_ROWS = 11  # rows of _nearest_clusters' scratch
+INT32_MAX = np.iinfo(np.int32).max
 
 
 def _nearest_clusters(
@@ -149,7 +150,7 @@ def _nearest_clusters(
     # One int32 key per candidate, least for the nearest: the area's float32 bits (ordered as
     # integers, areas being >= 0) with the last KEY_BITS bits: the distance, then 0 on the
     # preferred side
-    best.fill(np.iinfo(np.int32).max)
+    best.fill(INT32_MAX)
     low_bits = (1 << KEY_BITS) - 1
     for step in range(1, min(radius, n - 1) + 1):
         count = n - step
@@ -280,8 +281,8 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     )
     total = 2 * count - 1
     cluster_box = np.empty((6, total), np.float32)
-    np.take(lower32, primitive, axis=1, out=cluster_box[:3, :count])
-    np.take(upper32, primitive, axis=1, out=cluster_box[3:, :count])
+    lower32.take(primitive, axis=1, out=cluster_box[:3, :count])
+    upper32.take(primitive, axis=1, out=cluster_box[3:, :count])
     np.negative(cluster_box[3:, :count], out=cluster_box[3:, :count])
     del lower32, upper32
     # The merge rounds' boxes in units of the scene's extent (so that float32 areas neither
@@ -298,17 +299,17 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     cluster, first, length, split = _tree_levels(children, root, size, height, leaf)
     # The nodes' boxes: the clusters', and for a balanced tree's node the union of its range
     # (a rebuilt subtree's primitives sorted by rank, their Morton order)
-    box = np.take(cluster_box, cluster, axis=1)
+    box = cluster_box.take(cluster, axis=1)
     ranged = np.flatnonzero(cluster < 0)
     if len(ranged):
         roots = ranged[(cluster[ranged] == REBUILT_ROOT)]
         for start, end in zip(first[roots], first[roots] + length[roots], strict=True):
             ranks[start:end].sort()
         position_box = np.empty((6, count + 1), np.float32)  # a spare column at the end
-        np.take(cluster_box, ranks, axis=1, out=position_box[:, :-1])
+        cluster_box.take(ranks, axis=1, out=position_box[:, :-1])
         bounds = np.stack([first[ranged], first[ranged] + length[ranged]], axis=1).reshape(-1)
         box[:, ranged] = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
-    prims = np.take(primitive, ranks).view(np.uint32)
+    prims = primitive.take(ranks).view(np.uint32)
     return _binary_nodes(box, first, length, split), prims
 
 
@@ -333,15 +334,15 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
     while n > 1:
         index = numbers[:n]
         nearest, area = _nearest_clusters(boxes[:, :n], work, index)
-        lead = np.flatnonzero((np.take(nearest, nearest) == index) & (nearest > index))
+        lead = np.flatnonzero((nearest.take(nearest) == index) & (nearest > index))
         if len(lead) == 0:  # no mutual pair (ties): the closest pair merges
             closest = int(np.argmin(area))
             lead = np.array([min(closest, nearest[closest])])
             nearest[lead] = max(closest, nearest[closest])
-        partner = np.take(nearest, lead)
+        partner = nearest.take(lead)
         end = first + len(lead)
-        np.take(active, lead, out=children[0, first - count : end - count])
-        np.take(active, partner, out=children[1, first - count : end - count])
+        active.take(lead, out=children[0, first - count : end - count])
+        active.take(partner, out=children[1, first - count : end - count])
         active[lead] = numbers[first - count : end - count] + count
         # The clusters left, in order (a merge in the place of its first): their boxes, the
         # union of their own and their partner's
@@ -353,10 +354,10 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         pairs = partner_of[:n]
         pairs[:] = index
         pairs[lead] = partner
-        other = np.take(pairs, left)
+        other = pairs.take(left)
         for row, next_row in zip(boxes, next_boxes, strict=True):
-            np.minimum(np.take(row[:n], left), np.take(row[:n], other), out=next_row[:m])
-        active = np.take(active, left)
+            np.minimum(row[:n].take(left), row[:n].take(other), out=next_row[:m])
+        active = active.take(left)
         boxes, next_boxes = next_boxes, boxes
         rounds.append((first, end))
         first, n = end, m
@@ -379,20 +380,20 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
         below_left, below_right = children[:, first - count : end - count]
         box = cluster_box[:, first:end]
         np.minimum(
-            np.take(cluster_box, below_left, axis=1),
-            np.take(cluster_box, below_right, axis=1),
+            cluster_box.take(below_left, axis=1),
+            cluster_box.take(below_right, axis=1),
             out=box,
         )
         merged_size = size[first:end]
-        np.add(np.take(size, below_left), np.take(size, below_right), out=merged_size)
+        np.add(size.take(below_left), size.take(below_right), out=merged_size)
         area = _half_area(box)
         subtree = TRAVERSAL_COST * area
-        subtree += np.take(cost, below_left)
-        subtree += np.take(cost, below_right)
+        subtree += cost.take(below_left)
+        subtree += cost.take(below_right)
         as_leaf = np.where(merged_size <= LEAF_MAX, merged_size * area, np.inf)
         is_leaf = leaf[first:end] = as_leaf <= subtree
         np.minimum(as_leaf, subtree, out=cost[first:end])
-        higher = np.maximum(np.take(height, below_left), np.take(height, below_right)) + 1
+        higher = np.maximum(height.take(below_left), height.take(below_right)) + 1
         higher[is_leaf] = 0
         height[first:end] = higher
     return size, height, leaf
@@ -409,7 +410,7 @@ def _leaf_order(children: np.ndarray, rounds: list, root: int, size: np.ndarray)
         below_left, below_right = children[:, first - count : end - count]
         merged_start = start[first:end]
         start[below_left] = merged_start
-        start[below_right] = merged_start + np.take(size, below_left)
+        start[below_right] = merged_start + size.take(below_left)
     ranks = np.empty(count, np.int32)
     ranks[start[:count]] = np.arange(count, dtype=np.int32)
     return ranks
@@ -440,17 +441,17 @@ def _tree_levels(children, root, size, height, leaf) -> tuple:
         if capped:
             ranged = cluster < 0
             merged = np.maximum(cluster, 0)  # clusters (primitives are leaves: never split)
-            deep = np.flatnonzero((np.take(height, merged) > room) & ~ranged)
+            deep = np.flatnonzero((height.take(merged) > room) & ~ranged)
             if len(deep):
-                below = np.take(children, cluster[deep] - count, axis=1)
+                below = children.take(cluster[deep] - count, axis=1)
                 fits = np.minimum(height[below], _balanced_height(size[below])) < room
                 rebuilt = deep[~fits.all(axis=0)]
                 cluster[rebuilt] = REBUILT_ROOT
                 ranged[rebuilt] = True
-            is_leaf = np.take(leaf, merged)
+            is_leaf = leaf.take(merged)
             is_leaf[ranged] = length[ranged] <= LEAF_MAX
         else:
-            is_leaf = np.take(leaf, cluster)
+            is_leaf = leaf.take(cluster)
         split = ~is_leaf if room > 0 else np.zeros(len(cluster), bool)
         levels.append((cluster, first, length, split))
         parents = np.flatnonzero(split)
@@ -458,10 +459,10 @@ def _tree_levels(children, root, size, height, leaf) -> tuple:
             break
         # The next level: each split node's two children (a balanced tree's: the halves of its
         # range, the first taking the odd one), next to each other
-        parent_cluster = np.take(cluster, parents)
-        parent_first, parent_length = np.take(first, parents), np.take(length, parents)
-        below = np.take(children, np.maximum(parent_cluster - count, 0), axis=1)
-        left_length = np.take(size, below[0])
+        parent_cluster = cluster.take(parents)
+        parent_first, parent_length = first.take(parents), length.take(parents)
+        below = children.take(np.maximum(parent_cluster - count, 0), axis=1)
+        left_length = size.take(below[0])
         if capped:
             halved = np.flatnonzero(parent_cluster < 0)
             below[:, halved] = BALANCED_NODE
@@ -488,7 +489,7 @@ def _binary_nodes(box, first, length, split) -> np.ndarray:
     words[:, 3] = first
     words[:, 7] = length
     parents = np.flatnonzero(split)
-    x, y, z = (np.take(box[3 + axis], parents) - np.take(box[axis], parents) for axis in range(3))
+    x, y, z = (box[3 + axis].take(parents) - box[axis].take(parents) for axis in range(3))
     widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
     words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
     words[parents, 7] = -1 - widest
