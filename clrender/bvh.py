@@ -9,12 +9,13 @@ open cluster finds its nearest among the PLOC_RADIUS clusters before and after i
 (nearest: the smallest surface area of the union of the two boxes), mutually nearest clusters
 merge into one (in the place of the first), until one cluster is left. The merges are the
 binary tree; a bottom-up pass with the surface-area heuristic (SAH) makes a subtree of at most
-LEAF_MAX primitives a leaf where that is cheaper. Written in NumPy: each merge round (and each
-round of the bottom-up and top-down passes) is a handful of whole-array operations, so the
-Python loops run per round (about 150 for 1 M triangles), never per primitive or node; the
-output is put breadth first by one sort. 1 M triangles build in about 0.5 s of CPU (the former
-top-down binned-SAH build took 4-5 s), into trees of an SAH cost 17 % lower that trace 9-20 %
-faster (bench/bvh_scaling.py; README).
+LEAF_MAX primitives a leaf where that is cheaper; a top-down pass lays the tree out breadth
+first, a level at a time. Written in NumPy: each merge round (and each round of the bottom-up
+pass, each level of the top-down one) is a handful of whole-array operations, so the Python
+loops run per round (about 150 for 1 M triangles) or level, never per primitive or node;
+clusters are numbered in Morton order so that each round's gathers stay local. 1 M triangles
+build in about 0.5 s of CPU (the former top-down binned-SAH build took 4-5 s), into trees of an
+SAH cost 17 % lower that trace 9-20 % faster (bench/bvh_scaling.py; README).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
