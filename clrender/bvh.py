@@ -129,6 +129,11 @@ KEY_BITS = 4
 # The key's low bits hold the step (1 .. PLOC_RADIUS) above one side bit
 assert PLOC_RADIUS < 2 ** (KEY_BITS - 1), "PLOC_RADIUS does not fit the merge keys' KEY_BITS"
 NEAREST_ROWS = 11  # rows of _nearest_clusters' scratch
+# A merge key's last KEY_BITS bits (step, then side: 1 if not the preferred one of an even
+# index) to the step from an even index to its nearest
+NEAREST_OFFSET = np.array(
+    [(code >> 1) * (1 - 2 * (code & 1)) for code in range(1 << KEY_BITS)], np.int32
+)
 INT32_MAX = np.iinfo(np.int32).max
 
 
@@ -169,15 +174,11 @@ def _nearest_clusters(
         if step % 2 == 0:
             key ^= 1  # i + step looks backwards: preferred if odd
         np.minimum(best[step:], key, out=best[step:])
-    # nearest: i + step, or i - step where the key's side is not i's preferred one (integer
-    # arithmetic: many times faster than np.where here)
-    np.right_shift(best, 1, out=nearest)
-    nearest &= low_bits >> 1
-    np.bitwise_and(best, 1, out=sign)
+    # nearest: i + step, or i - step where the key's side is not i's preferred one (a table of
+    # the key's last bits, side bit relative to i's parity)
+    np.bitwise_and(best, low_bits, out=sign)
     sign ^= parity
-    sign *= -2
-    sign += 1
-    nearest *= sign
+    NEAREST_OFFSET.take(sign, out=nearest, mode="clip")
     nearest += index
     nearest_area = np.bitwise_and(best, ~low_bits, out=sign)
     return nearest, nearest_area.view(np.float32)
