@@ -594,9 +594,9 @@ def test_nearest_clusters_match_a_pairwise_search():
     low[repeat[:30]], high[repeat[:30]] = low[repeat[30:]], high[repeat[30:]]
     low[40:60], high[40:60] = low[40], high[40]  # a run of equal boxes
     boxes = np.concatenate([low.T, -high.T])
-    nearest, area = _nearest_clusters(
-        boxes, np.empty((NEAREST_ROWS, 120), np.float32), np.arange(120, dtype=np.int32)
-    )
+    scratch = np.empty((NEAREST_ROWS, 120 + 2 * PLOC_RADIUS), np.float32)
+    result = np.empty((2, 120), np.int32)
+    nearest, area = _nearest_clusters(boxes, np.arange(120, dtype=np.int32), scratch, result)
     for i in range(120):
         candidates = []
         for j in range(max(0, i - PLOC_RADIUS), min(120, i + PLOC_RADIUS + 1)):
@@ -909,17 +909,20 @@ def test_build_equals_the_cluster_by_cluster_reference(shape):
 
 
 @pytest.mark.parametrize("radius", range(1, PLOC_RADIUS + 1))
-def test_nearest_clusters_match_the_reference_at_every_radius(radius):
-    """_nearest_clusters at each search radius against reference_nearest, twice through the
-    same scratch (its results live in it)."""
+@pytest.mark.parametrize("chunk", [1, 7, 90])
+def test_nearest_clusters_match_the_reference_at_every_radius(radius, chunk):
+    """_nearest_clusters at each search radius against reference_nearest, in chunks of 1, 7
+    and all 90 clusters, twice through the same scratch."""
     rng = np.random.default_rng(32)
     low = rng.uniform(-1, 1, (90, 3)).astype(np.float32)
     high = low + rng.uniform(0, 0.3, (90, 3)).astype(np.float32)
     low[30:45], high[30:45] = low[30], high[30]  # ties
     boxes = np.concatenate([low.T, -high.T])
-    work = np.empty((NEAREST_ROWS, 100), np.float32)
+    scratch = np.empty((NEAREST_ROWS, chunk + 2 * radius), np.float32)
+    result = np.empty((2, 100), np.int32)
     expected, areas = reference_nearest(list(boxes.T), radius)
     for _ in range(2):
-        nearest, area = _nearest_clusters(boxes, work, np.arange(100, dtype=np.int32), radius)
+        index = np.arange(100, dtype=np.int32)
+        nearest, area = _nearest_clusters(boxes, index, scratch, result, radius, chunk)
         np.testing.assert_array_equal(nearest, expected)
         np.testing.assert_array_equal(area.view(np.int32), areas)
