@@ -80,10 +80,12 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _half_area(box: np.ndarray) -> np.ndarray:
-    """Half the surface area (float64) of boxes as 6 rows: lower, -upper."""
-    x, y, z = (np.add(box[axis], box[3 + axis], dtype=np.float64) for axis in range(3))
+    """Half the surface area (float64) of boxes as 6 rows: lower, -upper (from minus their
+    float32 extents)."""
+    x, y, z = (np.add(box[axis], box[3 + axis]).astype(np.float64) for axis in range(3))
     area = x * y
-    area += (x + y) * z
+    area += y * z
+    area += z * x
     return area
 
 

@@ -777,7 +777,7 @@ def reference_nearest(scaled, radius):
 
 def reference_build(lower, upper):
     """build_bvh one cluster at a time in plain Python: PLOC merge rounds over the Morton order,
-    the SAH's leaves bottom up (float64 half areas of the float32 boxes), the depth cap's
+    the SAH's leaves bottom up (float64 half areas of the float32 extents), the depth cap's
     balanced rebuilds and the breadth-first layout top down, one node at a time."""
     low, high = padded_bounds(lower, upper)
     count = low.shape[1]
@@ -811,14 +811,14 @@ def reference_build(lower, upper):
     # Bottom up: boxes, sizes, SAH costs, leaves, heights
     size, cost, leaf, height = [1] * count, [], [True] * count, [0] * count
     for b in box:
-        x, y, z = (float(b[a]) + float(b[3 + a]) for a in range(3))
-        cost.append(x * y + (x + y) * z)
+        x, y, z = (float(b[a] + b[3 + a]) for a in range(3))
+        cost.append(x * y + y * z + z * x)
     for ident in range(count, count + len(children)):
         left, right = children[ident]
         box.append(np.minimum(box[left], box[right]))
         size.append(size[left] + size[right])
-        x, y, z = (float(box[ident][a]) + float(box[ident][3 + a]) for a in range(3))
-        area = x * y + (x + y) * z
+        x, y, z = (float(box[ident][a] + box[ident][3 + a]) for a in range(3))
+        area = x * y + y * z + z * x
         subtree = TRAVERSAL_COST * area + cost[left] + cost[right]
         as_leaf = size[ident] * area if size[ident] <= LEAF_MAX else np.inf
         leaf.append(as_leaf <= subtree)
