@@ -926,3 +926,18 @@ def test_nearest_clusters_match_the_reference_at_every_radius(radius, chunk):
         nearest, area = _nearest_clusters(boxes, index, scratch, result, radius, chunk)
         np.testing.assert_array_equal(nearest, expected)
         np.testing.assert_array_equal(area.view(np.int32), areas)
+
+
+def test_bvh_scaling_build_times_report_each_stage_with_its_page_faults(monkeypatch):
+    """bench/bvh_scaling.py's build section: CPU, wall time and minor page faults of each
+    stage of the whole way, and totals that cover the stages."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "bench"))
+    import bvh_scaling
+
+    row = bvh_scaling.build_times(bvh_scaling.scene_with_sphere_mesh(2000), 2)
+    for stage in ("bounds", "build", "collapse", "leaves", "total_build"):
+        assert row[f"{stage}_cpu_s"] >= 0.0 and row[f"{stage}_wall_s"] > 0.0
+        assert row[f"{stage}_page_faults"] >= 0
+    stages = ("bounds", "build", "collapse", "leaves")
+    assert row["total_build_wall_s"] >= 0.99 * max(row[f"{stage}_wall_s"] for stage in stages)
+    assert row["sah_cost"] > 1.0 and row["nodes"] > 1
