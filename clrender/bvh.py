@@ -352,8 +352,7 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
     scratch = np.empty((NEAREST_ROWS, min(count, NEAREST_CHUNK) + 2 * PLOC_RADIUS), np.float32)
     result = np.empty((2, count), np.int32)
     numbers = np.arange(count, dtype=np.int32)
-    # The next round's boxes and each cluster's partner (itself if it does not merge)
-    next_boxes = np.empty_like(boxes)
+    # Each cluster's partner (itself if it does not merge)
     partner_of = np.empty(count, np.int32)
     kept = np.empty(count, bool)
     rounds = []
@@ -373,7 +372,7 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         active.take(partner, out=children[1, first - count : end - count])
         active[lead] = numbers[first - count : end - count] + count
         # The clusters left, in order (a merge in the place of its first): their boxes, the
-        # union of their own and their partner's
+        # union of their own and their partner's (gathered, then stored in place)
         keep = kept[:n]
         keep.fill(True)
         keep[partner] = False
@@ -383,10 +382,9 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         pairs[:] = index
         pairs[lead] = partner
         other = pairs.take(left)
-        for row, next_row in zip(boxes, next_boxes, strict=True):
-            np.minimum(row[:n].take(left), row[:n].take(other), out=next_row[:m])
+        for row in boxes:
+            np.minimum(row[:n].take(left), row[:n].take(other), out=row[:m])
         active = active.take(left)
-        boxes, next_boxes = next_boxes, boxes
         rounds.append((first, end))
         first, n = end, m
     return children, rounds, int(active[0])
