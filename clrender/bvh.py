@@ -372,7 +372,9 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         active.take(partner, out=children[1, first - count : end - count])
         active[lead] = numbers[first - count : end - count] + count
         # The clusters left, in order (a merge in the place of its first): their boxes, the
-        # union of their own and their partner's (gathered, then stored in place)
+        # union of their own and their partner's, stored in place a chunk at a time (a kept
+        # cluster and its partner sit at or after its new place: no chunk reads what the
+        # chunks before it wrote)
         keep = kept[:n]
         keep.fill(True)
         keep[partner] = False
@@ -382,8 +384,11 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         pairs[:] = index
         pairs[lead] = partner
         other = pairs.take(left)
-        for row in boxes:
-            np.minimum(row[:n].take(left), row[:n].take(other), out=row[:m])
+        for start in range(0, m, NEAREST_CHUNK):
+            stop = min(m, start + NEAREST_CHUNK)
+            these, partners = left[start:stop], other[start:stop]
+            for row in boxes:
+                np.minimum(row.take(these), row.take(partners), out=row[start:stop])
         active = active.take(left)
         rounds.append((first, end))
         first, n = end, m
