@@ -9,8 +9,9 @@ none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, t
 as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: the whole way
 from the scene's primitives to what the device receives (scene_device.pack_bvh's steps:
 primitive_bounds, clrender.bvh's binary build and its collapse to 8-wide nodes, the leaf records
-of pack_bvh_leaves), each step's CPU and wall time and their total, medians of --repeats; the
-binary tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
+of pack_bvh_leaves), each step's CPU and wall time and minor page faults and their total,
+medians of --repeats (all in one process: the first repeat pays for fresh memory); the binary
+tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
 the same launch by brute force and through the BVH, alternating, so the two rates come from the
 same stretch of machine load. Rates are per CPU-second x compute units (as
 trace_throughput.py), robust to a shared machine.
@@ -23,6 +24,7 @@ import argparse
 import dataclasses
 import json
 import math
+import resource
 import statistics
 import tempfile
 import time
@@ -100,29 +102,34 @@ def build_times(scene, repeats):
     """The whole way from the scene's primitives to what the device receives, as
     scene_device.pack_bvh takes it, stage by stage (CPU and wall time, medians of `repeats`):
     primitive_bounds, build_bvh (the binary tree), collapse_bvh (8-wide nodes) and
-    pack_bvh_leaves (the leaf records); and the binary tree's SAH cost."""
+    pack_bvh_leaves (the leaf records), and the minor page faults of each (first touches of
+    fresh memory: about 5 us each on this machine); and the binary tree's SAH cost."""
     stages = ("bounds", "build", "collapse", "leaves")
-    cpus = {stage: [] for stage in (*stages, "total_build")}
-    walls = {stage: [] for stage in (*stages, "total_build")}
+    measures = {"cpu_s": 0, "wall_s": 1, "page_faults": 2}
+    samples = {(stage, name): [] for stage in (*stages, "total_build") for name in measures}
+
+    def mark():
+        usage = resource.getrusage(resource.RUSAGE_SELF)
+        return time.process_time(), time.perf_counter(), usage.ru_minflt
+
     for _ in range(repeats):
-        marks = [(time.process_time(), time.perf_counter())]
+        marks = [mark()]
         bounds = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
-        marks.append((time.process_time(), time.perf_counter()))
+        marks.append(mark())
         binary, prims = build_bvh(*bounds)
-        marks.append((time.process_time(), time.perf_counter()))
+        marks.append(mark())
         wide = collapse_bvh(binary)
-        marks.append((time.process_time(), time.perf_counter()))
+        marks.append(mark())
         pack_bvh_leaves(wide, prims, scene.quads, len(scene.spheres), scene.triangles)
-        marks.append((time.process_time(), time.perf_counter()))
-        for stage, before, after in zip(stages, marks[:-1], marks[1:], strict=True):
-            cpus[stage].append(after[0] - before[0])
-            walls[stage].append(after[1] - before[1])
-        cpus["total_build"].append(marks[-1][0] - marks[0][0])
-        walls["total_build"].append(marks[-1][1] - marks[0][1])
-    row = {}
-    for stage in cpus:
-        row[f"{stage}_cpu_s"] = statistics.median(cpus[stage])
-        row[f"{stage}_wall_s"] = statistics.median(walls[stage])
+        marks.append(mark())
+        spans = [*zip(stages, marks[:-1], marks[1:], strict=True)]
+        spans.append(("total_build", marks[0], marks[-1]))
+        for stage, before, after in spans:
+            for name, k in measures.items():
+                samples[stage, name].append(after[k] - before[k])
+    row = {
+        f"{stage}_{name}": statistics.median(values) for (stage, name), values in samples.items()
+    }
     return {**row, "nodes": len(binary), "sah_cost": sah_cost(binary)}
 
 
@@ -200,7 +207,8 @@ def main(argv=None):
             f"{row['triangles']:8d} triangles: CPU s bounds {row['bounds_cpu_s']:.3f}, binary "
             f"build {row['build_cpu_s']:.3f}, collapse {row['collapse_cpu_s']:.3f}, leaf records "
             f"{row['leaves_cpu_s']:.3f}; the whole way {row['total_build_cpu_s']:.3f} s CPU "
-            f"{row['total_build_wall_s']:.3f} s wall; SAH cost {row['sah_cost']:6.2f}  {rate}",
+            f"{row['total_build_wall_s']:.3f} s wall, {row['total_build_page_faults']:.0f} page "
+            f"faults; SAH cost {row['sah_cost']:6.2f}  {rate}",
             flush=True,
         )
     if not args.skip_render:

@@ -9,12 +9,13 @@ open cluster finds its nearest among the PLOC_RADIUS clusters before and after i
 (nearest: the smallest surface area of the union of the two boxes), mutually nearest clusters
 merge into one (in the place of the first), until one cluster is left. The merges are the
 binary tree; a bottom-up pass with the surface-area heuristic (SAH) makes a subtree of at most
-LEAF_MAX primitives a leaf where that is cheaper. Written in NumPy: each merge round (and each
-round of the bottom-up and top-down passes) is a handful of whole-array operations, so the
-Python loops run per round (about 150 for 1 M triangles), never per primitive or node; the
-output is put breadth first by one sort. 1 M triangles build in about 0.5 s of CPU (the former
-top-down binned-SAH build took 4-5 s), into trees of an SAH cost 17 % lower that trace 9-20 %
-faster (bench/bvh_scaling.py; README).
+LEAF_MAX primitives a leaf where that is cheaper; a top-down pass lays the tree out breadth
+first, a level at a time. Written in NumPy: each merge round (and each round of the bottom-up
+pass, each level of the top-down one) is a handful of whole-array operations, so the Python
+loops run per round (about 150 for 1 M triangles) or level, never per primitive or node;
+clusters are numbered in Morton order so that each round's gathers stay local. 1 M triangles
+build in about 0.5 s of CPU (the former top-down binned-SAH build took 4-5 s), into trees of an
+SAH cost 17 % lower that trace 9-20 % faster (bench/bvh_scaling.py; README).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
@@ -33,9 +34,6 @@ import numpy as np
 BINARY_NODE_DTYPE = np.dtype(
     [("lower", "<f4", 3), ("offset", "<i4"), ("upper", "<f4", 3), ("count", "<i4")]
 )
-# A cluster of the build (host only), as the bottom-up pass gathers it in one piece: its box
-# (lower, -upper: a union is a minimum), primitives, height and SAH cost.
-CLUSTER_DTYPE = np.dtype([("box", "<f4", 6), ("size", "<i4"), ("height", "<i4"), ("cost", "<f8")])
 BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
 # The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
 # arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
@@ -73,15 +71,22 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
     of the padding itself, so each box still holds its primitive."""
     lower = np.asarray(lower).T.astype(np.float32, order="C")
     upper = np.asarray(upper).T.astype(np.float32, order="C")
-    magnitude = np.maximum(np.abs(lower).max(axis=0), np.abs(upper).max(axis=0))
-    pad = np.float32(BOUNDS_PADDING) * magnitude + np.float32(1e-30)
-    return lower - pad, upper + pad
+    pad = np.maximum(np.abs(lower).max(axis=0), np.abs(upper).max(axis=0))
+    pad *= np.float32(BOUNDS_PADDING)
+    pad += np.float32(1e-30)
+    lower -= pad
+    upper += pad
+    return lower, upper
 
 
 def _half_area(box: np.ndarray) -> np.ndarray:
-    """Half the surface area (float64) of boxes (n, 6): lower, -upper."""
-    x, y, z = ((-box[:, 3 + axis] - box[:, axis]).astype(np.float64) for axis in range(3))
-    return x * y + y * z + z * x
+    """Half the surface area (float64) of boxes as 6 rows: lower, -upper (from minus their
+    float32 extents)."""
+    x, y, z = (np.add(box[axis], box[3 + axis]).astype(np.float64) for axis in range(3))
+    area = x * y
+    area += y * z
+    area += z * x
+    return area
 
 
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -90,6 +95,15 @@ def _spread_bits(q: np.ndarray) -> np.ndarray:
     q = (q | (q << np.uint32(8))) & np.uint32(0x0300F00F)
     q = (q | (q << np.uint32(4))) & np.uint32(0x030C30C3)
     return (q | (q << np.uint32(2))) & np.uint32(0x09249249)
+
+
+# Each axis' cell index (0 .. 2^MORTON_BITS - 1) spread to its bits of a Morton sort key:
+# bits 32-61, x highest of each triple
+MORTON_SPREAD = [
+    _spread_bits(np.arange(1 << MORTON_BITS, dtype=np.uint32)).astype(np.uint64)
+    << np.uint64(32 + 2 - axis)
+    for axis in range(3)
+]
 
 
 def _morton_keys(centroid: np.ndarray) -> np.ndarray:
@@ -101,11 +115,14 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
     cells = 1 << MORTON_BITS
     with np.errstate(divide="ignore"):
         scale = np.where(extent > 0.0, cells / extent, 0.0).astype(np.float32)
-    code = np.zeros(centroid.shape[1], np.uint32)
+    keys = np.arange(centroid.shape[1], dtype=np.uint64)
     for axis in range(3):
-        cell = ((centroid[axis] - low[axis]) * scale[axis]).astype(np.uint32)
-        code |= _spread_bits(np.minimum(cell, np.uint32(cells - 1))) << np.uint32(2 - axis)
-    return (code.astype(np.uint64) << np.uint64(32)) | np.arange(len(code), dtype=np.uint64)
+        cell = np.subtract(centroid[axis], low[axis])
+        cell *= scale[axis]
+        cell = cell.astype(np.uint32)
+        np.minimum(cell, np.uint32(cells - 1), out=cell)
+        keys |= np.take(MORTON_SPREAD[axis], cell)
+    return keys
 
 
 # Low bits of an area's float32 bits that _nearest_clusters replaces by the candidate's step
@@ -113,35 +130,69 @@ def _morton_keys(centroid: np.ndarray) -> np.ndarray:
 KEY_BITS = 4
 # The key's low bits hold the step (1 .. PLOC_RADIUS) above one side bit
 assert PLOC_RADIUS < 2 ** (KEY_BITS - 1), "PLOC_RADIUS does not fit the merge keys' KEY_BITS"
+NEAREST_ROWS = 11  # rows of _nearest_clusters' scratch
+# Clusters of each of _nearest_clusters' passes: its 11 rows of scratch (3 MB) stay in the
+# caches (twice as fast as whole rows at 1 M clusters)
+NEAREST_CHUNK = 1 << 16
+# A merge key's last KEY_BITS bits (step, then side: 1 if not the preferred one of an even
+# index) to the step from an even index to its nearest
+NEAREST_OFFSET = np.array(
+    [(code >> 1) * (1 - 2 * (code & 1)) for code in range(1 << KEY_BITS)], np.int32
+)
+INT32_MAX = np.iinfo(np.int32).max
 
 
-def _nearest_clusters(boxes: np.ndarray, work: np.ndarray, index: np.ndarray) -> tuple:
+def _nearest_clusters(
+    boxes: np.ndarray,
+    index: np.ndarray,
+    scratch: np.ndarray,
+    result: np.ndarray,
+    radius: int = PLOC_RADIUS,
+    chunk: int = NEAREST_CHUNK,
+) -> tuple:
     """For clusters in Morton order with boxes (6 rows: lower, -upper, float32, in units where
-    areas do not overflow), the index of each one's nearest among the PLOC_RADIUS clusters
+    areas do not overflow), the index of each one's nearest among the `radius` clusters
     before and after it, the one whose union with it has the least surface area, and that
     area (its last KEY_BITS bits zero). Ties (areas equal but for those bits) go to the closer
     in the order, then (same distance) an even index looks forwards and an odd one backwards,
-    so equal boxes pair up (2k, 2k + 1). work: float32 scratch of at least (7, clusters);
-    index: int32 0, 1, 2, ... (at least as many)."""
+    so equal boxes pair up (2k, 2k + 1). Found `chunk` clusters at a time (with `radius` more
+    on either side) so that the scratch stays in the caches: scratch, float32 of at least
+    (NEAREST_ROWS, min(clusters, chunk) + 2 radius); result, int32 of at least (2,
+    clusters), receives the two results (returned as int32 and float32 views); index: int32
+    0, 1, 2, ... (at least as many)."""
+    n = boxes.shape[1]
+    nearest, area = result[0, :n], result[1, :n]
+    for first in range(0, n, chunk):
+        end = min(n, first + chunk)
+        low, high = max(0, first - radius), min(n, end + radius)
+        window = _nearest_in_window(boxes[:, low:high], scratch, index[low:high], radius)
+        nearest[first:end] = window[0][first - low : end - low]
+        area[first:end] = window[1][first - low : end - low]
+    return nearest, area.view(np.float32)
+
+
+def _nearest_in_window(boxes: np.ndarray, work: np.ndarray, index: np.ndarray, radius) -> tuple:
+    """_nearest_clusters over one window of clusters (index: theirs), all at once: the results
+    (int32 nearest, area bits) are rows of the scratch `work`."""
     n = boxes.shape[1]
     index = index[:n]
-    parity = index & 1
+    union, area, product = work[:6], work[6], work[3]
+    best, nearest, sign, parity = (work[row, :n].view(np.int32) for row in range(7, 11))
+    np.bitwise_and(index, 1, out=parity)
     # One int32 key per candidate, least for the nearest: the area's float32 bits (ordered as
     # integers, areas being >= 0) with the last KEY_BITS bits: the distance, then 0 on the
     # preferred side
-    best = np.full(n, np.iinfo(np.int32).max, np.int32)
+    best.fill(INT32_MAX)
     low_bits = (1 << KEY_BITS) - 1
-    for step in range(1, min(PLOC_RADIUS, n - 1) + 1):
+    for step in range(1, min(radius, n - 1) + 1):
         count = n - step
         # Union of cluster i and cluster i + step, and minus its extent
-        union = work[:6, :count]
-        np.minimum(boxes[:, :count], boxes[:, step:], out=union)
-        extent = np.add(union[:3], union[3:], out=union[:3])
-        area, product = work[6, :count], work[3, :count]
-        np.multiply(extent[0], extent[1], out=area)
-        area += np.multiply(extent[1], extent[2], out=product)
-        area += np.multiply(extent[2], extent[0], out=product)
-        key = area.view(np.int32)
+        np.minimum(boxes[:, :count], boxes[:, step:], out=union[:, :count])
+        extent = np.add(union[:3, :count], union[3:, :count], out=union[:3, :count])
+        np.multiply(extent[0], extent[1], out=area[:count])
+        area[:count] += np.multiply(extent[1], extent[2], out=product[:count])
+        area[:count] += np.multiply(extent[2], extent[0], out=product[:count])
+        key = area[:count].view(np.int32)
         key |= low_bits
         key -= low_bits - (step << 1)
         key |= parity[:count]  # i looks forwards: preferred if even
@@ -149,56 +200,18 @@ def _nearest_clusters(boxes: np.ndarray, work: np.ndarray, index: np.ndarray) ->
         if step % 2 == 0:
             key ^= 1  # i + step looks backwards: preferred if odd
         np.minimum(best[step:], key, out=best[step:])
-    # nearest: i + step, or i - step where the key's side is not i's preferred one (integer
-    # arithmetic: many times faster than np.where here)
-    nearest = best >> 1
-    nearest &= low_bits >> 1
-    sign = best & 1
+    # nearest: i + step, or i - step where the key's side is not i's preferred one (a table of
+    # the key's last bits, side bit relative to i's parity)
+    np.bitwise_and(best, low_bits, out=sign)
     sign ^= parity
-    sign *= -2
-    sign += 1
-    nearest *= sign
+    NEAREST_OFFSET.take(sign, out=nearest, mode="clip")
     nearest += index
-    return nearest, (best & ~low_bits).view(np.float32)
+    return nearest, np.bitwise_and(best, ~low_bits, out=sign)
 
 
 def _balanced_height(size: np.ndarray) -> np.ndarray:
     """Height of a balanced tree (halves each split) with leaves of at most LEAF_MAX."""
     return np.ceil(np.log2(np.maximum(size / LEAF_MAX, 1.0))).astype(np.int32)
-
-
-def _balanced_ranges(prims, morton_keys, cluster, first, length, depth) -> tuple:
-    """The nodes of balanced trees that replace subtrees too deep for the cap: each subtree's
-    primitives, prims[first[k] .. first[k] + length[k] - 1], sorted (in place) by their
-    morton_keys and halved until at most LEAF_MAX (or at the cap), its root at depth[k].
-    Returns the nodes' (depth, first, length, split, boxes (nodes, 6)), in no order."""
-    # The subtrees' positions in `prims`, one after the other (a spare column at the end)
-    ends = np.cumsum(length)
-    positions = np.arange(ends[-1]) + np.repeat(first - (ends - length), length)
-    members = prims[positions]
-    order = np.lexsort((morton_keys[members], np.repeat(np.arange(len(first)), length)))
-    prims[positions] = members[order]
-    position_box = np.zeros((len(positions) + 1, 6), np.float32)
-    position_box[:-1] = np.take(cluster, members[order])["box"]
-    # Level by level: a range longer than LEAF_MAX splits into halves (the first takes the odd
-    # one); each node's range is also kept in the compact positions (low)
-    levels = []
-    low = ends - length
-    while len(first):
-        split = (length > LEAF_MAX) & (depth < BVH_MAX_DEPTH)
-        levels.append((depth, first, length, split, low))
-        half = (length[split] + 1) // 2
-        first = np.stack([first[split], first[split] + half], axis=1).reshape(-1)
-        low = np.stack([low[split], low[split] + half], axis=1).reshape(-1)
-        length = np.stack([half, length[split] - half], axis=1).reshape(-1)
-        depth = np.repeat(depth[split] + 1, 2)
-    depth, first, length, split, low = (
-        np.concatenate(column) for column in zip(*levels, strict=True)
-    )
-    # Boxes: one reduceat over (low, high) pairs, the second of each pair discarded
-    bounds = np.stack([low, low + length], axis=1).reshape(-1)
-    box = np.minimum.reduceat(position_box, bounds, axis=0)[::2]
-    return depth, first, length, split, box
 
 
 def sah_cost(nodes: np.ndarray) -> float:
@@ -287,134 +300,228 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     if count == 0:
         return np.zeros(0, BINARY_NODE_DTYPE), np.zeros(0, np.uint32)
     lower32, upper32 = padded_bounds(lower, upper)
-    # Clusters: every primitive (ids 0 .. N - 1), then every merge of two (ids N .. 2N - 2),
-    # with boxes as rows (lower, -upper): a union is a minimum
+    # The primitives in the Morton order of their centroids (their ranks: cluster ids 0 .. N -
+    # 1, so that merges gather nearby boxes), then every merge of two (ids N .. 2N - 2), with
+    # boxes as 6 rows (lower, -upper): a union is a minimum
+    primitive = (np.sort(_morton_keys(0.5 * (lower32 + upper32))) & np.uint64(0xFFFFFFFF)).astype(
+        np.int32
+    )
     total = 2 * count - 1
-    cluster = np.empty(total, CLUSTER_DTYPE)
-    cluster_box = cluster["box"]
-    cluster_box[:count, :3] = lower32.T
-    np.negative(upper32.T, out=cluster_box[:count, 3:])
-    left = np.full(total, -1, np.int32)
-    right = np.full(total, -1, np.int32)
-    # The clusters still open, in the Morton order of the primitives' centroids, with their
-    # boxes in units of the scene's extent (so that float32 areas neither overflow nor
-    # underflow: exact minima of the primitives' scaled boxes)
-    morton_keys = _morton_keys(0.5 * (lower32 + upper32))
-    active = (np.sort(morton_keys) & np.uint64(0xFFFFFFFF)).astype(np.int32)
-    boxes = np.empty((6, count), np.float32)
-    boxes[:3] = np.take(lower32, active, axis=1)
-    boxes[3:] = np.negative(np.take(upper32, active, axis=1))
-    scene_extent = float((-boxes[3:].min(axis=1) - boxes[:3].min(axis=1)).max())
-    boxes *= np.float32(1.0 / max(scene_extent, 1e-30))
-    work = np.empty((7, count), np.float32)
+    cluster_box = np.empty((6, total), np.float32)
+    lower32.take(primitive, axis=1, out=cluster_box[:3, :count])
+    upper32.take(primitive, axis=1, out=cluster_box[3:, :count])
+    np.negative(cluster_box[3:, :count], out=cluster_box[3:, :count])
+    del lower32, upper32
+    # The merge rounds' boxes in units of the scene's extent (so that float32 areas neither
+    # overflow nor underflow: exact minima of the primitives' scaled boxes)
+    low = cluster_box[:, :count].min(axis=1)
+    scene_extent = float((-low[3:] - low[:3]).max())
+    boxes = np.multiply(cluster_box[:, :count], np.float32(1.0 / max(scene_extent, 1e-30)))
+    children, rounds, root = _merge_rounds(boxes, np.arange(count, dtype=np.int32))
+    del boxes
+    size, height, leaf = _bottom_up(cluster_box, children, rounds)
+    # Each primitive's position in the leaves' order (a cluster's primitives follow each other,
+    # its left child's first), and the tree's nodes breadth first
+    ranks = _leaf_order(children, rounds, root, size)
+    cluster, first, length, split = _tree_levels(children, root, size, height, leaf)
+    # The nodes' boxes: the clusters', and for a balanced tree's node the union of its range
+    # (a rebuilt subtree's primitives sorted by rank, their Morton order)
+    box = cluster_box.take(cluster, axis=1)
+    ranged = np.flatnonzero(cluster < 0)
+    if len(ranged):
+        roots = ranged[(cluster[ranged] == REBUILT_ROOT)]
+        for start, end in zip(first[roots], first[roots] + length[roots], strict=True):
+            ranks[start:end].sort()
+        position_box = np.empty((6, count + 1), np.float32)  # a spare column at the end
+        cluster_box.take(ranks, axis=1, out=position_box[:, :-1])
+        bounds = np.stack([first[ranged], first[ranged] + length[ranged]], axis=1).reshape(-1)
+        box[:, ranged] = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
+    prims = primitive.take(ranks).view(np.uint32)
+    return _binary_nodes(box, first, length, split), prims
+
+
+def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
+    """PLOC's merge rounds over the clusters `active` (ids, in Morton order; boxes: 6 rows,
+    lower then -upper, float32, in units where areas neither overflow nor underflow): mutually
+    nearest clusters merge (the merge takes the first one's place and the next cluster id,
+    N, N + 1, ...) until one is left. Returns (children, rounds, root): children (2, N - 1),
+    each merge's left and right; rounds, (first, end) cluster ids of each round's merges; the
+    last cluster. Overwrites boxes and active."""
+    count = len(active)
+    children = np.empty((2, max(count - 1, 0)), np.int32)
+    scratch = np.empty((NEAREST_ROWS, min(count, NEAREST_CHUNK) + 2 * PLOC_RADIUS), np.float32)
+    result = np.empty((2, count), np.int32)
     numbers = np.arange(count, dtype=np.int32)
-    # Merge rounds: mutual nearest clusters merge (the merge takes the first one's place)
-    round_first = [count]  # first cluster id of each round's merges, then the next id
-    while len(active) > 1:
-        index = numbers[: len(active)]
-        nearest, area = _nearest_clusters(boxes, work, index)
-        lead = np.flatnonzero((nearest[nearest] == index) & (nearest > index))
+    # Each cluster's partner (itself if it does not merge)
+    partner_of = np.empty(count, np.int32)
+    kept = np.empty(count, bool)
+    rounds = []
+    first = count  # the next merge's cluster id
+    n = count
+    while n > 1:
+        index = numbers[:n]
+        nearest, area = _nearest_clusters(boxes[:, :n], index, scratch, result)
+        lead = np.flatnonzero((nearest.take(nearest) == index) & (nearest > index))
         if len(lead) == 0:  # no mutual pair (ties): the closest pair merges
             closest = int(np.argmin(area))
             lead = np.array([min(closest, nearest[closest])])
             nearest[lead] = max(closest, nearest[closest])
-        partner = nearest[lead]
-        merged = slice(round_first[-1], round_first[-1] + len(lead))
-        left[merged], right[merged] = active[lead], active[partner]
-        boxes[:, lead] = np.minimum(np.take(boxes, lead, axis=1), np.take(boxes, partner, axis=1))
-        active[lead] = np.arange(merged.start, merged.stop)
-        keep = np.ones(len(active), bool)
+        partner = nearest.take(lead)
+        end = first + len(lead)
+        active.take(lead, out=children[0, first - count : end - count])
+        active.take(partner, out=children[1, first - count : end - count])
+        active[lead] = numbers[first - count : end - count] + count
+        # The clusters left, in order (a merge in the place of its first): their boxes, the
+        # union of their own and their partner's, stored in place a chunk at a time (a kept
+        # cluster and its partner sit at or after its new place: no chunk reads what the
+        # chunks before it wrote)
+        keep = kept[:n]
+        keep.fill(True)
         keep[partner] = False
-        active, boxes = active[keep], np.compress(keep, boxes, axis=1)
-        round_first.append(round_first[-1] + len(lead))
-    rounds = list(zip(round_first[:-1], round_first[1:], strict=True))
-    # Bottom up, a round at a time: the merged clusters' boxes and sizes; leaves where the SAH
-    # finds them cheaper than their subtree, and the subtrees' heights (leaves 0)
-    cluster["size"][:count] = 1
-    cluster["height"][:count] = 0
-    cluster["cost"][:count] = _half_area(cluster_box[:count])  # a leaf of one
+        left = np.flatnonzero(keep)
+        m = len(left)
+        pairs = partner_of[:n]
+        pairs[:] = index
+        pairs[lead] = partner
+        other = pairs.take(left)
+        for start in range(0, m, NEAREST_CHUNK):
+            stop = min(m, start + NEAREST_CHUNK)
+            these, partners = left[start:stop], other[start:stop]
+            for row in boxes:
+                np.minimum(row.take(these), row.take(partners), out=row[start:stop])
+        active = active.take(left)
+        rounds.append((first, end))
+        first, n = end, m
+    return children, rounds, int(active[0])
+
+
+def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> tuple:
+    """Bottom up, a round at a time: the merged clusters' boxes (into cluster_box) and sizes;
+    leaves where the SAH finds them cheaper than their subtree, and the subtrees' heights
+    (leaves 0). Returns (size, height, leaf) of every cluster."""
+    total = cluster_box.shape[1]
+    count = total - children.shape[1]
+    size = np.empty(total, np.int32)
+    size[:count] = 1
+    height = np.zeros(total, np.int32)
     leaf = np.ones(total, bool)
+    cost = np.empty(total, np.float64)
+    cost[:count] = _half_area(cluster_box[:, :count])  # a leaf of one
     for first, end in rounds:
-        merged = slice(first, end)
-        below_left, below_right = np.take(cluster, left[merged]), np.take(cluster, right[merged])
-        box = np.minimum(below_left["box"], below_right["box"])
-        size = below_left["size"] + below_right["size"]
-        area = _half_area(box)
-        subtree = TRAVERSAL_COST * area + below_left["cost"] + below_right["cost"]
-        as_leaf = np.where(size <= LEAF_MAX, size * area, np.inf)
-        is_leaf = leaf[merged] = as_leaf <= subtree
-        below = np.maximum(below_left["height"], below_right["height"])
-        record = cluster[merged]
-        record["box"], record["size"] = box, size
-        record["cost"], record["height"] = np.minimum(as_leaf, subtree), (1 + below) * ~is_leaf
-    size, height = cluster["size"], cluster["height"]
-    # Top down, a round at a time: each cluster's first position in `prims` (its left child's
-    # first) and depth; the tree's nodes (below no leaf) and those split. A node whose subtree
-    # exceeds the depth cap and one of whose children could not be fitted either (too deep
-    # itself and too large to rebuild) is rebuilt as a balanced tree over its primitives.
-    start = np.zeros(total, np.int32)
-    depth = np.zeros(total, np.int32)
-    in_tree = np.zeros(total, bool)
-    in_tree[active[0]] = True
-    split = np.zeros(total, bool)
-    rebuilt = np.zeros(total, bool)
-    for first, end in reversed(rounds):
-        merged = slice(first, end)
-        below_left, below_right = left[merged], right[merged]
-        room = BVH_MAX_DEPTH - depth[merged]
-        deep = in_tree[merged] & (height[merged] > room)
-        if deep.any():
-            fits = [
-                np.minimum(height[child], _balanced_height(size[child])) < room
-                for child in (below_left, below_right)
-            ]
-            rebuilt[merged] = deep & ~(fits[0] & fits[1])
-        split[merged] = in_tree[merged] & ~leaf[merged] & ~rebuilt[merged] & (room > 0)
-        in_tree[below_left] = in_tree[below_right] = split[merged]
-        depth[below_left] = depth[below_right] = depth[merged] + 1
-        start[below_left] = start[merged]
-        start[below_right] = start[merged] + size[below_left]
-    prims = np.empty(count, np.uint32)
-    prims[start[:count]] = np.arange(count, dtype=np.uint32)
-    # The nodes' records (box, first primitive, length or -1 if split): the tree's clusters,
-    # then the balanced trees' ranges
-    clusters = np.flatnonzero(in_tree & ~rebuilt)
-    parts = [(depth[clusters], start[clusters], size[clusters], split[clusters], None, clusters)]
-    roots = np.flatnonzero(rebuilt)
-    if len(roots):
-        ranges = _balanced_ranges(
-            prims, morton_keys, cluster, start[roots], size[roots], depth[roots]
+        below_left, below_right = children[:, first - count : end - count]
+        box = cluster_box[:, first:end]
+        np.minimum(
+            cluster_box.take(below_left, axis=1),
+            cluster_box.take(below_right, axis=1),
+            out=box,
         )
-        parts.append((*ranges, None))
-    nodes = sum(len(part[0]) for part in parts)
+        merged_size = size[first:end]
+        np.add(size.take(below_left), size.take(below_right), out=merged_size)
+        area = _half_area(box)
+        subtree = TRAVERSAL_COST * area
+        subtree += cost.take(below_left)
+        subtree += cost.take(below_right)
+        as_leaf = np.where(merged_size <= LEAF_MAX, merged_size * area, np.inf)
+        is_leaf = leaf[first:end] = as_leaf <= subtree
+        np.minimum(as_leaf, subtree, out=cost[first:end])
+        higher = np.maximum(height.take(below_left), height.take(below_right)) + 1
+        higher[is_leaf] = 0
+        height[first:end] = higher
+    return size, height, leaf
+
+
+def _leaf_order(children: np.ndarray, rounds: list, root: int, size: np.ndarray) -> np.ndarray:
+    """Top down, a round at a time: each cluster's first position in the leaves' order (its
+    left child's first, its right child's after the left's primitives). Returns the
+    primitives (cluster ids 0 .. N - 1) in that order."""
+    count = len(size) - children.shape[1]
+    start = np.empty(len(size), np.int32)
+    start[root] = 0
+    for first, end in reversed(rounds):
+        below_left, below_right = children[:, first - count : end - count]
+        merged_start = start[first:end]
+        start[below_left] = merged_start
+        start[below_right] = merged_start + size.take(below_left)
+    ranks = np.empty(count, np.int32)
+    ranks[start[:count]] = np.arange(count, dtype=np.int32)
+    return ranks
+
+
+# A node of a balanced tree (_tree_levels' cluster): the root of one, other nodes of one
+REBUILT_ROOT, BALANCED_NODE = -1, -2
+
+
+def _tree_levels(children, root, size, height, leaf) -> tuple:
+    """Top down, a level at a time: the tree's nodes breadth first, (cluster, first, length,
+    split) each (cluster REBUILT_ROOT or BALANCED_NODE for a balanced tree's; first, length:
+    its range of the leaves' order), a level's nodes in order of position, the children of a
+    split node next to each other; so the k-th split node's children are nodes 2k + 1, 2k + 2.
+    A cluster whose subtree exceeds the depth cap and one of whose children could not be
+    fitted either (too deep itself and too large to rebuild) is rebuilt as a balanced tree
+    over its primitives, halved until at most LEAF_MAX (or at the cap)."""
+    count = len(size) - children.shape[1]
+    cluster = np.array([root], np.int32)
+    first = np.zeros(1, np.int32)
+    length = size[cluster]
+    # A node's height is at most its root's less its depth: no subtree can reach below the cap
+    # (nor be rebuilt) unless the whole tree does
+    capped = height[root] > BVH_MAX_DEPTH
+    levels = []
+    for depth in range(BVH_MAX_DEPTH + 1):
+        room = BVH_MAX_DEPTH - depth
+        if capped:
+            ranged = cluster < 0
+            merged = np.maximum(cluster, 0)  # clusters (primitives are leaves: never split)
+            deep = np.flatnonzero((height.take(merged) > room) & ~ranged)
+            if len(deep):
+                below = children.take(cluster[deep] - count, axis=1)
+                fits = np.minimum(height[below], _balanced_height(size[below])) < room
+                rebuilt = deep[~fits.all(axis=0)]
+                cluster[rebuilt] = REBUILT_ROOT
+                ranged[rebuilt] = True
+            is_leaf = leaf.take(merged)
+            is_leaf[ranged] = length[ranged] <= LEAF_MAX
+        else:
+            is_leaf = leaf.take(cluster)
+        split = ~is_leaf if room > 0 else np.zeros(len(cluster), bool)
+        levels.append((cluster, first, length, split))
+        parents = np.flatnonzero(split)
+        if len(parents) == 0:
+            break
+        # The next level: each split node's two children (a balanced tree's: the halves of its
+        # range, the first taking the odd one), next to each other
+        parent_cluster = cluster.take(parents)
+        parent_first, parent_length = first.take(parents), length.take(parents)
+        below = children.take(np.maximum(parent_cluster - count, 0), axis=1)
+        left_length = size.take(below[0])
+        if capped:
+            halved = np.flatnonzero(parent_cluster < 0)
+            below[:, halved] = BALANCED_NODE
+            left_length[halved] = (parent_length[halved] + 1) // 2
+        cluster = below.T.reshape(-1)
+        first = np.stack([parent_first, parent_first + left_length], axis=1).reshape(-1)
+        length = np.stack([left_length, parent_length - left_length], axis=1).reshape(-1)
+    return tuple(np.concatenate(column) for column in zip(*levels, strict=True))
+
+
+def _binary_nodes(box, first, length, split) -> np.ndarray:
+    """BINARY_NODE_DTYPE nodes, breadth first, from their boxes (6 rows: lower, -upper; made
+    lower, upper in place),
+    ranges of `prims` (first, length) and whether they are split (the k-th split node's
+    children being nodes 2k + 1, 2k + 2)."""
+    nodes = len(first)
     record = np.empty((nodes, 8), np.float32)
     words = record.view(np.int32)
-    node_depth, node_first = np.empty(nodes, np.int32), np.empty(nodes, np.int32)
-    end = 0
-    for node_level, first, length, is_split, box, ids in parts:
-        rows = slice(end, end + len(first))
-        end = rows.stop
-        box = np.take(cluster, ids)["box"] if box is None else box
-        record[rows, 0:3] = box[:, :3]
-        np.negative(box[:, 3:], out=record[rows, 4:7])
-        words[rows, 3] = first
-        words[rows, 7] = np.where(is_split, -1, length)
-        node_depth[rows], node_first[rows] = node_level, first
-    # Breadth first: by depth, then by first position (a level's ranges are disjoint); so the
-    # k-th split node's children are nodes 2k + 1 and 2k + 2. One sort of packed keys.
-    bits = max(count, nodes).bit_length()
-    if 2 * bits + BVH_MAX_DEPTH.bit_length() < 64:
-        key = (node_depth.astype(np.int64) << bits | node_first) << bits | np.arange(nodes)
-        order = np.sort(key) & ((1 << bits) - 1)
-    else:
-        order = np.lexsort((node_first, node_depth))
-    record = np.take(record.view(np.dtype((np.void, 32))).reshape(-1), order)
-    words = record.view(np.int32).reshape(nodes, 8)
-    # Split nodes: first child, and -1 - the axis of largest extent (informative)
-    parents = np.flatnonzero(words[:, 7] < 0)
-    box = np.take(words.view(np.float32), parents, axis=0)
-    x, y, z = (box[:, 4 + axis] - box[:, axis] for axis in range(3))
+    record[:, 0:3] = box[:3].T
+    np.negative(box[3:], out=box[3:])
+    record[:, 4:7] = box[3:].T
+    # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
+    # (informative)
+    words[:, 3] = first
+    words[:, 7] = length
+    parents = np.flatnonzero(split)
+    x, y, z = (box[3 + axis].take(parents) - box[axis].take(parents) for axis in range(3))
     widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
     words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
     words[parents, 7] = -1 - widest
-    return record.view(BINARY_NODE_DTYPE).reshape(-1), prims
+    return record.view(BINARY_NODE_DTYPE).reshape(-1)

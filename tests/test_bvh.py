@@ -19,6 +19,7 @@ from clrender.bvh import (
     BVH_WIDTH,
     KEY_BITS,
     LEAF_MAX,
+    NEAREST_ROWS,
     PLOC_RADIUS,
     TRAVERSAL_COST,
     _morton_keys,
@@ -593,9 +594,9 @@ def test_nearest_clusters_match_a_pairwise_search():
     low[repeat[:30]], high[repeat[:30]] = low[repeat[30:]], high[repeat[30:]]
     low[40:60], high[40:60] = low[40], high[40]  # a run of equal boxes
     boxes = np.concatenate([low.T, -high.T])
-    nearest, area = _nearest_clusters(
-        boxes, np.empty((7, 120), np.float32), np.arange(120, dtype=np.int32)
-    )
+    scratch = np.empty((NEAREST_ROWS, 120 + 2 * PLOC_RADIUS), np.float32)
+    result = np.empty((2, 120), np.int32)
+    nearest, area = _nearest_clusters(boxes, np.arange(120, dtype=np.int32), scratch, result)
     for i in range(120):
         candidates = []
         for j in range(max(0, i - PLOC_RADIUS), min(120, i + PLOC_RADIUS + 1)):
@@ -745,3 +746,198 @@ def test_wavefront_equals_the_megakernel_on_a_mesh_scene(runtime, tmp_path):
     radiance = a.to_host()
     np.testing.assert_array_equal(b.to_host(), radiance)
     assert a.rays == b.rays and np.count_nonzero(radiance.sum(axis=1)) > len(radiance) // 2
+
+
+# --------------------------------------------------------------------------- the build, cluster
+# by cluster (bvh-build-3: build_bvh's passes against a plain one-cluster-at-a-time reference)
+
+
+def reference_nearest(scaled, radius):
+    """Each cluster's nearest among `radius` before and after it (boxes as (lower, -upper)
+    float32 rows of 6), one pair at a time: the least float32 area of the union (its last
+    KEY_BITS bits cleared), then the closer, then forwards from an even index."""
+    nearest, areas = [], []
+    for i in range(len(scaled)):
+        candidates = []
+        for j in range(max(0, i - radius), min(len(scaled), i + radius + 1)):
+            if j != i:
+                union = np.minimum(scaled[i], scaled[j])
+                e = union[:3] + union[3:]
+                area = e[0] * e[1]
+                area += e[1] * e[2]
+                area += e[2] * e[0]
+                bits = np.float32(area).view(np.int32) & ~np.int32(2**KEY_BITS - 1)
+                preferred = (j > i) == (i % 2 == 0)
+                candidates.append((int(bits), abs(j - i), not preferred, j))
+        best = min(candidates)
+        nearest.append(best[3])
+        areas.append(best[0])
+    return nearest, areas
+
+
+def reference_build(lower, upper):
+    """build_bvh one cluster at a time in plain Python: PLOC merge rounds over the Morton order,
+    the SAH's leaves bottom up (float64 half areas of the float32 extents), the depth cap's
+    balanced rebuilds and the breadth-first layout top down, one node at a time."""
+    low, high = padded_bounds(lower, upper)
+    count = low.shape[1]
+    ranked = np.argsort(_morton_keys(0.5 * (low + high)))
+    box = [np.concatenate([low[:, p], -high[:, p]]) for p in ranked]  # by rank
+    extent = float((high.max(axis=1) - low.min(axis=1)).max())
+    scale = np.float32(1.0 / max(extent, 1e-30))
+    # Merge rounds: (cluster id, scaled box) in order; merges get ids count, count + 1, ...
+    active = [(rank, box[rank] * scale) for rank in range(count)]
+    children = {}
+    while len(active) > 1:
+        nearest, areas = reference_nearest([b for _, b in active], PLOC_RADIUS)
+        leads = [i for i, j in enumerate(nearest) if nearest[j] == i and j > i]
+        if not leads:
+            closest = int(np.argmin(areas))
+            leads = [min(closest, nearest[closest])]
+            nearest[leads[0]] = max(closest, nearest[closest])
+        partners = {nearest[i]: i for i in leads}
+        merged = []
+        for i, (ident, scaled) in enumerate(active):
+            if i in partners:
+                continue
+            if i in leads:
+                other_id, other_box = active[nearest[i]]
+                children[count + len(children)] = (ident, other_id)
+                merged.append((count + len(children) - 1, np.minimum(scaled, other_box)))
+            else:
+                merged.append((ident, scaled))
+        active = merged
+    root = active[0][0]
+    # Bottom up: boxes, sizes, SAH costs, leaves, heights
+    size, cost, leaf, height = [1] * count, [], [True] * count, [0] * count
+    for b in box:
+        x, y, z = (float(b[a] + b[3 + a]) for a in range(3))
+        cost.append(x * y + y * z + z * x)
+    for ident in range(count, count + len(children)):
+        left, right = children[ident]
+        box.append(np.minimum(box[left], box[right]))
+        size.append(size[left] + size[right])
+        x, y, z = (float(box[ident][a] + box[ident][3 + a]) for a in range(3))
+        area = x * y + y * z + z * x
+        subtree = TRAVERSAL_COST * area + cost[left] + cost[right]
+        as_leaf = size[ident] * area if size[ident] <= LEAF_MAX else np.inf
+        leaf.append(as_leaf <= subtree)
+        cost.append(min(as_leaf, subtree))
+        height.append(0 if leaf[ident] else 1 + max(height[left], height[right]))
+
+    def ranks_of(ident):
+        if ident < count:
+            return [ident]
+        return ranks_of(children[ident][0]) + ranks_of(children[ident][1])
+
+    def balanced(size):
+        return int(np.ceil(np.log2(max(size / LEAF_MAX, 1.0))))
+
+    # Top down, breadth first: a node is (cluster id or None for a balanced tree's, ranks,
+    # first position in the leaves' order: a cluster's left child's first)
+    nodes, level, depth = [], [(root, ranks_of(root), 0)], 0
+    while level:
+        room, below = BVH_MAX_DEPTH - depth, []
+        for ident, ranks, first in level:
+            if ident is not None and ident >= count and height[ident] > room:
+                fits = [
+                    min(height[child], balanced(size[child])) < room for child in children[ident]
+                ]
+                if not all(fits):
+                    ident, ranks = None, sorted(ranks)
+            if ident is None:
+                split = len(ranks) > LEAF_MAX and room > 0
+                half = (len(ranks) + 1) // 2
+                pairs = [(None, ranks[:half], first), (None, ranks[half:], first + half)]
+            else:
+                split = not leaf[ident] and room > 0
+                pairs = [
+                    (child, ranks_of(child), first + (k and size[children[ident][0]]))
+                    for k, child in enumerate(children.get(ident, ()))
+                ]
+            nodes.append((ranks, split, first))
+            below += pairs if split else []
+        level, depth = below, depth + 1
+    # Records: leaves' ranges of the leaves' order, split nodes' first children 2k + 1
+    order = np.full(count, -1)
+    for ranks, split, first in nodes:
+        if not split:
+            order[first : first + len(ranks)] = ranks
+    records = np.zeros(len(nodes), BINARY_NODE_DTYPE)
+    split_count = 0
+    for k, (ranks, split, first) in enumerate(nodes):
+        union = np.min([box[r] for r in ranks], axis=0)
+        records[k]["lower"], records[k]["upper"] = union[:3], -union[3:]
+        if split:
+            split_count += 1
+            x, y, z = records[k]["upper"] - records[k]["lower"]
+            widest = (0 if x >= z else 2) if x >= y else (1 if y >= z else 2)
+            records[k]["offset"], records[k]["count"] = 2 * split_count - 1, -1 - widest
+        else:
+            records[k]["offset"], records[k]["count"] = first, len(ranks)
+    return records, ranked[order].astype(np.uint32)
+
+
+@pytest.mark.parametrize(
+    "shape", ["random", "overlapping", "identical", "coincident points", "a chain", "two"]
+)
+def test_build_equals_the_cluster_by_cluster_reference(shape):
+    """build_bvh's whole-array passes (merge rounds, SAH leaves, levels top down) against
+    reference_build, bit for bit: random small boxes, large overlapping ones, identical
+    boxes (ties), coincident points, an exponential chain (rebuilt below the depth cap: 23
+    primitives halved into 12 and 11)."""
+    rng = np.random.default_rng(31)
+    if shape == "random":
+        lower = rng.uniform(-1, 1, (400, 3))
+        upper = lower + rng.exponential(0.03, (400, 3))
+    elif shape == "overlapping":
+        lower, upper = random_triangle_bounds(rng, 300, 0.4)
+    elif shape == "identical":
+        lower = np.zeros((100, 3))
+        upper = lower + 1.0
+    elif shape == "coincident points":
+        lower = upper = np.full((60, 3), 0.25)
+    elif shape == "a chain":
+        lower = np.stack([2.0 ** np.arange(100), np.zeros(100), np.zeros(100)], 1)
+        upper = lower + 0.5
+    else:
+        lower, upper = degenerate_bounds("two")
+    nodes, prims = build_bvh(lower, upper)
+    reference_nodes, reference_prims = reference_build(lower, upper)
+    np.testing.assert_array_equal(prims, reference_prims)
+    assert nodes.tobytes() == reference_nodes.tobytes()
+
+
+@pytest.mark.parametrize("radius", range(1, PLOC_RADIUS + 1))
+@pytest.mark.parametrize("chunk", [1, 7, 90])
+def test_nearest_clusters_match_the_reference_at_every_radius(radius, chunk):
+    """_nearest_clusters at each search radius against reference_nearest, in chunks of 1, 7
+    and all 90 clusters, twice through the same scratch."""
+    rng = np.random.default_rng(32)
+    low = rng.uniform(-1, 1, (90, 3)).astype(np.float32)
+    high = low + rng.uniform(0, 0.3, (90, 3)).astype(np.float32)
+    low[30:45], high[30:45] = low[30], high[30]  # ties
+    boxes = np.concatenate([low.T, -high.T])
+    scratch = np.empty((NEAREST_ROWS, chunk + 2 * radius), np.float32)
+    result = np.empty((2, 100), np.int32)
+    expected, areas = reference_nearest(list(boxes.T), radius)
+    for _ in range(2):
+        index = np.arange(100, dtype=np.int32)
+        nearest, area = _nearest_clusters(boxes, index, scratch, result, radius, chunk)
+        np.testing.assert_array_equal(nearest, expected)
+        np.testing.assert_array_equal(area.view(np.int32), areas)
+
+
+def test_bvh_scaling_build_times_report_each_stage_with_its_page_faults(monkeypatch):
+    """bench/bvh_scaling.py's build section: CPU, wall time and minor page faults of each
+    stage of the whole way, and totals that cover the stages."""
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "bench"))
+    import bvh_scaling
+
+    row = bvh_scaling.build_times(bvh_scaling.scene_with_sphere_mesh(2000), 2)
+    for stage in ("bounds", "build", "collapse", "leaves", "total_build"):
+        assert row[f"{stage}_cpu_s"] >= 0.0 and row[f"{stage}_wall_s"] > 0.0
+        assert row[f"{stage}_page_faults"] >= 0
+    stages = ("bounds", "build", "collapse", "leaves")
+    assert row["total_build_wall_s"] >= 0.99 * max(row[f"{stage}_wall_s"] for stage in stages)
+    assert row["sah_cost"] > 1.0 and row["nodes"] > 1
