@@ -36,6 +36,7 @@ BINARY_NODE_DTYPE = np.dtype(
 # A cluster of the build (host only), as the bottom-up pass gathers it in one piece: its box
 # (lower, -upper: a union is a minimum), primitives, height and SAH cost.
 CLUSTER_DTYPE = np.dtype([("box", "<f4", 6), ("size", "<i4"), ("height", "<i4"), ("cost", "<f8")])
+BVH_BLOCK_WIDTH = 8  # triangles a leaf's block holds: fixed in kernels/scene_types.h
 BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
 # The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
 # arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
@@ -61,6 +62,12 @@ LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
 # up to 8 trace 5-10 % faster here: bench/bvh_scaling.py).
 TRAVERSAL_COST = 1.0
+# Device costs of the 8-wide tree (collapse_bvh's surface-area heuristic), relative to one
+# node's test of its BVH_WIDTH child boxes: a leaf's triangles are tested BVH_BLOCK_WIDTH at a
+# time, each block costing about WIDE_BLOCK_COST node tests.
+WIDE_NODE_COST = 1.0
+WIDE_BLOCK_COST = 2.0
+WIDE_LEAF_MAX = 8  # primitives of a leaf of the 8-wide tree
 # Primitive bounds are widened by this fraction of their largest coordinate magnitude: far above
 # the rounding of the slab test and of the primitive tests (so a box never rejects a ray that
 # hits one of its primitives; flat primitives get boxes of non-zero thickness).
@@ -219,47 +226,119 @@ def build_wide_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np
     return collapse_bvh(binary), prims
 
 
+def _binary_levels(binary: np.ndarray) -> list[np.ndarray]:
+    """The binary tree's nodes level by level from the root (indices, each level ascending)."""
+    levels = []
+    frontier = np.array([0])
+    count, offset = binary["count"], binary["offset"]
+    while len(frontier):
+        levels.append(frontier)
+        inner = offset[frontier[count[frontier] < 0]]
+        frontier = np.stack([inner, inner + 1], axis=1).reshape(-1)
+    return levels
+
+
+def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
+    """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1),
+    bottom up a level at a time. cost[n, i - 1]: least cost of subtree n as at most i children of
+    a wide node (area x cost per visit, over all its wide nodes and leaves); as_leaf[n]: n is
+    cheapest as one leaf (else as one wide node); split[n, i - 1]: the k of the best
+    distribution of its i children, k to its left child and i - k to its right one (0: n is one
+    child). Also each subtree's first primitive and size."""
+    total = len(binary)
+    count, offset = binary["count"], binary["offset"]
+    extent = (binary["upper"] - binary["lower"]).astype(np.float64)
+    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
+    area /= max(area[0], 1e-300)
+    size = np.where(count > 0, count, 0)
+    first = np.where(count > 0, offset, 0)
+    cost = np.empty((total, BVH_WIDTH))
+    as_leaf = count > 0
+    split = np.zeros((total, BVH_WIDTH), np.int8)
+    # The (k, i - k) pairs of every distribution of i children: indices into the (8, 8) sums
+    pairs = [(np.arange(1, i), i - np.arange(1, i)) for i in range(2, BVH_WIDTH + 1)]
+    for level in reversed(levels):
+        leaves = level[count[level] > 0]
+        cost[leaves] = (WIDE_BLOCK_COST * -(-size[leaves] // BVH_BLOCK_WIDTH) * area[leaves])[
+            :, None
+        ]
+        inner = level[count[level] < 0]
+        if len(inner) == 0:
+            continue
+        left = offset[inner]
+        size[inner] = size[left] + size[left + 1]
+        first[inner] = first[left]
+        both = cost[left][:, :, None] + cost[left + 1][:, None, :]
+        distribute = np.full((len(inner), BVH_WIDTH), np.inf)
+        best_k = np.zeros((len(inner), BVH_WIDTH), np.int8)
+        for i, (k, rest) in enumerate(pairs, start=2):
+            options = both[:, k - 1, rest - 1]
+            choice = np.argmin(options, axis=1)
+            distribute[:, i - 1] = options[np.arange(len(inner)), choice]
+            best_k[:, i - 1] = k[choice]
+        node = WIDE_NODE_COST * area[inner] + distribute[:, -1]
+        leaf = np.where(
+            size[inner] <= WIDE_LEAF_MAX,
+            WIDE_BLOCK_COST * -(-size[inner] // BVH_BLOCK_WIDTH) * area[inner],
+            np.inf,
+        )
+        is_leaf = leaf <= node
+        as_leaf[inner] = is_leaf
+        one = np.where(is_leaf, leaf, node)
+        spread = distribute < one[:, None]
+        cost[inner] = np.where(spread, distribute, one[:, None])
+        split[inner] = np.where(spread, best_k, -best_k)
+    return cost, as_leaf, split, first, size
+
+
 def collapse_bvh(binary: np.ndarray) -> np.ndarray:
-    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first): each wide node
-    starts as one binary node and repeatedly opens the interior child of largest surface area
-    until it has BVH_WIDTH children (Wald et al. 2008); vectorised over the nodes of a level."""
+    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first), collapsed by the
+    SAH-optimal dynamic programme (_collapse_costs): each wide node takes the best distribution of
+    its binary root's subtree into BVH_WIDTH children, leaves or wide nodes; vectorised over the
+    nodes of a level."""
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
-    # The binary nodes as rows of 8 words, and a last row for an empty lane (box 0, -1, -1)
+    levels = _binary_levels(binary)
+    cost, as_leaf, split, first, size = _collapse_costs(binary, levels)
+    # The binary nodes as rows of 8 words (box, child, count: a leaf's first primitive and
+    # size, -1 for a node), and a last row for an empty lane (box 0, -1, -1)
     rows = np.empty((len(binary) + 1, 8), np.float32)
     rows[:-1] = binary.view(np.float32).reshape(-1, 8)
     rows[-1] = 0.0
     row_words = rows.view(np.int32)
+    row_words[:-1, 3] = np.where(as_leaf, first, -1)
+    row_words[:-1, 7] = np.where(as_leaf, size, -1)
     row_words[-1, 3] = row_words[-1, 7] = -1
-    offset = row_words[:, 3]
-    x, y, z = ((rows[:, 4 + axis] - rows[:, axis]).astype(np.float64) for axis in range(3))
-    area = x * y + y * z + z * x
-    # The area of an interior node (the one to open), -1 for a leaf or an empty lane
-    opening = np.where(row_words[:, 7] < 0, area, -1.0)
-    opening[-1] = -1.0
+    offset = binary["offset"]
     empty = len(binary)
     levels = []
-    roots = np.array([0])  # the binary node each wide node of the level starts from
+    # A binary root's wide node (the whole tree's root: one leaf lane if it is a leaf)
+    roots = np.array([0])
     next_index = 1
     while len(roots):
         count = len(roots)
+        # Each wide node's children: its root's best distribution into BVH_WIDTH, split down
+        owner, node = np.arange(count), roots
+        budget = np.full(count, BVH_WIDTH)
+        spread = binary["count"][roots] < 0  # (the whole tree's root: a leaf only if binary)
+        slot_owner, slot_node = [], []
+        while len(node):
+            slot_owner.append(owner[~spread])
+            slot_node.append(node[~spread])
+            owner, node, budget = owner[spread], node[spread], budget[spread]
+            k = np.abs(split[node, budget - 1].astype(np.int64))
+            left = offset[node]
+            owner = np.concatenate([owner, owner])
+            node = np.concatenate([left, left + 1])
+            budget = np.concatenate([k, budget - k])
+            spread = (budget >= 2) & (split[node, budget - 1] > 0)
+        slot_owner, slot_node = np.concatenate(slot_owner), np.concatenate(slot_node)
+        order = np.argsort(slot_owner, kind="stable")
+        slot_owner, slot_node = slot_owner[order], slot_node[order]
+        per_owner = np.bincount(slot_owner, minlength=count)
+        lane = np.arange(len(slot_owner)) - np.repeat(np.cumsum(per_owner) - per_owner, per_owner)
         slots = np.full((count, BVH_WIDTH), empty)
-        slots[:, 0] = roots
-        # Lanes 0 .. filled - 1 are full while a node grows; it stops growing for good when
-        # none of them is interior (score < 0)
-        score = np.full((count, BVH_WIDTH), -1.0)
-        score[:, 0] = opening[roots]
-        flat_slots, flat_score = slots.reshape(-1), score.reshape(-1)
-        for filled in range(1, BVH_WIDTH):
-            widest = np.argmax(score, axis=1)
-            widest += np.arange(0, count * BVH_WIDTH, BVH_WIDTH)
-            widest = widest[flat_score[widest] >= 0.0]
-            if len(widest) == 0:
-                break
-            first_child = offset[flat_slots[widest]]
-            second = widest - widest % BVH_WIDTH + filled
-            flat_slots[widest], flat_slots[second] = first_child, first_child + 1
-            flat_score[widest], flat_score[second] = opening[first_child], opening[first_child + 1]
+        slots[slot_owner, lane] = slot_node
         # Each lane's node, leaf or empty lane: box, child, count (0 for a node)
         lanes = np.take(rows, slots, axis=0)  # (count, BVH_WIDTH, 8)
         lane_words = lanes.view(np.int32)

@@ -402,13 +402,11 @@ def pack_bvh_leaves(
     nodes = nodes.copy()
     quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
     first_triangle = len(quads) + sphere_count
-    # One record per node with leaves; its leaves in lane order (row-major, as boolean masks)
+    # One record per leaf lane, in node and lane order (row-major, as boolean masks)
     child, count = nodes["child"], nodes["count"]
     is_leaf = count > 0
-    leaves_per_node = np.count_nonzero(is_leaf, axis=1)
-    leaves_per_record = leaves_per_node[leaves_per_node > 0]
-    records = len(leaves_per_record)
-    record_of_leaf = np.repeat(np.arange(records), leaves_per_record)
+    records = int(np.count_nonzero(is_leaf))
+    record_of_leaf = np.arange(records)
     start = child[is_leaf].astype(np.int64)
     leaf_count = count[is_leaf].astype(np.int64)
     # Every record's members, its leaves' primitives in lane and leaf order

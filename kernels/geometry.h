@@ -49,6 +49,9 @@ CL_INLINE uint Lanes_Bits(int8 mask)
 #endif
 }
 
+// Each lane's index.
+#define LANE_INDEX ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+
 // 8 ints from a 4-byte aligned address.
 typedef int Int8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
 
@@ -391,10 +394,14 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
         enter.v = BVHNode_Enter(node, o, inv_d, t);
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
-        // A leaf the ray reaches: the primitives of all the node's leaves (one shared record)
-        uint leaves = Lanes_Bits(reached & (count > 0));
-        if (leaves != 0u) {
-            int j = __builtin_ctz(leaves);
+        // The leaves the ray reaches, nearest first, each while it is nearer than the closest hit
+        float8 leaf_enter = reached & (count > 0) ? enter.v : (float8)(INFINITY);
+        for (;;) {
+            float leaf_nearest = Lanes_Min(leaf_enter);
+            if (!(leaf_nearest < INFINITY && leaf_nearest <= t))
+                break;
+            int j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+            leaf_enter = LANE_INDEX == j ? (float8)(INFINITY) : leaf_enter;
             BVHLeaves_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit,
                                 &t, &id);
             if (any_hit && id >= 0) {
