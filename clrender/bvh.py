@@ -355,7 +355,38 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         levels.append(wide.reshape(count, -1))
         roots = slots[is_node]
         next_index += len(roots)
-    return np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
+    nodes = np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
+    import os
+    if os.environ.get("CLRENDER_BFS"):
+        return nodes
+    return _depth_first(nodes, [len(level) for level in levels])
+
+
+def _depth_first(nodes: np.ndarray, level_sizes: list[int]) -> np.ndarray:
+    """Wide nodes (breadth first, levels of level_sizes nodes) put in depth-first order, each
+    node's children after it in lane order: a subtree's nodes (and so its leaf records, which
+    pack_bvh_leaves writes in node order) lie together in memory, which a ray descending it
+    reads from fewer cache lines. Vectorised over a level."""
+    is_node = nodes["count"] == 0
+    child = np.where(is_node, nodes["child"], 0)
+    ends = np.cumsum(level_sizes)
+    levels = [slice(end - size, end) for end, size in zip(ends, level_sizes, strict=True)]
+    # Bottom up: each subtree's nodes; top down: each node's place, after its parent and its
+    # earlier siblings' subtrees
+    size = np.ones(len(nodes), np.int64)
+    for rows in reversed(levels):
+        size[rows] += (size[child[rows]] * is_node[rows]).sum(axis=1)
+    place = np.zeros(len(nodes), np.int64)
+    for rows in levels:
+        lane_size = size[child[rows]] * is_node[rows]
+        before = np.cumsum(lane_size, axis=1) - lane_size
+        inner = is_node[rows]
+        place[child[rows][inner]] = (place[rows][:, None] + 1 + before)[inner]
+    ordered = np.empty_like(nodes)
+    ordered[place] = nodes
+    moved = ordered["count"] == 0
+    ordered["child"][moved] = place[ordered["child"][moved]]
+    return ordered
 
 
 def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -49,9 +49,6 @@ CL_INLINE uint Lanes_Bits(int8 mask)
 #endif
 }
 
-// Each lane's index.
-#define LANE_INDEX ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
-
 // 8 ints from a 4-byte aligned address.
 typedef int Int8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
 
@@ -401,9 +398,10 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
             if (!(leaf_nearest < INFINITY && leaf_nearest <= t))
                 break;
             int j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
-            leaf_enter = LANE_INDEX == j ? (float8)(INFINITY) : leaf_enter;
-            BVHLeaves_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit,
-                                &t, &id);
+            // Its record, shared by the leaves of its group: tested once for all of them
+            int record = node->child[j];
+            leaf_enter = Load8Int(node->child) == record ? (float8)(INFINITY) : leaf_enter;
+            BVHLeaves_Intersect(scene, (uint)record, node->count[j], o, d, &r, any_hit, &t, &id);
             if (any_hit && id >= 0) {
                 *prim = id;
                 return t;
@@ -475,27 +473,41 @@ BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float
     return prim >= 0;
 }
 
+// Whether a scene's quads are tested by brute force (a block at a time): always without a BVH,
+// and beside it while they are few (BVH_MAX_BRUTE_QUADS; clrender/scene_device.py pack_bvh
+// leaves them out of the tree then).
+CL_INLINE bool Scene_QuadsBruteForce(const SceneData *scene)
+{
+    return scene->bvh_node_count == 0u || scene->quad_count <= BVH_MAX_BRUTE_QUADS;
+}
+
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
-// Brute force (no BVH): ties go to the lowest quad index, then to the sphere, then to the
-// triangle (blocks hold quads in scene order).
+// Brute force: ties go to the lowest quad index, then to the sphere, then to the triangle
+// (blocks hold quads in scene order); the BVH's primitives lose ties with brute-force quads.
 CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
                                 int *prim)
 {
-    if (scene->bvh_node_count > 0u)
-        return BVH_Intersect(scene, o, d, tmax, prim);
     float t = tmax;
     int id = -1;
     float3 inv_d = 1.0f / d;
-    for (uint b = 0; b < scene->quad_block_count; ++b) {
-        __global const QuadBlock *block = &scene->quad_blocks[b];
-        if (!QuadBlock_BoundsHit(block, o, inv_d, t))
-            continue;
-        int lane;
-        float tb = QuadBlock_Intersect(block, o, d, t, &lane);
-        if (tb < t) {
-            id = block->quad[lane];
-            t = tb;
+    if (Scene_QuadsBruteForce(scene)) {
+        for (uint b = 0; b < scene->quad_block_count; ++b) {
+            __global const QuadBlock *block = &scene->quad_blocks[b];
+            if (!QuadBlock_BoundsHit(block, o, inv_d, t))
+                continue;
+            int lane;
+            float tb = QuadBlock_Intersect(block, o, d, t, &lane);
+            if (tb < t) {
+                id = block->quad[lane];
+                t = tb;
+            }
         }
+    }
+    if (scene->bvh_node_count > 0u) {
+        int bvh_id;
+        float tb = BVH_Intersect(scene, o, d, t, &bvh_id);
+        *prim = bvh_id >= 0 ? bvh_id : id;
+        return bvh_id >= 0 ? tb : t;
     }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         float ti = Sphere_Intersect(&scene->spheres[i], o, d, t);
@@ -516,31 +528,35 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
 }
 
 // Whether anything lies along the ray closer than tmax (shadow rays): an any-hit query that
-// returns at the first blocker. Spheres first, then the quad blocks from the last: scene files
-// list the enclosing walls first and the objects inside later, and walls of a convex room
-// never block a ray between two points inside it.
+// returns at the first blocker. Brute force: spheres first, then the quad blocks from the
+// last: scene files list the enclosing walls first and the objects inside later, and walls of
+// a convex room never block a ray between two points inside it. With a BVH: its brute-force
+// quads (so), then the BVH.
 CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
-    if (scene->bvh_node_count > 0u)
-        return BVH_Occluded(scene, o, d, tmax);
-    if (scene->triangle_count > 0u) {
-        TriangleRay r = TriangleRay_Make(o, d);
-        for (uint k = 0; k < scene->triangle_count; ++k) {
-            if (Triangle_Intersect(&scene->triangles[k], &r, tmax) < tmax)
+    if (scene->bvh_node_count == 0u) {
+        if (scene->triangle_count > 0u) {
+            TriangleRay r = TriangleRay_Make(o, d);
+            for (uint k = 0; k < scene->triangle_count; ++k) {
+                if (Triangle_Intersect(&scene->triangles[k], &r, tmax) < tmax)
+                    return true;
+            }
+        }
+        for (uint i = 0; i < scene->sphere_count; ++i) {
+            if (Sphere_Intersect(&scene->spheres[i], o, d, tmax) < tmax)
                 return true;
         }
     }
-    for (uint i = 0; i < scene->sphere_count; ++i) {
-        if (Sphere_Intersect(&scene->spheres[i], o, d, tmax) < tmax)
-            return true;
+    if (Scene_QuadsBruteForce(scene)) {
+        float3 inv_d = 1.0f / d;
+        for (uint b = scene->quad_block_count; b-- > 0u;) {
+            __global const QuadBlock *block = &scene->quad_blocks[b];
+            if (QuadBlock_BoundsHit(block, o, inv_d, tmax) &&
+                QuadBlock_Occluded(block, o, d, tmax))
+                return true;
+        }
     }
-    float3 inv_d = 1.0f / d;
-    for (uint b = scene->quad_block_count; b-- > 0u;) {
-        __global const QuadBlock *block = &scene->quad_blocks[b];
-        if (QuadBlock_BoundsHit(block, o, inv_d, tmax) && QuadBlock_Occluded(block, o, d, tmax))
-            return true;
-    }
-    return false;
+    return scene->bvh_node_count > 0u && BVH_Occluded(scene, o, d, tmax);
 }
 
 // The surface record of a hit at distance t along the ray.

@@ -78,6 +78,9 @@ typedef struct {
 // Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
 // a tree the builder never makes deeper than BVH_MAX_DEPTH.
 #define BVH_WIDTH 8
+// A scene with a BVH keeps its quads out of it, tested by brute force beside it (its quad
+// blocks, as without a BVH), while it has at most this many (kernels/geometry.h).
+#define BVH_MAX_BRUTE_QUADS 64
 #define BVH_MAX_DEPTH 40
 #define BVH_STACK_SIZE ((BVH_WIDTH - 1) * BVH_MAX_DEPTH)
 typedef struct {
