@@ -291,6 +291,25 @@ def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
     return cost, as_leaf, split, first, size
 
 
+def wide_sah_cost(nodes: np.ndarray) -> float:
+    """A wide tree's (BVH_NODE_DTYPE, leaves as prims ranges: collapse_bvh's output) cost by the
+    collapse's SAH: each node's visit (WIDE_NODE_COST, the root's at its lanes' union) and each
+    leaf's triangle blocks (WIDE_BLOCK_COST each) weighted by their boxes' areas, over the root's
+    area."""
+    if len(nodes) == 0:
+        return 0.0
+    count = nodes["count"]
+    used = count >= 0
+    extent = nodes["upper"].astype(np.float64) - nodes["lower"]  # (nodes, 3, lanes)
+    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
+    blocks = -(-np.maximum(count, 0) // BVH_BLOCK_WIDTH)
+    weight = np.where(count == 0, WIDE_NODE_COST, WIDE_BLOCK_COST * blocks) * used
+    root = np.where(used[0], nodes["lower"][0], np.inf).min(axis=1).astype(np.float64)
+    x, y, z = np.where(used[0], nodes["upper"][0], -np.inf).max(axis=1) - root
+    root_area = x * y + y * z + z * x
+    return float(WIDE_NODE_COST + (area * weight).sum() / root_area)
+
+
 def collapse_bvh(binary: np.ndarray) -> np.ndarray:
     """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first), collapsed by the
     SAH-optimal dynamic programme (_collapse_costs): each wide node takes the best distribution of
@@ -356,9 +375,6 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         roots = slots[is_node]
         next_index += len(roots)
     nodes = np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
-    import os
-    if os.environ.get("CLRENDER_BFS"):
-        return nodes
     return _depth_first(nodes, [len(level) for level in levels])
 
 
