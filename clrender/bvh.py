@@ -240,43 +240,46 @@ def _binary_levels(binary: np.ndarray) -> list[np.ndarray]:
 
 def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
     """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1),
-    bottom up a level at a time. cost[n, i - 1]: least cost of subtree n as at most i children of
-    a wide node (area x cost per visit, over all its wide nodes and leaves); as_leaf[n]: n is
-    cheapest as one leaf (else as one wide node); split[n, i - 1]: the k of the best
-    distribution of its i children, k to its left child and i - k to its right one (0: n is one
-    child). Also each subtree's first primitive and size."""
+    bottom up a level at a time. cost[i - 1, n]: least cost of subtree n as at most i children
+    of a wide node (area x cost per visit, over all its wide nodes and leaves); as_leaf[n]: n is
+    cheapest as one leaf (else as one wide node); split[i - 1, n]: the k of the best
+    distribution of n's subtree into i children, k from its left child's and i - k from its
+    right one's, negated where n as one child is cheaper (0 for a binary leaf). Also each
+    subtree's first primitive and size. Budgets are rows: every operation is on whole rows."""
     total = len(binary)
     count, offset = binary["count"], binary["offset"]
-    extent = (binary["upper"] - binary["lower"]).astype(np.float64)
+    extent = binary["upper"].astype(np.float64) - binary["lower"]
     area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
-    area /= max(area[0], 1e-300)
+    area = (area / max(area[0], 1e-300)).astype(np.float32)  # (float32 costs: half the traffic)
     size = np.where(count > 0, count, 0)
     first = np.where(count > 0, offset, 0)
-    cost = np.empty((total, BVH_WIDTH))
+    cost = np.empty((BVH_WIDTH, total), np.float32)
     as_leaf = count > 0
-    split = np.zeros((total, BVH_WIDTH), np.int8)
-    # The (k, i - k) pairs of every distribution of i children: indices into the (8, 8) sums
-    pairs = [(np.arange(1, i), i - np.arange(1, i)) for i in range(2, BVH_WIDTH + 1)]
+    split = np.zeros((BVH_WIDTH, total), np.int8)
     for level in reversed(levels):
         leaves = level[count[level] > 0]
-        cost[leaves] = (WIDE_BLOCK_COST * -(-size[leaves] // BVH_BLOCK_WIDTH) * area[leaves])[
-            :, None
-        ]
+        blocks = -(-size[leaves] // BVH_BLOCK_WIDTH)
+        cost[:, leaves] = np.float32(WIDE_BLOCK_COST) * blocks * area[leaves]
         inner = level[count[level] < 0]
         if len(inner) == 0:
             continue
         left = offset[inner]
         size[inner] = size[left] + size[left + 1]
         first[inner] = first[left]
-        both = cost[left][:, :, None] + cost[left + 1][:, None, :]
-        distribute = np.full((len(inner), BVH_WIDTH), np.inf)
-        best_k = np.zeros((len(inner), BVH_WIDTH), np.int8)
-        for i, (k, rest) in enumerate(pairs, start=2):
-            options = both[:, k - 1, rest - 1]
-            choice = np.argmin(options, axis=1)
-            distribute[:, i - 1] = options[np.arange(len(inner)), choice]
-            best_k[:, i - 1] = k[choice]
-        node = WIDE_NODE_COST * area[inner] + distribute[:, -1]
+        below_left, below_right = cost[:, left], cost[:, left + 1]
+        # Each budget i's best split: k from the left, i - k from the right (the first least)
+        distribute = np.empty((BVH_WIDTH, len(inner)), np.float32)
+        best_k = np.ones((BVH_WIDTH, len(inner)), np.int8)
+        distribute[0] = np.inf
+        scratch = np.empty(len(inner), np.float32)
+        for i in range(2, BVH_WIDTH + 1):
+            best = distribute[i - 1]
+            np.add(below_left[0], below_right[i - 2], out=best)
+            for k in range(2, i):
+                option = np.add(below_left[k - 1], below_right[i - k - 1], out=scratch)
+                np.copyto(best_k[i - 1], k, where=option < best)
+                np.minimum(best, option, out=best)
+        node = WIDE_NODE_COST * area[inner] + distribute[-1]
         leaf = np.where(
             size[inner] <= WIDE_LEAF_MAX,
             WIDE_BLOCK_COST * -(-size[inner] // BVH_BLOCK_WIDTH) * area[inner],
@@ -285,9 +288,9 @@ def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
         is_leaf = leaf <= node
         as_leaf[inner] = is_leaf
         one = np.where(is_leaf, leaf, node)
-        spread = distribute < one[:, None]
-        cost[inner] = np.where(spread, distribute, one[:, None])
-        split[inner] = np.where(spread, best_k, -best_k)
+        spread = distribute < one
+        cost[:, inner] = np.where(spread, distribute, one)
+        split[:, inner] = np.where(spread, best_k, -best_k)
     return cost, as_leaf, split, first, size
 
 
@@ -345,12 +348,12 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
             slot_owner.append(owner[~spread])
             slot_node.append(node[~spread])
             owner, node, budget = owner[spread], node[spread], budget[spread]
-            k = np.abs(split[node, budget - 1].astype(np.int64))
+            k = np.abs(split[budget - 1, node].astype(np.int64))
             left = offset[node]
             owner = np.concatenate([owner, owner])
             node = np.concatenate([left, left + 1])
             budget = np.concatenate([k, budget - k])
-            spread = (budget >= 2) & (split[node, budget - 1] > 0)
+            spread = (budget >= 2) & (split[budget - 1, node] > 0)
         slot_owner, slot_node = np.concatenate(slot_owner), np.concatenate(slot_node)
         order = np.argsort(slot_owner, kind="stable")
         slot_owner, slot_node = slot_owner[order], slot_node[order]
