@@ -339,8 +339,9 @@ CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int coun
 }
 
 // Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
-// meets it within [0, tmax] (finite), else INFINITY (the slab test of Bounds_Hit, 8 boxes at
-// once).
+// meets it within [0, tmax], else INFINITY (the slab test of Bounds_Hit, 8 boxes at once, the
+// range [0, tmax] folded into the entry and exit: entries clamped to 0). A NaN (a zero direction
+// component on a slab's plane) never rejects.
 CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 inv_d, float tmax)
 {
     float8 t0x = (Load8(node->lower[0]) - o.x) * inv_d.x;
@@ -355,22 +356,22 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
     float8 far_y = t0y < t1y ? t1y : t0y;
     float8 near_z = t0z < t1z ? t0z : t1z;
     float8 far_z = t0z < t1z ? t1z : t0z;
-    float8 t_enter = near_x > near_y ? near_x : near_y;
-    t_enter = t_enter > near_z ? t_enter : near_z;
-    float8 t_exit = far_x < far_y ? far_x : far_y;
-    t_exit = t_exit < far_z ? t_exit : far_z;
-    int8 miss = (t_enter > t_exit) | (t_exit < 0.0f) | (t_enter > tmax);
-    // A hit's entry is finite (a NaN entry, which never rejects, becomes -FLT_MAX)
-    float8 finite_enter = t_enter > -FLT_MAX ? t_enter : (float8)(-FLT_MAX);
-    return miss ? (float8)(INFINITY) : finite_enter;
+    // (a NaN on the left of each comparison drops out)
+    float8 t_enter = near_x > 0.0f ? near_x : (float8)(0.0f);
+    t_enter = near_y > t_enter ? near_y : t_enter;
+    t_enter = near_z > t_enter ? near_z : t_enter;
+    float8 t_exit = far_x < tmax ? far_x : (float8)(tmax);
+    t_exit = far_y < t_exit ? far_y : t_exit;
+    t_exit = far_z < t_exit ? far_z : t_exit;
+    return t_enter > t_exit ? (float8)(INFINITY) : t_enter;
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
 // with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
-// at once; if the ray reaches any of its leaves, all of them are tested right away (8 primitives
-// at a time, one record: fewer, fuller blocks than leaf by leaf); the nearest child node is
-// visited next and the others kept on a private stack with their entry distances, nearest on
-// top (skipped when taken if a closer hit was found since).
+// at once; the leaves the ray reaches are tested right away, nearest first, each group's shared
+// record once (up to 8 primitives of a kind at a time: scene_device.pack_bvh_leaves); the
+// nearest child node is visited next and the others kept on a private stack with their entry
+// distances, nearest on top (skipped when taken if a closer hit was found since).
 CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float tmax, bool any_hit,
                              int *prim)
 {
