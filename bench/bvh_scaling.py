@@ -11,7 +11,9 @@ from the scene's primitives to what the device receives (scene_device.pack_bvh's
 primitive_bounds, clrender.bvh's binary build and its collapse to 8-wide nodes, the leaf records
 of pack_bvh_leaves), each step's CPU and wall time and their total, medians of --repeats; the
 binary tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
-the same launch by brute force and through the BVH, alternating, so the two rates come from the
+the same launch by brute force and through the BVH (scenes of at most
+scene_device.BVH_MAX_BRUTE_QUADS quads test those by brute force beside the BVH: the Cornell
+boxes have no BVH then), alternating, so the two rates come from the
 same stretch of machine load. Rates are per CPU-second x compute units (as
 trace_throughput.py), robust to a shared machine.
 Output: JSON (default bench/results/bvh_scaling.json).
@@ -31,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from primitive_scaling import scene_with_extra_quads
 
-from clrender.bvh import build_bvh, collapse_bvh, sah_cost
+from clrender.bvh import build_bvh, collapse_bvh, sah_cost, wide_sah_cost
 from clrender.runtime import create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
@@ -100,7 +102,8 @@ def build_times(scene, repeats):
     """The whole way from the scene's primitives to what the device receives, as
     scene_device.pack_bvh takes it, stage by stage (CPU and wall time, medians of `repeats`):
     primitive_bounds, build_bvh (the binary tree), collapse_bvh (8-wide nodes) and
-    pack_bvh_leaves (the leaf records); and the binary tree's SAH cost."""
+    pack_bvh_leaves (the leaf records); the binary tree's SAH cost and the 8-wide tree's
+    (clrender.bvh.wide_sah_cost: the collapse's costs per node and triangle block)."""
     stages = ("bounds", "build", "collapse", "leaves")
     cpus = {stage: [] for stage in (*stages, "total_build")}
     walls = {stage: [] for stage in (*stages, "total_build")}
@@ -123,7 +126,13 @@ def build_times(scene, repeats):
     for stage in cpus:
         row[f"{stage}_cpu_s"] = statistics.median(cpus[stage])
         row[f"{stage}_wall_s"] = statistics.median(walls[stage])
-    return {**row, "nodes": len(binary), "sah_cost": sah_cost(binary)}
+    return {
+        **row,
+        "nodes": len(binary),
+        "sah_cost": sah_cost(binary),
+        "wide_nodes": len(wide),
+        "wide_sah_cost": wide_sah_cost(wide),
+    }
 
 
 def compare(runtime, scene, sets, size, repeats, label):
@@ -200,7 +209,8 @@ def main(argv=None):
             f"{row['triangles']:8d} triangles: CPU s bounds {row['bounds_cpu_s']:.3f}, binary "
             f"build {row['build_cpu_s']:.3f}, collapse {row['collapse_cpu_s']:.3f}, leaf records "
             f"{row['leaves_cpu_s']:.3f}; the whole way {row['total_build_cpu_s']:.3f} s CPU "
-            f"{row['total_build_wall_s']:.3f} s wall; SAH cost {row['sah_cost']:6.2f}  {rate}",
+            f"{row['total_build_wall_s']:.3f} s wall; SAH cost {row['sah_cost']:6.2f}, 8-wide "
+            f"{row['wide_sah_cost']:6.2f}  {rate}",
             flush=True,
         )
     if not args.skip_render:
