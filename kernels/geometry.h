@@ -275,9 +275,15 @@ CL_INLINE int8 TriangleBlock_Hits(__global const TriangleBlock *block, const Tri
     float8 t_range = tmax * det;
     int8 outside = det < 0.0f ? (t_scaled >= 0.0f) | (t_scaled < t_range)
                               : (t_scaled <= 0.0f) | (t_scaled > t_range);
+    int8 inside = ~(negative & positive) & (det != 0.0f) & ~outside;
+    // No lane left: no division (the usual case; the same decisions)
+    if (Lanes_Bits(inside) == 0u) {
+        *t_out = t_scaled;
+        return inside;
+    }
     float8 t = t_scaled * (1.0f / det);
     *t_out = t;
-    return ~(negative & positive) & (det != 0.0f) & ~outside & (t > 0.0f) & (t < tmax);
+    return inside & (t > 0.0f) & (t < tmax);
 }
 
 // The nearest triangle of a block hit before tmax: its distance (tmax if none) and its
@@ -376,7 +382,9 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
                              int *prim)
 {
     float3 inv_d = 1.0f / d;
-    TriangleRay r = TriangleRay_Make(o, d);
+    // Made at the first leaf (many rays reach none)
+    TriangleRay r;
+    bool r_made = false;
     uint stack[BVH_STACK_SIZE];
     float stack_enter[BVH_STACK_SIZE];
     int top = 0;
@@ -402,6 +410,10 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
             // Its record, shared by the leaves of its group: tested once for all of them
             int record = node->child[j];
             leaf_enter = Load8Int(node->child) == record ? (float8)(INFINITY) : leaf_enter;
+            if (!r_made) {
+                r = TriangleRay_Make(o, d);
+                r_made = true;
+            }
             BVHLeaves_Intersect(scene, (uint)record, node->count[j], o, d, &r, any_hit, &t, &id);
             if (any_hit && id >= 0) {
                 *prim = id;
