@@ -6,16 +6,16 @@ Cornell boxes and the quad scenes of primitive_scaling.py traced with and withou
 
 Triangles: a sphere of radius 0.5 tessellated in latitude/longitude (two triangles per cell,
 none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, traced at depth 8
-as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: the whole way
-from the scene's primitives to what the device receives (scene_device.pack_bvh's steps:
+as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT; the box's quads
+by brute force beside the BVH: scene_device.BVH_MAX_BRUTE_QUADS). Build: the whole way from the
+scene's primitives to what the device receives (scene_device.pack_bvh's steps:
 primitive_bounds, clrender.bvh's binary build and its collapse to 8-wide nodes, the leaf records
 of pack_bvh_leaves), each step's CPU and wall time and their total, medians of --repeats; the
-binary tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
-the same launch by brute force and through the BVH (scenes of at most
-scene_device.BVH_MAX_BRUTE_QUADS quads test those by brute force beside the BVH: the Cornell
-boxes have no BVH then), alternating, so the two rates come from the
-same stretch of machine load. Rates are per CPU-second x compute units (as
-trace_throughput.py), robust to a shared machine.
+binary tree's SAH cost (clrender.bvh.sah_cost) and the 8-wide tree's (wide_sah_cost). Small
+meshes, Cornell boxes and quad scenes: the same launch by brute force and through the BVH
+(alternating, so the two rates come from the same stretch of machine load; scenes of at most
+BVH_MAX_BRUTE_QUADS quads and nothing else, as the Cornell boxes, have no BVH to force). Rates
+are per CPU-second x compute units (as trace_throughput.py), robust to a shared machine.
 Output: JSON (default bench/results/bvh_scaling.json).
 """
 
@@ -39,6 +39,7 @@ from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixe
 from clrender.scene import load_scene
 from clrender.scene_device import (
     BRUTE_FORCE_LIMIT,
+    BVH_MAX_BRUTE_QUADS,
     brute_force_cost,
     pack_bvh_leaves,
     pack_triangles,
@@ -109,9 +110,12 @@ def build_times(scene, repeats):
     walls = {stage: [] for stage in (*stages, "total_build")}
     for _ in range(repeats):
         marks = [(time.process_time(), time.perf_counter())]
-        bounds = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
+        lower, upper = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
         marks.append((time.process_time(), time.perf_counter()))
-        binary, prims = build_bvh(*bounds)
+        # (as pack_bvh: a few quads stay out of the tree, tested by brute force beside it)
+        first = len(scene.quads) if len(scene.quads) <= BVH_MAX_BRUTE_QUADS else 0
+        binary, prims = build_bvh(lower[first:], upper[first:])
+        prims += np.uint32(first)
         marks.append((time.process_time(), time.perf_counter()))
         wide = collapse_bvh(binary)
         marks.append((time.process_time(), time.perf_counter()))
