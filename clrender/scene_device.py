@@ -342,9 +342,11 @@ def pack_bvh(
     triangles: np.ndarray,
     brute_force_limit: int = BRUTE_FORCE_LIMIT,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(BVH nodes, leaf records) over every primitive (clrender/bvh.py; pack_bvh_leaves), or two
-    empty arrays for a scene whose brute_force_cost is at most brute_force_limit (the kernels then
-    use brute force; -1: always a BVH)."""
+    """(BVH nodes, leaf records) over every primitive but the quads of a scene with at most
+    BVH_MAX_BRUTE_QUADS of them (the kernels test those by brute force beside the BVH)
+    (clrender/bvh.py; pack_bvh_leaves); or two empty arrays for a scene whose brute_force_cost
+    is at most brute_force_limit, or that has nothing but those quads (the kernels then use
+    brute force; -1: a BVH wherever there is something to put in it)."""
     none = np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
     if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
         return none
@@ -424,11 +426,13 @@ def pack_bvh_leaves(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The device's nodes and leaf records (kernels/scene_types.h, BVH leaf records) of a wide BVH
     whose leaves hold prims[child .. child + count - 1] (primitive ids: quads, spheres, then
-    triangles). The leaves of one node share a record: their triangles in TRIANGLE_BLOCK_DTYPE
-    blocks, their quads in quad_block_dtype() blocks (each in lane and leaf order; unused lanes
-    never hit, id -1), then their spheres' ids, as uint32 words, starting at a multiple of
-    BVH_LEAF_ALIGN words; every leaf lane of the node gets child = the record's first word and
-    count = the three numbers packed by BVH_LEAF_FIELDS. NumPy over all leaves at once."""
+    triangles). A node's leaves are grouped (_leaf_groups: at most BVH_BLOCK_WIDTH primitives a
+    group, first fit) and the leaves of a group share a record: their triangles in
+    TRIANGLE_BLOCK_DTYPE blocks, their quads in quad_block_dtype() blocks (each in lane and leaf
+    order; unused lanes never hit, id -1), then their spheres' ids, as uint32 words, starting at
+    a multiple of BVH_LEAF_ALIGN words; records in node and group order; every leaf lane of the
+    group gets child = the record's first word and count = the three numbers packed by
+    BVH_LEAF_FIELDS. NumPy over all leaves at once."""
     nodes = nodes.copy()
     quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
     first_triangle = len(quads) + sphere_count
