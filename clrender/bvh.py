@@ -36,7 +36,6 @@ BINARY_NODE_DTYPE = np.dtype(
 # A cluster of the build (host only), as the bottom-up pass gathers it in one piece: its box
 # (lower, -upper: a union is a minimum), primitives, height and SAH cost.
 CLUSTER_DTYPE = np.dtype([("box", "<f4", 6), ("size", "<i4"), ("height", "<i4"), ("cost", "<f8")])
-BVH_BLOCK_WIDTH = 8  # triangles a leaf's block holds: fixed in kernels/scene_types.h
 BVH_WIDTH = 8  # children per node of the device's tree: fixed in kernels/scene_types.h
 # The device's 8-wide nodes (kernels/scene_types.h BVHNode): children's boxes as structure of
 # arrays; child lane j is a node (count 0: child = its index), a leaf (count > 0: prims[child ..
@@ -65,6 +64,7 @@ TRAVERSAL_COST = 1.0
 # Device costs of the 8-wide tree (collapse_bvh's surface-area heuristic), relative to one
 # node's test of its BVH_WIDTH child boxes: a leaf's triangles are tested BVH_BLOCK_WIDTH at a
 # time, each block costing about WIDE_BLOCK_COST node tests.
+BVH_BLOCK_WIDTH = 8  # triangles a leaf's block holds: fixed in kernels/scene_types.h
 WIDE_NODE_COST = 1.0
 WIDE_BLOCK_COST = 2.0
 WIDE_LEAF_MAX = 8  # primitives of a leaf of the 8-wide tree
