@@ -6,16 +6,14 @@ Cornell boxes and the quad scenes of primitive_scaling.py traced with and withou
 
 Triangles: a sphere of radius 0.5 tessellated in latitude/longitude (two triangles per cell,
 none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, traced at depth 8
-as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT; the box's quads
-by brute force beside the BVH: scene_device.BVH_MAX_BRUTE_QUADS). Build: the whole way from the
-scene's primitives to what the device receives (scene_device.pack_bvh's steps:
+as the renderer chooses (BVH or brute force: scene_device.BRUTE_FORCE_LIMIT). Build: the whole way
+from the scene's primitives to what the device receives (scene_device.pack_bvh's steps:
 primitive_bounds, clrender.bvh's binary build and its collapse to 8-wide nodes, the leaf records
 of pack_bvh_leaves), each step's CPU and wall time and their total, medians of --repeats; the
-binary tree's SAH cost (clrender.bvh.sah_cost) and the 8-wide tree's (wide_sah_cost). Small
-meshes, Cornell boxes and quad scenes: the same launch by brute force and through the BVH
-(alternating, so the two rates come from the same stretch of machine load; scenes of at most
-BVH_MAX_BRUTE_QUADS quads and nothing else, as the Cornell boxes, have no BVH to force). Rates
-are per CPU-second x compute units (as trace_throughput.py), robust to a shared machine.
+binary tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
+the same launch by brute force and through the BVH, alternating, so the two rates come from the
+same stretch of machine load. Rates are per CPU-second x compute units (as
+trace_throughput.py), robust to a shared machine.
 Output: JSON (default bench/results/bvh_scaling.json).
 """
 
@@ -33,13 +31,12 @@ from pathlib import Path
 import numpy as np
 from primitive_scaling import scene_with_extra_quads
 
-from clrender.bvh import build_bvh, collapse_bvh, sah_cost, wide_sah_cost
+from clrender.bvh import build_bvh, collapse_bvh, sah_cost
 from clrender.runtime import create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.scene_device import (
     BRUTE_FORCE_LIMIT,
-    BVH_MAX_BRUTE_QUADS,
     brute_force_cost,
     pack_bvh_leaves,
     pack_triangles,
@@ -103,19 +100,15 @@ def build_times(scene, repeats):
     """The whole way from the scene's primitives to what the device receives, as
     scene_device.pack_bvh takes it, stage by stage (CPU and wall time, medians of `repeats`):
     primitive_bounds, build_bvh (the binary tree), collapse_bvh (8-wide nodes) and
-    pack_bvh_leaves (the leaf records); the binary tree's SAH cost and the 8-wide tree's
-    (clrender.bvh.wide_sah_cost: the collapse's costs per node and triangle block)."""
+    pack_bvh_leaves (the leaf records); and the binary tree's SAH cost."""
     stages = ("bounds", "build", "collapse", "leaves")
     cpus = {stage: [] for stage in (*stages, "total_build")}
     walls = {stage: [] for stage in (*stages, "total_build")}
     for _ in range(repeats):
         marks = [(time.process_time(), time.perf_counter())]
-        lower, upper = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
+        bounds = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
         marks.append((time.process_time(), time.perf_counter()))
-        # (as pack_bvh: a few quads stay out of the tree, tested by brute force beside it)
-        first = len(scene.quads) if len(scene.quads) <= BVH_MAX_BRUTE_QUADS else 0
-        binary, prims = build_bvh(lower[first:], upper[first:])
-        prims += np.uint32(first)
+        binary, prims = build_bvh(*bounds)
         marks.append((time.process_time(), time.perf_counter()))
         wide = collapse_bvh(binary)
         marks.append((time.process_time(), time.perf_counter()))
@@ -130,13 +123,7 @@ def build_times(scene, repeats):
     for stage in cpus:
         row[f"{stage}_cpu_s"] = statistics.median(cpus[stage])
         row[f"{stage}_wall_s"] = statistics.median(walls[stage])
-    return {
-        **row,
-        "nodes": len(binary),
-        "sah_cost": sah_cost(binary),
-        "wide_nodes": len(wide),
-        "wide_sah_cost": wide_sah_cost(wide),
-    }
+    return {**row, "nodes": len(binary), "sah_cost": sah_cost(binary)}
 
 
 def compare(runtime, scene, sets, size, repeats, label):
@@ -213,8 +200,7 @@ def main(argv=None):
             f"{row['triangles']:8d} triangles: CPU s bounds {row['bounds_cpu_s']:.3f}, binary "
             f"build {row['build_cpu_s']:.3f}, collapse {row['collapse_cpu_s']:.3f}, leaf records "
             f"{row['leaves_cpu_s']:.3f}; the whole way {row['total_build_cpu_s']:.3f} s CPU "
-            f"{row['total_build_wall_s']:.3f} s wall; SAH cost {row['sah_cost']:6.2f}, 8-wide "
-            f"{row['wide_sah_cost']:6.2f}  {rate}",
+            f"{row['total_build_wall_s']:.3f} s wall; SAH cost {row['sah_cost']:6.2f}  {rate}",
             flush=True,
         )
     if not args.skip_render:
