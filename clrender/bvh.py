@@ -59,6 +59,13 @@ LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
 # up to 8 trace 5-10 % faster here: bench/bvh_scaling.py).
 TRAVERSAL_COST = 1.0
+# Device costs of the 8-wide tree (collapse_bvh's surface-area heuristic), relative to one
+# node's test of its BVH_WIDTH child boxes: a leaf's triangles are tested BVH_BLOCK_WIDTH at a
+# time, each block costing about WIDE_BLOCK_COST node tests.
+BVH_BLOCK_WIDTH = 8  # triangles a leaf's block holds: fixed in kernels/scene_types.h
+WIDE_NODE_COST = 1.0
+WIDE_BLOCK_COST = 2.0
+WIDE_LEAF_MAX = 8  # primitives of a leaf of the 8-wide tree
 # Primitive bounds are widened by this fraction of their largest coordinate magnitude: far above
 # the rounding of the slab test and of the primitive tests (so a box never rejects a ray that
 # hits one of its primitives; flat primitives get boxes of non-zero thickness).
@@ -227,52 +234,147 @@ def sah_cost(nodes: np.ndarray) -> float:
 
 def build_wide_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The device's BVH over N primitives with bounds lower[i], upper[i]: (BVH_NODE_DTYPE nodes,
-    uint32 primitive ids): build_bvh's binary tree collapsed to BVH_WIDTH children a node."""
+    uint32 primitive ids): build_bvh's binary tree collapsed to BVH_WIDTH children a node by
+    the SAH-optimal collapse_bvh."""
     binary, prims = build_bvh(lower, upper)
     return collapse_bvh(binary), prims
 
 
+def _binary_levels(binary: np.ndarray) -> list[np.ndarray]:
+    """The binary tree's nodes level by level from the root (indices, each level ascending)."""
+    levels = []
+    frontier = np.array([0])
+    count, offset = binary["count"], binary["offset"]
+    while len(frontier):
+        levels.append(frontier)
+        inner = offset[frontier[count[frontier] < 0]]
+        frontier = np.stack([inner, inner + 1], axis=1).reshape(-1)
+    return levels
+
+
+def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
+    """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1),
+    bottom up a level at a time. cost[i - 1, n]: least cost of subtree n as at most i children
+    of a wide node (area x cost per visit, over all its wide nodes and leaves); as_leaf[n]: n is
+    cheapest as one leaf (else as one wide node); split[i - 1, n]: the k of the best
+    distribution of n's subtree into i children, k from its left child's and i - k from its
+    right one's, negated where n as one child is cheaper (0 for a binary leaf). Also each
+    subtree's first primitive and size. Budgets are rows: every operation is on whole rows."""
+    total = len(binary)
+    count, offset = binary["count"], binary["offset"]
+    extent = binary["upper"].astype(np.float64) - binary["lower"]
+    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
+    area = (area / max(area[0], 1e-300)).astype(np.float32)  # (float32 costs: half the traffic)
+    size = np.where(count > 0, count, 0)
+    first = np.where(count > 0, offset, 0)
+    cost = np.empty((BVH_WIDTH, total), np.float32)
+    as_leaf = count > 0
+    split = np.zeros((BVH_WIDTH, total), np.int8)
+    for level in reversed(levels):
+        leaves = level[count[level] > 0]
+        blocks = -(-size[leaves] // BVH_BLOCK_WIDTH)
+        cost[:, leaves] = np.float32(WIDE_BLOCK_COST) * blocks * area[leaves]
+        inner = level[count[level] < 0]
+        if len(inner) == 0:
+            continue
+        left = offset[inner]
+        size[inner] = size[left] + size[left + 1]
+        first[inner] = first[left]
+        below_left, below_right = cost[:, left], cost[:, left + 1]
+        # Each budget i's best split: k from the left, i - k from the right (the first least)
+        distribute = np.empty((BVH_WIDTH, len(inner)), np.float32)
+        best_k = np.ones((BVH_WIDTH, len(inner)), np.int8)
+        distribute[0] = np.inf
+        scratch = np.empty(len(inner), np.float32)
+        for i in range(2, BVH_WIDTH + 1):
+            best = distribute[i - 1]
+            np.add(below_left[0], below_right[i - 2], out=best)
+            for k in range(2, i):
+                option = np.add(below_left[k - 1], below_right[i - k - 1], out=scratch)
+                np.copyto(best_k[i - 1], k, where=option < best)
+                np.minimum(best, option, out=best)
+        node = WIDE_NODE_COST * area[inner] + distribute[-1]
+        leaf = np.where(
+            size[inner] <= WIDE_LEAF_MAX,
+            WIDE_BLOCK_COST * -(-size[inner] // BVH_BLOCK_WIDTH) * area[inner],
+            np.inf,
+        )
+        is_leaf = leaf <= node
+        as_leaf[inner] = is_leaf
+        one = np.where(is_leaf, leaf, node)
+        spread = distribute < one
+        cost[:, inner] = np.where(spread, distribute, one)
+        split[:, inner] = np.where(spread, best_k, -best_k)
+    return cost, as_leaf, split, first, size
+
+
+def wide_sah_cost(nodes: np.ndarray) -> float:
+    """A wide tree's (BVH_NODE_DTYPE, leaves as prims ranges: collapse_bvh's output) cost by the
+    collapse's SAH: each node's visit (WIDE_NODE_COST, the root's at its lanes' union) and each
+    leaf's triangle blocks (WIDE_BLOCK_COST each) weighted by their boxes' areas, over the root's
+    area."""
+    if len(nodes) == 0:
+        return 0.0
+    count = nodes["count"]
+    used = count >= 0
+    extent = nodes["upper"].astype(np.float64) - nodes["lower"]  # (nodes, 3, lanes)
+    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
+    blocks = -(-np.maximum(count, 0) // BVH_BLOCK_WIDTH)
+    weight = np.where(count == 0, WIDE_NODE_COST, WIDE_BLOCK_COST * blocks) * used
+    root = np.where(used[0], nodes["lower"][0], np.inf).min(axis=1).astype(np.float64)
+    x, y, z = np.where(used[0], nodes["upper"][0], -np.inf).max(axis=1) - root
+    root_area = x * y + y * z + z * x
+    return float(WIDE_NODE_COST + (area * weight).sum() / root_area)
+
+
 def collapse_bvh(binary: np.ndarray) -> np.ndarray:
-    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first): each wide node
-    starts as one binary node and repeatedly opens the interior child of largest surface area
-    until it has BVH_WIDTH children (Wald et al. 2008); vectorised over the nodes of a level."""
+    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first), collapsed by the
+    SAH-optimal dynamic programme (_collapse_costs): each wide node takes the best distribution of
+    its binary root's subtree into BVH_WIDTH children, leaves or wide nodes; vectorised over the
+    nodes of a level."""
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
-    # The binary nodes as rows of 8 words, and a last row for an empty lane (box 0, -1, -1)
+    levels = _binary_levels(binary)
+    cost, as_leaf, split, first, size = _collapse_costs(binary, levels)
+    # The binary nodes as rows of 8 words (box, child, count: a leaf's first primitive and
+    # size, -1 for a node), and a last row for an empty lane (box 0, -1, -1)
     rows = np.empty((len(binary) + 1, 8), np.float32)
     rows[:-1] = binary.view(np.float32).reshape(-1, 8)
     rows[-1] = 0.0
     row_words = rows.view(np.int32)
+    row_words[:-1, 3] = np.where(as_leaf, first, -1)
+    row_words[:-1, 7] = np.where(as_leaf, size, -1)
     row_words[-1, 3] = row_words[-1, 7] = -1
-    offset = row_words[:, 3]
-    x, y, z = ((rows[:, 4 + axis] - rows[:, axis]).astype(np.float64) for axis in range(3))
-    area = x * y + y * z + z * x
-    # The area of an interior node (the one to open), -1 for a leaf or an empty lane
-    opening = np.where(row_words[:, 7] < 0, area, -1.0)
-    opening[-1] = -1.0
+    offset = binary["offset"]
     empty = len(binary)
     levels = []
-    roots = np.array([0])  # the binary node each wide node of the level starts from
+    # A binary root's wide node (the whole tree's root: one leaf lane if it is a leaf)
+    roots = np.array([0])
     next_index = 1
     while len(roots):
         count = len(roots)
+        # Each wide node's children: its root's best distribution into BVH_WIDTH, split down
+        owner, node = np.arange(count), roots
+        budget = np.full(count, BVH_WIDTH)
+        spread = binary["count"][roots] < 0  # (the whole tree's root: a leaf only if binary)
+        slot_owner, slot_node = [], []
+        while len(node):
+            slot_owner.append(owner[~spread])
+            slot_node.append(node[~spread])
+            owner, node, budget = owner[spread], node[spread], budget[spread]
+            k = np.abs(split[budget - 1, node].astype(np.int64))
+            left = offset[node]
+            owner = np.concatenate([owner, owner])
+            node = np.concatenate([left, left + 1])
+            budget = np.concatenate([k, budget - k])
+            spread = (budget >= 2) & (split[budget - 1, node] > 0)
+        slot_owner, slot_node = np.concatenate(slot_owner), np.concatenate(slot_node)
+        order = np.argsort(slot_owner, kind="stable")
+        slot_owner, slot_node = slot_owner[order], slot_node[order]
+        per_owner = np.bincount(slot_owner, minlength=count)
+        lane = np.arange(len(slot_owner)) - np.repeat(np.cumsum(per_owner) - per_owner, per_owner)
         slots = np.full((count, BVH_WIDTH), empty)
-        slots[:, 0] = roots
-        # Lanes 0 .. filled - 1 are full while a node grows; it stops growing for good when
-        # none of them is interior (score < 0)
-        score = np.full((count, BVH_WIDTH), -1.0)
-        score[:, 0] = opening[roots]
-        flat_slots, flat_score = slots.reshape(-1), score.reshape(-1)
-        for filled in range(1, BVH_WIDTH):
-            widest = np.argmax(score, axis=1)
-            widest += np.arange(0, count * BVH_WIDTH, BVH_WIDTH)
-            widest = widest[flat_score[widest] >= 0.0]
-            if len(widest) == 0:
-                break
-            first_child = offset[flat_slots[widest]]
-            second = widest - widest % BVH_WIDTH + filled
-            flat_slots[widest], flat_slots[second] = first_child, first_child + 1
-            flat_score[widest], flat_score[second] = opening[first_child], opening[first_child + 1]
+        slots[slot_owner, lane] = slot_node
         # Each lane's node, leaf or empty lane: box, child, count (0 for a node)
         lanes = np.take(rows, slots, axis=0)  # (count, BVH_WIDTH, 8)
         lane_words = lanes.view(np.int32)
@@ -289,7 +391,35 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         levels.append(wide.reshape(count, -1))
         roots = slots[is_node]
         next_index += len(roots)
-    return np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
+    nodes = np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
+    return _depth_first(nodes, [len(level) for level in levels])
+
+
+def _depth_first(nodes: np.ndarray, level_sizes: list[int]) -> np.ndarray:
+    """Wide nodes (breadth first, levels of level_sizes nodes) put in depth-first order, each
+    node's children after it in lane order: a subtree's nodes (and so its leaf records, which
+    pack_bvh_leaves writes in node order) lie together in memory, which a ray descending it
+    reads from fewer cache lines. Vectorised over a level."""
+    is_node = nodes["count"] == 0
+    child = np.where(is_node, nodes["child"], 0)
+    ends = np.cumsum(level_sizes)
+    levels = [slice(end - size, end) for end, size in zip(ends, level_sizes, strict=True)]
+    # Bottom up: each subtree's nodes; top down: each node's place, after its parent and its
+    # earlier siblings' subtrees
+    size = np.ones(len(nodes), np.int64)
+    for rows in reversed(levels):
+        size[rows] += (size[child[rows]] * is_node[rows]).sum(axis=1)
+    place = np.zeros(len(nodes), np.int64)
+    for rows in levels:
+        lane_size = size[child[rows]] * is_node[rows]
+        before = np.cumsum(lane_size, axis=1) - lane_size
+        inner = is_node[rows]
+        place[child[rows][inner]] = (place[rows][:, None] + 1 + before)[inner]
+    ordered = np.empty_like(nodes)
+    ordered[place] = nodes
+    moved = ordered["count"] == 0
+    ordered["child"][moved] = place[ordered["child"][moved]]
+    return ordered
 
 
 def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from clrender.bvh import BVH_NODE_DTYPE, build_wide_bvh
+from clrender.bvh import BVH_NODE_DTYPE, BVH_WIDTH, build_wide_bvh
 from clrender.errors import ClrenderError
 
 # Material type tags: MATERIAL_DIFFUSE, ... in kernels/scene_types.h.
@@ -108,6 +108,9 @@ BVH_LEAF_ALIGN = 16
 # at 66 and 98 quads and with 6 triangles in the Cornell box (cost 114), the BVH wins from 130
 # quads (1.2x) and 8 triangles (1.2x).
 BRUTE_FORCE_LIMIT = 96
+# A scene with a BVH keeps up to this many quads out of it, tested by brute force beside it
+# (kernels/scene_types.h, the same)
+BVH_MAX_BRUTE_QUADS = 64
 TRIANGLE_COST = 16
 
 
@@ -339,12 +342,21 @@ def pack_bvh(
     triangles: np.ndarray,
     brute_force_limit: int = BRUTE_FORCE_LIMIT,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(BVH nodes, leaf records) over every primitive (clrender/bvh.py; pack_bvh_leaves), or two
-    empty arrays for a scene whose brute_force_cost is at most brute_force_limit (the kernels then
-    use brute force; -1: always a BVH)."""
+    """(BVH nodes, leaf records) over every primitive but the quads of a scene with at most
+    BVH_MAX_BRUTE_QUADS of them (the kernels test those by brute force beside the BVH)
+    (clrender/bvh.py; pack_bvh_leaves); or two empty arrays for a scene whose brute_force_cost
+    is at most brute_force_limit, or that has nothing but those quads (the kernels then use
+    brute force; -1: a BVH wherever there is something to put in it)."""
+    none = np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
     if brute_force_cost(len(quads), len(spheres), len(triangles)) <= brute_force_limit:
-        return np.zeros(0, BVH_NODE_DTYPE), np.zeros(0, np.uint32)
-    nodes, prims = build_wide_bvh(*primitive_bounds(quads, spheres, triangles))
+        return none
+    lower, upper = primitive_bounds(quads, spheres, triangles)
+    # At most BVH_MAX_BRUTE_QUADS quads stay out of the tree (brute force beside it)
+    first = len(quads) if len(quads) <= BVH_MAX_BRUTE_QUADS else 0
+    if first == len(lower):
+        return none
+    nodes, prims = build_wide_bvh(lower[first:], upper[first:])
+    prims += np.uint32(first)
     return pack_bvh_leaves(nodes, prims, quads, len(spheres), triangles)
 
 
@@ -385,6 +397,26 @@ def _write_record_blocks(words, blocks, first_word, block_words, member_at, rows
         words[base[:, None] + np.arange(height * BVH_BLOCK_WIDTH)] = target.reshape(count, -1)
 
 
+def _leaf_groups(count: np.ndarray) -> np.ndarray:
+    """The record group (0 .. BVH_WIDTH - 1) of each leaf lane of wide nodes (count: their
+    lanes' primitive counts), -1 for the other lanes: a node's leaves packed first fit,
+    largest first, into groups of at most BVH_BLOCK_WIDTH primitives (a larger leaf alone), so
+    that a group's record holds one block of each kind. Vectorised over the nodes."""
+    size = np.where(count > 0, count, 0).astype(np.int64)
+    rows = np.arange(len(count))
+    order = np.argsort(-size, axis=1, kind="stable")
+    fill = np.zeros(count.shape, np.int64)
+    group = np.full(count.shape, -1, np.int64)
+    for position in range(count.shape[1]):
+        lane = order[:, position]
+        lane_size = size[rows, lane]
+        first_fit = np.argmax(fill + lane_size[:, None] <= BVH_BLOCK_WIDTH, axis=1)
+        leaf = lane_size > 0
+        group[rows[leaf], lane[leaf]] = first_fit[leaf]
+        fill[rows[leaf], first_fit[leaf]] += lane_size[leaf]
+    return group
+
+
 def pack_bvh_leaves(
     nodes: np.ndarray,
     prims: np.ndarray,
@@ -394,27 +426,33 @@ def pack_bvh_leaves(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The device's nodes and leaf records (kernels/scene_types.h, BVH leaf records) of a wide BVH
     whose leaves hold prims[child .. child + count - 1] (primitive ids: quads, spheres, then
-    triangles). The leaves of one node share a record: their triangles in TRIANGLE_BLOCK_DTYPE
-    blocks, their quads in quad_block_dtype() blocks (each in lane and leaf order; unused lanes
-    never hit, id -1), then their spheres' ids, as uint32 words, starting at a multiple of
-    BVH_LEAF_ALIGN words; every leaf lane of the node gets child = the record's first word and
-    count = the three numbers packed by BVH_LEAF_FIELDS. NumPy over all leaves at once."""
+    triangles). A node's leaves are grouped (_leaf_groups: at most BVH_BLOCK_WIDTH primitives a
+    group, first fit) and the leaves of a group share a record: their triangles in
+    TRIANGLE_BLOCK_DTYPE blocks, their quads in quad_block_dtype() blocks (each in lane and leaf
+    order; unused lanes never hit, id -1), then their spheres' ids, as uint32 words, starting at
+    a multiple of BVH_LEAF_ALIGN words; records in node and group order; every leaf lane of the
+    group gets child = the record's first word and count = the three numbers packed by
+    BVH_LEAF_FIELDS. NumPy over all leaves at once."""
     nodes = nodes.copy()
     quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
     first_triangle = len(quads) + sphere_count
-    # One record per node with leaves; its leaves in lane order (row-major, as boolean masks)
+    # The leaves in node and lane order (row-major, as boolean masks); a record per group of a
+    # node's leaves (_leaf_groups), records in node and group order
     child, count = nodes["child"], nodes["count"]
     is_leaf = count > 0
-    leaves_per_node = np.count_nonzero(is_leaf, axis=1)
-    leaves_per_record = leaves_per_node[leaves_per_node > 0]
-    records = len(leaves_per_record)
-    record_of_leaf = np.repeat(np.arange(records), leaves_per_record)
-    start = child[is_leaf].astype(np.int64)
-    leaf_count = count[is_leaf].astype(np.int64)
+    group_key = (np.arange(len(nodes))[:, None] * BVH_WIDTH + _leaf_groups(count))[is_leaf]
+    used = np.zeros(len(nodes) * BVH_WIDTH + 1, bool)
+    used[group_key] = True
+    record_of_leaf = (np.cumsum(used) - 1)[group_key]
+    records = int(np.count_nonzero(used))
+    # Leaves by record, in lane order within it
+    by_record = np.argsort(record_of_leaf, kind="stable")
+    start = child[is_leaf][by_record].astype(np.int64)
+    leaf_count = count[is_leaf][by_record].astype(np.int64)
     # Every record's members, its leaves' primitives in lane and leaf order
     first_member = np.cumsum(leaf_count) - leaf_count
     ids = prims[np.arange(int(leaf_count.sum())) + np.repeat(start - first_member, leaf_count)]
-    record_of = np.repeat(record_of_leaf, leaf_count)
+    record_of = np.repeat(record_of_leaf[by_record], leaf_count)
     # Members by kind, each keeping its order within the record
     is_triangle = ids >= first_triangle
     is_quad = ids < len(quads)

@@ -275,9 +275,15 @@ CL_INLINE int8 TriangleBlock_Hits(__global const TriangleBlock *block, const Tri
     float8 t_range = tmax * det;
     int8 outside = det < 0.0f ? (t_scaled >= 0.0f) | (t_scaled < t_range)
                               : (t_scaled <= 0.0f) | (t_scaled > t_range);
+    int8 inside = ~(negative & positive) & (det != 0.0f) & ~outside;
+    // No lane left: no division (the usual case; the same decisions)
+    if (Lanes_Bits(inside) == 0u) {
+        *t_out = t_scaled;
+        return inside;
+    }
     float8 t = t_scaled * (1.0f / det);
     *t_out = t;
-    return ~(negative & positive) & (det != 0.0f) & ~outside & (t > 0.0f) & (t < tmax);
+    return inside & (t > 0.0f) & (t < tmax);
 }
 
 // The nearest triangle of a block hit before tmax: its distance (tmax if none) and its
@@ -339,8 +345,9 @@ CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int coun
 }
 
 // Distances at which the ray o + t d (inv_d = 1 / d) enters each child box of a node if it
-// meets it within [0, tmax] (finite), else INFINITY (the slab test of Bounds_Hit, 8 boxes at
-// once).
+// meets it within [0, tmax], else INFINITY (the slab test of Bounds_Hit, 8 boxes at once, the
+// range [0, tmax] folded into the entry and exit: entries clamped to 0). A NaN (a zero direction
+// component on a slab's plane) never rejects.
 CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 inv_d, float tmax)
 {
     float8 t0x = (Load8(node->lower[0]) - o.x) * inv_d.x;
@@ -355,27 +362,29 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
     float8 far_y = t0y < t1y ? t1y : t0y;
     float8 near_z = t0z < t1z ? t0z : t1z;
     float8 far_z = t0z < t1z ? t1z : t0z;
-    float8 t_enter = near_x > near_y ? near_x : near_y;
-    t_enter = t_enter > near_z ? t_enter : near_z;
-    float8 t_exit = far_x < far_y ? far_x : far_y;
-    t_exit = t_exit < far_z ? t_exit : far_z;
-    int8 miss = (t_enter > t_exit) | (t_exit < 0.0f) | (t_enter > tmax);
-    // A hit's entry is finite (a NaN entry, which never rejects, becomes -FLT_MAX)
-    float8 finite_enter = t_enter > -FLT_MAX ? t_enter : (float8)(-FLT_MAX);
-    return miss ? (float8)(INFINITY) : finite_enter;
+    // (a NaN on the left of each comparison drops out)
+    float8 t_enter = near_x > 0.0f ? near_x : (float8)(0.0f);
+    t_enter = near_y > t_enter ? near_y : t_enter;
+    t_enter = near_z > t_enter ? near_z : t_enter;
+    float8 t_exit = far_x < tmax ? far_x : (float8)(tmax);
+    t_exit = far_y < t_exit ? far_y : t_exit;
+    t_exit = far_z < t_exit ? far_z : t_exit;
+    return t_enter > t_exit ? (float8)(INFINITY) : t_enter;
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
 // with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
-// at once; if the ray reaches any of its leaves, all of them are tested right away (8 primitives
-// at a time, one record: fewer, fuller blocks than leaf by leaf); the nearest child node is
-// visited next and the others kept on a private stack with their entry distances, nearest on
-// top (skipped when taken if a closer hit was found since).
+// at once; the leaves the ray reaches are tested right away, nearest first, each group's shared
+// record once (up to 8 primitives of a kind at a time: scene_device.pack_bvh_leaves); the
+// nearest child node is visited next and the others kept on a private stack with their entry
+// distances, nearest on top (skipped when taken if a closer hit was found since).
 CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float tmax, bool any_hit,
                              int *prim)
 {
     float3 inv_d = 1.0f / d;
-    TriangleRay r = TriangleRay_Make(o, d);
+    // Made at the first leaf (many rays reach none)
+    TriangleRay r;
+    bool r_made = false;
     uint stack[BVH_STACK_SIZE];
     float stack_enter[BVH_STACK_SIZE];
     int top = 0;
@@ -391,12 +400,21 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
         enter.v = BVHNode_Enter(node, o, inv_d, t);
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
-        // A leaf the ray reaches: the primitives of all the node's leaves (one shared record)
-        uint leaves = Lanes_Bits(reached & (count > 0));
-        if (leaves != 0u) {
-            int j = __builtin_ctz(leaves);
-            BVHLeaves_Intersect(scene, (uint)node->child[j], node->count[j], o, d, &r, any_hit,
-                                &t, &id);
+        // The leaves the ray reaches, nearest first, each while it is nearer than the closest hit
+        float8 leaf_enter = reached & (count > 0) ? enter.v : (float8)(INFINITY);
+        for (;;) {
+            float leaf_nearest = Lanes_Min(leaf_enter);
+            if (!(leaf_nearest < INFINITY && leaf_nearest <= t))
+                break;
+            int j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+            // Its record, shared by the leaves of its group: tested once for all of them
+            int record = node->child[j];
+            leaf_enter = Load8Int(node->child) == record ? (float8)(INFINITY) : leaf_enter;
+            if (!r_made) {
+                r = TriangleRay_Make(o, d);
+                r_made = true;
+            }
+            BVHLeaves_Intersect(scene, (uint)record, node->count[j], o, d, &r, any_hit, &t, &id);
             if (any_hit && id >= 0) {
                 *prim = id;
                 return t;
@@ -468,27 +486,41 @@ BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float
     return prim >= 0;
 }
 
+// Whether a scene's quads are tested by brute force (a block at a time): always without a BVH,
+// and beside it while they are few (BVH_MAX_BRUTE_QUADS; clrender/scene_device.py pack_bvh
+// leaves them out of the tree then).
+CL_INLINE bool Scene_QuadsBruteForce(const SceneData *scene)
+{
+    return scene->bvh_node_count == 0u || scene->quad_count <= BVH_MAX_BRUTE_QUADS;
+}
+
 // The closest primitive along the ray before tmax: its distance, and its id in *prim.
-// Brute force (no BVH): ties go to the lowest quad index, then to the sphere, then to the
-// triangle (blocks hold quads in scene order).
+// Brute force: ties go to the lowest quad index, then to the sphere, then to the triangle
+// (blocks hold quads in scene order); the BVH's primitives lose ties with brute-force quads.
 CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
                                 int *prim)
 {
-    if (scene->bvh_node_count > 0u)
-        return BVH_Intersect(scene, o, d, tmax, prim);
     float t = tmax;
     int id = -1;
     float3 inv_d = 1.0f / d;
-    for (uint b = 0; b < scene->quad_block_count; ++b) {
-        __global const QuadBlock *block = &scene->quad_blocks[b];
-        if (!QuadBlock_BoundsHit(block, o, inv_d, t))
-            continue;
-        int lane;
-        float tb = QuadBlock_Intersect(block, o, d, t, &lane);
-        if (tb < t) {
-            id = block->quad[lane];
-            t = tb;
+    if (Scene_QuadsBruteForce(scene)) {
+        for (uint b = 0; b < scene->quad_block_count; ++b) {
+            __global const QuadBlock *block = &scene->quad_blocks[b];
+            if (!QuadBlock_BoundsHit(block, o, inv_d, t))
+                continue;
+            int lane;
+            float tb = QuadBlock_Intersect(block, o, d, t, &lane);
+            if (tb < t) {
+                id = block->quad[lane];
+                t = tb;
+            }
         }
+    }
+    if (scene->bvh_node_count > 0u) {
+        int bvh_id;
+        float tb = BVH_Intersect(scene, o, d, t, &bvh_id);
+        *prim = bvh_id >= 0 ? bvh_id : id;
+        return bvh_id >= 0 ? tb : t;
     }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         float ti = Sphere_Intersect(&scene->spheres[i], o, d, t);
@@ -509,31 +541,35 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
 }
 
 // Whether anything lies along the ray closer than tmax (shadow rays): an any-hit query that
-// returns at the first blocker. Spheres first, then the quad blocks from the last: scene files
-// list the enclosing walls first and the objects inside later, and walls of a convex room
-// never block a ray between two points inside it.
+// returns at the first blocker. Brute force: spheres first, then the quad blocks from the
+// last: scene files list the enclosing walls first and the objects inside later, and walls of
+// a convex room never block a ray between two points inside it. With a BVH: its brute-force
+// quads (so), then the BVH.
 CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
-    if (scene->bvh_node_count > 0u)
-        return BVH_Occluded(scene, o, d, tmax);
-    if (scene->triangle_count > 0u) {
-        TriangleRay r = TriangleRay_Make(o, d);
-        for (uint k = 0; k < scene->triangle_count; ++k) {
-            if (Triangle_Intersect(&scene->triangles[k], &r, tmax) < tmax)
+    if (scene->bvh_node_count == 0u) {
+        if (scene->triangle_count > 0u) {
+            TriangleRay r = TriangleRay_Make(o, d);
+            for (uint k = 0; k < scene->triangle_count; ++k) {
+                if (Triangle_Intersect(&scene->triangles[k], &r, tmax) < tmax)
+                    return true;
+            }
+        }
+        for (uint i = 0; i < scene->sphere_count; ++i) {
+            if (Sphere_Intersect(&scene->spheres[i], o, d, tmax) < tmax)
                 return true;
         }
     }
-    for (uint i = 0; i < scene->sphere_count; ++i) {
-        if (Sphere_Intersect(&scene->spheres[i], o, d, tmax) < tmax)
-            return true;
+    if (Scene_QuadsBruteForce(scene)) {
+        float3 inv_d = 1.0f / d;
+        for (uint b = scene->quad_block_count; b-- > 0u;) {
+            __global const QuadBlock *block = &scene->quad_blocks[b];
+            if (QuadBlock_BoundsHit(block, o, inv_d, tmax) &&
+                QuadBlock_Occluded(block, o, d, tmax))
+                return true;
+        }
     }
-    float3 inv_d = 1.0f / d;
-    for (uint b = scene->quad_block_count; b-- > 0u;) {
-        __global const QuadBlock *block = &scene->quad_blocks[b];
-        if (QuadBlock_BoundsHit(block, o, inv_d, tmax) && QuadBlock_Occluded(block, o, d, tmax))
-            return true;
-    }
-    return false;
+    return scene->bvh_node_count > 0u && BVH_Occluded(scene, o, d, tmax);
 }
 
 // The surface record of a hit at distance t along the ray.

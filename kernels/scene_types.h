@@ -73,11 +73,15 @@ typedef struct {
 // tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
 // as structure of arrays (one vector slab test for all of them), rounded outwards to float.
 // Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf, whose
-// primitives are in the record of the node's leaves at word child[j] of bvh_prims (leaf records
-// below; every leaf lane of a node has the same child and count); count[j] = -1, no child.
+// primitives are in the record of its group of leaves at word child[j] of bvh_prims (leaf
+// records below; the leaf lanes of a group have the same child and count); count[j] = -1, no
+// child. Nodes are in depth-first order.
 // Traversal keeps a private stack of at most BVH_STACK_SIZE nodes: BVH_WIDTH - 1 per level of
 // a tree the builder never makes deeper than BVH_MAX_DEPTH.
 #define BVH_WIDTH 8
+// A scene with a BVH keeps its quads out of it, tested by brute force beside it (its quad
+// blocks, as without a BVH), while it has at most this many (kernels/geometry.h).
+#define BVH_MAX_BRUTE_QUADS 64
 #define BVH_MAX_DEPTH 40
 #define BVH_STACK_SIZE ((BVH_WIDTH - 1) * BVH_MAX_DEPTH)
 typedef struct {
@@ -98,11 +102,12 @@ typedef struct {
     int id[BVH_BLOCK_WIDTH];
 } TriangleBlock;
 
-// The record of a node's leaves in bvh_prims (32-bit words; clrender/scene_device.py
-// pack_bvh_leaves), at word child[j] (a multiple of 16: 64 bytes) of its leaf lanes: their
+// The record of a group of a node's leaves in bvh_prims (32-bit words; clrender/scene_device.py
+// pack_bvh_leaves groups a node's leaves into records of at most BVH_BLOCK_WIDTH primitives,
+// first fit), at word child[j] (a multiple of 16: 64 bytes) of the group's leaf lanes: their
 // triangles in TriangleBlocks, their quads in QuadBlocks (unused lanes as in brute force's;
 // bounds unused), then their spheres' primitive ids; floats stored as their bits. The lanes'
-// count[j] packs the three numbers.
+// count[j] packs the three numbers. Lanes with the same child share the record.
 #define BVH_LEAF_TRIANGLE_BLOCKS(count) ((count) & 0xffff)
 #define BVH_LEAF_QUAD_BLOCKS(count) (((count) >> 16) & 0xff)
 #define BVH_LEAF_SPHERES(count) ((count) >> 24)

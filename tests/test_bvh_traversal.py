@@ -17,6 +17,7 @@ from clrender.scene_device import (
     BVH_BLOCK_WIDTH,
     BVH_LEAF_ALIGN,
     BVH_LEAF_FIELDS,
+    BVH_MAX_BRUTE_QUADS,
     SPHERE_DTYPE,
     TRIANGLE_BLOCK_DTYPE,
     TRIANGLE_DTYPE,
@@ -129,56 +130,62 @@ def test_triangle_block_decides_like_the_one_triangle_test(runtime):
 
 
 def decode_records(nodes, words, scene):
-    """Per node with leaves: the primitive ids its record holds, checking each block's contents
-    against the scene's primitives on the way."""
-    quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
-    first_triangle = len(scene.quads) + len(scene.spheres)
+    """Per (node, record start) of the node's leaf lanes: the primitive ids the record holds,
+    checking each block's contents against the scene's primitives on the way."""
     held = {}
     for index, node in enumerate(nodes):
         leaf = node["count"] > 0
-        if not leaf.any():
-            continue
-        # Every leaf lane of a node shares one record
-        assert len(set(node["child"][leaf])) == 1 and len(set(node["count"][leaf])) == 1
-        start, count = int(node["child"][leaf][0]), int(node["count"][leaf][0])
-        assert start % BVH_LEAF_ALIGN == 0
-        (tri_shift, tri_bits), (quad_shift, quad_bits), (sphere_shift, sphere_bits) = (
-            BVH_LEAF_FIELDS
-        )
-        tri_blocks = count >> tri_shift & (2**tri_bits - 1)
-        quad_blocks = count >> quad_shift & (2**quad_bits - 1)
-        sphere_count = count >> sphere_shift & (2**sphere_bits - 1)
-        at = start
-        tri = words[at : at + tri_blocks * TRIANGLE_BLOCK_DTYPE.itemsize // 4]
-        tri = tri.view(TRIANGLE_BLOCK_DTYPE)
-        at += tri.nbytes // 4
-        quads = words[at : at + quad_blocks * quad_dtype.itemsize // 4].view(quad_dtype)
-        at += quads.nbytes // 4
-        spheres = words[at : at + sphere_count].astype(np.int64)
-        ids = []
-        for block in tri:
-            used = block["id"] >= 0
-            assert np.all(block["p0"][:, ~used] == 0) and np.all(block["p2"][:, ~used] == 0)
-            # Unused lanes come last
-            assert np.all(used[: used.sum()])
-            for lane in np.flatnonzero(used):
-                original = scene.triangles[block["id"][lane] - first_triangle]
-                for key in ("p0", "p1", "p2"):
-                    np.testing.assert_array_equal(block[key][:, lane], original[key])
-            ids += block["id"][used].tolist()
-        for block in quads:
-            used = block["quad"] >= 0
-            assert np.all(block["plane_d"][~used] == -1) and np.all(block["normal"][:, ~used] == 0)
-            for lane in np.flatnonzero(used):
-                original = scene.quads[block["quad"][lane]]
-                for key in ("corner", "normal", "u_dual", "v_dual"):
-                    np.testing.assert_array_equal(block[key][:, lane], original[key])
-                assert block["plane_d"][lane] == original["plane_d"]
-            ids += block["quad"][used].tolist()
-        assert np.all((spheres >= len(scene.quads)) & (spheres < first_triangle))
-        ids += spheres.tolist()
-        held[index] = ids
+        for start in sorted(set(node["child"][leaf].tolist())):
+            # The lanes of a group share their record and its counts
+            group = leaf & (node["child"] == start)
+            assert len(set(node["count"][group])) == 1
+            held[index, start] = decode_record(words, start, node["count"][group][0], scene)
+    # Each record belongs to one group
+    starts = [start for _, start in held]
+    assert len(starts) == len(set(starts))
     return held
+
+
+def decode_record(words, start, count, scene):
+    """The primitive ids of the record at word `start` (its lanes' packed `count`)."""
+    quad_dtype = quad_block_dtype(BVH_BLOCK_WIDTH)
+    first_triangle = len(scene.quads) + len(scene.spheres)
+    start, count = int(start), int(count)
+    assert start % BVH_LEAF_ALIGN == 0
+    (tri_shift, tri_bits), (quad_shift, quad_bits), (sphere_shift, sphere_bits) = BVH_LEAF_FIELDS
+    tri_blocks = count >> tri_shift & (2**tri_bits - 1)
+    quad_blocks = count >> quad_shift & (2**quad_bits - 1)
+    sphere_count = count >> sphere_shift & (2**sphere_bits - 1)
+    at = start
+    tri = words[at : at + tri_blocks * TRIANGLE_BLOCK_DTYPE.itemsize // 4]
+    tri = tri.view(TRIANGLE_BLOCK_DTYPE)
+    at += tri.nbytes // 4
+    quads = words[at : at + quad_blocks * quad_dtype.itemsize // 4].view(quad_dtype)
+    at += quads.nbytes // 4
+    spheres = words[at : at + sphere_count].astype(np.int64)
+    ids = []
+    for block in tri:
+        used = block["id"] >= 0
+        assert np.all(block["p0"][:, ~used] == 0) and np.all(block["p2"][:, ~used] == 0)
+        # Unused lanes come last
+        assert np.all(used[: used.sum()])
+        for lane in np.flatnonzero(used):
+            original = scene.triangles[block["id"][lane] - first_triangle]
+            for key in ("p0", "p1", "p2"):
+                np.testing.assert_array_equal(block[key][:, lane], original[key])
+        ids += block["id"][used].tolist()
+    for block in quads:
+        used = block["quad"] >= 0
+        assert np.all(block["plane_d"][~used] == -1) and np.all(block["normal"][:, ~used] == 0)
+        for lane in np.flatnonzero(used):
+            original = scene.quads[block["quad"][lane]]
+            for key in ("corner", "normal", "u_dual", "v_dual"):
+                np.testing.assert_array_equal(block[key][:, lane], original[key])
+            assert block["plane_d"][lane] == original["plane_d"]
+        ids += block["quad"][used].tolist()
+    assert np.all((spheres >= len(scene.quads)) & (spheres < first_triangle))
+    ids += spheres.tolist()
+    return ids
 
 
 def test_leaf_records_hold_every_leaf_primitive_once(tmp_path):
@@ -192,17 +199,26 @@ def test_leaf_records_hold_every_leaf_primitive_once(tmp_path):
     np.testing.assert_array_equal(nodes["child"][inner], tree["child"][inner])
     np.testing.assert_array_equal(nodes["count"][inner], tree["count"][inner])
     held = decode_records(nodes, words, scene)
-    for index, ids in held.items():
-        lanes = np.flatnonzero(tree["count"][index] > 0)
+    for (index, start), ids in held.items():
+        lanes = np.flatnonzero((nodes["count"][index] > 0) & (nodes["child"][index] == start))
         child, count = tree["child"][index], tree["count"][index]
         expected = np.concatenate([prims[child[j] : child[j] + count[j]] for j in lanes])
         assert sorted(ids) == sorted(expected.tolist())
+        # A group fills at most one block of its primitives
+        assert count[lanes].sum() <= BVH_BLOCK_WIDTH or len(lanes) == 1
     every = np.concatenate([np.asarray(ids) for ids in held.values()])
     np.testing.assert_array_equal(np.sort(every), np.arange(scene.primitive_count))
-    # The renderer's packing is this one
+    # The renderer's packing is this one, over the primitives but its few quads (brute force)
+    assert len(scene.quads) <= BVH_MAX_BRUTE_QUADS
+    lower, upper = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
+    first = len(scene.quads)
+    tree, prims = build_wide_bvh(lower[first:], upper[first:])
+    expected = pack_bvh_leaves(
+        tree, prims + np.uint32(first), scene.quads, len(scene.spheres), scene.triangles
+    )
     packed_nodes, packed_words = pack_bvh(scene.quads, scene.spheres, scene.triangles, -1)
-    assert packed_nodes.tobytes() == nodes.tobytes()
-    np.testing.assert_array_equal(packed_words, words)
+    assert packed_nodes.tobytes() == expected[0].tobytes()
+    np.testing.assert_array_equal(packed_words, expected[1])
 
 
 def clear_triangle_hits(scene, origins, directions, t, prim):
