@@ -11,10 +11,12 @@ from the scene's primitives to what the device receives (scene_device.pack_bvh's
 primitive_bounds, clrender.bvh's binary build and its collapse to 8-wide nodes, the leaf records
 of pack_bvh_leaves), each step's CPU and wall time and minor page faults and their total,
 medians of --repeats (all in one process: the first repeat pays for fresh memory); the binary
-tree's SAH cost (clrender.bvh.sah_cost). Small meshes, Cornell boxes and quad scenes:
-the same launch by brute force and through the BVH, alternating, so the two rates come from the
-same stretch of machine load. Rates are per CPU-second x compute units (as
-trace_throughput.py), robust to a shared machine.
+tree's SAH cost (clrender.bvh.sah_cost), the 8-wide tree's node count, lanes used a node and
+cost (clrender.bvh.wide_sah_cost). Small meshes, Cornell boxes and quad scenes: the same launch
+by brute force and through the BVH, alternating, so the two rates come from the same stretch of
+machine load (a scene of at most BVH_MAX_BRUTE_QUADS quads alone, as the Cornell boxes, has no
+BVH: both launches are brute force, and their ratio shows the noise). Rates are per CPU-second
+x compute units (as trace_throughput.py), robust to a shared machine.
 Output: JSON (default bench/results/bvh_scaling.json).
 """
 
@@ -33,12 +35,13 @@ from pathlib import Path
 import numpy as np
 from primitive_scaling import scene_with_extra_quads
 
-from clrender.bvh import build_bvh, collapse_bvh, sah_cost
+from clrender.bvh import build_bvh, collapse_bvh, sah_cost, wide_sah_cost
 from clrender.runtime import create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.scene_device import (
     BRUTE_FORCE_LIMIT,
+    BVH_MAX_BRUTE_QUADS,
     brute_force_cost,
     pack_bvh_leaves,
     pack_triangles,
@@ -112,11 +115,14 @@ def build_times(scene, repeats):
         usage = resource.getrusage(resource.RUSAGE_SELF)
         return time.process_time(), time.perf_counter(), usage.ru_minflt
 
+    # As pack_bvh: at most BVH_MAX_BRUTE_QUADS quads stay out of the tree
+    first = len(scene.quads) if len(scene.quads) <= BVH_MAX_BRUTE_QUADS else 0
     for _ in range(repeats):
         marks = [mark()]
-        bounds = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
+        lower, upper = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
         marks.append(mark())
-        binary, prims = build_bvh(*bounds)
+        binary, prims = build_bvh(lower[first:], upper[first:])
+        prims += np.uint32(first)
         marks.append(mark())
         wide = collapse_bvh(binary)
         marks.append(mark())
@@ -130,7 +136,15 @@ def build_times(scene, repeats):
     row = {
         f"{stage}_{name}": statistics.median(values) for (stage, name), values in samples.items()
     }
-    return {**row, "nodes": len(binary), "sah_cost": sah_cost(binary)}
+    lanes = (wide["count"] >= 0).sum(axis=1)
+    return {
+        **row,
+        "nodes": len(binary),
+        "sah_cost": sah_cost(binary),
+        "wide_nodes": len(wide),
+        "wide_lanes_used": float(lanes.mean()) if len(wide) else 0.0,
+        "wide_sah_cost": wide_sah_cost(wide),
+    }
 
 
 def compare(runtime, scene, sets, size, repeats, label):
@@ -208,7 +222,8 @@ def main(argv=None):
             f"build {row['build_cpu_s']:.3f}, collapse {row['collapse_cpu_s']:.3f}, leaf records "
             f"{row['leaves_cpu_s']:.3f}; the whole way {row['total_build_cpu_s']:.3f} s CPU "
             f"{row['total_build_wall_s']:.3f} s wall, {row['total_build_page_faults']:.0f} page "
-            f"faults; SAH cost {row['sah_cost']:6.2f}  {rate}",
+            f"faults; SAH cost {row['sah_cost']:6.2f}; 8-wide: {row['wide_nodes']} nodes, "
+            f"{row['wide_lanes_used']:.1f} lanes used, cost {row['wide_sah_cost']:.2f}  {rate}",
             flush=True,
         )
     if not args.skip_render:

@@ -226,7 +226,9 @@ class Scene:
 
     def bvh(self, brute_force_limit: int = BRUTE_FORCE_LIMIT) -> tuple[np.ndarray, np.ndarray]:
         """(BVH nodes, leaf records) of the scene, empty when brute force is cheaper
-        (scene_device.pack_bvh; brute_force_limit -1: always a BVH)."""
+        (scene_device.pack_bvh; brute_force_limit -1: always a BVH, over the primitives but up
+        to BVH_MAX_BRUTE_QUADS quads, which are tested beside it: none for a scene of such quads
+        alone)."""
         return pack_bvh(self.quads, self.spheres, self.triangles, brute_force_limit)
 
     def quad_blocks(self, width: int = QUAD_BLOCK_WIDTH) -> np.ndarray:

@@ -14,7 +14,7 @@ SPHERE_DTYPE          Sphere               sphere
 TRIANGLE_DTYPE        Triangle             mesh triangle (vertices, material, normals and
                                            emitter index)
 NORMALS_DTYPE         TriangleNormals      mesh triangle with per-vertex shading normals
-BVH_NODE_DTYPE        BVHNode              8-wide node of the BVH over every primitive (bvh.py)
+BVH_NODE_DTYPE        BVHNode              8-wide node of the BVH (bvh.py; few quads stay out)
 TRIANGLE_BLOCK_DTYPE  TriangleBlock        8 triangles of a BVH leaf, structure of arrays (in the
                                            leaf records, pack_bvh_leaves, with quad blocks)
 MATERIAL_DTYPE        Material             material (MATERIAL_TYPES tags)
@@ -410,7 +410,9 @@ def _leaf_groups(count: np.ndarray) -> np.ndarray:
     for position in range(count.shape[1]):
         lane = order[:, position]
         lane_size = size[rows, lane]
-        first_fit = np.argmax(fill + lane_size[:, None] <= BVH_BLOCK_WIDTH, axis=1)
+        # (an empty group takes any leaf: one over BVH_BLOCK_WIDTH goes there alone)
+        fits = (fill + lane_size[:, None] <= BVH_BLOCK_WIDTH) | (fill == 0)
+        first_fit = np.argmax(fits, axis=1)
         leaf = lane_size > 0
         group[rows[leaf], lane[leaf]] = first_fit[leaf]
         fill[rows[leaf], first_fit[leaf]] += lane_size[leaf]

@@ -1,8 +1,9 @@
 // Ray-primitive intersection. Small scenes: every block of quads (one vector test per block)
 // whose bounding box the ray meets, then every sphere, then every triangle. Larger scenes
-// (bvh_node_count > 0): a bounding volume hierarchy over all primitives (clrender/bvh.py),
-// traversed with a private stack, the leaves of a node tested together (triangles and quads 8
-// at a time).
+// (bvh_node_count > 0): a bounding volume hierarchy (clrender/bvh.py) over the spheres, the
+// triangles and the quads unless there are at most BVH_MAX_BRUTE_QUADS (those are tested by
+// brute force beside it), traversed with a private stack; a node's leaves the ray reaches are
+// tested nearest first, each group of leaves' record once (triangles and quads 8 at a time).
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
 // quad_count + sphere_count + k; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
@@ -301,8 +302,8 @@ CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, con
     return t_min;
 }
 
-// The nearest primitive of a node's leaves (their shared record at word `record` of bvh_prims,
-// `count` as their lanes') along the ray before *t: triangles and quads a block at a time, then
+// The nearest primitive of a group of a node's leaves (the group's record at word `record` of
+// bvh_prims, `count` as their lanes') along the ray before *t: triangles and quads a block at a time, then
 // spheres one by one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
 CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int count, float3 o,
                                    float3 d, const TriangleRay *r, bool any_hit, float *t, int *id)
@@ -401,7 +402,7 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
         // The leaves the ray reaches, nearest first, each while it is nearer than the closest hit
-        float8 leaf_enter = reached & (count > 0) ? enter.v : (float8)(INFINITY);
+        float8 leaf_enter = (reached & (count > 0)) ? enter.v : (float8)(INFINITY);
         for (;;) {
             float leaf_nearest = Lanes_Min(leaf_enter);
             if (!(leaf_nearest < INFINITY && leaf_nearest <= t))

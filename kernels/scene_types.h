@@ -69,7 +69,8 @@ typedef struct {
     float n[3][3];
 } TriangleNormals;
 
-// A node of the bounding volume hierarchy over every primitive (clrender/bvh.py: a binary SAH
+// A node of the bounding volume hierarchy (clrender/bvh.py: over the primitives but up to
+// BVH_MAX_BRUTE_QUADS quads, which are tested beside it; a binary SAH
 // tree collapsed to BVH_WIDTH children a node), the root first. Its children's boxes are stored
 // as structure of arrays (one vector slab test for all of them), rounded outwards to float.
 // Child lane j: count[j] = 0, an interior node at child[j]; count[j] > 0, a leaf, whose
