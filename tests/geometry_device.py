@@ -105,3 +105,20 @@ def device_surface(runtime, scene, origins, directions, use_bvh=None):
     )
     frame = _read(runtime, frames, np.float32, (count, 3, 3))
     return frame[:, 0], frame[:, 1], frame[:, 2], _read(runtime, errors, np.float32, count)
+
+
+def assert_bvh_equals_brute_force(runtime, scene, rng, rays=20000, extent=1.2):
+    """Random rays from [-extent, extent]^3: the BVH's closest hits (ids and distances) and
+    shadow-ray answers equal brute force's. Returns the brute-force ids (for coverage checks)."""
+    origins = rng.uniform(-extent, extent, (rays, 3))
+    directions = rng.normal(size=(rays, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    t_brute, prim_brute = device_intersect(runtime, scene, origins, directions, False)
+    t_bvh, prim_bvh = device_intersect(runtime, scene, origins, directions, True)
+    np.testing.assert_array_equal(prim_bvh, prim_brute)
+    np.testing.assert_array_equal(t_bvh, t_brute)
+    tmax = rng.uniform(0.0, 1.0, rays)
+    blocked = device_occluded(runtime, scene, origins, directions, tmax, True)
+    np.testing.assert_array_equal(blocked, t_brute < tmax)
+    assert 0.1 < blocked.mean() < 0.9
+    return prim_brute

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from geometry_device import device_intersect, device_occluded
+from geometry_device import assert_bvh_equals_brute_force
 from scene_texts import lit_room, random_shapes_text
 
 from clrender.bvh import (
@@ -269,16 +269,6 @@ def test_quads_beside_or_inside_the_bvh_trace_like_brute_force(runtime, tmp_path
     nodes, words = pack_bvh(scene.quads, scene.spheres, scene.triangles, -1)
     quad_blocks = nodes["count"][nodes["count"] > 0] >> 16 & 0xFF
     assert (quad_blocks.sum() > 0) == (quads > BVH_MAX_BRUTE_QUADS)
-    origins = rng.uniform(-1.2, 1.2, (20000, 3))
-    directions = rng.normal(size=(20000, 3))
-    directions /= np.linalg.norm(directions, axis=1)[:, None]
-    t_brute, prim_brute = device_intersect(runtime, scene, origins, directions, False)
-    t_bvh, prim_bvh = device_intersect(runtime, scene, origins, directions, True)
+    prim_brute = assert_bvh_equals_brute_force(runtime, scene, rng)
     on_quads = (prim_brute >= 0) & (prim_brute < quads)
     assert on_quads.mean() > 0.05 and (prim_brute >= quads).mean() > 0.2
-    np.testing.assert_array_equal(prim_bvh, prim_brute)
-    np.testing.assert_array_equal(t_bvh, t_brute)
-    tmax = rng.uniform(0.0, 1.0, len(origins))
-    blocked = device_occluded(runtime, scene, origins, directions, tmax, True)
-    np.testing.assert_array_equal(blocked, t_brute < tmax)
-    assert 0.1 < blocked.mean() < 0.9
