@@ -12,7 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from cell_sets import random_pixels, single
+from cell_sets import (
+    assert_copy_cells,
+    exact_atol,
+    random_pixels,
+    single,
+)
 
 from clrender.estimators.device_cells import device_clipped_cells_from_arrays, device_clipped_sums
 from clrender.estimators.pixel import cell_sums
@@ -20,14 +25,10 @@ from clrender.estimators.qhull_cells import clipped_cells, sppp_cells
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 
-SAME_SET_RTOL = 1e-9
-EXACT_ATOL = 1e-7
-# Single precision (a device without cl_khr_fp64, or CLRENDER_NO_FP64): float32 areas, within
-# 2e-4 relative of the same set's (measured: 1.13e-4 at worst over 10 142 random cells, a cell of
-# area 0.01 off by 1.1e-6: the walk's float32 arithmetic on mirrors up to 1.5 in magnitude) and
-# SINGLE_ATOL of the exact cells, a pixel's areas summing to 1 within SINGLE_ATOL
+# Single precision: within 2e-4 relative of the same set's cells (measured: 1.13e-4 at worst over
+# 10 142 random cells, a cell of area 0.01 off by 1.1e-6: the walk's float32 arithmetic on mirrors
+# up to 1.5 in magnitude); the other tolerances are tests/cell_sets.py's
 SINGLE_RTOL = 2e-4
-SINGLE_ATOL = 1e-5
 
 
 def float32_mirrors(traced: np.ndarray, offsets: np.ndarray):
@@ -49,24 +50,16 @@ def float32_mirrors(traced: np.ndarray, offsets: np.ndarray):
     return nuclei.astype(np.float64), mirrors.astype(np.float64), 4 * np.asarray(offsets)
 
 
-def exact_atol(runtime) -> float:
-    return SINGLE_ATOL if single(runtime) else EXACT_ATOL
-
-
 def assert_clipped_cells(runtime, traced, offsets):
-    device = device_clipped_cells_from_arrays(runtime, traced, offsets)
-    assert device.bounded.all() and device.inside_box is None
-    nuclei, mirrors, mirror_offsets = float32_mirrors(traced, offsets)
-    same_set = sppp_cells(nuclei, offsets, mirrors, mirror_offsets)
-    rtol = SINGLE_RTOL if single(runtime) else SAME_SET_RTOL
-    np.testing.assert_allclose(device.areas, same_set.areas, rtol=rtol, atol=0)
-    exact = clipped_cells(traced, offsets)
-    np.testing.assert_allclose(device.areas, exact.areas, rtol=0, atol=exact_atol(runtime))
-    counts = np.diff(offsets)
-    # The clipped cells of a non-empty pixel tile W: their areas sum to 1
-    totals = np.add.reduceat(device.areas, offsets[:-1][counts > 0]) if counts.any() else []
-    np.testing.assert_allclose(totals, 1.0, atol=SINGLE_ATOL if single(runtime) else 1e-6)
-    return device
+    return assert_copy_cells(
+        runtime,
+        traced,
+        offsets,
+        device_clipped_cells_from_arrays,
+        float32_mirrors,
+        clipped_cells,
+        SINGLE_RTOL,
+    )
 
 
 # 1. Random pixels of varying counts (empty ones among them) match both references

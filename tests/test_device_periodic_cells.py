@@ -14,7 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from cell_sets import random_pixels, single
+from cell_sets import (
+    EXACT_ATOL,
+    assert_copy_cells,
+    exact_atol,
+    random_pixels,
+    single,
+)
 
 from clrender.estimators import device_cells
 from clrender.estimators.device_cells import (
@@ -28,13 +34,10 @@ from clrender.estimators.qhull_cells import clipped_cells, periodic_cells, sppp_
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 
-SAME_SET_RTOL = 1e-9
-EXACT_TORUS_ATOL = 1e-7
-# Single precision (a device without cl_khr_fp64, or CLRENDER_NO_FP64): float32 areas, within
-# 1e-4 relative of the same set's (as tests/test_device_cells.py) and SINGLE_ATOL of the exact
-# torus, a pixel's areas summing to 1 within SINGLE_ATOL (measured: 1.5e-6 relative at worst)
+# Single precision: within 1e-4 relative of the same set's cells (as tests/test_device_cells.py;
+# a pixel's areas sum to 1 within 1.5e-6 relative at worst); the other tolerances are
+# tests/cell_sets.py's
 SINGLE_RTOL = 1e-4
-SINGLE_ATOL = 1e-5
 SHIFTS = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dx, dy) != (0, 0)])
 
 
@@ -46,24 +49,16 @@ def float32_torus_copies(traced: np.ndarray, offsets: np.ndarray):
     return nuclei.astype(np.float64), translates.astype(np.float64), 8 * np.asarray(offsets)
 
 
-def exact_atol(runtime) -> float:
-    return SINGLE_ATOL if single(runtime) else EXACT_TORUS_ATOL
-
-
 def assert_torus_cells(runtime, traced, offsets):
-    device = device_periodic_cells_from_arrays(runtime, traced, offsets)
-    assert device.bounded.all() and device.inside_box is None
-    nuclei, translates, translate_offsets = float32_torus_copies(traced, offsets)
-    same_set = sppp_cells(nuclei, offsets, translates, translate_offsets)
-    rtol = SINGLE_RTOL if single(runtime) else SAME_SET_RTOL
-    np.testing.assert_allclose(device.areas, same_set.areas, rtol=rtol, atol=0)
-    exact = periodic_cells(traced, offsets)
-    np.testing.assert_allclose(device.areas, exact.areas, rtol=0, atol=exact_atol(runtime))
-    counts = np.diff(offsets)
-    # The torus cells of a non-empty pixel tile W: their areas sum to 1
-    totals = np.add.reduceat(device.areas, offsets[:-1][counts > 0]) if counts.any() else []
-    np.testing.assert_allclose(totals, 1.0, atol=SINGLE_ATOL if single(runtime) else 1e-6)
-    return device
+    return assert_copy_cells(
+        runtime,
+        traced,
+        offsets,
+        device_periodic_cells_from_arrays,
+        float32_torus_copies,
+        periodic_cells,
+        SINGLE_RTOL,
+    )
 
 
 # 1. Random pixels of varying counts (empty ones among them) match both references
@@ -163,7 +158,7 @@ def test_overflow_falls_back_to_host(runtime, monkeypatch, kind):
     device = from_arrays(runtime, traced, offsets)
     assert device.stats.recomputed_pixels > 15
     np.testing.assert_allclose(
-        device.areas, host_reference(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
+        device.areas, host_reference(traced, offsets).areas, rtol=0, atol=EXACT_ATOL
     )
 
 
@@ -204,5 +199,5 @@ def test_nuclei_outside_the_span_are_recomputed_on_the_host(runtime, monkeypatch
     device = from_arrays(runtime, traced, offsets)
     assert device.stats.recomputed_pixels == 30
     np.testing.assert_allclose(
-        device.areas, host_reference(traced, offsets).areas, rtol=0, atol=EXACT_TORUS_ATOL
+        device.areas, host_reference(traced, offsets).areas, rtol=0, atol=EXACT_ATOL
     )
