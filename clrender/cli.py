@@ -207,8 +207,8 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "--voronoi-backend",
         default="device",
         metavar="NAME",
-        help="where vor, vor_sn, fvor, cvor and pvor get their Voronoi cells: device (an OpenCL "
-        "kernel, exact, default) or qhull (SciPy's Qhull on the host)",
+        help="where vor, vor_sn, fvor, cvor, pvor, ivor and ivor_sn get their Voronoi cells: "
+        "device (an OpenCL kernel, exact, default) or qhull (SciPy's Qhull on the host)",
     )
     add(
         "--workers",

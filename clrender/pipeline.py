@@ -38,8 +38,11 @@ kernel queued right after the tracing, and a second kernel forms each pixel's we
 (clrender.estimators.device_cells.device_sppp_sums, device_periodic_sums,
 device_clipped_sums): no per-sample array
 comes back, and the host stage only divides. A tile with a cell the kernel cannot
-certify has those pixels settled on the host (their samples read back, cells by Qhull). With
-"qhull" the host computes the cells with Qhull.
+certify has those pixels settled on the host (their samples read back, cells by Qhull). The
+image-level estimators' cells (ivor, ivor_sn) are computed on the device too, pixel by pixel
+with its neighbours' nuclei, in the estimator stage (clrender.estimators.image_device; pixels
+with a cell it cannot certify go to Qhull). With "qhull" the host computes all cells with
+Qhull.
 
 Timing (RenderStats): the main thread's time per device stage (stage_seconds: sample
 sets, tracing, voronoi, readback; each ends with the device done with it; device_seconds is
@@ -56,8 +59,9 @@ that no kernel object is shared between threads.
 Determinism: every random number depends on (seed, pixel, sample, dimension, redraw) only;
 a per-pixel estimator sees only its pixel's samples; the image-level ones (ivor, ivor_sn) see
 neighbouring pixels' nuclei too, regenerated from the same random numbers whatever the tile,
-and sum their triangles in a canonical order; so the image is bit-identical whatever the tile
-size and with or without overlap.
+and sum their triangles in a canonical order (on the device each pixel's diagram is its own,
+sized by the sampler's n); so the image is bit-identical whatever the tile size and with or
+without overlap.
 
 Ctrl-C (KeyboardInterrupt) stops the render between device calls: the tile whose estimates
 are in flight is finished (without its redraws), and `render` returns the partial film with
@@ -105,9 +109,9 @@ DEFAULT_TILE_SAMPLES = 4_000_000
 # one-pixel render of 5 M samples: 20 B for mc summed on the device, 45 B for vor_sn): a tile
 # needing more than the machine has at this rate cannot render.
 MIN_BYTES_PER_TILE_SAMPLE = 20
-# Where the SPPP Voronoi cells of vor, vor_sn and fvor are computed: the device kernel
-# (clrender.estimators.device_cells; exact, pixels it cannot certify recomputed with Qhull) or Qhull
-# on the host (clrender.estimators.qhull_cells). Redraws always use Qhull.
+# Where the Voronoi cells of vor, vor_sn, fvor, pvor, cvor, ivor and ivor_sn are computed: the
+# device kernel (clrender.estimators.device_cells, image_device; exact, pixels it cannot certify
+# recomputed with Qhull) or Qhull on the host (qhull_cells, image). Redraws always use Qhull.
 VORONOI_BACKENDS = ("device", "qhull")
 # Split even small images into this many tiles (when tiles of MIN_TILE_PIXELS allow it), so
 # that the device and the host stage have something to overlap and progress moves.
@@ -224,8 +228,9 @@ class RenderSettings:
 
     @property
     def device_cells(self) -> bool:
-        """Whether the tiles' cells come from the device kernel (the SPPP cells of vor, vor_sn,
-        fvor; pvor's torus cells; cvor's cells clipped to W)."""
+        """Whether the tiles' cells and sums come from the device right after the tracing (the
+        SPPP cells of vor, vor_sn, fvor; pvor's torus cells; cvor's cells clipped to W). The
+        image-level cells (ivor, ivor_sn) come from the device in the estimator stage instead."""
         return bool(self.device_cell_kinds)
 
     @property
@@ -622,6 +627,7 @@ def group_estimates(
             tile.pixels,
             tile.sets,
             values,
+            device_cells=settings.voronoi_backend == "device",
         )
         return {entry.name: entry.formula(run.sums) for entry in group}, np.zeros(count, bool)
     results = estimate_all(group, tile.sets, values)

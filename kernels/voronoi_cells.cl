@@ -24,7 +24,9 @@
 // unbounded (the nucleus lies on the convex hull of its pixel's nuclei) or larger than the box;
 // an O(N) test of the cell's recession cone tells them apart. Status bits per traced nucleus:
 //   VORONOI_BOUNDED   the cell is bounded (area valid)
-//   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test)
+//   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test); built
+//                     with VORONOI_INSIDE_DISCS: every vertex's disc through the nucleus does
+//                     (image-level cells: the cell is then the same among all nuclei beyond)
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
@@ -783,6 +785,13 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     // Exact cell: its area, shared equally with coincident nuclei
     bool inside;
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
+#ifdef VORONOI_INSIDE_DISCS
+    // Image-level cells: inside instead means every vertex's disc through the nucleus (the
+    // Delaunay circumdiscs) lies in [-inside_box, inside_box]^2, where every nucleus is known
+    float4 discs = VoronoiPolygon_CutBox(&poly);
+    inside = x.x + discs.x >= -inside_box && x.y + discs.y >= -inside_box
+             && x.x + discs.z <= inside_box && x.y + discs.w <= inside_box;
+#endif
     areas[i] = area / VORONOI_MAX(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0)
                 | (one_way ? VORONOI_WALKED_ONE_WAY : 0);

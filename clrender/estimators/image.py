@@ -102,6 +102,8 @@ from clrender.sppp import DEFAULT_ALPHA, sppp_eps
 if TYPE_CHECKING:  # scipy.spatial is imported where used: it takes ~1 s to import
     from scipy.spatial import Delaunay
 
+    from clrender.runtime import Runtime
+
 BLOCK_POINTS = 6000  # nuclei per Qhull call (block pixels only, guard excluded)
 MAX_GUARD = 16.0  # widest guard (pixels) the fallback tries
 
@@ -276,6 +278,7 @@ class ImageVoronoiStats:
     uncertified_nuclei: int = 0  # cells still not provably exact after the last widening
     settled_nuclei: int = 0  # cells settled by clipping (near-coincident nuclei, neighbours)
     empty_pixels: int = 0  # pixels with N = 0
+    device_pixels: int = 0  # pixels whose cells all came from the device (image_device)
 
     def add(self, other: ImageVoronoiStats) -> None:
         for name in self.__dataclass_fields__:
@@ -485,13 +488,15 @@ def estimate_image(
     delta: float | None = None,
     start: int = 0,
     stop: int | None = None,
+    runtime: Runtime | None = None,
 ) -> ImageEstimate:
     """ivor and ivor_sn of every image pixel from one realisation of the process.
 
     positions: (M, 2) image coordinates of a Poisson(n) realisation on the image grown by
     `frame` on each side, i.e. [-frame, W + frame] x [-frame, H + frame]; values: (M,) or
     (M, C), used for the points inside the image only. start/stop select a scanline run of
-    pixels (the tiling a renderer would use); pixels outside the run are NaN.
+    pixels (the tiling a renderer would use); pixels outside the run are NaN. With a runtime
+    the cells are computed on its device (clrender.estimators.image_device), else by Qhull.
     """
     positions = np.asarray(positions, np.float64)
     values = np.asarray(values, np.float64)
@@ -504,7 +509,12 @@ def estimate_image(
         PixelRect(0, 0, width, height).grown(ring), positions, values, np.arange(len(positions))
     )
     extent = (-frame, -frame, width + frame, height + frame)
-    run = estimate_run(grid.take, width, start, stop, n, delta, extent)
+    if runtime is None:
+        run = estimate_run(grid.take, width, start, stop, n, delta, extent)
+    else:
+        from clrender.estimators.image_device import estimate_run_device
+
+        run = estimate_run_device(runtime, grid.take, width, start, stop, n, delta, extent)
     areas = np.full(len(positions), np.nan)
     areas[run.ids] = run.areas
     estimates = {}
@@ -530,10 +540,12 @@ def estimate_tile_image(
     values: np.ndarray,
     border: str = DEFAULT_BORDER,
     delta: float | None = None,
+    device_cells: bool = False,
 ) -> RunEstimate:
     """ivor and ivor_sn of a render tile (a scanline run of global pixel indices, each drawn
     with redraw number 0 by an SPPP sampler config): the tile's sample sets and the values of
-    their traced samples. Returns the run's sums and estimates in tile order."""
+    their traced samples. Returns the run's sums and estimates in tile order. device_cells:
+    the cells on runtime's device (clrender.estimators.image_device), else by Qhull."""
     pixels = np.asarray(pixels, np.int64)
     if not config.is_sppp:
         raise ParameterError(
@@ -545,7 +557,15 @@ def estimate_tile_image(
         raise ParameterError("image-level Voronoi estimation needs a scanline run of pixels")
     check_border(border)
     delta = guard_distance(config.n, config.alpha) if delta is None else float(delta)
+    ring = math.ceil(delta)
+    if device_cells:
+        from clrender.estimators.image_device import device_ring, estimate_run_device
+
+        ring = max(ring, device_ring(delta))
     source = tile_point_source(
-        runtime, config, seed, width, height, pixels, samples, values, math.ceil(delta), border
+        runtime, config, seed, width, height, pixels, samples, values, ring, border
     )
-    return estimate_run(source, width, start, start + len(pixels), config.n, delta)
+    stop = start + len(pixels)
+    if device_cells:
+        return estimate_run_device(runtime, source, width, start, stop, config.n, delta)
+    return estimate_run(source, width, start, stop, config.n, delta)
