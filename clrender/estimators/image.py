@@ -273,7 +273,8 @@ class ImageVoronoiStats:
     blocks: int = 0
     qhull_calls: int = 0
     traced_nuclei: int = 0
-    guard_nuclei: int = 0  # untraced nuclei handed to Qhull
+    guard_nuclei: int = 0  # untraced nuclei handed to Qhull (on the device: every pixel's
+    # auxiliary nuclei, its neighbours', so each nucleus counts once per pixel it neighbours)
     widened_blocks: int = 0  # blocks redone with a doubled guard (fallback)
     uncertified_nuclei: int = 0  # cells still not provably exact after the last widening
     settled_nuclei: int = 0  # cells settled by clipping (near-coincident nuclei, neighbours)

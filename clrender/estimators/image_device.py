@@ -45,7 +45,7 @@ from clrender.estimators.image import (
     estimate_block,
     near_coincident_length,
 )
-from clrender.estimators.image_plane import PixelRect, PointSource
+from clrender.estimators.image_plane import PixelRect, PointSource, _segment_index
 from clrender.estimators.registry import PixelSums
 from clrender.runtime import Runtime
 
@@ -85,17 +85,32 @@ def estimate_run_device(
     ys, xs = np.divmod(np.arange(start, stop, dtype=np.int64), width)
     count = len(xs)
     ring = device_ring(delta) if ring is None else ring
-    traced = source(xs, ys)
-    owner = np.repeat(np.arange(count), traced.counts)
-    centres = np.column_stack([xs, ys]).astype(np.float64) + 0.5
+    if count == 0:
+        empty = np.zeros(0)
+        return RunEstimate(
+            PixelSums(empty, n, weighted=empty, area=empty), empty, empty, ImageVoronoiStats()
+        )
+    # Every nucleus of the run's bounding rectangle grown by the ring, pixel by pixel
+    rect = PixelRect(int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    rect = rect.grown(ring)
+    plane = source(*rect.coords())
+    plane_starts = np.cumsum(plane.counts) - plane.counts
+    # The run's pixels and their neighbours as pixels of the rectangle
+    cell = (ys - rect.y0) * rect.width + xs - rect.x0
     dx, dy = neighbour_offsets(ring)
-    guard = source((xs[:, None] + dx).ravel(), (ys[:, None] + dy).ravel())
-    guard_counts = guard.counts.reshape(count, len(dx)).sum(axis=1)
-    guard_owner = np.repeat(np.arange(count), guard_counts)
-    local = (traced.positions - centres[owner]).astype(np.float32)
-    aux = (guard.positions - centres[guard_owner]).astype(np.float32)
+    around = (cell[:, None] + dy * rect.width + dx).ravel()
+    own = _segment_index(plane_starts[cell], plane.counts[cell])
+    guard = _segment_index(plane_starts[around], plane.counts[around])
+    traced_counts = plane.counts[cell]
+    guard_counts = plane.counts[around].reshape(count, len(dx)).sum(axis=1)
+    owner = np.repeat(np.arange(count), traced_counts)
+    # Relative to each pixel's centre, rounded to float32 as the kernels take them
+    centres = np.column_stack([xs, ys]).astype(np.float64) + 0.5
+    local = (plane.positions[own] - centres[owner]).astype(np.float32)
+    aux = (plane.positions[guard] - np.repeat(centres, guard_counts, axis=0)).astype(np.float32)
+    values, ids = plane.values[own], plane.ids[own]
 
-    traced_offsets = np.concatenate([[0], np.cumsum(traced.counts)]).astype(np.int64)
+    traced_offsets = np.concatenate([[0], np.cumsum(traced_counts)]).astype(np.int64)
     aux_offsets = np.concatenate([[0], np.cumsum(guard_counts)]).astype(np.int64)
     areas, status = _device_cells(
         runtime, local, aux, traced_offsets, aux_offsets, ring, n, precision
@@ -116,7 +131,7 @@ def estimate_run_device(
     stats = ImageVoronoiStats(
         traced_nuclei=len(owner),
         guard_nuclei=len(aux),
-        empty_pixels=int((traced.counts == 0).sum()),
+        empty_pixels=int((traced_counts == 0).sum()),
         device_pixels=int(count - host.sum()),
     )
     near_length = near_coincident_length(n, delta)
@@ -131,14 +146,14 @@ def estimate_run_device(
         areas[traced_offsets[p] : traced_offsets[p + 1]] = block.areas
         stats.add(block.stats)
     stats.traced_nuclei = len(owner)
-    weighted = traced.values * (areas if traced.values.ndim == 1 else areas[:, None])
+    weighted = values * (areas if values.ndim == 1 else areas[:, None])
     sums = PixelSums(
-        traced.counts,
+        traced_counts,
         n,
         weighted=_bincount_columns(owner, weighted, count),
         area=np.bincount(owner, areas, count),
     )
-    return RunEstimate(sums, traced.ids, areas, stats)
+    return RunEstimate(sums, ids, areas, stats)
 
 
 def _device_cells(
