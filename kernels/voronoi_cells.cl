@@ -26,7 +26,8 @@
 //   VORONOI_BOUNDED   the cell is bounded (area valid)
 //   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test); built
 //                     with VORONOI_INSIDE_DISCS: every vertex's disc through the nucleus does
-//                     (image-level cells: the cell is then the same among all nuclei beyond)
+//                     (image-level cells: the cell is then the same among all nuclei beyond),
+//                     and no other nucleus is within VORONOI_NEAR_LENGTH of the nucleus
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
@@ -787,10 +788,19 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     area_real area = VoronoiPolygon_Area(&poly, nucleus, inside_box, &inside);
 #ifdef VORONOI_INSIDE_DISCS
     // Image-level cells: inside instead means every vertex's disc through the nucleus (the
-    // Delaunay circumdiscs) lies in [-inside_box, inside_box]^2, where every nucleus is known
+    // Delaunay circumdiscs) lies in [-inside_box, inside_box]^2, where every nucleus is known,
+    // and no other nucleus lies within VORONOI_NEAR_LENGTH (the nearest is a neighbour): the
+    // positions are rounded relative to the pixel, which leaves such a pair's bisector to
+    // rounding (the host settles them exactly)
     float4 discs = VoronoiPolygon_CutBox(&poly);
+    float nearest2 = INFINITY;
+    for (int k = 0; k < poly.count; ++k) {
+        float dx = poly.ex[k] - nucleus.x, dy = poly.ey[k] - nucleus.y;
+        nearest2 = VORONOI_MIN(nearest2, dx * dx + dy * dy);
+    }
     inside = x.x + discs.x >= -inside_box && x.y + discs.y >= -inside_box
-             && x.x + discs.z <= inside_box && x.y + discs.w <= inside_box;
+             && x.x + discs.z <= inside_box && x.y + discs.w <= inside_box && coincident <= 1
+             && nearest2 >= VORONOI_NEAR_LENGTH * VORONOI_NEAR_LENGTH;
 #endif
     areas[i] = area / VORONOI_MAX(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0)

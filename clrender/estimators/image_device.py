@@ -3,8 +3,9 @@
 clrender.estimators.image tessellates blocks of pixels with Qhull on the host (about 0.6 ms a
 pixel at n = 64). Here every pixel is its own small diagram instead, computed by the SPPP cell
 kernels (kernels/voronoi_cells.cl): its traced nuclei, with the nuclei of the plane pixels
-within `ring` pixels of it as auxiliary nuclei, all relative to the pixel's centre (rounded to
-float32, as the kernels take them: within 6e-8 pixel of the image coordinates).
+within `ring` pixels of it as auxiliary nuclei, all relative to the pixel's centre and rounded
+to float32 as the kernels take them (within 2^-24 (1/2 + ring) pixel of the image coordinates:
+6e-8 for the pixel's own, up to 2.7e-7 at ring 4). A pixel without nuclei gets no diagram.
 
 Exactness. A traced nucleus's cell among these nuclei is its cell in the whole process when
 every vertex's disc through the nucleus (the Delaunay circumdiscs of the cell's triangles) lies
@@ -14,13 +15,17 @@ that (VORONOI_INSIDE_DISCS) with a margin of CERTIFY_MARGIN pixel for the roundi
 vertices (a margin only sends more pixels to the host). The host's rule is the same
 (image._areas_and_flags, with the block grown by delta instead of the pixel by ring). ring is
 ceil(delta), at least 1, for delta the host's guard distance 2 eps(n), which bounds 2 R(C(x))
-with the tail probability alpha: few cells fail it.
+with the tail probability alpha: few cells fail it. The rounding would decide the bisector of
+two nuclei closer than about 1e-4 pixel (errors up to 1e-2 in their cells were measured): a
+cell with another nucleus within image.near_coincident_length (VORONOI_NEAR_LENGTH; also
+coincident ones) is not certified either, and the host settles it exactly as it does its own.
 
 Pixels with a cell that is not certified (or unbounded, or undecided by the kernel) are
 estimated on the host exactly as image.estimate_run does, one pixel a block
 (image.estimate_block, the guard widened while needed). Every pixel's result depends on its
 own neighbourhood alone, never on the tiling or on which other pixels share a launch: the grid
-is sized by the sampler's n, not by the launch.
+is sized by the sampler's n, not by the launch. Launches take runs of pixels of about
+CHUNK_NUCLEI auxiliary nuclei, so the memory does not grow with the tile.
 """
 
 from __future__ import annotations
@@ -52,6 +57,10 @@ from clrender.runtime import Runtime
 # Pixels by which the certifying square is shrunk: far above the rounding of float32 vertices
 # (about 1e-7 pixel at the ring's distance), far below a cell's size.
 CERTIFY_MARGIN = 1e-4
+# Auxiliary nuclei (expected) of one launch: pixels go to the device in runs this large, which
+# bounds the host and device memory whatever the tile (each nucleus is copied to every pixel
+# within the ring: (2 ring + 1)^2 - 1 times).
+CHUNK_NUCLEI = 1 << 20
 
 
 def device_ring(delta: float) -> int:
@@ -81,28 +90,71 @@ def estimate_run_device(
     """image.estimate_run's result (the image-level sums of pixels start .. stop - 1, in
     scanline order) with the cells computed on the device, pixel by pixel (module docstring).
     extent: a finite realisation's (x0, y0, x1, y1): no nuclei beyond it. ring: the pixels
-    around each pixel whose nuclei join its diagram (default device_ring(delta))."""
+    around each pixel whose nuclei join its diagram (default device_ring(delta)). Launches of
+    at most CHUNK_NUCLEI auxiliary nuclei (expected), which bounds the memory."""
+    ring = device_ring(delta) if ring is None else ring
+    chunk = max(1, int(CHUNK_NUCLEI / ((2 * ring + 1) ** 2 * max(n, 1.0))))
+    parts = [
+        _estimate_pixels(
+            runtime,
+            source,
+            width,
+            first,
+            min(first + chunk, stop),
+            n,
+            delta,
+            extent,
+            precision,
+            ring,
+        )
+        for first in range(start, stop, chunk)
+    ]
+    stats = ImageVoronoiStats()
+    for part in parts:
+        stats.add(part.stats)
+    if not parts:
+        empty = np.zeros(0)
+        sums = PixelSums(np.zeros(0, np.int64), n, weighted=empty, area=empty)
+        return RunEstimate(sums, np.zeros(0, np.int64), empty, stats)
+    sums = PixelSums(
+        np.concatenate([part.sums.counts for part in parts]),
+        n,
+        weighted=np.concatenate([part.sums.weighted for part in parts]),
+        area=np.concatenate([part.sums.area for part in parts]),
+    )
+    ids = np.concatenate([part.ids for part in parts])
+    return RunEstimate(sums, ids, np.concatenate([part.areas for part in parts]), stats)
+
+
+def _estimate_pixels(
+    runtime: Runtime,
+    source: PointSource,
+    width: int,
+    start: int,
+    stop: int,
+    n: float,
+    delta: float,
+    extent: tuple[float, ...] | None,
+    precision: str,
+    ring: int,
+) -> RunEstimate:
+    """estimate_run_device over one launch's pixels start .. stop - 1 (at least one)."""
     ys, xs = np.divmod(np.arange(start, stop, dtype=np.int64), width)
     count = len(xs)
-    ring = device_ring(delta) if ring is None else ring
-    if count == 0:
-        empty = np.zeros(0)
-        return RunEstimate(
-            PixelSums(empty, n, weighted=empty, area=empty), empty, empty, ImageVoronoiStats()
-        )
     # Every nucleus of the run's bounding rectangle grown by the ring, pixel by pixel
     rect = PixelRect(int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
     rect = rect.grown(ring)
     plane = source(*rect.coords())
     plane_starts = np.cumsum(plane.counts) - plane.counts
-    # The run's pixels and their neighbours as pixels of the rectangle
+    # The run's pixels and the neighbours of those with nuclei, as pixels of the rectangle
     cell = (ys - rect.y0) * rect.width + xs - rect.x0
-    dx, dy = neighbour_offsets(ring)
-    around = (cell[:, None] + dy * rect.width + dx).ravel()
-    own = _segment_index(plane_starts[cell], plane.counts[cell])
-    guard = _segment_index(plane_starts[around], plane.counts[around])
     traced_counts = plane.counts[cell]
-    guard_counts = plane.counts[around].reshape(count, len(dx)).sum(axis=1)
+    dx, dy = neighbour_offsets(ring)
+    around = cell[:, None] + dy * rect.width + dx
+    around_counts = np.where(traced_counts[:, None] > 0, plane.counts[around], 0)
+    own = _segment_index(plane_starts[cell], traced_counts)
+    guard = _segment_index(plane_starts[around].ravel(), around_counts.ravel())
+    guard_counts = around_counts.sum(axis=1)
     owner = np.repeat(np.arange(count), traced_counts)
     # Relative to each pixel's centre, rounded to float32 as the kernels take them
     centres = np.column_stack([xs, ys]).astype(np.float64) + 0.5
@@ -112,8 +164,9 @@ def estimate_run_device(
 
     traced_offsets = np.concatenate([[0], np.cumsum(traced_counts)]).astype(np.int64)
     aux_offsets = np.concatenate([[0], np.cumsum(guard_counts)]).astype(np.int64)
+    near_length = near_coincident_length(n, delta)
     areas, status = _device_cells(
-        runtime, local, aux, traced_offsets, aux_offsets, ring, n, precision
+        runtime, local, aux, traced_offsets, aux_offsets, ring, n, near_length, precision
     )
     certified = (status & (STATUS_BOUNDED | STATUS_INSIDE | STATUS_FALLBACK)) == (
         STATUS_BOUNDED | STATUS_INSIDE
@@ -129,12 +182,10 @@ def estimate_run_device(
     areas = np.where(certified, areas, 0.0)
 
     stats = ImageVoronoiStats(
-        traced_nuclei=len(owner),
         guard_nuclei=len(aux),
         empty_pixels=int((traced_counts == 0).sum()),
         device_pixels=int(count - host.sum()),
     )
-    near_length = near_coincident_length(n, delta)
     for p in np.flatnonzero(host):
         block = estimate_block(
             source,
@@ -144,6 +195,7 @@ def estimate_run_device(
             near_length,
         )
         areas[traced_offsets[p] : traced_offsets[p + 1]] = block.areas
+        block.stats.empty_pixels = 0  # counted above
         stats.add(block.stats)
     stats.traced_nuclei = len(owner)
     weighted = values * (areas if values.ndim == 1 else areas[:, None])
@@ -164,9 +216,11 @@ def _device_cells(
     aux_offsets: np.ndarray,
     ring: int,
     n: float,
+    near_length: float,
     precision: str,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(areas float64, status) of the traced nuclei, each pixel's diagram on its own."""
+    """(areas float64, status) of the traced nuclei, each pixel's diagram on its own; a cell
+    with another nucleus within near_length is not certified (VORONOI_NEAR_LENGTH)."""
     if len(local) == 0:
         return np.zeros(0), np.zeros(0, np.uint8)
     buffer, upload = runtime.upload_async(np.concatenate([local, aux]))
@@ -183,6 +237,8 @@ def _device_cells(
     )
     defines, real = _precision_setup(runtime, precision)
     defines["VORONOI_INSIDE_DISCS"] = True
+    # Rounded up to 2 digits: few program builds
+    defines["VORONOI_NEAR_LENGTH"] = float(f"{1.05 * near_length:.2g}")
     areas, status = _launch(runtime, layout, half_extent - CERTIFY_MARGIN, defines, real)
     del upload
     return areas.astype(np.float64), status
