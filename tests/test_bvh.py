@@ -11,6 +11,7 @@ import pytest
 from geometry_device import device_intersect, device_occluded, device_surface
 from scene_texts import lit_room, mesh_text, random_shapes_text
 
+from clrender import scene_device
 from clrender.bvh import (
     BINARY_NODE_DTYPE,
     BOUNDS_PADDING,
@@ -35,6 +36,7 @@ from clrender.scene_device import (
     BVH_BLOCK_WIDTH,
     BVH_LEAF_ALIGN,
     NORMALS_DTYPE,
+    RECORD_CHUNK,
     TRIANGLE_BLOCK_DTYPE,
     TRIANGLE_DTYPE,
     pack_bvh_leaves,
@@ -447,11 +449,16 @@ def reference_record(node, lanes, prims, quads, sphere_count, triangles, words):
 
 
 # Mixed records (blocks of a kind apart: written through one array), and records of one kind
-# (blocks that follow each other: written in place)
+# (blocks that follow each other: written in place); blocks gathered a few at a time or all at
+# once
 @pytest.mark.parametrize(
     "quads, spheres, triangles", [(150, 80, 1500), (0, 0, 1500), (300, 0, 0), (0, 200, 0)]
 )
-def test_leaf_records_equal_a_node_by_node_reference(tmp_path, quads, spheres, triangles):
+@pytest.mark.parametrize("record_chunk", [7, RECORD_CHUNK])
+def test_leaf_records_equal_a_node_by_node_reference(
+    tmp_path, monkeypatch, quads, spheres, triangles, record_chunk
+):
+    monkeypatch.setattr(scene_device, "RECORD_CHUNK", record_chunk)
     scene = random_scene(tmp_path, 33, quads=quads, spheres=spheres, triangles=max(triangles, 1))
     # (the scene has a light quad and a mesh: only the kinds asked for are kept)
     kinds = (scene.quads[: quads and None], scene.spheres, scene.triangles[:triangles])
