@@ -240,72 +240,126 @@ def build_wide_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np
     return collapse_bvh(binary), prims
 
 
-def _binary_levels(binary: np.ndarray) -> list[np.ndarray]:
-    """The binary tree's nodes level by level from the root (indices, each level ascending)."""
-    levels = []
-    frontier = np.array([0])
-    count, offset = binary["count"], binary["offset"]
-    while len(frontier):
-        levels.append(frontier)
-        inner = offset[frontier[count[frontier] < 0]]
-        frontier = np.stack([inner, inner + 1], axis=1).reshape(-1)
-    return levels
+def _binary_levels(count: np.ndarray) -> list[tuple[int, int]]:
+    """The levels of a binary tree in build_bvh's layout (count: its nodes' counts) as ranges
+    (start, end) of node indices from the root's: the split nodes' children, in order, are the
+    next level."""
+    levels = [(0, min(len(count), 1))]
+    while levels[-1][0] < levels[-1][1]:
+        start, end = levels[-1]
+        levels.append((end, end + 2 * int(np.count_nonzero(count[start:end] < 0))))
+    return levels[:-1]
 
 
-def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
-    """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1),
-    bottom up a level at a time. cost[i - 1, n]: least cost of subtree n as at most i children
-    of a wide node (area x cost per visit, over all its wide nodes and leaves); as_leaf[n]: n is
-    cheapest as one leaf (else as one wide node); split[i - 1, n]: the k of the best
-    distribution of n's subtree into i children, k from its left child's and i - k from its
-    right one's, negated where n as one child is cheaper (0 for a binary leaf). Also each
-    subtree's first primitive and size. Budgets are rows: every operation is on whole rows."""
+def _node_half_areas(record: np.ndarray, start: int, end: int) -> np.ndarray:
+    """Half the surface areas (float64) of binary nodes start .. end - 1 (record: the nodes as
+    rows of 8 float32 words)."""
+    x, y, z = (
+        record[start:end, 4 + axis].astype(np.float64) - record[start:end, axis]
+        for axis in range(3)
+    )
+    area = x * y
+    area += np.multiply(y, z, out=y)
+    area += np.multiply(z, x, out=z)
+    return area
+
+
+def _collapse_costs(binary: np.ndarray) -> tuple:
+    """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1) of
+    a binary tree in build_bvh's layout, bottom up a level at a time. The least cost of subtree
+    n as at most i children of a wide node (area x cost per visit, over all its wide nodes and
+    leaves) is row i - 1 of its level's costs (BVH_WIDTH rows; the level's left children's
+    columns, then its right children's, so that the level above reads both as slices).
+    Returns (as_leaf, split, split_column, first, size): as_leaf[n], n is cheapest as one leaf
+    (else as one wide node); split[i - 1, split_column[n]], the k of the best distribution of
+    n's subtree into i children, k from its left child's and i - k from its right one's,
+    negated where n as one child is cheaper (0 for a binary leaf: split nodes have a column
+    each, in order, the leaves share a last one); each subtree's first primitive and size.
+    Budgets are rows: every operation is on whole rows."""
     total = len(binary)
-    count, offset = binary["count"], binary["offset"]
-    extent = binary["upper"].astype(np.float64) - binary["lower"]
-    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
-    area = (area / max(area[0], 1e-300)).astype(np.float32)  # (float32 costs: half the traffic)
-    size = np.where(count > 0, count, 0)
-    first = np.where(count > 0, offset, 0)
-    cost = np.empty((BVH_WIDTH, total), np.float32)
-    as_leaf = count > 0
-    split = np.zeros((BVH_WIDTH, total), np.int8)
-    for level in reversed(levels):
-        leaves = level[count[level] > 0]
-        blocks = -(-size[leaves] // BVH_BLOCK_WIDTH)
-        cost[:, leaves] = np.float32(WIDE_BLOCK_COST) * blocks * area[leaves]
-        inner = level[count[level] < 0]
-        if len(inner) == 0:
+    count = np.ascontiguousarray(binary["count"])
+    offset = np.ascontiguousarray(binary["offset"])
+    record = binary.view(np.float32).reshape(total, 8)
+    root_area = max(float(_node_half_areas(record, 0, 1)[0]), 1e-300)
+    is_inner = count < 0
+    size = np.where(is_inner, 0, count)
+    first = np.where(is_inner, 0, offset)
+    as_leaf = ~is_inner
+    # The k-th split node's children are nodes 2k + 1, 2k + 2: its column of split is k
+    parents_total = int(np.count_nonzero(is_inner))
+    split_column = np.where(is_inner, (offset - 1) >> 1, parents_total)
+    split = np.zeros((BVH_WIDTH, parents_total + 1), np.int8)
+    levels = _binary_levels(count)
+    # Work rows reused by every level: each budget's best distribution, an option and whether
+    # it is better; the costs of the level below and of this one
+    widest = max(end - start for start, end in levels)
+    distribute = np.empty((BVH_WIDTH, widest), np.float32)
+    option = np.empty(widest, np.float32)
+    better = np.empty((BVH_WIDTH, widest), bool)
+    better_k = np.empty((BVH_WIDTH, widest), np.int8)
+    below, level_cost = np.empty((2, BVH_WIDTH, widest), np.float32)
+    parents_after = parents_total
+    for start, end in reversed(levels):
+        nodes = end - start
+        inner = np.flatnonzero(is_inner[start:end])
+        parents = len(inner)
+        parents_after -= parents
+        # The split nodes' sizes and first primitives: their children's (the level below)
+        level_size, level_first = size[start:end], first[start:end]
+        children = slice(end, end + 2 * parents, 2)
+        level_size[inner] = size[children]
+        level_size[inner] += size[end + 1 : end + 2 * parents : 2]
+        level_first[inner] = first[children]
+        # Each node as one leaf (at most WIDE_LEAF_MAX primitives unless a binary leaf); this
+        # level's costs start as those (left children's columns first; a lone root: its own)
+        # (areas over the root's in float32: costs of half the traffic)
+        area = (_node_half_areas(record, start, end) / root_area).astype(np.float32)
+        blocks = -(-level_size // BVH_BLOCK_WIDTH)
+        leaf = np.float32(WIDE_BLOCK_COST) * blocks.astype(np.float32)
+        leaf *= area
+        leaf[inner[level_size[inner] > WIDE_LEAF_MAX]] = np.inf
+        half = (nodes + 1) // 2
+        costs = level_cost[:, :nodes]
+        costs[:, :half] = leaf[0::2]
+        costs[:, half:] = leaf[1::2]
+        if parents == 0:
+            below, level_cost = level_cost, below
             continue
-        left = offset[inner]
-        size[inner] = size[left] + size[left + 1]
-        first[inner] = first[left]
-        below_left, below_right = cost[:, left], cost[:, left + 1]
-        # Each budget i's best split: k from the left, i - k from the right (the first least)
-        distribute = np.empty((BVH_WIDTH, len(inner)), np.float32)
-        best_k = np.ones((BVH_WIDTH, len(inner)), np.int8)
-        distribute[0] = np.inf
-        scratch = np.empty(len(inner), np.float32)
+        left, right = below[:, :parents], below[:, parents : 2 * parents]
+        spread, scratch = distribute[:, :parents], option[:parents]
+        less, gain = better[:, :parents], better_k[:, :parents]
+        # Each budget i's best split: k from the left, i - k from the right (the first least:
+        # the largest k that beats every smaller one), its k written straight into split
+        best_k = split[:, parents_after : parents_after + parents]
+        best_k.fill(1)
+        spread[0] = np.inf
         for i in range(2, BVH_WIDTH + 1):
-            best = distribute[i - 1]
-            np.add(below_left[0], below_right[i - 2], out=best)
+            best = spread[i - 1]
+            np.add(left[0], right[i - 2], out=best)
             for k in range(2, i):
-                option = np.add(below_left[k - 1], below_right[i - k - 1], out=scratch)
-                np.copyto(best_k[i - 1], k, where=option < best)
-                np.minimum(best, option, out=best)
-        node = WIDE_NODE_COST * area[inner] + distribute[-1]
-        leaf = np.where(
-            size[inner] <= WIDE_LEAF_MAX,
-            WIDE_BLOCK_COST * -(-size[inner] // BVH_BLOCK_WIDTH) * area[inner],
-            np.inf,
-        )
-        is_leaf = leaf <= node
-        as_leaf[inner] = is_leaf
-        one = np.where(is_leaf, leaf, node)
-        spread = distribute < one
-        cost[:, inner] = np.where(spread, distribute, one)
-        split[:, inner] = np.where(spread, best_k, -best_k)
-    return cost, as_leaf, split, first, size
+                np.add(left[k - 1], right[i - k - 1], out=scratch)
+                np.less(scratch, best, out=less[0])
+                np.multiply(less[0], np.int8(k), out=gain[0])
+                np.maximum(best_k[i - 1], gain[0], out=best_k[i - 1])
+                np.minimum(best, scratch, out=best)
+        # Each split node as one child: a leaf or a wide node, the cheaper; each budget's cost:
+        # that or its best distribution, the cheaper (split negated where it is one child)
+        node = np.float32(WIDE_NODE_COST) * area[inner]
+        node += spread[-1]
+        inner_leaf = leaf[inner]
+        is_leaf = inner_leaf <= node
+        as_leaf[start:end][inner] = is_leaf
+        one = np.where(is_leaf, inner_leaf, node)
+        np.greater_equal(spread, one, out=less)
+        np.multiply(less, best_k, out=gain)
+        best_k -= gain
+        best_k -= gain
+        np.minimum(spread, one, out=spread)
+        column = (inner & 1) * half + (inner >> 1)
+        for row in range(BVH_WIDTH):
+            costs[row][column] = spread[row]
+        below, level_cost = level_cost, below
+    return as_leaf, split, split_column, first, size
 
 
 def wide_sah_cost(nodes: np.ndarray) -> float:
@@ -328,14 +382,14 @@ def wide_sah_cost(nodes: np.ndarray) -> float:
 
 
 def collapse_bvh(binary: np.ndarray) -> np.ndarray:
-    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first), collapsed by the
+    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE in build_bvh's layout: breadth
+    first, the k-th split node's children nodes 2k + 1, 2k + 2), collapsed by the
     SAH-optimal dynamic programme (_collapse_costs): each wide node takes the best distribution of
     its binary root's subtree into BVH_WIDTH children, leaves or wide nodes; vectorised over the
     nodes of a level."""
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
-    levels = _binary_levels(binary)
-    cost, as_leaf, split, first, size = _collapse_costs(binary, levels)
+    as_leaf, split, split_column, first, size = _collapse_costs(binary)
     # The binary nodes as rows of 8 words (box, child, count: a leaf's first primitive and
     # size, -1 for a node), and a last row for an empty lane (box 0, -1, -1)
     rows = np.empty((len(binary) + 1, 8), np.float32)
@@ -362,12 +416,12 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
             slot_owner.append(owner[~spread])
             slot_node.append(node[~spread])
             owner, node, budget = owner[spread], node[spread], budget[spread]
-            k = np.abs(split[budget - 1, node].astype(np.int64))
+            k = np.abs(split[budget - 1, split_column[node]].astype(np.int64))
             left = offset[node]
             owner = np.concatenate([owner, owner])
             node = np.concatenate([left, left + 1])
             budget = np.concatenate([k, budget - k])
-            spread = (budget >= 2) & (split[budget - 1, node] > 0)
+            spread = (budget >= 2) & (split[budget - 1, split_column[node]] > 0)
         slot_owner, slot_node = np.concatenate(slot_owner), np.concatenate(slot_node)
         order = np.argsort(slot_owner, kind="stable")
         slot_owner, slot_node = slot_owner[order], slot_node[order]
@@ -416,7 +470,10 @@ def _depth_first(nodes: np.ndarray, level_sizes: list[int]) -> np.ndarray:
         inner = is_node[rows]
         place[child[rows][inner]] = (place[rows][:, None] + 1 + before)[inner]
     ordered = np.empty_like(nodes)
-    ordered[place] = nodes
+    node_words = BVH_NODE_DTYPE.itemsize // 4  # (moved as rows of words: a fast copy)
+    ordered.view(np.int32).reshape(-1, node_words)[place] = nodes.view(np.int32).reshape(
+        -1, node_words
+    )
     moved = ordered["count"] == 0
     ordered["child"][moved] = place[ordered["child"][moved]]
     return ordered

@@ -292,7 +292,9 @@ def assert_valid_bvh(lower, upper, nodes, prims):
     owner = np.repeat(np.flatnonzero(leaf)[by_offset], counts)  # the leaf of each position
     assert np.all(lower[prims] >= nodes["lower"][owner])
     assert np.all(upper[prims] <= nodes["upper"][owner])
-    # Children: after the parent, each node but the root reached once, inside the parent's box
+    # Children: the k-th split node's are nodes 2k + 1, 2k + 2 (the layout collapse_bvh reads
+    # level by level), each node but the root reached once, inside the parent's box
+    np.testing.assert_array_equal(nodes["offset"][interior], 2 * np.arange(len(interior)) + 1)
     children = np.concatenate([nodes["offset"][interior], nodes["offset"][interior] + 1])
     parents = np.concatenate([interior, interior])
     assert np.all(children > parents) and np.all(children < len(nodes))
