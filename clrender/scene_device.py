@@ -318,22 +318,37 @@ def pack_triangles(meshes: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
+BOUNDS_CHUNK = 1 << 14  # triangles primitive_bounds reads at a time
+
+
 def primitive_bounds(
     quads: np.ndarray, spheres: np.ndarray, triangles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bounds (lower, upper: (N, 3) float64) of every primitive in id order: quads, spheres,
-    triangles."""
+    triangles. Each is the transpose of a (3, N) array (an axis' bounds contiguous: how
+    clrender.bvh.padded_bounds reads them)."""
     c, e1, e2 = (quads[k].astype(np.float64).reshape(-1, 3) for k in QUAD_FRAME)
     quad_points = np.stack([c, c + e1, c + e2, c + e1 + e2])
     centre = spheres["center"].astype(np.float64).reshape(-1, 3)
     radius = spheres["radius"].astype(np.float64).reshape(-1, 1)
-    # Triangles' bounds in their float32 (exact), a pair of vertices at a time
+    count = len(quads) + len(spheres) + len(triangles)
+    lower, upper = np.empty((2, 3, count))
+    first_triangle = len(quads) + len(spheres)
+    lower[:, :first_triangle] = np.concatenate([quad_points.min(axis=0), centre - radius]).T
+    upper[:, :first_triangle] = np.concatenate([quad_points.max(axis=0), centre + radius]).T
+    # Triangles' bounds in their float32 (exact), BOUNDS_CHUNK triangles (in the caches) and an
+    # axis at a time
     p0, p1, p2 = (triangles[k].reshape(-1, 3) for k in ("p0", "p1", "p2"))
-    tri_lower = np.minimum(np.minimum(p0, p1), p2)
-    tri_upper = np.maximum(np.maximum(p0, p1), p2)
-    lower = np.concatenate([quad_points.min(axis=0), centre - radius, tri_lower], dtype=np.float64)
-    upper = np.concatenate([quad_points.max(axis=0), centre + radius, tri_upper], dtype=np.float64)
-    return lower, upper
+    for first in range(0, len(triangles), BOUNDS_CHUNK):
+        chunk = slice(first, first + BOUNDS_CHUNK)
+        for axis in range(3):
+            vertex = (p0[chunk, axis], p1[chunk, axis], p2[chunk, axis])
+            at = slice(first_triangle + first, first_triangle + first + len(vertex[0]))
+            extreme = np.minimum(*vertex[:2])
+            lower[axis, at] = np.minimum(extreme, vertex[2], out=extreme)
+            extreme = np.maximum(*vertex[:2])
+            upper[axis, at] = np.maximum(extreme, vertex[2], out=extreme)
+    return lower.T, upper.T
 
 
 def pack_bvh(

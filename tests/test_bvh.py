@@ -33,6 +33,7 @@ from clrender.bvh import (
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.scene_device import (
+    BOUNDS_CHUNK,
     BVH_BLOCK_WIDTH,
     BVH_LEAF_ALIGN,
     NORMALS_DTYPE,
@@ -619,7 +620,11 @@ def test_padded_bounds_hold_the_float64_bounds():
     assert np.all(high.T - upper <= 2 * BOUNDS_PADDING * largest[:, None] + 1e-29)
 
 
-def test_primitive_bounds_are_the_float64_extremes_of_every_primitive(tmp_path):
+@pytest.mark.parametrize("bounds_chunk", [7, BOUNDS_CHUNK])  # triangles a few at a time or all
+def test_primitive_bounds_are_the_float64_extremes_of_every_primitive(
+    tmp_path, monkeypatch, bounds_chunk
+):
+    monkeypatch.setattr(scene_device, "BOUNDS_CHUNK", bounds_chunk)
     scene = random_scene(tmp_path, 26, quads=10, spheres=5, triangles=40)
     lower, upper = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
     assert lower.dtype == np.float64
