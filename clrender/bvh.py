@@ -251,14 +251,15 @@ def _binary_levels(count: np.ndarray) -> list[tuple[int, int]]:
     return levels[:-1]
 
 
-def _node_half_areas(record: np.ndarray, start: int, end: int) -> np.ndarray:
+def _node_half_areas(record: np.ndarray, start: int, end: int, work: np.ndarray) -> np.ndarray:
     """Half the surface areas (float64) of binary nodes start .. end - 1 (record: the nodes as
-    rows of 8 float32 words)."""
-    x, y, z = (
-        record[start:end, 4 + axis].astype(np.float64) - record[start:end, axis]
-        for axis in range(3)
-    )
-    area = x * y
+    rows of 8 float32 words), computed in work (float64, 4 rows of at least end - start)."""
+    x, y, z, area = work[:, : end - start]
+    for axis, extent in enumerate((x, y, z)):
+        np.subtract(
+            record[start:end, 4 + axis], record[start:end, axis], out=extent, dtype=np.float64
+        )
+    np.multiply(x, y, out=area)
     area += np.multiply(y, z, out=y)
     area += np.multiply(z, x, out=z)
     return area
@@ -280,19 +281,22 @@ def _collapse_costs(binary: np.ndarray) -> tuple:
     count = np.ascontiguousarray(binary["count"])
     offset = np.ascontiguousarray(binary["offset"])
     record = binary.view(np.float32).reshape(total, 8)
-    root_area = max(float(_node_half_areas(record, 0, 1)[0]), 1e-300)
     is_inner = count < 0
     size = np.where(is_inner, 0, count)
     first = np.where(is_inner, 0, offset)
     as_leaf = ~is_inner
     # The k-th split node's children are nodes 2k + 1, 2k + 2: its column of split is k
     parents_total = int(np.count_nonzero(is_inner))
-    split_column = np.where(is_inner, (offset - 1) >> 1, parents_total)
+    split_column = offset - 1
+    split_column >>= 1
+    split_column[~is_inner] = parents_total
     split = np.zeros((BVH_WIDTH, parents_total + 1), np.int8)
     levels = _binary_levels(count)
+    widest = max(end - start for start, end in levels)
+    area_work = np.empty((4, widest))
+    root_area = max(float(_node_half_areas(record, 0, 1, area_work)[0]), 1e-300)
     # Work rows reused by every level: each budget's best distribution, an option and whether
     # it is better; the costs of the level below and of this one
-    widest = max(end - start for start, end in levels)
     distribute = np.empty((BVH_WIDTH, widest), np.float32)
     option = np.empty(widest, np.float32)
     better = np.empty((BVH_WIDTH, widest), bool)
@@ -313,7 +317,9 @@ def _collapse_costs(binary: np.ndarray) -> tuple:
         # Each node as one leaf (at most WIDE_LEAF_MAX primitives unless a binary leaf); this
         # level's costs start as those (left children's columns first; a lone root: its own)
         # (areas over the root's in float32: costs of half the traffic)
-        area = (_node_half_areas(record, start, end) / root_area).astype(np.float32)
+        area = _node_half_areas(record, start, end, area_work)
+        area /= root_area
+        area = area.astype(np.float32)
         blocks = -(-level_size // BVH_BLOCK_WIDTH)
         leaf = np.float32(WIDE_BLOCK_COST) * blocks.astype(np.float32)
         leaf *= area
@@ -516,12 +522,25 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     box = cluster_box.take(cluster, axis=1)
     ranged = np.flatnonzero(cluster < 0)
     if len(ranged):
+        # The rebuilt subtrees' ranges (disjoint), in order, and their primitives' boxes one
+        # after another (and a spare column at the end)
         roots = ranged[(cluster[ranged] == REBUILT_ROOT)]
-        for start, end in zip(first[roots], first[roots] + length[roots], strict=True):
-            ranks[start:end].sort()
-        position_box = np.empty((6, count + 1), np.float32)  # a spare column at the end
-        cluster_box.take(ranks, axis=1, out=position_box[:, :-1])
-        bounds = np.stack([first[ranged], first[ranged] + length[ranged]], axis=1).reshape(-1)
+        roots = roots[np.argsort(first[roots], kind="stable")]
+        root_first, root_end = first[roots], first[roots] + length[roots]
+        ranges = [slice(start, end) for start, end in zip(root_first, root_end, strict=True)]
+        for primitives in ranges:
+            ranks[primitives].sort()
+        rebuilt = np.concatenate([ranks[primitives] for primitives in ranges])
+        position_box = np.empty((6, len(rebuilt) + 1), np.float32)
+        cluster_box.take(rebuilt, axis=1, out=position_box[:, :-1])
+        # Each balanced node's range among those
+        root_of = np.searchsorted(root_first, first[ranged], side="right") - 1
+        start = (
+            first[ranged]
+            - root_first[root_of]
+            + (np.cumsum(length[roots]) - length[roots])[root_of]
+        )
+        bounds = np.stack([start, start + length[ranged]], axis=1).reshape(-1)
         box[:, ranged] = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
     prims = primitive.take(ranks).view(np.uint32)
     return _binary_nodes(box, first, length, split), prims
@@ -699,9 +718,9 @@ def _binary_nodes(box, first, length, split) -> np.ndarray:
     nodes = len(first)
     record = np.empty((nodes, 8), np.float32)
     words = record.view(np.int32)
-    record[:, 0:3] = box[:3].T
     np.negative(box[3:], out=box[3:])
-    record[:, 4:7] = box[3:].T
+    for row, column in enumerate((0, 1, 2, 4, 5, 6)):  # (a column at a time: long loops)
+        record[:, column] = box[row]
     # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
     # (informative)
     words[:, 3] = first
