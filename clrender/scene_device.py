@@ -332,7 +332,7 @@ def primitive_bounds(
     centre = spheres["center"].astype(np.float64).reshape(-1, 3)
     radius = spheres["radius"].astype(np.float64).reshape(-1, 1)
     count = len(quads) + len(spheres) + len(triangles)
-    lower, upper = np.empty((2, 3, count))
+    lower, upper = np.empty((3, count)), np.empty((3, count))
     first_triangle = len(quads) + len(spheres)
     lower[:, :first_triangle] = np.concatenate([quad_points.min(axis=0), centre - radius]).T
     upper[:, :first_triangle] = np.concatenate([quad_points.max(axis=0), centre + radius]).T
