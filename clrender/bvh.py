@@ -70,6 +70,7 @@ WIDE_LEAF_MAX = 8  # primitives of a leaf of the 8-wide tree
 # the rounding of the slab test and of the primitive tests (so a box never rejects a ray that
 # hits one of its primitives; flat primitives get boxes of non-zero thickness).
 BOUNDS_PADDING = 1e-5
+RECORD_ROWS_CHUNK = 1 << 14  # binary nodes _binary_nodes writes at a time
 HALF_AREA_CHUNK = 1 << 14  # boxes _half_area takes at a time (its work rows stay in the caches)
 
 
@@ -600,8 +601,8 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         for start in range(0, m, NEAREST_CHUNK):
             stop = min(m, start + NEAREST_CHUNK)
             these, partners = left[start:stop], other[start:stop]
-            for row in boxes:
-                np.minimum(row.take(these), row.take(partners), out=row[start:stop])
+            united = boxes.take(these, axis=1)
+            np.minimum(united, boxes.take(partners, axis=1), out=boxes[:, start:stop])
         active = active.take(left)
         rounds.append((first, end))
         first, n = end, m
@@ -721,23 +722,25 @@ def _tree_levels(children, root, size, height, leaf) -> tuple:
 
 def _binary_nodes(box, first, length, split) -> np.ndarray:
     """BINARY_NODE_DTYPE nodes, breadth first, from their boxes (6 rows: lower, -upper; made
-    lower, upper in place),
-    ranges of `prims` (first, length) and whether they are split (the k-th split node's
-    children being nodes 2k + 1, 2k + 2)."""
-    nodes = len(first)
-    record = np.empty((nodes, 8), np.float32)
-    words = record.view(np.int32)
+    lower, upper in place), ranges of `prims` (first, length; overwritten for split nodes) and
+    whether they are split (the k-th split node's children being nodes 2k + 1, 2k + 2)."""
     np.negative(box[3:], out=box[3:])
-    for row, column in enumerate((0, 1, 2, 4, 5, 6)):  # (a column at a time: long loops)
-        record[:, column] = box[row]
     # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
     # (informative)
-    words[:, 3] = first
-    words[:, 7] = length
     parents = np.flatnonzero(split)
     x, y, z = (box[3 + axis].take(parents) - box[axis].take(parents) for axis in range(3))
     axes = np.int8(0), np.int8(1), np.int8(2)
     widest = np.where(x >= y, np.where(x >= z, axes[0], axes[2]), np.where(y >= z, *axes[1:]))
-    words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
-    words[parents, 7] = -1 - widest
+    first[parents] = 2 * np.arange(1, len(parents) + 1) - 1
+    length[parents] = -1 - widest
+    # The records RECORD_ROWS_CHUNK at a time, a column at a time (each chunk in the caches)
+    nodes = len(first)
+    record = np.empty((nodes, 8), np.float32)
+    words = record.view(np.int32)
+    for start in range(0, nodes, RECORD_ROWS_CHUNK):
+        rows = slice(start, start + RECORD_ROWS_CHUNK)
+        for row, column in enumerate((0, 1, 2, 4, 5, 6)):
+            record[rows, column] = box[row, rows]
+        words[rows, 3] = first[rows]
+        words[rows, 7] = length[rows]
     return record.view(BINARY_NODE_DTYPE).reshape(-1)
