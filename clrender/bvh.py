@@ -459,35 +459,43 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         levels.append(wide.reshape(count, -1))
         roots = slots[is_node]
         next_index += len(roots)
-    nodes = np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
-    return _depth_first(nodes, [len(level) for level in levels])
+    return _depth_first(levels)
 
 
-def _depth_first(nodes: np.ndarray, level_sizes: list[int]) -> np.ndarray:
-    """Wide nodes (breadth first, levels of level_sizes nodes) put in depth-first order, each
-    node's children after it in lane order: a subtree's nodes (and so its leaf records, which
-    pack_bvh_leaves writes in node order) lie together in memory, which a ray descending it
-    reads from fewer cache lines. Vectorised over a level."""
-    is_node = nodes["count"] == 0
-    child = np.where(is_node, nodes["child"], 0)
-    ends = np.cumsum(level_sizes)
-    levels = [slice(end - size, end) for end, size in zip(ends, level_sizes, strict=True)]
+def _depth_first(levels: list[np.ndarray]) -> np.ndarray:
+    """Wide nodes (breadth first: levels, each (nodes, words) of BVH_NODE_DTYPE's float32 words)
+    put in depth-first order, each node's children after it in lane order: a subtree's nodes
+    (and so its leaf records, which pack_bvh_leaves writes in node order) lie together in
+    memory, which a ray descending it reads from fewer cache lines. Vectorised over a level."""
+    lane_fields = [
+        slice(offset // 4, offset // 4 + BVH_WIDTH)
+        for offset in (BVH_NODE_DTYPE.fields[name][1] for name in ("child", "count"))
+    ]
+    child, count = (
+        np.concatenate([level.view(np.int32)[:, lanes] for level in levels])
+        for lanes in lane_fields
+    )
+    is_node = count == 0
+    child[~is_node] = 0
+    ends = np.cumsum([len(level) for level in levels])
+    rows_of = [slice(end - len(level), end) for end, level in zip(ends, levels, strict=True)]
     # Bottom up: each subtree's nodes; top down: each node's place, after its parent and its
     # earlier siblings' subtrees
-    size = np.ones(len(nodes), np.int64)
-    for rows in reversed(levels):
+    size = np.ones(len(child), np.int64)
+    for rows in reversed(rows_of):
         size[rows] += (size[child[rows]] * is_node[rows]).sum(axis=1)
-    place = np.zeros(len(nodes), np.int64)
-    for rows in levels:
+    place = np.zeros(len(child), np.int64)
+    for rows in rows_of:
         lane_size = size[child[rows]] * is_node[rows]
         before = np.cumsum(lane_size, axis=1) - lane_size
         inner = is_node[rows]
         place[child[rows][inner]] = (place[rows][:, None] + 1 + before)[inner]
-    ordered = np.empty_like(nodes)
-    node_words = BVH_NODE_DTYPE.itemsize // 4  # (moved as rows of words: a fast copy)
-    ordered.view(np.int32).reshape(-1, node_words)[place] = nodes.view(np.int32).reshape(
-        -1, node_words
-    )
+    # Each level's nodes to their places (as rows of words: a fast copy), node children
+    # renumbered
+    ordered = np.empty(len(child), BVH_NODE_DTYPE)
+    ordered_words = ordered.view(np.int32).reshape(len(child), -1)
+    for rows, level in zip(rows_of, levels, strict=True):
+        ordered_words[place[rows]] = level.view(np.int32)
     moved = ordered["count"] == 0
     ordered["child"][moved] = place[ordered["child"][moved]]
     return ordered

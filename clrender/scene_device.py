@@ -433,14 +433,16 @@ def _leaf_groups(count: np.ndarray) -> np.ndarray:
     lanes' primitive counts), -1 for the other lanes: a node's leaves packed first fit,
     largest first, into groups of at most BVH_BLOCK_WIDTH primitives (a larger leaf alone), so
     that a group's record holds one block of each kind. Vectorised over the nodes."""
-    size = np.where(count > 0, count, 0).astype(np.int64)
+    size = np.maximum(count, 0, dtype=np.int32)
     rows = np.arange(len(count))
     order = np.argsort(-size, axis=1, kind="stable")
-    fill = np.zeros(count.shape, np.int64)
-    group = np.full(count.shape, -1, np.int64)
+    fill = np.zeros(count.shape, np.int32)
+    group = np.full(count.shape, -1, np.int32)
     for position in range(count.shape[1]):
         lane = order[:, position]
         lane_size = size[rows, lane]
+        if not lane_size.any():  # (leaves come first: no node has more)
+            break
         # (an empty group takes any leaf: one over BVH_BLOCK_WIDTH goes there alone)
         fits = (fill + lane_size[:, None] <= BVH_BLOCK_WIDTH) | (fill == 0)
         first_fit = np.argmax(fits, axis=1)
