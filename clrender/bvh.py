@@ -404,15 +404,8 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
     as_leaf, split, split_column, first, size = _collapse_costs(binary)
-    # The binary nodes as rows of 8 words (box, child, count: a leaf's first primitive and
-    # size, -1 for a node), and a last row for an empty lane (box 0, -1, -1)
-    rows = np.empty((len(binary) + 1, 8), np.float32)
-    rows[:-1] = binary.view(np.float32).reshape(-1, 8)
-    rows[-1] = 0.0
-    row_words = rows.view(np.int32)
-    row_words[:-1, 3] = np.where(as_leaf, first, -1)
-    row_words[:-1, 7] = np.where(as_leaf, size, -1)
-    row_words[-1, 3] = row_words[-1, 7] = -1
+    # The binary nodes as rows of 8 words (box, then child and count: overwritten per lane)
+    rows = binary.view(np.float32).reshape(-1, 8)
     offset = binary["offset"]
     empty = len(binary)
     levels = []
@@ -443,11 +436,19 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         lane = np.arange(len(slot_owner)) - np.repeat(np.cumsum(per_owner) - per_owner, per_owner)
         slots = np.full((count, BVH_WIDTH), empty)
         slots[slot_owner, lane] = slot_node
-        # Each lane's node, leaf or empty lane: box, child, count (0 for a node)
+        # Each lane's node (child and count -1), leaf (its first primitive and size) or empty
+        # lane (box 0, -1, -1); then child and count 0 for a node
+        is_empty = slots == empty
+        slots[is_empty] = 0
         lanes = np.take(rows, slots, axis=0)  # (count, BVH_WIDTH, 8)
         lane_words = lanes.view(np.int32)
+        lane_leaf = as_leaf[slots]
+        lane_words[:, :, 3] = np.where(lane_leaf, first[slots], -1)
+        lane_words[:, :, 7] = np.where(lane_leaf, size[slots], -1)
+        lanes[is_empty] = 0.0
+        lane_words[is_empty, 3] = lane_words[is_empty, 7] = -1
         is_node = lane_words[:, :, 7] < 0
-        is_node &= slots != empty
+        is_node &= ~is_empty
         wide = np.empty((count, 8, BVH_WIDTH), np.float32)
         wide[:, 0:3] = lanes[:, :, 0:3].transpose(0, 2, 1)
         wide[:, 3:6] = lanes[:, :, 4:7].transpose(0, 2, 1)
