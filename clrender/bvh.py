@@ -303,8 +303,8 @@ def _collapse_costs(binary: np.ndarray) -> tuple:
     widest = max(end - start for start, end in levels)
     area_work = np.empty((4, widest))
     root_area = max(float(_node_half_areas(record, 0, 1, area_work)[0]), 1e-300)
-    # Work rows reused by every level: each budget's best distribution, an option and whether
-    # it is better; the costs of the level below and of this one
+    # Work rows reused by every level: each budget's best distribution, an option, whether it
+    # is better and its k where it is (0 elsewhere); the costs of the level below and of this one
     distribute = np.empty((BVH_WIDTH, widest), np.float32)
     option = np.empty(widest, np.float32)
     better = np.empty((BVH_WIDTH, widest), bool)
@@ -322,12 +322,12 @@ def _collapse_costs(binary: np.ndarray) -> tuple:
         level_size[inner] = size[children]
         level_size[inner] += size[end + 1 : end + 2 * parents : 2]
         level_first[inner] = first[children]
-        # Each node as one leaf (at most WIDE_LEAF_MAX primitives unless a binary leaf); this
-        # level's costs start as those (left children's columns first; a lone root: its own)
-        # (areas over the root's in float32: costs of half the traffic)
+        # The nodes' areas over the root's (float32 costs: half the traffic)
         area = _node_half_areas(record, start, end, area_work)
         area /= root_area
         area = area.astype(np.float32)
+        # Each node as one leaf (at most WIDE_LEAF_MAX primitives unless a binary leaf); this
+        # level's costs start as those (left children's columns first; a lone root: its own)
         blocks = -(-level_size // BVH_BLOCK_WIDTH)
         leaf = np.float32(WIDE_BLOCK_COST) * blocks.astype(np.float32)
         leaf *= area

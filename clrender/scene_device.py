@@ -394,9 +394,9 @@ def _write_record_blocks(words, blocks, first_word, block_words, member_at, rows
     member_at) go to lane rank % BVH_BLOCK_WIDTH of block rank // BVH_BLOCK_WIDTH with their
     rows, given as (first row, source, index, unused): member m's rows are the first
     len(unused) words of source[index[m]] (uint32 rows; index None: source[m]), the blocks' other
-    lanes get `unused`. Every lane is gathered at once, in block and lane order; written in
-    place when the kind's blocks follow each other in `words` (a scene of one kind), else
-    through one array of blocks."""
+    lanes get `unused`. The lanes are gathered in block and lane order, RECORD_CHUNK blocks at
+    a time, and written transposed: in place when the kind's blocks follow each other in
+    `words` (a scene of one kind), else through one array of blocks."""
     record, rank = member_at
     count = int(blocks.sum())
     block_first = np.cumsum(blocks) - blocks
