@@ -14,8 +14,9 @@ first, a level at a time. Written in NumPy: each merge round (and each round of 
 pass, each level of the top-down one) is a handful of whole-array operations, so the Python
 loops run per round (about 150 for 1 M triangles) or level, never per primitive or node;
 clusters are numbered in Morton order so that each round's gathers stay local. 1 M triangles
-build in about 0.5 s of CPU (the former top-down binned-SAH build took 4-5 s), into trees of an
-SAH cost 17 % lower that trace 9-20 % faster (bench/bvh_scaling.py; README).
+build in about 0.4 s of CPU (0.6 s the whole way to the device's 8-wide nodes and leaf records;
+the former top-down binned-SAH build took 4-5 s), into trees of an SAH cost 17 % lower that
+trace 9-20 % faster (bench/bvh_scaling.py; README).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
@@ -53,7 +54,8 @@ MORTON_BITS = 10  # per axis: Morton codes of 30 bits
 # Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
 # 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer; 3
 # builds 5 % faster, trees 0.8 % cheaper at 1 M triangles but 0.2 % dearer at 10 000, rays/s
-# within the noise: kept at 4)
+# within the noise; with the optimal collapse, trees 0.2 % dearer at 100 000 and 1 M, wide ones
+# 0.2-0.4 %, the whole build within the noise: kept at 4)
 PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
