@@ -420,17 +420,20 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         owner, node = np.arange(count), roots
         budget = np.full(count, BVH_WIDTH)
         spread = binary["count"][roots] < 0  # (the whole tree's root: a leaf only if binary)
+        # (each node's split at its budget: its k, positive where it spreads)
+        choice = split[BVH_WIDTH - 1, split_column[node]]
         slot_owner, slot_node = [], []
         while len(node):
             slot_owner.append(owner[~spread])
             slot_node.append(node[~spread])
             owner, node, budget = owner[spread], node[spread], budget[spread]
-            k = np.abs(split[budget - 1, split_column[node]].astype(np.int64))
+            k = np.abs(choice[spread].astype(np.int64))
             left = offset[node]
             owner = np.concatenate([owner, owner])
             node = np.concatenate([left, left + 1])
             budget = np.concatenate([k, budget - k])
-            spread = (budget >= 2) & (split[budget - 1, split_column[node]] > 0)
+            choice = split[budget - 1, split_column[node]]
+            spread = (budget >= 2) & (choice > 0)
         slot_owner, slot_node = np.concatenate(slot_owner), np.concatenate(slot_node)
         order = np.argsort(slot_owner, kind="stable")
         slot_owner, slot_node = slot_owner[order], slot_node[order]
