@@ -14,8 +14,9 @@ first, a level at a time. Written in NumPy: each merge round (and each round of 
 pass, each level of the top-down one) is a handful of whole-array operations, so the Python
 loops run per round (about 150 for 1 M triangles) or level, never per primitive or node;
 clusters are numbered in Morton order so that each round's gathers stay local. 1 M triangles
-build in about 0.5 s of CPU (the former top-down binned-SAH build took 4-5 s), into trees of an
-SAH cost 17 % lower that trace 9-20 % faster (bench/bvh_scaling.py; README).
+build in about 0.4 s of CPU (0.6 s the whole way to the device's 8-wide nodes and leaf records;
+the former top-down binned-SAH build took 4-5 s), into trees of an SAH cost 17 % lower that
+trace 9-20 % faster (bench/bvh_scaling.py; README).
 
 The result is deterministic (the same bounds give the same tree) and is flattened in the layout
 of kernels/scene_types.h's BVHNode, breadth first: an interior node's children are adjacent, a
@@ -53,7 +54,8 @@ MORTON_BITS = 10  # per axis: Morton codes of 30 bits
 # Clusters each one looks among for its nearest, before and after it in Morton order (PLOC's r:
 # 2 builds trees 1 % dearer by the SAH on bench/bvh_scaling.py's sphere, 1 the 10 % dearer; 3
 # builds 5 % faster, trees 0.8 % cheaper at 1 M triangles but 0.2 % dearer at 10 000, rays/s
-# within the noise: kept at 4)
+# within the noise; with the optimal collapse, trees 0.2 % dearer at 100 000 and 1 M, wide ones
+# 0.2-0.4 %, the whole build within the noise: kept at 4)
 PLOC_RADIUS = 4
 LEAF_MAX = 8
 # Cost of visiting a node relative to one primitive test (pbrt-v4 takes 1/2; 1 and leaves of
@@ -70,6 +72,8 @@ WIDE_LEAF_MAX = 8  # primitives of a leaf of the 8-wide tree
 # the rounding of the slab test and of the primitive tests (so a box never rejects a ray that
 # hits one of its primitives; flat primitives get boxes of non-zero thickness).
 BOUNDS_PADDING = 1e-5
+RECORD_ROWS_CHUNK = 1 << 14  # binary nodes _binary_nodes writes at a time
+HALF_AREA_CHUNK = 1 << 14  # boxes _half_area takes at a time (its work rows stay in the caches)
 
 
 def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,14 +90,20 @@ def padded_bounds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.
     return lower, upper
 
 
-def _half_area(box: np.ndarray) -> np.ndarray:
-    """Half the surface area (float64) of boxes as 6 rows: lower, -upper (from minus their
-    float32 extents)."""
-    x, y, z = (np.add(box[axis], box[3 + axis]).astype(np.float64) for axis in range(3))
-    area = x * y
-    area += y * z
-    area += z * x
-    return area
+def _half_area(box: np.ndarray, out: np.ndarray, work: np.ndarray) -> np.ndarray:
+    """Half the surface area (float64, into out) of boxes as 6 rows: lower, -upper (from minus
+    their float32 extents); HALF_AREA_CHUNK boxes at a time through work (float64, 3 rows of
+    at least min(boxes, HALF_AREA_CHUNK))."""
+    for start in range(0, box.shape[1], HALF_AREA_CHUNK):
+        stop = min(box.shape[1], start + HALF_AREA_CHUNK)
+        x, y, z = work[:, : stop - start]
+        for axis, extent in enumerate((x, y, z)):
+            np.add(box[axis, start:stop], box[3 + axis, start:stop], out=extent, dtype=np.float32)
+        area = out[start:stop]
+        np.multiply(x, y, out=area)
+        area += np.multiply(y, z, out=y)
+        area += np.multiply(z, x, out=z)
+    return out
 
 
 def _spread_bits(q: np.ndarray) -> np.ndarray:
@@ -240,72 +250,132 @@ def build_wide_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np
     return collapse_bvh(binary), prims
 
 
-def _binary_levels(binary: np.ndarray) -> list[np.ndarray]:
-    """The binary tree's nodes level by level from the root (indices, each level ascending)."""
-    levels = []
-    frontier = np.array([0])
-    count, offset = binary["count"], binary["offset"]
-    while len(frontier):
-        levels.append(frontier)
-        inner = offset[frontier[count[frontier] < 0]]
-        frontier = np.stack([inner, inner + 1], axis=1).reshape(-1)
-    return levels
+def _binary_levels(count: np.ndarray) -> list[tuple[int, int]]:
+    """The levels of a binary tree in build_bvh's layout (count: its nodes' counts) as ranges
+    (start, end) of node indices from the root's: the split nodes' children, in order, are the
+    next level."""
+    levels = [(0, min(len(count), 1))]
+    while levels[-1][0] < levels[-1][1]:
+        start, end = levels[-1]
+        levels.append((end, end + 2 * int(np.count_nonzero(count[start:end] < 0))))
+    return levels[:-1]
 
 
-def _collapse_costs(binary: np.ndarray, levels: list[np.ndarray]) -> tuple:
-    """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1),
-    bottom up a level at a time. cost[i - 1, n]: least cost of subtree n as at most i children
-    of a wide node (area x cost per visit, over all its wide nodes and leaves); as_leaf[n]: n is
-    cheapest as one leaf (else as one wide node); split[i - 1, n]: the k of the best
-    distribution of n's subtree into i children, k from its left child's and i - k from its
-    right one's, negated where n as one child is cheaper (0 for a binary leaf). Also each
-    subtree's first primitive and size. Budgets are rows: every operation is on whole rows."""
-    total = len(binary)
-    count, offset = binary["count"], binary["offset"]
-    extent = binary["upper"].astype(np.float64) - binary["lower"]
-    area = extent[:, 0] * extent[:, 1] + extent[:, 1] * extent[:, 2] + extent[:, 2] * extent[:, 0]
-    area = (area / max(area[0], 1e-300)).astype(np.float32)  # (float32 costs: half the traffic)
-    size = np.where(count > 0, count, 0)
-    first = np.where(count > 0, offset, 0)
-    cost = np.empty((BVH_WIDTH, total), np.float32)
-    as_leaf = count > 0
-    split = np.zeros((BVH_WIDTH, total), np.int8)
-    for level in reversed(levels):
-        leaves = level[count[level] > 0]
-        blocks = -(-size[leaves] // BVH_BLOCK_WIDTH)
-        cost[:, leaves] = np.float32(WIDE_BLOCK_COST) * blocks * area[leaves]
-        inner = level[count[level] < 0]
-        if len(inner) == 0:
-            continue
-        left = offset[inner]
-        size[inner] = size[left] + size[left + 1]
-        first[inner] = first[left]
-        below_left, below_right = cost[:, left], cost[:, left + 1]
-        # Each budget i's best split: k from the left, i - k from the right (the first least)
-        distribute = np.empty((BVH_WIDTH, len(inner)), np.float32)
-        best_k = np.ones((BVH_WIDTH, len(inner)), np.int8)
-        distribute[0] = np.inf
-        scratch = np.empty(len(inner), np.float32)
-        for i in range(2, BVH_WIDTH + 1):
-            best = distribute[i - 1]
-            np.add(below_left[0], below_right[i - 2], out=best)
-            for k in range(2, i):
-                option = np.add(below_left[k - 1], below_right[i - k - 1], out=scratch)
-                np.copyto(best_k[i - 1], k, where=option < best)
-                np.minimum(best, option, out=best)
-        node = WIDE_NODE_COST * area[inner] + distribute[-1]
-        leaf = np.where(
-            size[inner] <= WIDE_LEAF_MAX,
-            WIDE_BLOCK_COST * -(-size[inner] // BVH_BLOCK_WIDTH) * area[inner],
-            np.inf,
+def _node_half_areas(record: np.ndarray, start: int, end: int, work: np.ndarray) -> np.ndarray:
+    """Half the surface areas (float64) of binary nodes start .. end - 1 (record: the nodes as
+    rows of 8 float32 words), computed in work (float64, 4 rows of at least end - start)."""
+    x, y, z, area = work[:, : end - start]
+    for axis, extent in enumerate((x, y, z)):
+        np.subtract(
+            record[start:end, 4 + axis], record[start:end, axis], out=extent, dtype=np.float64
         )
-        is_leaf = leaf <= node
-        as_leaf[inner] = is_leaf
-        one = np.where(is_leaf, leaf, node)
-        spread = distribute < one
-        cost[:, inner] = np.where(spread, distribute, one)
-        split[:, inner] = np.where(spread, best_k, -best_k)
-    return cost, as_leaf, split, first, size
+    np.multiply(x, y, out=area)
+    area += np.multiply(y, z, out=y)
+    area += np.multiply(z, x, out=z)
+    return area
+
+
+def _collapse_costs(binary: np.ndarray) -> tuple:
+    """The dynamic programme of an SAH-optimal collapse (Ylitie, Karras and Laine 2017, 3.1) of
+    a binary tree in build_bvh's layout, bottom up a level at a time. The least cost of subtree
+    n as at most i children of a wide node (area x cost per visit, over all its wide nodes and
+    leaves) is row i - 1 of its level's costs (BVH_WIDTH rows; the level's left children's
+    columns, then its right children's, so that the level above reads both as slices).
+    Returns (as_leaf, split, split_column, first, size): as_leaf[n], n is cheapest as one leaf
+    (else as one wide node); split[i - 1, split_column[n]], the k of the best distribution of
+    n's subtree into i children, k from its left child's and i - k from its right one's,
+    negated where n as one child is cheaper (0 for a binary leaf: split nodes have a column
+    each, in order, the leaves share a last one); each subtree's first primitive and size.
+    Budgets are rows: every operation is on whole rows."""
+    total = len(binary)
+    count = np.ascontiguousarray(binary["count"])
+    offset = np.ascontiguousarray(binary["offset"])
+    record = binary.view(np.float32).reshape(total, 8)
+    is_inner = count < 0
+    size = np.where(is_inner, 0, count)
+    first = np.where(is_inner, 0, offset)
+    as_leaf = ~is_inner
+    # The k-th split node's children are nodes 2k + 1, 2k + 2: its column of split is k
+    parents_total = int(np.count_nonzero(is_inner))
+    split_column = offset - 1
+    split_column >>= 1
+    split_column[~is_inner] = parents_total
+    split = np.zeros((BVH_WIDTH, parents_total + 1), np.int8)
+    levels = _binary_levels(count)
+    widest = max(end - start for start, end in levels)
+    area_work = np.empty((4, widest))
+    root_area = max(float(_node_half_areas(record, 0, 1, area_work)[0]), 1e-300)
+    # Work rows reused by every level: each budget's best distribution, an option, whether it
+    # is better and its k where it is (0 elsewhere); the costs of the level below and of this one
+    distribute = np.empty((BVH_WIDTH, widest), np.float32)
+    option = np.empty(widest, np.float32)
+    better = np.empty((BVH_WIDTH, widest), bool)
+    better_k = np.empty((BVH_WIDTH, widest), np.int8)
+    below, level_cost = np.empty((2, BVH_WIDTH, widest), np.float32)
+    parents_after = parents_total
+    for start, end in reversed(levels):
+        nodes = end - start
+        inner = np.flatnonzero(is_inner[start:end])
+        parents = len(inner)
+        parents_after -= parents
+        # The split nodes' sizes and first primitives: their children's (the level below)
+        level_size, level_first = size[start:end], first[start:end]
+        children = slice(end, end + 2 * parents, 2)
+        level_size[inner] = size[children]
+        level_size[inner] += size[end + 1 : end + 2 * parents : 2]
+        level_first[inner] = first[children]
+        # The nodes' areas over the root's (float32 costs: half the traffic)
+        area = _node_half_areas(record, start, end, area_work)
+        area /= root_area
+        area = area.astype(np.float32)
+        # Each node as one leaf (at most WIDE_LEAF_MAX primitives unless a binary leaf); this
+        # level's costs start as those (left children's columns first; a lone root: its own)
+        blocks = -(-level_size // BVH_BLOCK_WIDTH)
+        leaf = np.float32(WIDE_BLOCK_COST) * blocks.astype(np.float32)
+        leaf *= area
+        leaf[inner[level_size[inner] > WIDE_LEAF_MAX]] = np.inf
+        half = (nodes + 1) // 2
+        costs = level_cost[:, :nodes]
+        costs[:, :half] = leaf[0::2]
+        costs[:, half:] = leaf[1::2]
+        if parents == 0:
+            below, level_cost = level_cost, below
+            continue
+        left, right = below[:, :parents], below[:, parents : 2 * parents]
+        spread, scratch = distribute[:, :parents], option[:parents]
+        less, gain = better[:, :parents], better_k[:, :parents]
+        # Each budget i's best split: k from the left, i - k from the right (the first least:
+        # the largest k that beats every smaller one), its k written straight into split
+        best_k = split[:, parents_after : parents_after + parents]
+        best_k.fill(1)
+        spread[0] = np.inf
+        for i in range(2, BVH_WIDTH + 1):
+            best = spread[i - 1]
+            np.add(left[0], right[i - 2], out=best)
+            for k in range(2, i):
+                np.add(left[k - 1], right[i - k - 1], out=scratch)
+                np.less(scratch, best, out=less[0])
+                np.multiply(less[0], np.int8(k), out=gain[0])
+                np.maximum(best_k[i - 1], gain[0], out=best_k[i - 1])
+                np.minimum(best, scratch, out=best)
+        # Each split node as one child: a leaf or a wide node, the cheaper; each budget's cost:
+        # that or its best distribution, the cheaper (split negated where it is one child)
+        node = np.float32(WIDE_NODE_COST) * area[inner]
+        node += spread[-1]
+        inner_leaf = leaf[inner]
+        is_leaf = inner_leaf <= node
+        as_leaf[start:end][inner] = is_leaf
+        one = np.where(is_leaf, inner_leaf, node)
+        np.greater_equal(spread, one, out=less)
+        np.multiply(less, best_k, out=gain)
+        best_k -= gain
+        best_k -= gain
+        np.minimum(spread, one, out=spread)
+        column = (inner & 1) * half + (inner >> 1)
+        for row in range(BVH_WIDTH):
+            costs[row][column] = spread[row]
+        below, level_cost = level_cost, below
+    return as_leaf, split, split_column, first, size
 
 
 def wide_sah_cost(nodes: np.ndarray) -> float:
@@ -328,23 +398,16 @@ def wide_sah_cost(nodes: np.ndarray) -> float:
 
 
 def collapse_bvh(binary: np.ndarray) -> np.ndarray:
-    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE, breadth first), collapsed by the
+    """BVH_NODE_DTYPE nodes of a binary tree (BINARY_NODE_DTYPE in build_bvh's layout: breadth
+    first, the k-th split node's children nodes 2k + 1, 2k + 2), collapsed by the
     SAH-optimal dynamic programme (_collapse_costs): each wide node takes the best distribution of
     its binary root's subtree into BVH_WIDTH children, leaves or wide nodes; vectorised over the
     nodes of a level."""
     if len(binary) == 0:
         return np.zeros(0, BVH_NODE_DTYPE)
-    levels = _binary_levels(binary)
-    cost, as_leaf, split, first, size = _collapse_costs(binary, levels)
-    # The binary nodes as rows of 8 words (box, child, count: a leaf's first primitive and
-    # size, -1 for a node), and a last row for an empty lane (box 0, -1, -1)
-    rows = np.empty((len(binary) + 1, 8), np.float32)
-    rows[:-1] = binary.view(np.float32).reshape(-1, 8)
-    rows[-1] = 0.0
-    row_words = rows.view(np.int32)
-    row_words[:-1, 3] = np.where(as_leaf, first, -1)
-    row_words[:-1, 7] = np.where(as_leaf, size, -1)
-    row_words[-1, 3] = row_words[-1, 7] = -1
+    as_leaf, split, split_column, first, size = _collapse_costs(binary)
+    # The binary nodes as rows of 8 words (box, then child and count: overwritten per lane)
+    rows = binary.view(np.float32).reshape(-1, 8)
     offset = binary["offset"]
     empty = len(binary)
     levels = []
@@ -357,17 +420,20 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         owner, node = np.arange(count), roots
         budget = np.full(count, BVH_WIDTH)
         spread = binary["count"][roots] < 0  # (the whole tree's root: a leaf only if binary)
+        # (each node's split at its budget: its k, positive where it spreads)
+        choice = split[BVH_WIDTH - 1, split_column[node]]
         slot_owner, slot_node = [], []
         while len(node):
             slot_owner.append(owner[~spread])
             slot_node.append(node[~spread])
             owner, node, budget = owner[spread], node[spread], budget[spread]
-            k = np.abs(split[budget - 1, node].astype(np.int64))
+            k = np.abs(choice[spread].astype(np.int64))
             left = offset[node]
             owner = np.concatenate([owner, owner])
             node = np.concatenate([left, left + 1])
             budget = np.concatenate([k, budget - k])
-            spread = (budget >= 2) & (split[budget - 1, node] > 0)
+            choice = split[budget - 1, split_column[node]]
+            spread = (budget >= 2) & (choice > 0)
         slot_owner, slot_node = np.concatenate(slot_owner), np.concatenate(slot_node)
         order = np.argsort(slot_owner, kind="stable")
         slot_owner, slot_node = slot_owner[order], slot_node[order]
@@ -375,11 +441,19 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         lane = np.arange(len(slot_owner)) - np.repeat(np.cumsum(per_owner) - per_owner, per_owner)
         slots = np.full((count, BVH_WIDTH), empty)
         slots[slot_owner, lane] = slot_node
-        # Each lane's node, leaf or empty lane: box, child, count (0 for a node)
+        # Each lane's node (child and count -1), leaf (its first primitive and size) or empty
+        # lane (box 0, -1, -1); then child and count 0 for a node
+        is_empty = slots == empty
+        slots[is_empty] = 0
         lanes = np.take(rows, slots, axis=0)  # (count, BVH_WIDTH, 8)
         lane_words = lanes.view(np.int32)
+        lane_leaf = as_leaf[slots]
+        lane_words[:, :, 3] = np.where(lane_leaf, first[slots], -1)
+        lane_words[:, :, 7] = np.where(lane_leaf, size[slots], -1)
+        lanes[is_empty] = 0.0
+        lane_words[is_empty, 3] = lane_words[is_empty, 7] = -1
         is_node = lane_words[:, :, 7] < 0
-        is_node &= slots != empty
+        is_node &= ~is_empty
         wide = np.empty((count, 8, BVH_WIDTH), np.float32)
         wide[:, 0:3] = lanes[:, :, 0:3].transpose(0, 2, 1)
         wide[:, 3:6] = lanes[:, :, 4:7].transpose(0, 2, 1)
@@ -391,32 +465,43 @@ def collapse_bvh(binary: np.ndarray) -> np.ndarray:
         levels.append(wide.reshape(count, -1))
         roots = slots[is_node]
         next_index += len(roots)
-    nodes = np.concatenate(levels).view(BVH_NODE_DTYPE).reshape(-1)
-    return _depth_first(nodes, [len(level) for level in levels])
+    return _depth_first(levels)
 
 
-def _depth_first(nodes: np.ndarray, level_sizes: list[int]) -> np.ndarray:
-    """Wide nodes (breadth first, levels of level_sizes nodes) put in depth-first order, each
-    node's children after it in lane order: a subtree's nodes (and so its leaf records, which
-    pack_bvh_leaves writes in node order) lie together in memory, which a ray descending it
-    reads from fewer cache lines. Vectorised over a level."""
-    is_node = nodes["count"] == 0
-    child = np.where(is_node, nodes["child"], 0)
-    ends = np.cumsum(level_sizes)
-    levels = [slice(end - size, end) for end, size in zip(ends, level_sizes, strict=True)]
+def _depth_first(levels: list[np.ndarray]) -> np.ndarray:
+    """Wide nodes (breadth first: levels, each (nodes, words) of BVH_NODE_DTYPE's float32 words)
+    put in depth-first order, each node's children after it in lane order: a subtree's nodes
+    (and so its leaf records, which pack_bvh_leaves writes in node order) lie together in
+    memory, which a ray descending it reads from fewer cache lines. Vectorised over a level."""
+    lane_fields = [
+        slice(offset // 4, offset // 4 + BVH_WIDTH)
+        for offset in (BVH_NODE_DTYPE.fields[name][1] for name in ("child", "count"))
+    ]
+    child, count = (
+        np.concatenate([level.view(np.int32)[:, lanes] for level in levels])
+        for lanes in lane_fields
+    )
+    is_node = count == 0
+    child[~is_node] = 0
+    ends = np.cumsum([len(level) for level in levels])
+    rows_of = [slice(end - len(level), end) for end, level in zip(ends, levels, strict=True)]
     # Bottom up: each subtree's nodes; top down: each node's place, after its parent and its
     # earlier siblings' subtrees
-    size = np.ones(len(nodes), np.int64)
-    for rows in reversed(levels):
+    size = np.ones(len(child), np.int64)
+    for rows in reversed(rows_of):
         size[rows] += (size[child[rows]] * is_node[rows]).sum(axis=1)
-    place = np.zeros(len(nodes), np.int64)
-    for rows in levels:
+    place = np.zeros(len(child), np.int64)
+    for rows in rows_of:
         lane_size = size[child[rows]] * is_node[rows]
         before = np.cumsum(lane_size, axis=1) - lane_size
         inner = is_node[rows]
         place[child[rows][inner]] = (place[rows][:, None] + 1 + before)[inner]
-    ordered = np.empty_like(nodes)
-    ordered[place] = nodes
+    # Each level's nodes to their places (as rows of words: a fast copy), node children
+    # renumbered
+    ordered = np.empty(len(child), BVH_NODE_DTYPE)
+    ordered_words = ordered.view(np.int32).reshape(len(child), -1)
+    for rows, level in zip(rows_of, levels, strict=True):
+        ordered_words[place[rows]] = level.view(np.int32)
     moved = ordered["count"] == 0
     ordered["child"][moved] = place[ordered["child"][moved]]
     return ordered
@@ -459,12 +544,25 @@ def build_bvh(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndar
     box = cluster_box.take(cluster, axis=1)
     ranged = np.flatnonzero(cluster < 0)
     if len(ranged):
+        # The rebuilt subtrees' ranges (disjoint), in order, and their primitives' boxes one
+        # after another (and a spare column at the end)
         roots = ranged[(cluster[ranged] == REBUILT_ROOT)]
-        for start, end in zip(first[roots], first[roots] + length[roots], strict=True):
-            ranks[start:end].sort()
-        position_box = np.empty((6, count + 1), np.float32)  # a spare column at the end
-        cluster_box.take(ranks, axis=1, out=position_box[:, :-1])
-        bounds = np.stack([first[ranged], first[ranged] + length[ranged]], axis=1).reshape(-1)
+        roots = roots[np.argsort(first[roots], kind="stable")]
+        root_first, root_end = first[roots], first[roots] + length[roots]
+        ranges = [slice(start, end) for start, end in zip(root_first, root_end, strict=True)]
+        for primitives in ranges:
+            ranks[primitives].sort()
+        rebuilt = np.concatenate([ranks[primitives] for primitives in ranges])
+        position_box = np.empty((6, len(rebuilt) + 1), np.float32)
+        cluster_box.take(rebuilt, axis=1, out=position_box[:, :-1])
+        # Each balanced node's range among those
+        root_of = np.searchsorted(root_first, first[ranged], side="right") - 1
+        start = (
+            first[ranged]
+            - root_first[root_of]
+            + (np.cumsum(length[roots]) - length[roots])[root_of]
+        )
+        bounds = np.stack([start, start + length[ranged]], axis=1).reshape(-1)
         box[:, ranged] = np.minimum.reduceat(position_box, bounds, axis=1)[:, ::2]
     prims = primitive.take(ranks).view(np.uint32)
     return _binary_nodes(box, first, length, split), prims
@@ -517,8 +615,8 @@ def _merge_rounds(boxes: np.ndarray, active: np.ndarray) -> tuple:
         for start in range(0, m, NEAREST_CHUNK):
             stop = min(m, start + NEAREST_CHUNK)
             these, partners = left[start:stop], other[start:stop]
-            for row in boxes:
-                np.minimum(row.take(these), row.take(partners), out=row[start:stop])
+            united = boxes.take(these, axis=1)
+            np.minimum(united, boxes.take(partners, axis=1), out=boxes[:, start:stop])
         active = active.take(left)
         rounds.append((first, end))
         first, n = end, m
@@ -536,7 +634,9 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
     height = np.zeros(total, np.int32)
     leaf = np.ones(total, bool)
     cost = np.empty(total, np.float64)
-    cost[:count] = _half_area(cluster_box[:, :count])  # a leaf of one
+    work = np.empty((3, min(count, HALF_AREA_CHUNK)))
+    merged_area = np.empty(max((end - first for first, end in rounds), default=0))
+    _half_area(cluster_box[:, :count], cost[:count], work)  # a leaf of one
     for first, end in rounds:
         below_left, below_right = children[:, first - count : end - count]
         box = cluster_box[:, first:end]
@@ -547,7 +647,7 @@ def _bottom_up(cluster_box: np.ndarray, children: np.ndarray, rounds: list) -> t
         )
         merged_size = size[first:end]
         np.add(size.take(below_left), size.take(below_right), out=merged_size)
-        area = _half_area(box)
+        area = _half_area(box, merged_area[: end - first], work)
         subtree = TRAVERSAL_COST * area
         subtree += cost.take(below_left)
         subtree += cost.take(below_right)
@@ -636,22 +736,25 @@ def _tree_levels(children, root, size, height, leaf) -> tuple:
 
 def _binary_nodes(box, first, length, split) -> np.ndarray:
     """BINARY_NODE_DTYPE nodes, breadth first, from their boxes (6 rows: lower, -upper; made
-    lower, upper in place),
-    ranges of `prims` (first, length) and whether they are split (the k-th split node's
-    children being nodes 2k + 1, 2k + 2)."""
+    lower, upper in place), ranges of `prims` (first, length; overwritten for split nodes) and
+    whether they are split (the k-th split node's children being nodes 2k + 1, 2k + 2)."""
+    np.negative(box[3:], out=box[3:])
+    # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
+    # (informative)
+    parents = np.flatnonzero(split)
+    x, y, z = (box[3 + axis].take(parents) - box[axis].take(parents) for axis in range(3))
+    axes = np.int8(0), np.int8(1), np.int8(2)
+    widest = np.where(x >= y, np.where(x >= z, axes[0], axes[2]), np.where(y >= z, *axes[1:]))
+    first[parents] = 2 * np.arange(1, len(parents) + 1) - 1
+    length[parents] = -1 - widest
+    # The records RECORD_ROWS_CHUNK at a time, a column at a time (each chunk in the caches)
     nodes = len(first)
     record = np.empty((nodes, 8), np.float32)
     words = record.view(np.int32)
-    record[:, 0:3] = box[:3].T
-    np.negative(box[3:], out=box[3:])
-    record[:, 4:7] = box[3:].T
-    # A leaf: its range; a split node: its first child, and -1 - the axis of largest extent
-    # (informative)
-    words[:, 3] = first
-    words[:, 7] = length
-    parents = np.flatnonzero(split)
-    x, y, z = (box[3 + axis].take(parents) - box[axis].take(parents) for axis in range(3))
-    widest = np.where(x >= y, np.where(x >= z, 0, 2), np.where(y >= z, 1, 2))
-    words[parents, 3] = 2 * np.arange(1, len(parents) + 1) - 1
-    words[parents, 7] = -1 - widest
+    for start in range(0, nodes, RECORD_ROWS_CHUNK):
+        rows = slice(start, start + RECORD_ROWS_CHUNK)
+        for row, column in enumerate((0, 1, 2, 4, 5, 6)):
+            record[rows, column] = box[row, rows]
+        words[rows, 3] = first[rows]
+        words[rows, 7] = length[rows]
     return record.view(BINARY_NODE_DTYPE).reshape(-1)

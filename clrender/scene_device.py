@@ -318,22 +318,37 @@ def pack_triangles(meshes: list[dict]) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
+BOUNDS_CHUNK = 1 << 14  # triangles primitive_bounds reads at a time
+
+
 def primitive_bounds(
     quads: np.ndarray, spheres: np.ndarray, triangles: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Bounds (lower, upper: (N, 3) float64) of every primitive in id order: quads, spheres,
-    triangles."""
+    triangles. Each is the transpose of a (3, N) array (an axis' bounds contiguous: how
+    clrender.bvh.padded_bounds reads them)."""
     c, e1, e2 = (quads[k].astype(np.float64).reshape(-1, 3) for k in QUAD_FRAME)
     quad_points = np.stack([c, c + e1, c + e2, c + e1 + e2])
     centre = spheres["center"].astype(np.float64).reshape(-1, 3)
     radius = spheres["radius"].astype(np.float64).reshape(-1, 1)
-    # Triangles' bounds in their float32 (exact), a pair of vertices at a time
+    count = len(quads) + len(spheres) + len(triangles)
+    lower, upper = np.empty((3, count)), np.empty((3, count))
+    first_triangle = len(quads) + len(spheres)
+    lower[:, :first_triangle] = np.concatenate([quad_points.min(axis=0), centre - radius]).T
+    upper[:, :first_triangle] = np.concatenate([quad_points.max(axis=0), centre + radius]).T
+    # Triangles' bounds in their float32 (exact), BOUNDS_CHUNK triangles (in the caches) and an
+    # axis at a time
     p0, p1, p2 = (triangles[k].reshape(-1, 3) for k in ("p0", "p1", "p2"))
-    tri_lower = np.minimum(np.minimum(p0, p1), p2)
-    tri_upper = np.maximum(np.maximum(p0, p1), p2)
-    lower = np.concatenate([quad_points.min(axis=0), centre - radius, tri_lower], dtype=np.float64)
-    upper = np.concatenate([quad_points.max(axis=0), centre + radius, tri_upper], dtype=np.float64)
-    return lower, upper
+    for first in range(0, len(triangles), BOUNDS_CHUNK):
+        chunk = slice(first, first + BOUNDS_CHUNK)
+        for axis in range(3):
+            vertex = (p0[chunk, axis], p1[chunk, axis], p2[chunk, axis])
+            at = slice(first_triangle + first, first_triangle + first + len(vertex[0]))
+            extreme = np.minimum(*vertex[:2])
+            lower[axis, at] = np.minimum(extreme, vertex[2], out=extreme)
+            extreme = np.maximum(*vertex[:2])
+            upper[axis, at] = np.maximum(extreme, vertex[2], out=extreme)
+    return lower.T, upper.T
 
 
 def pack_bvh(
@@ -368,33 +383,49 @@ def _ranks_within(group: np.ndarray, groups: int) -> tuple[np.ndarray, np.ndarra
     return np.arange(len(group)) - first[group], per_group
 
 
-def _write_record_blocks(words, blocks, first_word, block_words, member_at, rows, unused):
+# Blocks _write_record_blocks gathers at a time
+RECORD_CHUNK = 1 << 13
+
+
+def _write_record_blocks(words, blocks, first_word, block_words, member_at, rows):
     """One kind's blocks of every record: blocks[r] of block_words words from word
     first_word[r] of record r, in structure of arrays (row k of a block: its BVH_BLOCK_WIDTH
     lanes' k-th words). The members (record, rank among the record's members of the kind:
     member_at) go to lane rank % BVH_BLOCK_WIDTH of block rank // BVH_BLOCK_WIDTH with their
-    rows: (first row, (members, k) uint32 values) pairs; the blocks' other lanes get `unused`
-    (a value per row). Written in place when the kind's blocks follow each other in `words`
-    (a scene of one kind), else through one array of blocks."""
+    rows, given as (first row, source, index, unused): member m's rows are the first
+    len(unused) words of source[index[m]] (uint32 rows; index None: source[m]), the blocks' other
+    lanes get `unused`. The lanes are gathered in block and lane order, RECORD_CHUNK blocks at
+    a time, and written transposed: in place when the kind's blocks follow each other in
+    `words` (a scene of one kind), else through one array of blocks."""
     record, rank = member_at
     count = int(blocks.sum())
     block_first = np.cumsum(blocks) - blocks
     block_record = np.repeat(np.arange(len(blocks)), blocks)
     base = first_word[block_record] + block_words * (np.arange(count) - block_first[block_record])
-    height = len(unused)
+    height = sum(len(unused) for _, _, _, unused in rows)
     in_place = count > 0 and base[-1] - base[0] == block_words * (count - 1)
     if in_place:
         span = words[base[0] : base[0] + block_words * count]
         target = span.reshape(count, block_words // BVH_BLOCK_WIDTH, BVH_BLOCK_WIDTH)[:, :height]
     else:
         target = np.empty((count, height, BVH_BLOCK_WIDTH), np.uint32)
-    target[:] = np.asarray(unused, np.uint32)[None, :, None]
-    slot = BVH_BLOCK_WIDTH * block_first[record] + rank
-    block, lane = slot // BVH_BLOCK_WIDTH, slot % BVH_BLOCK_WIDTH
-    for first_row, values in rows:
-        target[block, first_row : first_row + values.shape[1], lane] = values
+    # Each lane's member (-1: unused), lanes in block order
+    lane_member = np.full(count * BVH_BLOCK_WIDTH, -1, np.int32)
+    lane_member[BVH_BLOCK_WIDTH * block_first[record] + rank] = np.arange(len(record))
+    # RECORD_CHUNK blocks at a time (the gathered lanes stay in the caches)
+    for first_block in range(0, count, RECORD_CHUNK):
+        end_block = min(count, first_block + RECORD_CHUNK)
+        members = lane_member[BVH_BLOCK_WIDTH * first_block : BVH_BLOCK_WIDTH * end_block]
+        unused_lanes = np.flatnonzero(members < 0)
+        for first_row, source, index, unused in rows:
+            row_count = len(unused)
+            at = members if index is None else index.take(members, mode="clip")
+            lanes = source.take(at, axis=0, mode="clip")[:, :row_count]
+            lanes[unused_lanes] = unused
+            lanes = lanes.reshape(-1, BVH_BLOCK_WIDTH, row_count).transpose(0, 2, 1)
+            target[first_block:end_block, first_row : first_row + row_count] = lanes
     if not in_place and count:
-        words[base[:, None] + np.arange(height * BVH_BLOCK_WIDTH)] = target.reshape(count, -1)
+        words[base[:, None] + np.arange(target[0].size)] = target.reshape(count, -1)
 
 
 def _leaf_groups(count: np.ndarray) -> np.ndarray:
@@ -402,14 +433,16 @@ def _leaf_groups(count: np.ndarray) -> np.ndarray:
     lanes' primitive counts), -1 for the other lanes: a node's leaves packed first fit,
     largest first, into groups of at most BVH_BLOCK_WIDTH primitives (a larger leaf alone), so
     that a group's record holds one block of each kind. Vectorised over the nodes."""
-    size = np.where(count > 0, count, 0).astype(np.int64)
+    size = np.maximum(count, 0, dtype=np.int32)
     rows = np.arange(len(count))
     order = np.argsort(-size, axis=1, kind="stable")
-    fill = np.zeros(count.shape, np.int64)
-    group = np.full(count.shape, -1, np.int64)
+    fill = np.zeros(count.shape, np.int32)
+    group = np.full(count.shape, -1, np.int32)
     for position in range(count.shape[1]):
         lane = order[:, position]
         lane_size = size[rows, lane]
+        if not lane_size.any():  # (leaves come first: no node has more)
+            break
         # (an empty group takes any leaf: one over BVH_BLOCK_WIDTH goes there alone)
         fits = (fill + lane_size[:, None] <= BVH_BLOCK_WIDTH) | (fill == 0)
         first_fit = np.argmax(fits, axis=1)
@@ -487,13 +520,12 @@ def pack_bvh_leaves(
     minus_one = np.uint32(0xFFFFFFFF)
     triangle_rows = np.ascontiguousarray(triangles, TRIANGLE_DTYPE).view(np.uint32)
     triangle_rows = triangle_rows.reshape(len(triangles), TRIANGLE_DTYPE.itemsize // 4)
-    vertices = triangle_rows[:, :9][triangle_ids - first_triangle]
-    id_row = triangle_ids.astype(np.uint32)[:, None]
-    unused = np.zeros(10, np.uint32)
-    unused[9] = minus_one
     member_at = (record_of[is_triangle], triangle_rank)
-    rows = ((0, vertices), (9, id_row))
-    _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, rows, unused)
+    rows = (
+        (0, triangle_rows, triangle_ids - first_triangle, np.zeros(9, np.uint32)),
+        (9, triangle_ids.astype(np.uint32)[:, None], None, np.array([minus_one])),
+    )
+    _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, rows)
     # Quad blocks: corner, normal, u_dual, v_dual, plane_d, quad id (lower and upper unused);
     # unused lanes id -1, plane_d -1 with a zero normal (t = -inf, never a hit)
     quad_names = ("corner", "normal", "u_dual", "v_dual", "plane_d")
@@ -506,8 +538,8 @@ def pack_bvh_leaves(
     unused[12] = np.float32(-1.0).view(np.uint32)
     unused[13] = minus_one
     member_at = (record_of[is_quad], quad_rank)
-    rows = ((0, values),)
-    _write_record_blocks(words, quad_blocks, quads_at, quad_words, member_at, rows, unused)
+    rows = ((0, values, None, unused),)
+    _write_record_blocks(words, quad_blocks, quads_at, quad_words, member_at, rows)
     # Sphere ids
     words[spheres_at[record_of[~(is_triangle | is_quad)]] + sphere_rank] = sphere_ids
     # Every leaf lane: its record's first word and packed counts

@@ -11,6 +11,7 @@ import pytest
 from geometry_device import device_intersect, device_occluded, device_surface
 from scene_texts import lit_room, mesh_text, random_shapes_text
 
+from clrender import scene_device
 from clrender.bvh import (
     BINARY_NODE_DTYPE,
     BOUNDS_PADDING,
@@ -32,9 +33,11 @@ from clrender.bvh import (
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
 from clrender.scene_device import (
+    BOUNDS_CHUNK,
     BVH_BLOCK_WIDTH,
     BVH_LEAF_ALIGN,
     NORMALS_DTYPE,
+    RECORD_CHUNK,
     TRIANGLE_BLOCK_DTYPE,
     TRIANGLE_DTYPE,
     pack_bvh_leaves,
@@ -290,7 +293,9 @@ def assert_valid_bvh(lower, upper, nodes, prims):
     owner = np.repeat(np.flatnonzero(leaf)[by_offset], counts)  # the leaf of each position
     assert np.all(lower[prims] >= nodes["lower"][owner])
     assert np.all(upper[prims] <= nodes["upper"][owner])
-    # Children: after the parent, each node but the root reached once, inside the parent's box
+    # Children: the k-th split node's are nodes 2k + 1, 2k + 2 (the layout collapse_bvh reads
+    # level by level), each node but the root reached once, inside the parent's box
+    np.testing.assert_array_equal(nodes["offset"][interior], 2 * np.arange(len(interior)) + 1)
     children = np.concatenate([nodes["offset"][interior], nodes["offset"][interior] + 1])
     parents = np.concatenate([interior, interior])
     assert np.all(children > parents) and np.all(children < len(nodes))
@@ -447,11 +452,16 @@ def reference_record(node, lanes, prims, quads, sphere_count, triangles, words):
 
 
 # Mixed records (blocks of a kind apart: written through one array), and records of one kind
-# (blocks that follow each other: written in place)
+# (blocks that follow each other: written in place); blocks gathered a few at a time or all at
+# once
 @pytest.mark.parametrize(
     "quads, spheres, triangles", [(150, 80, 1500), (0, 0, 1500), (300, 0, 0), (0, 200, 0)]
 )
-def test_leaf_records_equal_a_node_by_node_reference(tmp_path, quads, spheres, triangles):
+@pytest.mark.parametrize("record_chunk", [7, RECORD_CHUNK])
+def test_leaf_records_equal_a_node_by_node_reference(
+    tmp_path, monkeypatch, quads, spheres, triangles, record_chunk
+):
+    monkeypatch.setattr(scene_device, "RECORD_CHUNK", record_chunk)
     scene = random_scene(tmp_path, 33, quads=quads, spheres=spheres, triangles=max(triangles, 1))
     # (the scene has a light quad and a mesh: only the kinds asked for are kept)
     kinds = (scene.quads[: quads and None], scene.spheres, scene.triangles[:triangles])
@@ -610,7 +620,11 @@ def test_padded_bounds_hold_the_float64_bounds():
     assert np.all(high.T - upper <= 2 * BOUNDS_PADDING * largest[:, None] + 1e-29)
 
 
-def test_primitive_bounds_are_the_float64_extremes_of_every_primitive(tmp_path):
+@pytest.mark.parametrize("bounds_chunk", [7, BOUNDS_CHUNK])  # triangles a few at a time or all
+def test_primitive_bounds_are_the_float64_extremes_of_every_primitive(
+    tmp_path, monkeypatch, bounds_chunk
+):
+    monkeypatch.setattr(scene_device, "BOUNDS_CHUNK", bounds_chunk)
     scene = random_scene(tmp_path, 26, quads=10, spheres=5, triangles=40)
     lower, upper = primitive_bounds(scene.quads, scene.spheres, scene.triangles)
     assert lower.dtype == np.float64
