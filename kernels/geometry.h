@@ -374,15 +374,16 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
-// with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
-// at once; the leaves the ray reaches are tested right away, nearest first, each group's shared
-// record once (up to 8 primitives of a kind at a time: scene_device.pack_bvh_leaves); the
-// nearest child node is visited next and the others kept on a private stack with their entry
-// distances, nearest on top (skipped when taken if a closer hit was found since).
-CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float tmax, bool any_hit,
-                             int *prim)
+// with any_hit, the first one found (shadow rays); root_enter is BVHNode_Enter of the root (its
+// caller's test: most rays reach none of its children and never get here). At each node all
+// children's boxes are tested at once; the leaves the ray reaches are tested right away, nearest
+// first, each group's shared record once (up to 8 primitives of a kind at a time:
+// scene_device.pack_bvh_leaves); the nearest child node is visited next and the others kept on a
+// private stack with their entry distances, nearest on top (skipped when taken if a closer hit
+// was found since).
+CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                             float8 root_enter, float tmax, bool any_hit, int *prim)
 {
-    float3 inv_d = 1.0f / d;
     // Made at the first leaf (many rays reach none)
     TriangleRay r;
     bool r_made = false;
@@ -392,13 +393,13 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
     float t = tmax;
     int id = -1;
     uint node_id = 0;
+    union {
+        float8 v;
+        float s[BVH_WIDTH];
+    } enter;
+    enter.v = root_enter;
     for (;;) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
-        union {
-            float8 v;
-            float s[BVH_WIDTH];
-        } enter;
-        enter.v = BVHNode_Enter(node, o, inv_d, t);
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
         // The leaves the ray reaches, nearest first, each while it is nearer than the closest hit
@@ -446,6 +447,7 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
                 stack_enter[k] = e;
             }
             node_id = (uint)node->child[j_near];
+            enter.v = BVHNode_Enter(&scene->bvh_nodes[node_id], o, inv_d, t);
             continue;
         }
         // Next: the most recently kept node (the nearest of the last node's others, for the
@@ -458,6 +460,7 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
         }
         if (!visit)
             break;
+        enter.v = BVHNode_Enter(&scene->bvh_nodes[node_id], o, inv_d, t);
     }
     *prim = id;
     return t;
@@ -475,16 +478,28 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
 #define BVH_FUNCTION CL_INLINE
 #endif
 
-BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
+BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                                 float8 root_enter, float tmax, int *prim)
 {
-    return BVH_Traverse(scene, o, d, tmax, false, prim);
+    return BVH_Traverse(scene, o, d, inv_d, root_enter, tmax, false, prim);
 }
 
-BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
+BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                               float8 root_enter, float tmax)
 {
     int prim;
-    BVH_Traverse(scene, o, d, tmax, true, &prim);
+    BVH_Traverse(scene, o, d, inv_d, root_enter, tmax, true, &prim);
     return prim >= 0;
+}
+
+// Whether the ray reaches any child of the BVH's root before tmax, their entries in *root_enter
+// (BVHNode_Enter): the traversal's first step, taken before the call (most rays in a room around
+// a mesh reach none).
+CL_INLINE bool BVH_RootReached(const SceneData *scene, float3 o, float3 inv_d, float tmax,
+                               float8 *root_enter)
+{
+    *root_enter = BVHNode_Enter(&scene->bvh_nodes[0], o, inv_d, tmax);
+    return Lanes_Bits(*root_enter < INFINITY) != 0u;
 }
 
 // Whether a scene's quads are tested by brute force (a block at a time): always without a BVH,
@@ -518,8 +533,11 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
         }
     }
     if (scene->bvh_node_count > 0u) {
-        int bvh_id;
-        float tb = BVH_Intersect(scene, o, d, t, &bvh_id);
+        float8 root_enter;
+        int bvh_id = -1;
+        float tb = BVH_RootReached(scene, o, inv_d, t, &root_enter)
+                       ? BVH_Intersect(scene, o, d, inv_d, root_enter, t, &bvh_id)
+                       : t;
         *prim = bvh_id >= 0 ? bvh_id : id;
         return bvh_id >= 0 ? tb : t;
     }
@@ -561,8 +579,8 @@ CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float 
                 return true;
         }
     }
+    float3 inv_d = 1.0f / d;
     if (Scene_QuadsBruteForce(scene)) {
-        float3 inv_d = 1.0f / d;
         for (uint b = scene->quad_block_count; b-- > 0u;) {
             __global const QuadBlock *block = &scene->quad_blocks[b];
             if (QuadBlock_BoundsHit(block, o, inv_d, tmax) &&
@@ -570,7 +588,9 @@ CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float 
                 return true;
         }
     }
-    return scene->bvh_node_count > 0u && BVH_Occluded(scene, o, d, tmax);
+    float8 root_enter;
+    return scene->bvh_node_count > 0u && BVH_RootReached(scene, o, inv_d, tmax, &root_enter) &&
+           BVH_Occluded(scene, o, d, inv_d, root_enter, tmax);
 }
 
 // The surface record of a hit at distance t along the ray.
