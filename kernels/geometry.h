@@ -402,33 +402,46 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
-        // The leaves the ray reaches, nearest first, each while it is nearer than the closest hit
+        // The leaves the ray reaches, nearest first (any hit: in lane order), each while it is
+        // nearer than the closest hit; a lone one (the usual case) without a search
+        uint leaves = Lanes_Bits(reached & (count > 0));
+        if (leaves != 0u && !r_made) {
+            r = TriangleRay_Make(o, d);
+            r_made = true;
+        }
         float8 leaf_enter = (reached & (count > 0)) ? enter.v : (float8)(INFINITY);
-        for (;;) {
-            float leaf_nearest = Lanes_Min(leaf_enter);
-            if (!(leaf_nearest < INFINITY && leaf_nearest <= t))
+        while (leaves != 0u) {
+            int j = __builtin_ctz(leaves);
+            if (!any_hit && (leaves & (leaves - 1u)) != 0u) {
+                float leaf_nearest = Lanes_Min(leaf_enter);
+                if (!(leaf_nearest <= t))
+                    break;
+                j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+            } else if (!(enter.s[j] <= t)) {
                 break;
-            int j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+            }
             // Its record, shared by the leaves of its group: tested once for all of them
             int record = node->child[j];
-            leaf_enter = Load8Int(node->child) == record ? (float8)(INFINITY) : leaf_enter;
-            if (!r_made) {
-                r = TriangleRay_Make(o, d);
-                r_made = true;
-            }
+            int8 group = Load8Int(node->child) == record;
+            leaf_enter = group ? (float8)(INFINITY) : leaf_enter;
+            leaves &= ~Lanes_Bits(group);
             BVHLeaves_Intersect(scene, (uint)record, node->count[j], o, d, &r, any_hit, &t, &id);
             if (any_hit && id >= 0) {
                 *prim = id;
                 return t;
             }
         }
-        // The child nodes it reaches before the closest hit: the nearest next, the others kept
+        // The child nodes it reaches before the closest hit: the nearest next (any hit: the
+        // first; a lone one without a search), the others kept
         int8 inner = reached & (count == 0) & (enter.v <= t);
-        float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
-        float nearest = Lanes_Min(inner_enter);
-        if (nearest < INFINITY) {
-            int j_near = __builtin_ctz(Lanes_Bits(inner_enter == nearest));
-            uint others = Lanes_Bits(inner) & ~(1u << j_near);
+        uint others = Lanes_Bits(inner);
+        if (others != 0u) {
+            int j_near = __builtin_ctz(others);
+            if (!any_hit && (others & (others - 1u)) != 0u) {
+                float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
+                j_near = __builtin_ctz(Lanes_Bits(inner_enter == Lanes_Min(inner_enter)));
+            }
+            others &= ~(1u << j_near);
             int first = top;
             while (others != 0u) {
                 int j = __builtin_ctz(others);
