@@ -374,13 +374,14 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
-// with any_hit, the first one found (shadow rays); root_enter is BVHNode_Enter of the root (its
-// caller's test: most rays reach none of its children and never get here). At each node all
-// children's boxes are tested at once; the leaves the ray reaches are tested right away, nearest
-// first, each group's shared record once (up to 8 primitives of a kind at a time:
-// scene_device.pack_bvh_leaves); the nearest child node is visited next and the others kept on a
-// private stack with their entry distances, nearest on top (skipped when taken if a closer hit
-// was found since).
+// with any_hit, the first one found (shadow rays); root_enter is BVHNode_Enter of the root
+// (BVH_RootReached: most rays around a mesh reach none of its children and never get here). At
+// each node all children's boxes are tested at once; the leaves the ray reaches are tested right
+// away, each group's shared record once (up to 8 primitives of a kind at a time:
+// scene_device.pack_bvh_leaves), nearest first for the closest hit, in lane order for any hit;
+// the nearest child node (any hit: the first) is visited next and the others kept on a private
+// stack with their entry distances, nearest on top (skipped when taken if a closer hit was found
+// since).
 CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 inv_d,
                              float8 root_enter, float tmax, bool any_hit, int *prim)
 {
@@ -479,40 +480,61 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 
     return t;
 }
 
-// The BVH's closest hit and any hit (shadow rays). On PoCL (CLRENDER_BVH_CALLED, set by
+// The BVH's closest hit and any hit (shadow rays): the root's children tested first, then the
+// traversal only if the ray reaches one. On PoCL (CLRENDER_BVH_CALLED, set by
 // clrender/runtime.py build_options) they are called, not inlined (unlike every other device
 // function): inlined into the path tracer, the traversal's code slowed the brute-force path
-// sharing the kernel by about 5 % (bench/primitive_scaling.py), and the calls cost the BVH
-// nothing measurable. Elsewhere they are inlined: Intel's CPU runtime returns wrong hits from
-// the called form (tests/test_bvh.py, tests/test_mesh_emitters.py fail there).
+// sharing the kernel by about 5 % (bench/primitive_scaling.py; the root's test alone inlined,
+// the Cornell boxes by 3 %), and the calls cost the BVH nothing measurable; the traversal is a
+// second call (its set-up is skipped by the rays that reach none of the root's children: 77 %
+// of closest-hit rays and 49 % of shadow rays around bvh_scaling.py's sphere). Elsewhere they
+// are inlined: Intel's CPU runtime returns wrong hits from the called form (tests/test_bvh.py,
+// tests/test_mesh_emitters.py fail there).
 #ifdef CLRENDER_BVH_CALLED
 #define BVH_FUNCTION __attribute__((noinline))
 #else
 #define BVH_FUNCTION CL_INLINE
 #endif
 
-BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float3 inv_d,
-                                 float8 root_enter, float tmax, int *prim)
+// Whether the ray reaches any child of the BVH's root before tmax, their entries in *root_enter
+// (BVHNode_Enter): the traversal's first step, taken before its call.
+CL_INLINE bool BVH_RootReached(const SceneData *scene, float3 o, float3 inv_d, float tmax,
+                               float8 *root_enter)
+{
+    *root_enter = BVHNode_Enter(&scene->bvh_nodes[0], o, inv_d, tmax);
+    return Lanes_Bits(*root_enter < INFINITY) != 0u;
+}
+
+BVH_FUNCTION float BVH_IntersectFromRoot(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                                         float8 root_enter, float tmax, int *prim)
 {
     return BVH_Traverse(scene, o, d, inv_d, root_enter, tmax, false, prim);
 }
 
-BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float3 inv_d,
-                               float8 root_enter, float tmax)
+BVH_FUNCTION bool BVH_OccludedFromRoot(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                                       float8 root_enter, float tmax)
 {
     int prim;
     BVH_Traverse(scene, o, d, inv_d, root_enter, tmax, true, &prim);
     return prim >= 0;
 }
 
-// Whether the ray reaches any child of the BVH's root before tmax, their entries in *root_enter
-// (BVHNode_Enter): the traversal's first step, taken before the call (most rays in a room around
-// a mesh reach none).
-CL_INLINE bool BVH_RootReached(const SceneData *scene, float3 o, float3 inv_d, float tmax,
-                               float8 *root_enter)
+BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                                 float tmax, int *prim)
 {
-    *root_enter = BVHNode_Enter(&scene->bvh_nodes[0], o, inv_d, tmax);
-    return Lanes_Bits(*root_enter < INFINITY) != 0u;
+    float8 root_enter;
+    *prim = -1;
+    if (!BVH_RootReached(scene, o, inv_d, tmax, &root_enter))
+        return tmax;
+    return BVH_IntersectFromRoot(scene, o, d, inv_d, root_enter, tmax, prim);
+}
+
+BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
+{
+    float3 inv_d = 1.0f / d;
+    float8 root_enter;
+    return BVH_RootReached(scene, o, inv_d, tmax, &root_enter) &&
+           BVH_OccludedFromRoot(scene, o, d, inv_d, root_enter, tmax);
 }
 
 // Whether a scene's quads are tested by brute force (a block at a time): always without a BVH,
@@ -546,11 +568,8 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
         }
     }
     if (scene->bvh_node_count > 0u) {
-        float8 root_enter;
-        int bvh_id = -1;
-        float tb = BVH_RootReached(scene, o, inv_d, t, &root_enter)
-                       ? BVH_Intersect(scene, o, d, inv_d, root_enter, t, &bvh_id)
-                       : t;
+        int bvh_id;
+        float tb = BVH_Intersect(scene, o, d, inv_d, t, &bvh_id);
         *prim = bvh_id >= 0 ? bvh_id : id;
         return bvh_id >= 0 ? tb : t;
     }
@@ -592,8 +611,8 @@ CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float 
                 return true;
         }
     }
-    float3 inv_d = 1.0f / d;
     if (Scene_QuadsBruteForce(scene)) {
+        float3 inv_d = 1.0f / d;
         for (uint b = scene->quad_block_count; b-- > 0u;) {
             __global const QuadBlock *block = &scene->quad_blocks[b];
             if (QuadBlock_BoundsHit(block, o, inv_d, tmax) &&
@@ -601,9 +620,7 @@ CL_INLINE bool Scene_Occluded(const SceneData *scene, float3 o, float3 d, float 
                 return true;
         }
     }
-    float8 root_enter;
-    return scene->bvh_node_count > 0u && BVH_RootReached(scene, o, inv_d, tmax, &root_enter) &&
-           BVH_Occluded(scene, o, d, inv_d, root_enter, tmax);
+    return scene->bvh_node_count > 0u && BVH_Occluded(scene, o, d, tmax);
 }
 
 // The surface record of a hit at distance t along the ray.
