@@ -519,9 +519,9 @@ BVH_FUNCTION bool BVH_OccludedFromRoot(const SceneData *scene, float3 o, float3 
     return prim >= 0;
 }
 
-BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float3 inv_d,
-                                 float tmax, int *prim)
+BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
 {
+    float3 inv_d = 1.0f / d;
     float8 root_enter;
     *prim = -1;
     if (!BVH_RootReached(scene, o, inv_d, tmax, &root_enter))
@@ -569,7 +569,7 @@ CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, floa
     }
     if (scene->bvh_node_count > 0u) {
         int bvh_id;
-        float tb = BVH_Intersect(scene, o, d, inv_d, t, &bvh_id);
+        float tb = BVH_Intersect(scene, o, d, t, &bvh_id);
         *prim = bvh_id >= 0 ? bvh_id : id;
         return bvh_id >= 0 ? tb : t;
     }
