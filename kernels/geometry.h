@@ -2,8 +2,10 @@
 // whose bounding box the ray meets, then every sphere, then every triangle. Larger scenes
 // (bvh_node_count > 0): a bounding volume hierarchy (clrender/bvh.py) over the spheres, the
 // triangles and the quads unless there are at most BVH_MAX_BRUTE_QUADS (those are tested by
-// brute force beside it), traversed with a private stack; a node's leaves the ray reaches are
-// tested nearest first, each group of leaves' record once (triangles and quads 8 at a time).
+// brute force beside it), traversed with a private stack after a test of the root's children
+// (most rays around a mesh reach none); a node's leaves the ray reaches are tested nearest first
+// (shadow rays: in lane order), each group of leaves' record once (triangles and quads 8 at a
+// time).
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
 // quad_count + sphere_count + k; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
