@@ -2,8 +2,10 @@
 // whose bounding box the ray meets, then every sphere, then every triangle. Larger scenes
 // (bvh_node_count > 0): a bounding volume hierarchy (clrender/bvh.py) over the spheres, the
 // triangles and the quads unless there are at most BVH_MAX_BRUTE_QUADS (those are tested by
-// brute force beside it), traversed with a private stack; a node's leaves the ray reaches are
-// tested nearest first, each group of leaves' record once (triangles and quads 8 at a time).
+// brute force beside it), traversed with a private stack after a test of the root's children
+// (most rays around a mesh reach none); a node's leaves the ray reaches are tested nearest first
+// (shadow rays: in lane order), each group of leaves' record once (triangles and quads 8 at a
+// time).
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
 // quad_count + sphere_count + k; -1 is a miss.
 #ifndef CLRENDER_GEOMETRY_H
@@ -374,15 +376,17 @@ CL_INLINE float8 BVHNode_Enter(__global const BVHNode *node, float3 o, float3 in
 }
 
 // The closest primitive in the BVH along the ray before tmax (ids as Scene_Intersect's), or,
-// with any_hit, the first one found (shadow rays). At each node all children's boxes are tested
-// at once; the leaves the ray reaches are tested right away, nearest first, each group's shared
-// record once (up to 8 primitives of a kind at a time: scene_device.pack_bvh_leaves); the
-// nearest child node is visited next and the others kept on a private stack with their entry
-// distances, nearest on top (skipped when taken if a closer hit was found since).
-CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float tmax, bool any_hit,
-                             int *prim)
+// with any_hit, the first one found (shadow rays); root_enter is BVHNode_Enter of the root
+// (BVH_RootReached: most rays around a mesh reach none of its children and never get here). At
+// each node all children's boxes are tested at once; the leaves the ray reaches are tested right
+// away, each group's shared record once (up to 8 primitives of a kind at a time:
+// scene_device.pack_bvh_leaves), nearest first for the closest hit, in lane order for any hit;
+// the nearest child node (any hit: the first) is visited next and the others kept on a private
+// stack with their entry distances, nearest on top (skipped when taken if a closer hit was found
+// since).
+CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                             float8 root_enter, float tmax, bool any_hit, int *prim)
 {
-    float3 inv_d = 1.0f / d;
     // Made at the first leaf (many rays reach none)
     TriangleRay r;
     bool r_made = false;
@@ -392,42 +396,55 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
     float t = tmax;
     int id = -1;
     uint node_id = 0;
+    union {
+        float8 v;
+        float s[BVH_WIDTH];
+    } enter;
+    enter.v = root_enter;
     for (;;) {
         __global const BVHNode *node = &scene->bvh_nodes[node_id];
-        union {
-            float8 v;
-            float s[BVH_WIDTH];
-        } enter;
-        enter.v = BVHNode_Enter(node, o, inv_d, t);
         int8 count = Load8Int(node->count);
         int8 reached = enter.v < INFINITY;
-        // The leaves the ray reaches, nearest first, each while it is nearer than the closest hit
+        // The leaves the ray reaches, nearest first (any hit: in lane order), each while it is
+        // nearer than the closest hit; a lone one (the usual case) without a search
+        uint leaves = Lanes_Bits(reached & (count > 0));
+        if (leaves != 0u && !r_made) {
+            r = TriangleRay_Make(o, d);
+            r_made = true;
+        }
         float8 leaf_enter = (reached & (count > 0)) ? enter.v : (float8)(INFINITY);
-        for (;;) {
-            float leaf_nearest = Lanes_Min(leaf_enter);
-            if (!(leaf_nearest < INFINITY && leaf_nearest <= t))
+        while (leaves != 0u) {
+            int j = __builtin_ctz(leaves);
+            if (!any_hit && (leaves & (leaves - 1u)) != 0u) {
+                float leaf_nearest = Lanes_Min(leaf_enter);
+                if (!(leaf_nearest <= t))
+                    break;
+                j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+            } else if (!(enter.s[j] <= t)) {
                 break;
-            int j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+            }
             // Its record, shared by the leaves of its group: tested once for all of them
             int record = node->child[j];
-            leaf_enter = Load8Int(node->child) == record ? (float8)(INFINITY) : leaf_enter;
-            if (!r_made) {
-                r = TriangleRay_Make(o, d);
-                r_made = true;
-            }
+            int8 group = Load8Int(node->child) == record;
+            leaf_enter = group ? (float8)(INFINITY) : leaf_enter;
+            leaves &= ~Lanes_Bits(group);
             BVHLeaves_Intersect(scene, (uint)record, node->count[j], o, d, &r, any_hit, &t, &id);
             if (any_hit && id >= 0) {
                 *prim = id;
                 return t;
             }
         }
-        // The child nodes it reaches before the closest hit: the nearest next, the others kept
+        // The child nodes it reaches before the closest hit: the nearest next (any hit: the
+        // first; a lone one without a search), the others kept
         int8 inner = reached & (count == 0) & (enter.v <= t);
-        float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
-        float nearest = Lanes_Min(inner_enter);
-        if (nearest < INFINITY) {
-            int j_near = __builtin_ctz(Lanes_Bits(inner_enter == nearest));
-            uint others = Lanes_Bits(inner) & ~(1u << j_near);
+        uint others = Lanes_Bits(inner);
+        if (others != 0u) {
+            int j_near = __builtin_ctz(others);
+            if (!any_hit && (others & (others - 1u)) != 0u) {
+                float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
+                j_near = __builtin_ctz(Lanes_Bits(inner_enter == Lanes_Min(inner_enter)));
+            }
+            others &= ~(1u << j_near);
             int first = top;
             while (others != 0u) {
                 int j = __builtin_ctz(others);
@@ -446,6 +463,7 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
                 stack_enter[k] = e;
             }
             node_id = (uint)node->child[j_near];
+            enter.v = BVHNode_Enter(&scene->bvh_nodes[node_id], o, inv_d, t);
             continue;
         }
         // Next: the most recently kept node (the nearest of the last node's others, for the
@@ -458,33 +476,67 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float t
         }
         if (!visit)
             break;
+        enter.v = BVHNode_Enter(&scene->bvh_nodes[node_id], o, inv_d, t);
     }
     *prim = id;
     return t;
 }
 
-// The BVH's closest hit and any hit (shadow rays). On PoCL (CLRENDER_BVH_CALLED, set by
+// The BVH's closest hit and any hit (shadow rays): the root's children tested first, then the
+// traversal only if the ray reaches one. On PoCL (CLRENDER_BVH_CALLED, set by
 // clrender/runtime.py build_options) they are called, not inlined (unlike every other device
 // function): inlined into the path tracer, the traversal's code slowed the brute-force path
-// sharing the kernel by about 5 % (bench/primitive_scaling.py), and the calls cost the BVH
-// nothing measurable. Elsewhere they are inlined: Intel's CPU runtime returns wrong hits from
-// the called form (tests/test_bvh.py, tests/test_mesh_emitters.py fail there).
+// sharing the kernel by about 5 % (bench/primitive_scaling.py; the root's test alone inlined,
+// the Cornell boxes by 3 %), and the calls cost the BVH nothing measurable; the traversal is a
+// second call (its set-up is skipped by the rays that reach none of the root's children: 77 %
+// of closest-hit rays and 49 % of shadow rays around bvh_scaling.py's sphere). Elsewhere they
+// are inlined: Intel's CPU runtime returns wrong hits from the called form (tests/test_bvh.py,
+// tests/test_mesh_emitters.py fail there).
 #ifdef CLRENDER_BVH_CALLED
 #define BVH_FUNCTION __attribute__((noinline))
 #else
 #define BVH_FUNCTION CL_INLINE
 #endif
 
+// Whether the ray reaches any child of the BVH's root before tmax, their entries in *root_enter
+// (BVHNode_Enter): the traversal's first step, taken before its call.
+CL_INLINE bool BVH_RootReached(const SceneData *scene, float3 o, float3 inv_d, float tmax,
+                               float8 *root_enter)
+{
+    *root_enter = BVHNode_Enter(&scene->bvh_nodes[0], o, inv_d, tmax);
+    return Lanes_Bits(*root_enter < INFINITY) != 0u;
+}
+
+BVH_FUNCTION float BVH_IntersectFromRoot(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                                         float8 root_enter, float tmax, int *prim)
+{
+    return BVH_Traverse(scene, o, d, inv_d, root_enter, tmax, false, prim);
+}
+
+BVH_FUNCTION bool BVH_OccludedFromRoot(const SceneData *scene, float3 o, float3 d, float3 inv_d,
+                                       float8 root_enter, float tmax)
+{
+    int prim;
+    BVH_Traverse(scene, o, d, inv_d, root_enter, tmax, true, &prim);
+    return prim >= 0;
+}
+
 BVH_FUNCTION float BVH_Intersect(const SceneData *scene, float3 o, float3 d, float tmax, int *prim)
 {
-    return BVH_Traverse(scene, o, d, tmax, false, prim);
+    float3 inv_d = 1.0f / d;
+    float8 root_enter;
+    *prim = -1;
+    if (!BVH_RootReached(scene, o, inv_d, tmax, &root_enter))
+        return tmax;
+    return BVH_IntersectFromRoot(scene, o, d, inv_d, root_enter, tmax, prim);
 }
 
 BVH_FUNCTION bool BVH_Occluded(const SceneData *scene, float3 o, float3 d, float tmax)
 {
-    int prim;
-    BVH_Traverse(scene, o, d, tmax, true, &prim);
-    return prim >= 0;
+    float3 inv_d = 1.0f / d;
+    float8 root_enter;
+    return BVH_RootReached(scene, o, inv_d, tmax, &root_enter) &&
+           BVH_OccludedFromRoot(scene, o, d, inv_d, root_enter, tmax);
 }
 
 // Whether a scene's quads are tested by brute force (a block at a time): always without a BVH,

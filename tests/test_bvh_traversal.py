@@ -343,3 +343,56 @@ def test_bvh_equals_brute_force_with_every_kind_in_the_leaves(runtime, tmp_path)
     rng = np.random.default_rng(33)
     prim_brute = assert_bvh_equals_brute_force(runtime, scene, rng)
     assert (prim_brute >= 0).mean() > 0.5
+
+
+def test_bvh_through_stacked_sheets_equals_brute_force(runtime, tmp_path):
+    """Sheets of small triangles stacked along z (a ray's nearer sheet hides the farther ones:
+    after a hit, the traversal culls their subtrees) and large triangles across the whole scene
+    (leaves of the root, whose children are tested before the traversal's call): closest hits
+    and shadow rays through the BVH equal brute force's, for rays from outside the tree's box and
+    from inside it, oblique and along the axes (zero direction components), and shadow rays
+    ending before the tree's box, between sheets and beyond them."""
+    rng = np.random.default_rng(51)
+    cells = 10
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, cells + 1), np.linspace(-1, 1, cells + 1)), -1)
+    corner = (np.arange(cells)[:, None] * (cells + 1) + np.arange(cells)[None, :]).reshape(-1)
+    faces = np.concatenate(
+        [
+            np.stack([corner, corner + cells + 1, corner + cells + 2], 1),
+            np.stack([corner, corner + cells + 2, corner + 1], 1),
+        ]
+    )
+    sheets = []
+    for z in np.linspace(-0.8, 0.8, 6):
+        points = np.concatenate([grid.reshape(-1, 2), np.full(((cells + 1) ** 2, 1), z)], 1)
+        points[:, 2] += rng.normal(size=len(points)) * 0.02  # uneven: sheets' boxes overlap a bit
+        sheets.append(points[faces])
+    large = rng.uniform(-1.5, 1.5, (4, 3, 3))
+    vertices = np.concatenate([*sheets, large]).reshape(-1, 3)
+    path = tmp_path / "sheets.toml"
+    path.write_text(HEADER + mesh_text(vertices, np.arange(len(vertices)).reshape(-1, 3)))
+    scene = load_scene(path)
+    nodes, _ = scene.bvh(brute_force_limit=-1)
+    root = nodes[0]
+    assert (root["count"] > 0).any() and (root["count"] == 0).any()  # leaves and nodes
+    rays = 6000
+    # From outside (above and below the sheets, towards them), from inside, and along the axes
+    target = rng.uniform(-1, 1, (rays, 3))
+    origins = target + rng.choice([-1, 1], (rays, 1)) * [0, 0, 3] + rng.normal(size=(rays, 3))
+    origins[: rays // 3] = rng.uniform(-1.2, 1.2, (rays // 3, 3))
+    directions = target - origins
+    axis = np.eye(3)[rng.integers(0, 3, rays // 3)] * rng.choice([-1, 1], (rays // 3, 1))
+    directions[-(rays // 3) :] = axis
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    t_brute, prim_brute = device_intersect(runtime, scene, origins, directions, False)
+    t_bvh, prim_bvh = device_intersect(runtime, scene, origins, directions, True)
+    np.testing.assert_array_equal(prim_bvh, prim_brute)
+    np.testing.assert_array_equal(t_bvh, t_brute)
+    first_large = len(scene.quads) + len(scene.spheres) + len(vertices) // 3 - len(large)
+    assert ((prim_brute >= 0) & (prim_brute < first_large)).mean() > 0.5
+    assert (prim_brute >= first_large).sum() > 100
+    # Shadow rays: to just before the closest hit, just beyond it, and to a tenth of the way
+    reach = np.where(np.isfinite(t_brute), t_brute, 3.0)
+    for tmax in (reach * 0.999, reach * 1.001 + 1e-3, reach * 0.1):
+        blocked = device_occluded(runtime, scene, origins, directions, tmax, True)
+        np.testing.assert_array_equal(blocked, t_brute < tmax)
