@@ -32,8 +32,8 @@ worktree's, e.g. main's against a branch's). Per variant: the median and least C
 the median and quartiles of its ratio to the first variant's time in the same round, whether
 its areas and status bytes are bit for bit the first variant's, and if not how many areas
 differ and by how much at most (relative). On a shared machine separate runs of one kernel
-differ by 10 % and more; ratios within a round resolve 1 to 2 % over 20 rounds (use 40 or
-more under load).
+differ by 10 % and more; ratios within a round resolve 1 to 2 % (at load 4 to 6, medians over
+40 to 60 rounds still moved by 2 to 3 % between runs).
 """
 
 from __future__ import annotations
