@@ -25,18 +25,24 @@ CPU seconds per tile and per 256 x 256 image (16 such tiles).
 instead times kernel variants against each other: the grid build and cell kernel (the kernel's
 own build options plus each variant's, comma-separated NAME or NAME=VALUE; "-" adds none) on
 one tile (4096 pixels, 1024 above n = 256), alternating the variants in one process, the order
-reversed every other round, for --repeats rounds (default 7; use 20 or more). Per variant: the
-median and least CPU per tile, the median and quartiles of its ratio to the first variant's
-time in the same round, and whether its areas and status bytes are bit for bit the first
-variant's. On a shared machine separate runs of one kernel differ by 10 % and more; ratios
-within a round resolve 1 to 2 %.
+reversed every other round, for --repeats rounds (default 7; use 20 or more). Two names are not
+build options: GRID_SIDE=S runs the variant on an S x S grid per pixel (instead of the one
+device_cells.grid_side picks), KERNELS=DIR builds it from the kernels folder DIR (another
+worktree's, e.g. main's against a branch's). Per variant: the median and least CPU per tile,
+the median and quartiles of its ratio to the first variant's time in the same round, whether
+its areas and status bytes are bit for bit the first variant's, and if not how many areas
+differ and by how much at most (relative). On a shared machine separate runs of one kernel
+differ by 10 % and more; ratios within a round resolve 1 to 2 % (at load 4 to 6, medians over
+40 to 60 rounds still moved by 2 to 3 % between runs).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +50,7 @@ import numpy as np
 from clrender.estimators import device_cells
 from clrender.estimators.device_cells import device_sppp_cells, resolve_precision
 from clrender.estimators.qhull_cells import sppp_cells
-from clrender.runtime import create_runtime
+from clrender.runtime import KERNELS_DIR_VARIABLE, create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler
 
 # (n, pixels): about 260 000 traced nuclei each.
@@ -124,16 +130,34 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     config = make_sampler("sppp", n)
     pixels = STAGE_PIXELS if n <= 256 else STAGE_PIXELS // 4
     sets = generate_sample_sets(runtime, config, 1, np.arange(pixels, dtype=np.uint32))
-    layout = device_cells._sample_set_layout(sets)
+    default_layout = device_cells._sample_set_layout(sets)
     box = float(np.float32(0.5 + config.eps))
     base, real = device_cells._precision_setup(runtime, "auto")
     size = np.dtype(real).itemsize
-    options = [{**base, **parse_defines(variant)} for variant in variants]
+    options, layouts, folders = [], [], []
+    for k, variant in enumerate(variants):
+        defines = {**base, **parse_defines(variant)}
+        side = defines.pop("GRID_SIDE", None)
+        layouts.append(replace(default_layout, grid_side=int(side)) if side else default_layout)
+        folders.append(defines.pop("KERNELS", None))
+        if folders[-1]:  # a build option of its own: the kernels are cached per build options
+            defines["CLRENDER_BENCH_KERNELS"] = k
+        options.append(defines)
     outputs = []
-    for defines in options:  # builds the kernels; the results to compare
-        areas_buf, status_buf, _, _ = device_cells._enqueue_cells(
-            runtime, layout, box, defines, size
-        )
+    for defines, layout, folder in zip(options, layouts, folders, strict=True):
+        # Builds the kernels (from the variant's folder); the results to compare
+        saved = os.environ.get(KERNELS_DIR_VARIABLE)
+        if folder:
+            os.environ[KERNELS_DIR_VARIABLE] = folder
+        try:
+            areas_buf, status_buf, _, _ = device_cells._enqueue_cells(
+                runtime, layout, box, defines, size
+            )
+        finally:
+            if saved is None:
+                os.environ.pop(KERNELS_DIR_VARIABLE, None)
+            else:
+                os.environ[KERNELS_DIR_VARIABLE] = saved
         areas = np.empty(layout.traced_total, real)
         status = np.empty(layout.traced_total, np.uint8)
         cl.enqueue_copy(runtime.queue, areas, areas_buf)
@@ -145,12 +169,17 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
         for k in order:
             runtime.queue.finish()
             cpu0 = time.process_time()
-            device_cells._enqueue_cells(runtime, layout, box, options[k], size)
+            device_cells._enqueue_cells(runtime, layouts[k], box, options[k], size)
             runtime.queue.finish()
             cpu[k, r] = time.process_time() - cpu0
     rows = []
+    first_areas, first_status = outputs[0]
     for k, variant in enumerate(variants):
         ratio = cpu[k] / cpu[0]
+        areas, status = outputs[k]
+        differ = ~((areas == first_areas) | (np.isnan(areas) & np.isnan(first_areas)))
+        both = np.isfinite(areas) & np.isfinite(first_areas)
+        relative = np.abs(areas[both] / first_areas[both] - 1.0)
         rows.append(
             {
                 "variant": variant,
@@ -158,18 +187,19 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
                 "least_cpu_s_per_tile": float(cpu[k].min()),
                 "ratio_to_first": [float(np.quantile(ratio, q)) for q in (0.25, 0.5, 0.75)],
                 "identical_to_first": bool(
-                    np.array_equal(outputs[k][0], outputs[0][0], equal_nan=True)
-                    and np.array_equal(outputs[k][1], outputs[0][1])
+                    not differ.any() and np.array_equal(status, first_status)
                 ),
+                "areas_differing": int(differ.sum()),
+                "largest_relative_area_difference": float(relative.max()) if relative.size else 0.0,
             }
         )
-    return {"n": n, "pixels": pixels, "traced_nuclei": layout.traced_total, "variants": rows}
+    traced = default_layout.traced_total
+    return {"n": n, "pixels": pixels, "traced_nuclei": traced, "variants": rows}
 
 
 def stage_accounting(runtime, n: int, repeats: int) -> dict:
     """CPU (and wall) seconds per tile of each stage vor_sn adds to an mc_n render, medians of
     alternating runs, each ended by a queue finish."""
-    from dataclasses import replace
 
     config = make_sampler("sppp", n)
     pixels = np.arange(STAGE_PIXELS, dtype=np.uint32)
@@ -277,6 +307,12 @@ def main(argv: list[str] | None = None) -> None:
                 f"{row['variant']:32s} {1e3 * row['median_cpu_s_per_tile']:8.1f} ms CPU per tile"
                 f" (least {1e3 * row['least_cpu_s_per_tile']:.1f})  ratio to first {median:.3f}"
                 f" [{q25:.3f}, {q75:.3f}]  identical: {row['identical_to_first']}"
+                + (
+                    ""
+                    if row["identical_to_first"]
+                    else f" ({row['areas_differing']} areas differ, by at most"
+                    f" {row['largest_relative_area_difference']:.1e} relative)"
+                )
             )
         out = args.out.with_name("device_voronoi_variants.json")
         out.parent.mkdir(parents=True, exist_ok=True)

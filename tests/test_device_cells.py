@@ -649,20 +649,41 @@ def test_duplicated_nuclei_share_their_cells_as_on_the_host(runtime, area_rtol, 
 # 16. bench/device_voronoi_speed.py --variants times build options of the cell kernel against
 # each other in one process and tells which give the first variant's cells bit for bit: the
 # default spelled out does; a block too small for any walk (the clipping search, the same cells
-# within rounding) does not
-def test_variant_timing_tells_identical_kernels_apart(runtime):
+# within rounding) does not, nor a 1 x 1 grid (GRID_SIDE: the whole set one block, over the
+# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS)
+def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path):
+    import shutil
     import sys
     from pathlib import Path
+
+    from clrender.runtime import kernels_dir
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     import device_voronoi_speed
 
     assert device_voronoi_speed.parse_defines("-") == {}
     assert device_voronoi_speed.parse_defines("A,B=2") == {"A": True, "B": "2"}
-    report = device_voronoi_speed.compare_variants(
-        runtime, 16, ["-", "VORONOI_BLOCK_CAPACITY=64", "VORONOI_BLOCK_CAPACITY=8"], 2
+    small_block = tmp_path / "kernels"
+    shutil.copytree(kernels_dir(), small_block)
+    source = small_block / "voronoi_cells.cl"
+    text = source.read_text()
+    assert "#define VORONOI_BLOCK_CAPACITY 64\n" in text
+    source.write_text(
+        text.replace("#define VORONOI_BLOCK_CAPACITY 64\n", "#define VORONOI_BLOCK_CAPACITY 8\n")
     )
+    variants = [
+        "-",
+        "VORONOI_BLOCK_CAPACITY=64",
+        "VORONOI_BLOCK_CAPACITY=8",
+        "GRID_SIDE=1",
+        f"KERNELS={small_block}",
+    ]
+    report = device_voronoi_speed.compare_variants(runtime, 16, variants, 2)
     rows = report["variants"]
-    assert [row["identical_to_first"] for row in rows] == [True, True, False]
+    assert [row["identical_to_first"] for row in rows] == [True, True, False, False, False]
     assert rows[0]["ratio_to_first"] == [1.0, 1.0, 1.0]
     assert all(row["least_cpu_s_per_tile"] > 0 for row in rows)
+    for row in rows:
+        # The same cells: areas within rounding (single precision's at most)
+        assert (row["areas_differing"] > 0) == (not row["identical_to_first"])
+        assert row["largest_relative_area_difference"] < 1e-4

@@ -94,8 +94,11 @@ MOMENTS_PER_PIXEL = 6  # pixel_moments: sum f, sum f^2
 SUMS_REDRAW, SUMS_FALLBACK = 1, 2
 STATUS_BOUNDED, STATUS_INSIDE, STATUS_FALLBACK, STATUS_WALKED = 1, 2, 4, 8
 STATUS_WALKED_ONE_WAY = 16  # diagnostic: walked one way only (a tie stopped the two-way walk)
-# Mean nuclei per grid cell of a pixel's neighbour grid (tuned with bench/device_voronoi_speed).
-GRID_NUCLEI_PER_CELL = 3.5
+# Mean nuclei per grid cell of a pixel's neighbour grid, tuned with bench/device_voronoi_speed
+# --variants GRID_SIDE=S: about 4.2 (a 3 x 3 block of ~38 nuclei) took 2-5 % less cell kernel CPU
+# than 3.5 at SPPP n = 64, 256, 1024 and 4096. Finer grids cost more (the search beyond the
+# smaller block runs more often), coarser ones too (each walk step scans a larger block).
+GRID_NUCLEI_PER_CELL = 4.2
 MAX_GRID_SIDE = 256
 # The start box is the grid's square scaled by this factor: a bounded cell that reaches beyond it
 # is recomputed on the host (rare: such cells belong to sets of a handful of nuclei).
