@@ -44,7 +44,7 @@ def assert_same_estimates(device, host):
         )
 
 
-@pytest.mark.parametrize("n", [1, 4, 16, 64, 256])
+@pytest.mark.parametrize("n", [1, 4, 64])  # rings 4, 2, 1
 def test_device_cells_equal_qhull_cells(runtime, n):
     # The default ring certifies every pixel on the device (all cells of these realisations)
     frame = device_ring(guard_distance(n))
