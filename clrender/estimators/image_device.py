@@ -50,9 +50,10 @@ from clrender.estimators.image import (
     estimate_block,
     near_coincident_length,
 )
-from clrender.estimators.image_plane import PixelRect, PointSource, _segment_index
+from clrender.estimators.image_plane import PixelRect, PointSource
 from clrender.estimators.registry import PixelSums
 from clrender.runtime import Runtime
+from clrender.samples import segments
 
 # Pixels by which the certifying square is shrunk: far above the rounding of float32 vertices
 # (about 1e-7 pixel at the ring's distance), far below a cell's size.
@@ -145,16 +146,16 @@ def _estimate_pixels(
     rect = PixelRect(int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
     rect = rect.grown(ring)
     plane = source(*rect.coords())
-    plane_starts = np.cumsum(plane.counts) - plane.counts
+    plane_offsets = np.concatenate([[0], np.cumsum(plane.counts)])
     # The run's pixels and the neighbours of those with nuclei, as pixels of the rectangle
     cell = (ys - rect.y0) * rect.width + xs - rect.x0
-    traced_counts = plane.counts[cell]
+    own, traced_offsets = segments(plane_offsets, cell)
+    traced_counts = np.diff(traced_offsets)
     dx, dy = neighbour_offsets(ring)
-    around = cell[:, None] + dy * rect.width + dx
-    around_counts = np.where(traced_counts[:, None] > 0, plane.counts[around], 0)
-    own = _segment_index(plane_starts[cell], traced_counts)
-    guard = _segment_index(plane_starts[around].ravel(), around_counts.ravel())
-    guard_counts = around_counts.sum(axis=1)
+    around = (cell[:, None] + dy * rect.width + dx)[traced_counts > 0]
+    guard, _ = segments(plane_offsets, around.ravel())
+    guard_counts = np.zeros(count, np.int64)
+    guard_counts[traced_counts > 0] = plane.counts[around].sum(axis=1)
     owner = np.repeat(np.arange(count), traced_counts)
     # Relative to each pixel's centre, rounded to float32 as the kernels take them
     centres = np.column_stack([xs, ys]).astype(np.float64) + 0.5
@@ -162,7 +163,6 @@ def _estimate_pixels(
     aux = (plane.positions[guard] - np.repeat(centres, guard_counts, axis=0)).astype(np.float32)
     values, ids = plane.values[own], plane.ids[own]
 
-    traced_offsets = np.concatenate([[0], np.cumsum(traced_counts)]).astype(np.int64)
     aux_offsets = np.concatenate([[0], np.cumsum(guard_counts)]).astype(np.int64)
     near_length = near_coincident_length(n, delta)
     areas, status = _device_cells(
