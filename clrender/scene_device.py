@@ -93,6 +93,9 @@ TRIANGLE_BLOCK_DTYPE = np.dtype(
         ("p0", "<f4", (3, BVH_BLOCK_WIDTH)),
         ("p1", "<f4", (3, BVH_BLOCK_WIDTH)),
         ("p2", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("material", "<i4", BVH_BLOCK_WIDTH),
+        ("normals", "<i4", BVH_BLOCK_WIDTH),
+        ("emitter", "<i4", BVH_BLOCK_WIDTH),
         ("id", "<i4", BVH_BLOCK_WIDTH),
     ]
 )
@@ -516,14 +519,15 @@ def pack_bvh_leaves(
     quads_at = offset + triangle_words * triangle_blocks
     spheres_at = quads_at + quad_words * quad_blocks
     words = np.zeros(int(size.sum()), np.uint32)
-    # Triangle blocks: p0, p1, p2 (the first 9 words of a Triangle), id; unused lanes id -1
+    # Triangle blocks: p0, p1, p2, material, normals, emitter (a Triangle's 12 words), id; unused
+    # lanes id -1
     minus_one = np.uint32(0xFFFFFFFF)
     triangle_rows = np.ascontiguousarray(triangles, TRIANGLE_DTYPE).view(np.uint32)
     triangle_rows = triangle_rows.reshape(len(triangles), TRIANGLE_DTYPE.itemsize // 4)
     member_at = (record_of[is_triangle], triangle_rank)
     rows = (
-        (0, triangle_rows, triangle_ids - first_triangle, np.zeros(9, np.uint32)),
-        (9, triangle_ids.astype(np.uint32)[:, None], None, np.array([minus_one])),
+        (0, triangle_rows, triangle_ids - first_triangle, np.zeros(12, np.uint32)),
+        (12, triangle_ids.astype(np.uint32)[:, None], None, np.array([minus_one])),
     )
     _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, rows)
     # Quad blocks: corner, normal, u_dual, v_dual, plane_d, quad id (lower and upper unused);

@@ -93,13 +93,19 @@ typedef struct {
 } BVHNode;
 
 // Up to BVH_BLOCK_WIDTH triangles of a BVH leaf as structure of arrays (one vector watertight
-// test for all of them): vertex coordinates p0[axis][lane], ..., and the scene primitive id of
-// each lane (-1: an unused lane, all vertices 0, never a hit).
+// test for all of them): vertex coordinates p0[axis][lane], ..., then what the hit's surface
+// needs besides them (the Triangle's material, normals and emitter: Scene_Surface reads the
+// block the traversal has just tested, not the Triangle), and the scene primitive id of each
+// lane (-1: an unused lane, all vertices 0, never a hit). 104 words: blocks start at multiples
+// of 8 words (records at multiples of 16), so a lane's hit id is its block's word + the lane.
 #define BVH_BLOCK_WIDTH 8
 typedef struct {
     float p0[3][BVH_BLOCK_WIDTH];
     float p1[3][BVH_BLOCK_WIDTH];
     float p2[3][BVH_BLOCK_WIDTH];
+    int material[BVH_BLOCK_WIDTH];
+    int normals[BVH_BLOCK_WIDTH];
+    int emitter[BVH_BLOCK_WIDTH];
     int id[BVH_BLOCK_WIDTH];
 } TriangleBlock;
 
