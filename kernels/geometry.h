@@ -329,7 +329,8 @@ CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int coun
     int triangle_blocks = BVH_LEAF_TRIANGLE_BLOCKS(count);
     int hit_base = (int)(scene->quad_count + scene->sphere_count + record);
     for (int b = 0; b < triangle_blocks; ++b) {
-        *t = TriangleBlock_Intersect(&triangles[b], r, *t, hit_base + b * TRIANGLE_BLOCK_WORDS, id);
+        int block_hit_base = hit_base + b * TRIANGLE_BLOCK_WORDS;
+        *t = TriangleBlock_Intersect(&triangles[b], r, *t, block_hit_base, id);
         if (any_hit && *id >= 0)
             return;
     }
