@@ -101,9 +101,10 @@ TRIANGLE_BLOCK_DTYPE = np.dtype(
 )
 # BVH leaf records (pack_bvh_leaves): a leaf lane's count packs its triangle blocks, quad blocks
 # and spheres, as (shift, bits) each (BVH_LEAF_* in kernels/scene_types.h); records start at
-# multiples of BVH_LEAF_ALIGN words (64 bytes).
+# multiples of BVH_LEAF_ALIGN words (32 bytes: a block's rows never straddle a cache line, and
+# the 104-word triangle blocks of records of one block follow each other without padding).
 BVH_LEAF_FIELDS = ((0, 16), (16, 8), (24, 7))
-BVH_LEAF_ALIGN = 16
+BVH_LEAF_ALIGN = 8
 # Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
 # triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
 # BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
