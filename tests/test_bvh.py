@@ -172,8 +172,8 @@ def scattered_mesh_text(rng, triangles, material, normals=False, emission=None):
     centres = rng.uniform(-1, 1, (triangles, 1, 3))
     positions = (centres + rng.normal(size=(triangles, 3, 3)) * 0.2).reshape(-1, 3)
     indices = [(3 * k, 3 * k + 1, 3 * k + 2) for k in range(triangles)]
-    text = mesh_text(positions, indices, rng.normal(size=positions.shape) if normals else None)
-    text = text.replace('material = "white"', f'material = "{material}"')
+    vertex_normals = rng.normal(size=positions.shape) if normals else None
+    text = mesh_text(positions, indices, vertex_normals, material)
     return text + (f"emission = {emission}\n" if emission else "")
 
 
