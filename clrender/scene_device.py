@@ -93,14 +93,18 @@ TRIANGLE_BLOCK_DTYPE = np.dtype(
         ("p0", "<f4", (3, BVH_BLOCK_WIDTH)),
         ("p1", "<f4", (3, BVH_BLOCK_WIDTH)),
         ("p2", "<f4", (3, BVH_BLOCK_WIDTH)),
+        ("material", "<i4", BVH_BLOCK_WIDTH),
+        ("normals", "<i4", BVH_BLOCK_WIDTH),
+        ("emitter", "<i4", BVH_BLOCK_WIDTH),
         ("id", "<i4", BVH_BLOCK_WIDTH),
     ]
 )
 # BVH leaf records (pack_bvh_leaves): a leaf lane's count packs its triangle blocks, quad blocks
 # and spheres, as (shift, bits) each (BVH_LEAF_* in kernels/scene_types.h); records start at
-# multiples of BVH_LEAF_ALIGN words (64 bytes).
+# multiples of BVH_LEAF_ALIGN words (32 bytes: a block's rows never straddle a cache line, and
+# the 104-word triangle blocks of records of one block follow each other without padding).
 BVH_LEAF_FIELDS = ((0, 16), (16, 8), (24, 7))
-BVH_LEAF_ALIGN = 16
+BVH_LEAF_ALIGN = 8
 # Brute force or BVH: brute force tests quads 8 at a time and triangles one at a time, so a
 # triangle weighs TRIANGLE_COST quads; a scene whose brute_force_cost is at most
 # BRUTE_FORCE_LIMIT is traced by brute force, a larger one through the BVH. Measured by
@@ -516,14 +520,15 @@ def pack_bvh_leaves(
     quads_at = offset + triangle_words * triangle_blocks
     spheres_at = quads_at + quad_words * quad_blocks
     words = np.zeros(int(size.sum()), np.uint32)
-    # Triangle blocks: p0, p1, p2 (the first 9 words of a Triangle), id; unused lanes id -1
+    # Triangle blocks: p0, p1, p2, material, normals, emitter (a Triangle's 12 words), id; unused
+    # lanes id -1
     minus_one = np.uint32(0xFFFFFFFF)
     triangle_rows = np.ascontiguousarray(triangles, TRIANGLE_DTYPE).view(np.uint32)
     triangle_rows = triangle_rows.reshape(len(triangles), TRIANGLE_DTYPE.itemsize // 4)
     member_at = (record_of[is_triangle], triangle_rank)
     rows = (
-        (0, triangle_rows, triangle_ids - first_triangle, np.zeros(9, np.uint32)),
-        (9, triangle_ids.astype(np.uint32)[:, None], None, np.array([minus_one])),
+        (0, triangle_rows, triangle_ids - first_triangle, np.zeros(12, np.uint32)),
+        (12, triangle_ids.astype(np.uint32)[:, None], None, np.array([minus_one])),
     )
     _write_record_blocks(words, triangle_blocks, offset, triangle_words, member_at, rows)
     # Quad blocks: corner, normal, u_dual, v_dual, plane_d, quad id (lower and upper unused);

@@ -7,7 +7,9 @@
 // (shadow rays: in lane order), each group of leaves' record once (triangles and quads 8 at a
 // time).
 // Primitive ids: quads are 0 .. quad_count-1, sphere s is quad_count + s, triangle k is
-// quad_count + sphere_count + k; -1 is a miss.
+// quad_count + sphere_count + k. Hit ids (Scene_Intersect's): -1 is a miss; primitive ids, but
+// for a triangle found through the BVH: quad_count + sphere_count + the word of its leaf block
+// in bvh_prims + its lane (Scene_Surface reads the block, Scene_HitPrimitive its primitive id).
 #ifndef CLRENDER_GEOMETRY_H
 #define CLRENDER_GEOMETRY_H
 
@@ -16,8 +18,8 @@
 
 // A surface point found by a ray: position, geometric normal (the quad's and the triangle's
 // front side, the sphere's outside), shading normal (the triangle's interpolated vertex normal
-// turned to the side of ng; ng elsewhere), material and emitter, and a bound on p's distance from the true surface
-// (float rounding), which is how far rays leaving it start off the surface.
+// turned to the side of ng; ng elsewhere), material and emitter, and a bound on p's distance
+// from the true surface (float rounding), which is how far rays leaving it start off the surface.
 typedef struct {
     float3 p;
     float3 ng;
@@ -182,9 +184,9 @@ CL_INLINE TriangleRay TriangleRay_Make(float3 o, float3 d)
 
 // A triangle vertex in the ray's frame: translated to the origin, permuted, sheared (x, y);
 // z is left unscaled.
-CL_INLINE float3 TriangleRay_Vertex(const TriangleRay *r, __global const float *p)
+CL_INLINE float3 TriangleRay_Vertex(const TriangleRay *r, float3 p)
 {
-    float3 v = TriangleRay_Permute(Load3(p) - r->o, r->kz);
+    float3 v = TriangleRay_Permute(p - r->o, r->kz);
     return (float3)(v.x + r->shear.x * v.z, v.y + r->shear.y * v.z, v.z);
 }
 
@@ -197,14 +199,14 @@ CL_INLINE float Triangle_Edge(float3 a, float3 b)
     return p - q;
 }
 
-// Whether the ray meets the triangle at a distance in (0, tmax): the distance in *t and the
-// barycentric coordinates of p0, p1, p2 in *b.
-CL_INLINE bool Triangle_Hit(__global const Triangle *tri, const TriangleRay *r, float tmax,
-                            float *t, float3 *b)
+// Whether the ray meets the triangle (v0, v1, v2) at a distance in (0, tmax): the distance in
+// *t and the barycentric coordinates of v0, v1, v2 in *b.
+CL_INLINE bool Triangle_HitVertices(float3 v0, float3 v1, float3 v2, const TriangleRay *r,
+                                    float tmax, float *t, float3 *b)
 {
-    float3 p0 = TriangleRay_Vertex(r, tri->p0);
-    float3 p1 = TriangleRay_Vertex(r, tri->p1);
-    float3 p2 = TriangleRay_Vertex(r, tri->p2);
+    float3 p0 = TriangleRay_Vertex(r, v0);
+    float3 p1 = TriangleRay_Vertex(r, v1);
+    float3 p2 = TriangleRay_Vertex(r, v2);
     // Edge functions: the origin is inside when all three share a sign
     float e0 = Triangle_Edge(p1, p2);
     float e1 = Triangle_Edge(p2, p0);
@@ -223,6 +225,13 @@ CL_INLINE bool Triangle_Hit(__global const Triangle *tri, const TriangleRay *r, 
     *t = t_scaled * inv_det;
     *b = (float3)(e0, e1, e2) * inv_det;
     return *t > 0.0f && *t < tmax;
+}
+
+// Triangle_HitVertices of a Triangle record.
+CL_INLINE bool Triangle_Hit(__global const Triangle *tri, const TriangleRay *r, float tmax,
+                            float *t, float3 *b)
+{
+    return Triangle_HitVertices(Load3(tri->p0), Load3(tri->p1), Load3(tri->p2), r, tmax, t, b);
 }
 
 // Distance to the triangle along the ray if hit before tmax, else tmax.
@@ -289,10 +298,10 @@ CL_INLINE int8 TriangleBlock_Hits(__global const TriangleBlock *block, const Tri
     return inside & (t > 0.0f) & (t < tmax);
 }
 
-// The nearest triangle of a block hit before tmax: its distance (tmax if none) and its
-// primitive id in *id (unchanged if none).
+// The nearest triangle of a block hit before tmax: its distance (tmax if none) and its hit id
+// in *id, hit_base (the block's lane 0's) + its lane (unchanged if none).
 CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, const TriangleRay *r,
-                                        float tmax, int *id)
+                                        float tmax, int hit_base, int *id)
 {
     float8 t;
     int8 hit = TriangleBlock_Hits(block, r, tmax, &t);
@@ -300,13 +309,17 @@ CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, con
     float t_min = Lanes_Min(t_hit);
     if (!(t_min < tmax))
         return tmax;
-    *id = block->id[__builtin_ctz(Lanes_Bits(t_hit == t_min))];
+    *id = hit_base + (int)__builtin_ctz(Lanes_Bits(t_hit == t_min));
     return t_min;
 }
 
+// Words of a TriangleBlock in bvh_prims.
+#define TRIANGLE_BLOCK_WORDS ((int)(sizeof(TriangleBlock) / sizeof(uint)))
+
 // The nearest primitive of a group of a node's leaves (the group's record at word `record` of
-// bvh_prims, `count` as their lanes') along the ray before *t: triangles and quads a block at a time, then
-// spheres one by one; *t and *id updated if one is closer. With any_hit, stops at the first hit.
+// bvh_prims, `count` as their lanes') along the ray before *t: triangles and quads a block at a
+// time, then spheres one by one; *t and *id (a hit id) updated if one is closer. With any_hit,
+// stops at the first hit.
 CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int count, float3 o,
                                    float3 d, const TriangleRay *r, bool any_hit, float *t, int *id)
 {
@@ -314,8 +327,10 @@ CL_INLINE void BVHLeaves_Intersect(const SceneData *scene, uint record, int coun
     __global const TriangleBlock *triangles =
         (__global const TriangleBlock *)(scene->bvh_prims + record);
     int triangle_blocks = BVH_LEAF_TRIANGLE_BLOCKS(count);
+    int hit_base = (int)(scene->quad_count + scene->sphere_count + record);
     for (int b = 0; b < triangle_blocks; ++b) {
-        *t = TriangleBlock_Intersect(&triangles[b], r, *t, id);
+        int block_hit_base = hit_base + b * TRIANGLE_BLOCK_WORDS;
+        *t = TriangleBlock_Intersect(&triangles[b], r, *t, block_hit_base, id);
         if (any_hit && *id >= 0)
             return;
     }
@@ -547,7 +562,7 @@ CL_INLINE bool Scene_QuadsBruteForce(const SceneData *scene)
     return scene->bvh_node_count == 0u || scene->quad_count <= BVH_MAX_BRUTE_QUADS;
 }
 
-// The closest primitive along the ray before tmax: its distance, and its id in *prim.
+// The closest primitive along the ray before tmax: its distance, and its hit id in *prim.
 // Brute force: ties go to the lowest quad index, then to the sphere, then to the triangle
 // (blocks hold quads in scene order); the BVH's primitives lose ties with brute-force quads.
 CL_INLINE float Scene_Intersect(const SceneData *scene, float3 o, float3 d, float tmax,
@@ -650,32 +665,61 @@ CL_INLINE Surface Scene_Surface(const SceneData *scene, float3 o, float3 d, floa
         s.emitter = sp->emitter;
         s.error = SURFACE_ERROR_SCALE * (MaxAbs3(center) + sp->radius);
     } else {
-        __global const Triangle *tri =
-            &scene->triangles[prim - (int)(scene->quad_count + scene->sphere_count)];
-        float3 p0 = Load3(tri->p0);
-        float3 p1 = Load3(tri->p1);
-        float3 p2 = Load3(tri->p2);
+        // The triangle's vertices and indices: from the BVH leaf block the traversal has just
+        // tested (cached), else from the Triangle
+        int k = prim - (int)(scene->quad_count + scene->sphere_count);
+        float3 p0, p1, p2;
+        int normals;
+        if (scene->bvh_node_count > 0u) {
+            __global const TriangleBlock *block =
+                (__global const TriangleBlock *)(scene->bvh_prims + (k & -BVH_BLOCK_WIDTH));
+            int lane = k & (BVH_BLOCK_WIDTH - 1);
+            p0 = (float3)(block->p0[0][lane], block->p0[1][lane], block->p0[2][lane]);
+            p1 = (float3)(block->p1[0][lane], block->p1[1][lane], block->p1[2][lane]);
+            p2 = (float3)(block->p2[0][lane], block->p2[1][lane], block->p2[2][lane]);
+            normals = block->normals[lane];
+            s.material = block->material[lane];
+            s.emitter = block->emitter[lane];
+        } else {
+            __global const Triangle *tri = &scene->triangles[k];
+            p0 = Load3(tri->p0);
+            p1 = Load3(tri->p1);
+            p2 = Load3(tri->p2);
+            normals = tri->normals;
+            s.material = tri->material;
+            s.emitter = tri->emitter;
+        }
         // The hit's barycentric coordinates (the intersection test again, at no range limit)
         TriangleRay r = TriangleRay_Make(o, d);
         float th;
         float3 b = (float3)(1.0f / 3.0f);
-        Triangle_Hit(tri, &r, INFINITY, &th, &b);
+        Triangle_HitVertices(p0, p1, p2, &r, INFINITY, &th, &b);
         // The point from the vertices: its rounding follows the vertices' magnitudes only
         s.p = b.x * p0 + b.y * p1 + b.z * p2;
         s.ng = Normalize3(Cross3(p1 - p0, p2 - p0));
         s.ns = s.ng;
-        if (tri->normals >= 0) {
+        if (normals >= 0) {
             // Interpolated vertex normal, on the side of the geometric normal
-            __global const TriangleNormals *vn = &scene->triangle_normals[tri->normals];
+            __global const TriangleNormals *vn = &scene->triangle_normals[normals];
             float3 n = b.x * Load3(vn->n[0]) + b.y * Load3(vn->n[1]) + b.z * Load3(vn->n[2]);
             if (Dot3(n, n) > 0.0f)
                 s.ns = Normalize3(Dot3(n, s.ng) < 0.0f ? -n : n);
         }
-        s.material = tri->material;
-        s.emitter = tri->emitter;
         s.error = SURFACE_ERROR_SCALE * Fmax(MaxAbs3(p0), Fmax(MaxAbs3(p1), MaxAbs3(p2)));
     }
     return s;
+}
+
+// The primitive id of a hit id (Scene_Intersect's): a triangle found through the BVH by its
+// leaf block's id lane, any other hit as it is.
+CL_INLINE int Scene_HitPrimitive(const SceneData *scene, int prim)
+{
+    int k = prim - (int)(scene->quad_count + scene->sphere_count);
+    if (k < 0 || scene->bvh_node_count == 0u)
+        return prim;
+    __global const TriangleBlock *block =
+        (__global const TriangleBlock *)(scene->bvh_prims + (k & -BVH_BLOCK_WIDTH));
+    return block->id[k & (BVH_BLOCK_WIDTH - 1)];
 }
 
 // A ray origin off the surface at p, on the side (of the normal ng) that direction w leaves to.

@@ -15,7 +15,8 @@
      .quad_block_count = quad_block_count, .sphere_count = sphere_count,                      \
      .triangle_count = triangle_count, .bvh_node_count = bvh_node_count}
 
-// Closest hit of each ray (unit directions): distance (INFINITY on a miss) and primitive id.
+// Closest hit of each ray (unit directions): distance (INFINITY on a miss) and primitive id
+// (Scene_HitPrimitive of the hit id).
 __kernel void intersect_rays(uint count, GEOMETRY_TEST_SCENE_PARAMS,
                              __global const float *origins, __global const float *directions,
                              __global float *t, __global int *prim)
@@ -26,7 +27,7 @@ __kernel void intersect_rays(uint count, GEOMETRY_TEST_SCENE_PARAMS,
     SceneData scene = GEOMETRY_TEST_SCENE;
     int id;
     t[i] = Scene_Intersect(&scene, vload3(i, origins), vload3(i, directions), INFINITY, &id);
-    prim[i] = id;
+    prim[i] = Scene_HitPrimitive(&scene, id);
 }
 
 // Whether anything lies along each ray before tmax[i] (1) or not (0).
@@ -43,11 +44,11 @@ __kernel void occluded_rays(uint count, GEOMETRY_TEST_SCENE_PARAMS,
 }
 
 // The surface record of each ray's closest hit: position, geometric and shading normal (9
-// floats per ray) and the error bound; prim[i] -1 where the ray misses.
+// floats per ray), the error bound (-1 where the ray misses), material and emitter (2 ints).
 __kernel void surface_rays(uint count, GEOMETRY_TEST_SCENE_PARAMS,
                            __global const TriangleNormals *triangle_normals,
                            __global const float *origins, __global const float *directions,
-                           __global float *frames, __global float *errors)
+                           __global float *frames, __global float *errors, __global int *indices)
 {
     uint i = get_global_id(0);
     if (i >= count)
@@ -67,6 +68,8 @@ __kernel void surface_rays(uint count, GEOMETRY_TEST_SCENE_PARAMS,
     vstore3(s.ng, 3 * i + 1, frames);
     vstore3(s.ns, 3 * i + 2, frames);
     errors[i] = s.error;
+    indices[2 * i] = s.material;
+    indices[2 * i + 1] = s.emitter;
 }
 
 // sizeof of the mesh and BVH structs shared with the host, to check the NumPy dtypes.

@@ -93,19 +93,25 @@ typedef struct {
 } BVHNode;
 
 // Up to BVH_BLOCK_WIDTH triangles of a BVH leaf as structure of arrays (one vector watertight
-// test for all of them): vertex coordinates p0[axis][lane], ..., and the scene primitive id of
-// each lane (-1: an unused lane, all vertices 0, never a hit).
+// test for all of them): vertex coordinates p0[axis][lane], ..., then what the hit's surface
+// needs besides them (the Triangle's material, normals and emitter: Scene_Surface reads the
+// block the traversal has just tested, not the Triangle), and the scene primitive id of each
+// lane (-1: an unused lane, all vertices 0, never a hit). 104 words: blocks start at multiples
+// of 8 words (as records), so a lane's hit id is its block's word + the lane.
 #define BVH_BLOCK_WIDTH 8
 typedef struct {
     float p0[3][BVH_BLOCK_WIDTH];
     float p1[3][BVH_BLOCK_WIDTH];
     float p2[3][BVH_BLOCK_WIDTH];
+    int material[BVH_BLOCK_WIDTH];
+    int normals[BVH_BLOCK_WIDTH];
+    int emitter[BVH_BLOCK_WIDTH];
     int id[BVH_BLOCK_WIDTH];
 } TriangleBlock;
 
 // The record of a group of a node's leaves in bvh_prims (32-bit words; clrender/scene_device.py
 // pack_bvh_leaves groups a node's leaves into records of at most BVH_BLOCK_WIDTH primitives,
-// first fit), at word child[j] (a multiple of 16: 64 bytes) of the group's leaf lanes: their
+// first fit), at word child[j] (a multiple of 8: 32 bytes) of the group's leaf lanes: their
 // triangles in TriangleBlocks, their quads in QuadBlocks (unused lanes as in brute force's;
 // bounds unused), then their spheres' primitive ids; floats stored as their bits. The lanes'
 // count[j] packs the three numbers. Lanes with the same child share the record.

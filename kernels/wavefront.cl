@@ -45,7 +45,7 @@ typedef struct {
     float origin[3];
     float dir[3];
     float t;  // distance to the closest hit
-    int prim; // primitive hit, -1 for none
+    int prim; // hit id (kernels/geometry.h), -1 for none
 } WavefrontRay;
 
 // What the integrator's loop carries from one vertex to the next, and the sampler's identity.

@@ -88,9 +88,11 @@ def device_occluded(runtime, scene, origins, directions, tmax, use_bvh=None):
 
 
 def device_surface(runtime, scene, origins, directions, use_bvh=None):
-    """(p, ng, ns, error) of each ray's closest hit, error -1 where the ray misses."""
+    """(p, ng, ns, error, material, emitter) of each ray's closest hit, error -1 where the ray
+    misses (material and emitter undefined there)."""
     count = len(origins)
     frames, errors = _buffer(runtime, 36 * count), _buffer(runtime, 4 * count)
+    indices = _buffer(runtime, 8 * count)
     extra = (
         runtime.upload(scene.triangle_normals),
         runtime.upload(origins.astype(np.float32)),
@@ -101,10 +103,12 @@ def device_surface(runtime, scene, origins, directions, use_bvh=None):
         "surface_rays",
         count,
         scene_arguments(runtime, scene, use_bvh) + extra,
-        (frames, errors),
+        (frames, errors, indices),
     )
     frame = _read(runtime, frames, np.float32, (count, 3, 3))
-    return frame[:, 0], frame[:, 1], frame[:, 2], _read(runtime, errors, np.float32, count)
+    error = _read(runtime, errors, np.float32, count)
+    material, emitter = _read(runtime, indices, np.int32, (count, 2)).T
+    return frame[:, 0], frame[:, 1], frame[:, 2], error, material, emitter
 
 
 def assert_bvh_equals_brute_force(runtime, scene, rng, rays=20000, extent=1.2):

@@ -166,11 +166,54 @@ def test_triangle_grid_is_watertight(runtime, tmp_path):
         assert np.all(prim >= 1), f"{np.sum(prim < 1)} rays leaked (bvh {use_bvh})"
 
 
+def scattered_mesh_text(rng, triangles, material, normals=False, emission=None):
+    """A mesh of scattered small triangles in [-1, 1]^3 (random vertex normals if `normals`),
+    emitting `emission` if given."""
+    centres = rng.uniform(-1, 1, (triangles, 1, 3))
+    positions = (centres + rng.normal(size=(triangles, 3, 3)) * 0.2).reshape(-1, 3)
+    indices = [(3 * k, 3 * k + 1, 3 * k + 2) for k in range(triangles)]
+    vertex_normals = rng.normal(size=positions.shape) if normals else None
+    text = mesh_text(positions, indices, vertex_normals, material)
+    return text + (f"emission = {emission}\n" if emission else "")
+
+
+def test_surface_through_the_bvh_equals_brute_force(runtime, tmp_path):
+    """Scene_Surface of a triangle hit through the BVH reads its leaf block (vertices, material,
+    normals, emitter), by brute force the Triangle: the same records bit for bit, on meshes of
+    two materials, with and without vertex normals, one emitting."""
+    rng = np.random.default_rng(12)
+    text = HEADER + '\n[materials.grey]\ntype = "diffuse"\nalbedo = [0.2, 0.2, 0.2]\n'
+    text += random_shapes_text(rng, 8, 4, 150, 0.3, (0.05, 0.2), 0.2)
+    text += scattered_mesh_text(rng, 150, "grey", normals=True)
+    text += scattered_mesh_text(rng, 100, "white", emission=[2.0, 1.0, 0.5])
+    path = tmp_path / "meshes.toml"
+    path.write_text(text)
+    scene = load_scene(path)
+    origins, directions = random_rays(6000, 13)
+    t, prim = device_intersect(runtime, scene, origins, directions, True)
+    t_brute, prim_brute = device_intersect(runtime, scene, origins, directions, False)
+    np.testing.assert_array_equal(prim, prim_brute)
+    np.testing.assert_array_equal(t, t_brute)
+    through_bvh = device_surface(runtime, scene, origins, directions, True)
+    brute = device_surface(runtime, scene, origins, directions, False)
+    hit = brute[3] >= 0
+    triangle = prim >= len(scene.quads) + len(scene.spheres)
+    hit_triangles = scene.triangles[prim[triangle] - len(scene.quads) - len(scene.spheres)]
+    # Every kind of triangle is hit: both materials, with normals, emitting
+    assert len(set(hit_triangles["material"])) == 2
+    assert np.any(hit_triangles["normals"] >= 0) and np.any(hit_triangles["emitter"] >= 0)
+    assert np.any(hit & ~triangle)
+    for bvh_values, brute_values in zip(through_bvh, brute, strict=True):
+        np.testing.assert_array_equal(bvh_values[hit], brute_values[hit])
+    np.testing.assert_array_equal(brute[4][triangle], hit_triangles["material"])
+    np.testing.assert_array_equal(brute[5][triangle], hit_triangles["emitter"])
+
+
 def test_triangle_surface_record(runtime, tmp_path):
     scene = random_scene(tmp_path, 6, quads=0, spheres=0, triangles=100, normals=True)
     origins, directions = random_rays(3000, 7)
     t, prim = device_intersect(runtime, scene, origins, directions, True)
-    p, ng, ns, error = device_surface(runtime, scene, origins, directions, True)
+    p, ng, ns, error, _, _ = device_surface(runtime, scene, origins, directions, True)
     hit = prim >= 1
     assert hit.sum() > 300
     tri = scene.triangles[prim[hit] - 1]
@@ -428,8 +471,8 @@ def reference_record(node, lanes, prims, quads, sphere_count, triangles, words):
     triangle_blocks["id"] = -1
     for k, member in enumerate(kinds[0]):
         block, lane = triangle_blocks[k // BVH_BLOCK_WIDTH], k % BVH_BLOCK_WIDTH
-        for name in ("p0", "p1", "p2"):
-            block[name][:, lane] = triangles[member - first_triangle][name]
+        for name in ("p0", "p1", "p2", "material", "normals", "emitter"):
+            block[name][..., lane] = triangles[member - first_triangle][name]
         block["id"][lane] = member
     quad_blocks = np.zeros(-(-len(kinds[1]) // BVH_BLOCK_WIDTH), quad_block)
     quad_blocks["quad"], quad_blocks["plane_d"] = -1, -1.0

@@ -171,8 +171,8 @@ def decode_record(words, start, count, scene):
         assert np.all(used[: used.sum()])
         for lane in np.flatnonzero(used):
             original = scene.triangles[block["id"][lane] - first_triangle]
-            for key in ("p0", "p1", "p2"):
-                np.testing.assert_array_equal(block[key][:, lane], original[key])
+            for key in ("p0", "p1", "p2", "material", "normals", "emitter"):
+                np.testing.assert_array_equal(block[key][..., lane], original[key])
         ids += block["id"][used].tolist()
     for block in quads:
         used = block["quad"] >= 0
