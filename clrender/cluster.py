@@ -375,7 +375,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
     settings = job.settings()
     pipeline = TilePipeline(runtime_for(job.device), source, settings)
     start = time.perf_counter()
-    pipeline.run(range(first, end, pixels_per_tile(settings)), None, end)
+    pipeline.run(range(first, end, pixels_per_tile(pipeline.settings)), None, end)
     pipeline.stats.wall_seconds = time.perf_counter() - start
     pixels = np.arange(first, end, dtype=np.int64)
     layers = pipeline.layers

@@ -99,7 +99,7 @@ from clrender.estimators.registry import Estimator, PixelSums, check_compatible
 from clrender.estimators.variance import PixelMoments, mc_variance
 from clrender.film import Film, PixelLayers, check_image_memory, physical_memory
 from clrender.radiance import RadianceSource
-from clrender.runtime import Runtime, thread_build_seconds
+from clrender.runtime import Runtime, describe_device, thread_build_seconds
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, check_seed, generate_sample_sets, make_sampler
 from clrender.sppp import auxiliary_count
@@ -109,6 +109,21 @@ DEFAULT_TILE_SAMPLES = 4_000_000
 # one-pixel render of 5 M samples: 20 B for mc summed on the device, 45 B for vor_sn): a tile
 # needing more than the machine has at this rate cannot render.
 MIN_BYTES_PER_TILE_SAMPLE = 20
+# The device memory a tile holds, per nucleus of the tile (tile_nuclei_per_pixel): its largest
+# buffer (the traced samples' float3 radiance, 12 B; positions and cells' buffers 8 B) and all
+# its buffers in flight, with the next tile's queued beside them (measured peaks of the
+# runtime's memory pool: 20-60 B over renders of every estimator family, the most for vor_sn,
+# fvor and mc_n together; held by tests/test_device_memory.py). The image-level cells (ivor,
+# ivor_sn) hold, per nucleus of their launch (about CHUNK_NUCLEI, and at least one pixel's
+# neighbourhood of (2 ring + 1)^2 pixels), 8 B in their largest buffer and about 31-33 B in all
+# (measured).
+TILE_LARGEST_BUFFER_BYTES = 12
+TILE_DEVICE_BYTES = 72
+IMAGE_CELLS_LARGEST_BUFFER_BYTES = 8
+IMAGE_CELLS_DEVICE_BYTES = 48
+# The share of the device's global memory a render's tiles may take (the scene, the programs
+# and other processes keep the rest).
+DEVICE_MEMORY_SHARE = 0.5
 # Where the Voronoi cells of vor, vor_sn, fvor, pvor, cvor, ivor and ivor_sn are computed: the
 # device kernel (clrender.estimators.device_cells, image_device; exact, pixels it cannot certify
 # recomputed with Qhull) or Qhull on the host (qhull_cells, image). Redraws always use Qhull.
@@ -419,6 +434,37 @@ def check_tile_memory(settings: RenderSettings, memory: int | None = None) -> No
         )
 
 
+def fit_tiles_to_device(settings: RenderSettings, device: cl.Device) -> RenderSettings:
+    """The settings with tiles small enough for the device's memory (its global memory and its
+    largest allocation, queried): tile_samples lowered where needed, which changes no pixel
+    (images do not depend on the tiling). ParameterError, before any work, when one pixel's
+    samples alone are too many: a pixel is never split between tiles."""
+    total = int(DEVICE_MEMORY_SHARE * device.global_mem_size)
+    largest = int(device.max_mem_alloc_size)
+    per_pixel = tile_nuclei_per_pixel(settings)
+    pixel_buffer = TILE_LARGEST_BUFFER_BYTES * per_pixel
+    reserve = 0  # the image-level cells' launch, beside the tiles
+    if settings.voronoi_backend == "device" and any(e.image_level for e in settings.estimators):
+        from clrender.estimators.image_device import CHUNK_NUCLEI, device_ring
+
+        delta = image.guard_distance(settings.sampler.n, settings.sampler.alpha)
+        neighbourhood = math.ceil((2 * device_ring(delta) + 1) ** 2 * settings.sampler.n)
+        pixel_buffer = max(pixel_buffer, IMAGE_CELLS_LARGEST_BUFFER_BYTES * neighbourhood)
+        reserve = IMAGE_CELLS_DEVICE_BYTES * max(CHUNK_NUCLEI, neighbourhood)
+    budget = min((total - reserve) // TILE_DEVICE_BYTES, largest // TILE_LARGEST_BUFFER_BYTES)
+    if per_pixel > budget or pixel_buffer > largest:
+        held = TILE_DEVICE_BYTES * per_pixel + reserve
+        raise ParameterError(
+            f"one pixel's {settings.sampler.n:,} samples need {held / 2**30:.2f} GiB of device "
+            f"memory (a buffer of {pixel_buffer / 2**30:.2f} GiB), more than the "
+            f"{total / 2**30:.2f} GiB (allocations up to {largest / 2**30:.2f} GiB) a render "
+            f"may take on {describe_device(device)}: use fewer samples per pixel"
+        )
+    if settings.tile_samples <= budget:
+        return settings
+    return replace(settings, tile_samples=budget)
+
+
 def plan_tiles(settings: RenderSettings) -> range:
     """The first pixel of each tile; tile k covers [starts[k], starts[k] + step) clipped to
     the image, in scanline order (pixel arrays are made one tile at a time)."""
@@ -656,6 +702,7 @@ class TilePipeline:
     def __init__(self, runtime: Runtime, source: RadianceSource, settings: RenderSettings):
         self.runtime = runtime
         self.source = source
+        settings = fit_tiles_to_device(settings, runtime.device)
         self.settings = settings
         self.films = {
             entry.name: Film(settings.width, settings.height) for entry in settings.estimators
@@ -870,7 +917,7 @@ def render(
             f"the settings ask for {settings.width} x {settings.height}"
         )
     pipeline = TilePipeline(runtime, source, settings)
-    tiles = plan_tiles(settings)
+    tiles = plan_tiles(pipeline.settings)
     start = time.perf_counter()
     pipeline.run(tiles, progress)
     pipeline.stats.wall_seconds = time.perf_counter() - start

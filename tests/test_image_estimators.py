@@ -317,6 +317,27 @@ def test_renderer_adapter_errors(runtime):
         )
 
 
+@pytest.mark.parametrize("device_cells", [False, True])
+def test_plane_entry_point_refuses_bad_runs_and_accepts_an_empty_one(runtime, device_cells):
+    positions = realisation(2, 4.0, 4, 4, 1.0)
+    values = np.ones(len(positions))
+    rt = runtime if device_cells else None
+    bad = [
+        (dict(width=0, height=0), "at least 1 x 1"),
+        (dict(start=5, stop=2), r"\[5, 2\)"),
+        (dict(start=0, stop=17), r"within the image's 16 pixels"),
+        (dict(frame=-1.0), "frame .* must be >= 0"),
+    ]
+    for change, message in bad:
+        args = dict(width=4, height=4, n=4.0, frame=1.0) | change
+        with pytest.raises(ParameterError, match=message):
+            estimate_image(positions, values, runtime=rt, **args)
+    # An empty run is no error: every pixel outside it is NaN, as for any run
+    empty = estimate_image(positions, values, 4, 4, 4.0, 1.0, start=3, stop=3, runtime=rt)
+    for image in empty.estimates.values():
+        assert image.shape == (4, 4) and np.isnan(image).all()
+
+
 # ---------------------------------------------------------------------------------------------
 # Statistics on analytic images
 

@@ -436,6 +436,8 @@ def estimate_run(
     """The image-level sums of the image pixels start .. stop - 1 (scanline order)."""
     stats = ImageVoronoiStats()
     blocks = run_blocks(width, start, stop, n)
+    if not blocks:
+        return empty_run(n, stats)
     near_length = near_coincident_length(n, delta)
     results = [estimate_block(source, block, delta, extent, near_length) for block in blocks]
     index = np.concatenate([ys * width + xs - start for xs, ys in (b.coords() for b in blocks)])
@@ -452,6 +454,17 @@ def estimate_run(
         sums,
         np.concatenate([r.ids for r in results]),
         np.concatenate([r.areas for r in results]),
+        stats,
+    )
+
+
+def empty_run(n: float, stats: ImageVoronoiStats) -> RunEstimate:
+    """The estimate of a run without pixels."""
+    empty = np.zeros(0)
+    return RunEstimate(
+        PixelSums(np.zeros(0, np.int64), n, weighted=empty, area=empty),
+        np.zeros(0, np.int64),
+        empty,
         stats,
     )
 
@@ -503,7 +516,18 @@ def estimate_image(
     values = np.asarray(values, np.float64)
     if positions.ndim != 2 or positions.shape[1] != 2 or len(values) != len(positions):
         raise ParameterError("positions must be (M, 2) and values (M,) or (M, C)")
+    if width < 1 or height < 1:
+        raise ParameterError(f"the image must be at least 1 x 1 pixels, got {width} x {height}")
+    if not frame >= 0:
+        raise ParameterError(
+            f"frame (how far the realisation reaches beyond the image) must be >= 0, got {frame}"
+        )
     stop = width * height if stop is None else stop
+    if not 0 <= start <= stop <= width * height:
+        raise ParameterError(
+            f"the run of pixels [start, stop) = [{start}, {stop}) must lie within the image's "
+            f"{width * height} pixels, start <= stop"
+        )
     delta = guard_distance(n) if delta is None else delta
     ring = math.ceil(frame)
     grid = grid_from_points(

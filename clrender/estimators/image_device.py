@@ -47,6 +47,7 @@ from clrender.estimators.image import (
     ImageVoronoiStats,
     RunEstimate,
     _bincount_columns,
+    empty_run,
     estimate_block,
     near_coincident_length,
 )
@@ -114,9 +115,7 @@ def estimate_run_device(
     for part in parts:
         stats.add(part.stats)
     if not parts:
-        empty = np.zeros(0)
-        sums = PixelSums(np.zeros(0, np.int64), n, weighted=empty, area=empty)
-        return RunEstimate(sums, np.zeros(0, np.int64), empty, stats)
+        return empty_run(n, stats)
     sums = PixelSums(
         np.concatenate([part.sums.counts for part in parts]),
         n,
