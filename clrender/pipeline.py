@@ -109,18 +109,19 @@ DEFAULT_TILE_SAMPLES = 4_000_000
 # one-pixel render of 5 M samples: 20 B for mc summed on the device, 45 B for vor_sn): a tile
 # needing more than the machine has at this rate cannot render.
 MIN_BYTES_PER_TILE_SAMPLE = 20
-# The device memory a tile holds, per nucleus of the tile (tile_nuclei_per_pixel): its largest
-# buffer (the traced samples' float3 radiance, 12 B; positions and cells' buffers 8 B) and all
-# its buffers in flight, with the next tile's queued beside them (measured peaks of the
-# runtime's memory pool: 20-60 B over renders of every estimator family, the most for vor_sn,
-# fvor and mc_n together; held by tests/test_device_memory.py). The image-level cells (ivor,
-# ivor_sn) hold, per nucleus of their launch (about CHUNK_NUCLEI, and at least one pixel's
-# neighbourhood of (2 ring + 1)^2 pixels), 8 B in their largest buffer and about 31-33 B in all
-# (measured).
-TILE_LARGEST_BUFFER_BYTES = 12
-TILE_DEVICE_BYTES = 72
-IMAGE_CELLS_LARGEST_BUFFER_BYTES = 8
-IMAGE_CELLS_DEVICE_BYTES = 48
+# The device memory a tile holds: per nucleus of the tile (tile_nuclei_per_pixel) and per
+# pixel, in its largest buffer and in all its buffers in flight with the next tile's queued
+# beside them. Bounds of the runtime memory pool's measured peaks over renders of every
+# estimator family, n = 1 to 256: per nucleus up to 12 B in one buffer (the traced samples'
+# float3 radiance) and 20-125 B in all (the most with vor_sn, fvor, mc_n, cvor and pvor in one
+# render, whose pool holds each kind's buffers); per pixel up to 112 B in one buffer (cvor's, pvor's per-pixel records) and about
+# 90-410 B in all (held by tests/test_device_memory.py). The image-level cells (ivor, ivor_sn)
+# hold, per nucleus of their launch (about CHUNK_NUCLEI, at least one pixel's neighbourhood of
+# (2 ring + 1)^2 pixels, at most the image's), 8 B in their largest buffer and about 31-33 B
+# in all.
+TILE_NUCLEUS_BYTES = (12, 160)  # (largest buffer, all buffers)
+TILE_PIXEL_BYTES = (128, 512)
+IMAGE_CELLS_NUCLEUS_BYTES = (8, 48)
 # The share of the device's global memory a render's tiles may take (the scene, the programs
 # and other processes keep the rest).
 DEVICE_MEMORY_SHARE = 0.5
@@ -434,6 +435,31 @@ def check_tile_memory(settings: RenderSettings, memory: int | None = None) -> No
         )
 
 
+def tile_device_bytes(settings: RenderSettings, pixels: int) -> tuple[int, int]:
+    """(largest buffer, all buffers) on the device for a tile of the given pixels."""
+    nuclei = pixels * tile_nuclei_per_pixel(settings)
+    largest = max(TILE_NUCLEUS_BYTES[0] * nuclei, TILE_PIXEL_BYTES[0] * pixels)
+    return largest, TILE_NUCLEUS_BYTES[1] * nuclei + TILE_PIXEL_BYTES[1] * pixels
+
+
+def image_cells_device_bytes(settings: RenderSettings) -> tuple[int, int]:
+    """(largest buffer, all buffers) of the image-level cells' launch on the device: (0, 0)
+    when the render has none there."""
+    if settings.voronoi_backend != "device" or not any(
+        entry.image_level for entry in settings.estimators
+    ):
+        return 0, 0
+    from clrender.estimators.image_device import CHUNK_NUCLEI, device_ring
+
+    delta = image.guard_distance(settings.sampler.n, settings.sampler.alpha)
+    neighbourhood = math.ceil((2 * device_ring(delta) + 1) ** 2 * settings.sampler.n)
+    launch = min(max(CHUNK_NUCLEI, neighbourhood), settings.pixel_count * neighbourhood)
+    return (
+        IMAGE_CELLS_NUCLEUS_BYTES[0] * neighbourhood,
+        IMAGE_CELLS_NUCLEUS_BYTES[1] * launch,
+    )
+
+
 def fit_tiles_to_device(settings: RenderSettings, device: cl.Device) -> RenderSettings:
     """The settings with tiles small enough for the device's memory (its global memory and its
     largest allocation, queried): tile_samples lowered where needed, which changes no pixel
@@ -441,28 +467,20 @@ def fit_tiles_to_device(settings: RenderSettings, device: cl.Device) -> RenderSe
     samples alone are too many: a pixel is never split between tiles."""
     total = int(DEVICE_MEMORY_SHARE * device.global_mem_size)
     largest = int(device.max_mem_alloc_size)
-    per_pixel = tile_nuclei_per_pixel(settings)
-    pixel_buffer = TILE_LARGEST_BUFFER_BYTES * per_pixel
-    reserve = 0  # the image-level cells' launch, beside the tiles
-    if settings.voronoi_backend == "device" and any(e.image_level for e in settings.estimators):
-        from clrender.estimators.image_device import CHUNK_NUCLEI, device_ring
-
-        delta = image.guard_distance(settings.sampler.n, settings.sampler.alpha)
-        neighbourhood = math.ceil((2 * device_ring(delta) + 1) ** 2 * settings.sampler.n)
-        pixel_buffer = max(pixel_buffer, IMAGE_CELLS_LARGEST_BUFFER_BYTES * neighbourhood)
-        reserve = IMAGE_CELLS_DEVICE_BYTES * max(CHUNK_NUCLEI, neighbourhood)
-    budget = min((total - reserve) // TILE_DEVICE_BYTES, largest // TILE_LARGEST_BUFFER_BYTES)
-    if per_pixel > budget or pixel_buffer > largest:
-        held = TILE_DEVICE_BYTES * per_pixel + reserve
+    cells_buffer, reserve = image_cells_device_bytes(settings)
+    pixel_buffer, pixel_held = tile_device_bytes(settings, 1)
+    if max(pixel_buffer, cells_buffer) > largest or pixel_held + reserve > total:
         raise ParameterError(
-            f"one pixel's {settings.sampler.n:,} samples need {held / 2**30:.2f} GiB of device "
-            f"memory (a buffer of {pixel_buffer / 2**30:.2f} GiB), more than the "
+            f"one pixel's {settings.sampler.n:,} samples need "
+            f"{(pixel_held + reserve) / 2**30:.2f} GiB of device memory (a buffer of "
+            f"{max(pixel_buffer, cells_buffer) / 2**30:.2f} GiB), more than the "
             f"{total / 2**30:.2f} GiB (allocations up to {largest / 2**30:.2f} GiB) a render "
             f"may take on {describe_device(device)}: use fewer samples per pixel"
         )
-    if settings.tile_samples <= budget:
+    pixels = min((total - reserve) // pixel_held, largest // pixel_buffer)
+    if pixels_per_tile(settings) <= pixels:
         return settings
-    return replace(settings, tile_samples=budget)
+    return replace(settings, tile_samples=pixels * tile_nuclei_per_pixel(settings))
 
 
 def plan_tiles(settings: RenderSettings) -> range:

@@ -28,19 +28,22 @@ def small_device(global_mib: float, largest_mib: float, like) -> SimpleNamespace
 
 
 @pytest.mark.parametrize(
-    "sampler, estimators",
+    "sampler, spp, estimators",
     [
-        ("independent", ["mc"]),
-        ("sppp", ["vor_sn", "fvor", "mc_n"]),
-        ("stratified", ["pvor"]),
-        ("independent", ["cvor"]),
-        ("sppp", ["ivor_sn"]),
+        ("independent", 256, ["mc"]),
+        ("independent", 1, ["mc"]),  # the per-pixel buffers weigh most
+        ("sobol", 2, ["mc", "mc_n"]),
+        ("sppp", 256, ["vor_sn", "fvor", "mc_n"]),
+        ("sppp", 64, ["vor_sn", "fvor", "mc_n", "cvor", "pvor"]),  # every kind of cells at once
+        ("stratified", 1, ["pvor"]),
+        ("independent", 1, ["cvor"]),
+        ("sppp", 256, ["ivor_sn"]),
     ],
 )
-def test_device_memory_stays_within_the_model(runtime, monkeypatch, sampler, estimators):
+def test_device_memory_stays_within_the_model(runtime, monkeypatch, sampler, spp, estimators):
     # Every allocation goes through Runtime.allocate (the pool): its largest request and the
-    # pool's peak over what it held before must stay within the model's bytes per tile
-    # nucleus (plus, for the image-level cells, their launch of about CHUNK_NUCLEI nuclei)
+    # pool's peak over what it held before must stay within the model (tile_device_bytes and
+    # the image-level cells' launch)
     peak = {"largest": 0, "managed": 0}
     allocate = Runtime.allocate
 
@@ -54,19 +57,17 @@ def test_device_memory_stays_within_the_model(runtime, monkeypatch, sampler, est
     before = runtime.pool.managed_bytes
     monkeypatch.setattr(Runtime, "allocate", recorded)
     settings = pipeline.RenderSettings(
-        32, 32, make_sampler(sampler, 256), list(estimators), tile_samples=100_000
+        32, 32, make_sampler(sampler, spp), list(estimators), tile_samples=100_000
     )
-    result = _render(runtime, settings)
-    tile_nuclei = pipeline.pixels_per_tile(result.settings) * pipeline.tile_nuclei_per_pixel(
-        result.settings
+    _render(runtime, settings)
+    tile_largest, tile_held = pipeline.tile_device_bytes(
+        settings, pipeline.pixels_per_tile(settings)
     )
-    image_level = estimators == ["ivor_sn"]
-    reserve = pipeline.IMAGE_CELLS_DEVICE_BYTES * CHUNK_NUCLEI if image_level else 0
-    assert peak["managed"] - before <= pipeline.TILE_DEVICE_BYTES * tile_nuclei + reserve
-    largest = pipeline.TILE_LARGEST_BUFFER_BYTES * tile_nuclei
-    if image_level:
-        largest = max(largest, pipeline.IMAGE_CELLS_LARGEST_BUFFER_BYTES * CHUNK_NUCLEI * 1.1)
-    assert peak["largest"] <= largest
+    cells_largest, cells_held = pipeline.image_cells_device_bytes(settings)
+    assert peak["managed"] - before <= tile_held + cells_held
+    # The image-level launch takes about CHUNK_NUCLEI nuclei (Poisson: within 10 %)
+    launch_largest = cells_largest and pipeline.IMAGE_CELLS_NUCLEUS_BYTES[0] * CHUNK_NUCLEI * 1.1
+    assert peak["largest"] <= max(tile_largest, launch_largest)
 
 
 def test_a_small_device_gets_smaller_tiles_and_the_same_image(runtime, monkeypatch):
@@ -82,9 +83,10 @@ def test_a_small_device_gets_smaller_tiles_and_the_same_image(runtime, monkeypat
 
     monkeypatch.setattr(pipeline, "fit_tiles_to_device", on_a_small_device)
     small = _render(runtime, settings)
-    # 2 MiB of global memory, half of it for tiles: 14563 nuclei at 72 B (buffers of 0.25 MiB
-    # would hold 21845 at 12 B)
-    assert used == [2**20 // pipeline.TILE_DEVICE_BYTES]
+    # 2 MiB of global memory, half of it for tiles at 160 B a nucleus and 512 B a pixel (its
+    # buffers of 0.25 MiB hold more pixels at 12 B a nucleus)
+    per_pixel = pipeline.tile_nuclei_per_pixel(settings)
+    assert used == [2**20 // (160 * per_pixel + 512) * per_pixel]
     assert small.stats.tiles > whole.stats.tiles
     for name in ("vor_sn", "mc_n"):
         np.testing.assert_array_equal(small.images[name], whole.images[name])
@@ -93,9 +95,9 @@ def test_a_small_device_gets_smaller_tiles_and_the_same_image(runtime, monkeypat
 def test_one_pixel_too_large_for_the_device_is_refused_in_one_line(runtime):
     settings = pipeline.RenderSettings(4, 4, make_sampler("independent", 40_000), "mc")
     device = runtime.device
-    # 40 000 samples a pixel: a 469 KiB radiance buffer, 2.4 MiB in all
-    assert pipeline.fit_tiles_to_device(settings, small_device(8, 1, device)) is not None
-    for global_mib, largest_mib in ((4, 1), (8, 0.25)):
+    # 40 000 samples a pixel: a 469 KiB radiance buffer, 6.1 MiB in all
+    assert pipeline.fit_tiles_to_device(settings, small_device(16, 1, device)) is not None
+    for global_mib, largest_mib in ((8, 1), (16, 0.25)):
         with pytest.raises(ParameterError) as error:
             pipeline.fit_tiles_to_device(settings, small_device(global_mib, largest_mib, device))
         message = str(error.value)
