@@ -220,10 +220,10 @@ def stage_accounting(runtime, n: int, repeats: int) -> dict:
     build = runtime.kernel(device_cells.KERNEL_FILE, "voronoi_build_grid", defines)
 
     def build_grid():
-        runtime.launch_1d(
+        device_cells.launch_per_pixel(
+            runtime,
             build,
             STAGE_PIXELS,
-            np.uint32(STAGE_PIXELS),
             np.uint32(traced),
             np.int32(side),
             np.float32(layout.half_extent),
