@@ -25,8 +25,8 @@ typedef float2 area_real2;
 // Launches are padded to at least 65 536 work-items (clrender.runtime.MIN_LAUNCH_SIZE) and PoCL
 // deals work-groups to its threads in chunks from the front (up to 64 at a time, first come
 // first served): packed at the front, a tile's 4096 pixels (64 work-groups) all went to one
-// thread's first chunk. Spread (the host's stride: device_cells.pixel_stride), every chunk
-// holds its share. Sets *pixel and returns true for a work-item that has a pixel.
+// thread's first chunk. Spread, every chunk holds its share (the host's stride:
+// device_cells.pixel_stride; 1 on a GPU). Sets *pixel; true for a work-item that has a pixel.
 CL_INLINE bool Voronoi_SpreadPixel(uint pixel_count, uint stride, uint *pixel)
 {
     uint id = get_global_id(0);

@@ -647,9 +647,12 @@ def _enqueue_cells(
 
 
 def pixel_stride(runtime: Runtime, kernel: cl.Kernel, pixels: int) -> int:
-    """The work-items between two pixels of a kernel that runs one work-item per pixel, so that
-    the pixels fill the whole padded launch (kernels/voronoi_common.h Voronoi_SpreadPixel says
-    why): the launch is then pixels x stride work-items, padded to a whole work-group."""
+    """The work-items between two pixels of a kernel that runs one work-item per pixel: on a
+    CPU device, so that the pixels fill the whole padded launch (kernels/voronoi_common.h
+    Voronoi_SpreadPixel says why; the launch is then pixels x stride work-items, padded to a
+    whole work-group); elsewhere 1 (a GPU would run mostly empty SIMD groups)."""
+    if not runtime.device.type & cl.device_type.CPU:
+        return 1
     padded = launch_global_size(pixels, runtime.kernel_local_size(kernel))
     return max(1, -(-padded // max(pixels, 1)))
 
