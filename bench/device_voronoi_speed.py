@@ -18,7 +18,10 @@ instead accounts for what a vor_sn render does beyond an mc_n render over the sa
 samples, stage by stage, on one render tile (4096 pixels) at n = 64 and 256: the auxiliary
 nuclei (sample sets drawn with them against without), the grid build, the cell kernel, and the
 per-pixel Voronoi sums against the plain sums mc_n forms; medians of K runs (alternating),
-CPU seconds per tile and per 256 x 256 image (16 such tiles).
+CPU seconds per tile and per 256 x 256 image (16 such tiles). Where Linux reports each thread's
+CPU time (/proc/self/task), each stage's busiest thread too: the stage's wall time on an
+otherwise idle machine is at least that, so busiest / CPU tells how well the stage spreads over
+the cores (1 / cores at best) whatever the load.
 
     python bench/device_voronoi_speed.py --variants - VORONOI_NO_SIDE_TEST,X=2 [--n N]
 
@@ -197,6 +200,18 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     return {"n": n, "pixels": pixels, "traced_nuclei": traced, "variants": rows}
 
 
+def thread_seconds() -> dict[str, float]:
+    """CPU seconds each thread of this process has run (Linux; empty elsewhere)."""
+    seconds = {}
+    tasks = Path("/proc/self/task")
+    for task in tasks.iterdir() if tasks.is_dir() else ():
+        try:
+            seconds[task.name] = int((task / "schedstat").read_text().split()[0]) * 1e-9
+        except (OSError, ValueError, IndexError):
+            continue
+    return seconds
+
+
 def stage_accounting(runtime, n: int, repeats: int) -> dict:
     """CPU (and wall) seconds per tile of each stage vor_sn adds to an mc_n render, medians of
     alternating runs, each ended by a queue finish."""
@@ -220,10 +235,10 @@ def stage_accounting(runtime, n: int, repeats: int) -> dict:
     build = runtime.kernel(device_cells.KERNEL_FILE, "voronoi_build_grid", defines)
 
     def build_grid():
-        runtime.launch_1d(
+        device_cells.launch_per_pixel(
+            runtime,
             build,
             STAGE_PIXELS,
-            np.uint32(STAGE_PIXELS),
             np.uint32(traced),
             np.int32(side),
             np.float32(layout.half_extent),
@@ -253,13 +268,18 @@ def stage_accounting(runtime, n: int, repeats: int) -> dict:
     runs = {name: [] for name in stages}
     for repeat in range(repeats + 1):
         for name, stage in stages.items():
+            threads0 = thread_seconds()
             wall0, cpu0 = time.perf_counter(), time.process_time()
             stage()
             runtime.queue.finish()
+            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+            threads1 = thread_seconds()
+            busiest = max((s - threads0.get(t, 0.0) for t, s in threads1.items()), default=0.0)
             if repeat:  # the first round warms up
-                runs[name].append((time.perf_counter() - wall0, time.process_time() - cpu0))
+                runs[name].append((wall, cpu, busiest))
     cpu = {name: float(np.median([r[1] for r in rows])) for name, rows in runs.items()}
     wall = {name: float(np.median([r[0] for r in rows])) for name, rows in runs.items()}
+    busiest = {name: float(np.median([r[2] for r in rows])) for name, rows in runs.items()}
     with_cells = cpu["grid build + cell kernel"]
     extra = {
         "auxiliary nuclei": cpu["sample sets with auxiliary nuclei"] - cpu["sample sets without"],
@@ -278,6 +298,7 @@ def stage_accounting(runtime, n: int, repeats: int) -> dict:
         "aux_nuclei": total - traced,
         "cpu_s_per_tile": cpu,
         "wall_s_per_tile": wall,
+        "busiest_thread_s_per_tile": busiest,
         "extra_cpu_s_per_image": {name: value * tiles for name, value in extra.items()},
     }
 
@@ -326,7 +347,11 @@ def main(argv: list[str] | None = None) -> None:
             report["stages"].append(row)
             print(f"n={n}: {row['traced_nuclei']} traced, {row['aux_nuclei']} auxiliary nuclei")
             for name, value in row["cpu_s_per_tile"].items():
-                print(f"  {name:42s} {1e3 * value:8.2f} ms CPU per tile")
+                top = row["busiest_thread_s_per_tile"][name]
+                print(
+                    f"  {name:42s} {1e3 * value:8.2f} ms CPU per tile, busiest thread "
+                    f"{1e3 * top:7.2f} ms ({top / value if value else 0:.2f} of it)"
+                )
             for name, value in row["extra_cpu_s_per_image"].items():
                 print(f"  extra: {name:35s} {value:6.2f} CPU-s per 256 x 256 image")
         out = args.out.with_name("device_voronoi_stages.json")

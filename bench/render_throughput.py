@@ -17,14 +17,27 @@ beside every render.
 
     python bench/render_throughput.py                         # 64 and 256 spp, 5 repeats
     python bench/render_throughput.py --spp 64 --repeats 3 --configs independent/mc sppp/vor_sn
+
+With --trees A B ..., compares source trees (worktrees or checkouts of clrender) in one run
+instead: each repeat renders every configuration once (after a warm-up render of each) in a
+new process per tree, with that tree's package and kernels (PYTHONPATH, CLRENDER_KERNELS_DIR),
+the trees' order reversed every other repeat; per tree and configuration it reports medians of
+wall and CPU time, and the median over repeats of each configuration's ratio to the first
+configuration's render in the same process (e.g. vor_sn / mc_n). Mitsuba is not run.
+
+    python bench/render_throughput.py --trees /work/main . --spp 256 --repeats 4 \
+        --configs sppp/mc_n sppp/vor_sn
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -49,6 +62,9 @@ def parse_args(argv=None):
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-mitsuba", action="store_true", help="clrender alone")
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
+    parser.add_argument(
+        "--trees", type=Path, nargs="+", metavar="DIR", help="compare these source trees"
+    )
     return parser.parse_args(argv)
 
 
@@ -111,8 +127,84 @@ def summarise(rows: list[dict]) -> dict:
     return summary
 
 
+def tree_renders(tree: Path, args, output: Path) -> list[dict]:
+    """One repeat of every configuration (after a warm-up of each) in a new process that
+    imports the tree's package and builds its kernels; its render rows."""
+    tree = tree.resolve()
+    script = tree / "bench" / "render_throughput.py"
+    env = {**os.environ, "PYTHONPATH": str(tree), "CLRENDER_KERNELS_DIR": str(tree / "kernels")}
+    command = [sys.executable, str(script), "--scene", args.scene, "--size", str(args.size)]
+    command += ["--spp", *map(str, args.spp), "--configs", *args.configs]
+    command += ["--repeats", "1", "--no-mitsuba", "--output", str(output)]
+    subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL)
+    return json.loads((output / "results.json").read_text())["renders"]
+
+
+def compare_trees(args, argv) -> None:
+    """--trees: the configurations rendered by each tree, alternating (see the docstring)."""
+    rows: dict[str, list[dict]] = {str(tree): [] for tree in args.trees}
+    with tempfile.TemporaryDirectory() as scratch:
+        for repeat in range(args.repeats):
+            order = args.trees if repeat % 2 == 0 else args.trees[::-1]
+            for k, tree in enumerate(order):
+                output = Path(scratch) / f"{repeat}-{k}"
+                for row in tree_renders(tree, args, output):
+                    rows[str(tree)].append({**row, "process": f"{repeat}-{k}"})
+                print(f"repeat {repeat + 1}/{args.repeats}: {tree} done", flush=True)
+    median = statistics.median
+    summary: dict[str, dict] = {}
+    for tree, tree_rows in rows.items():
+        summary[tree] = {}
+        for spp in args.spp:
+            points = {}
+            # each process's render of the first configuration
+            first = {
+                r["process"]: r
+                for r in tree_rows
+                if r["spp"] == spp and r["config"] == args.configs[0]
+            }
+            for config in args.configs:
+                group = [r for r in tree_rows if r["spp"] == spp and r["config"] == config]
+                point = {
+                    "repeats": len(group),
+                    "wall_s": median(r["call_s"] for r in group),
+                    "cpu_s": median(r["cpu_s"] for r in group),
+                    "voronoi_s": median(r["voronoi_s"] for r in group),
+                    "tracing_s": median(r["tracing_s"] for r in group),
+                    "load_1min": median(r["load_1min"] for r in group),
+                    "wall_ratio_to_first": median(
+                        r["call_s"] / first[r["process"]]["call_s"] for r in group
+                    ),
+                    "cpu_ratio_to_first": median(
+                        r["cpu_s"] / first[r["process"]]["cpu_s"] for r in group
+                    ),
+                }
+                points[config] = point
+                print(
+                    f"{tree}: {spp} spp {config}: wall {point['wall_s']:.2f} s, CPU "
+                    f"{point['cpu_s']:.2f} s (Voronoi stage {point['voronoi_s']:.2f} s), / "
+                    f"{args.configs[0]}: {point['wall_ratio_to_first']:.3f} wall, "
+                    f"{point['cpu_ratio_to_first']:.3f} CPU, load {point['load_1min']:.1f}"
+                )
+            summary[tree][str(spp)] = points
+    data = {
+        "command": command_line("render_throughput.py", argv),
+        "scene": args.scene,
+        "size": args.size,
+        "machine": machine(),
+        "trees": [str(tree) for tree in args.trees],
+        "summary": summary,
+        "renders": rows,
+    }
+    write_json(args.output / "trees.json", data)
+    print(f"wrote {args.output / 'trees.json'}")
+
+
 def main(argv=None) -> None:
     args = parse_args(argv)
+    if args.trees:
+        compare_trees(args, argv)
+        return
     scene = clrender.load_scene(args.scene)
     peer = None if args.no_mitsuba else MitsubaPeer(args.size, args.size, log=print)
     if peer is not None and not (peer.available and peer.status()["comparable_timings"]):

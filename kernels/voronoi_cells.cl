@@ -134,18 +134,19 @@ CL_INLINE int VoronoiGrid_CellOf(float2 x, float half_extent, float inv_cell, in
 // offsets: the pixels' traced offsets (pixel_count + 1 values), then their auxiliary offsets
 // (as many), in one buffer (one upload).
 
-// One pixel per work-item: counting sort of its nuclei into grid cells, written from slot
-// base = traced_offsets[p] + aux_offsets[p] of sorted_points, with each nucleus's index in
-// positions in sorted_index (traced nuclei: below traced_total). cell_of (scratch, as long as
-// sorted_points) keeps each nucleus's grid cell from the counting pass for the fill pass.
-__kernel void voronoi_build_grid(uint pixel_count, uint traced_total, int grid_side,
-                                 float half_extent, __global const float2 *positions,
-                                 __global const uint *offsets, __global uint *cell_start,
-                                 __global float2 *sorted_points, __global uint *sorted_index,
-                                 __global uint *cell_of)
+// One pixel per work-item (spread over the launch: Voronoi_SpreadPixel): counting sort of its
+// nuclei into grid cells, written from slot base = traced_offsets[p] + aux_offsets[p] of
+// sorted_points, with each nucleus's index in positions in sorted_index (traced nuclei: below
+// traced_total). cell_of (scratch, as long as sorted_points) keeps each nucleus's grid cell
+// from the counting pass for the fill pass.
+__kernel void voronoi_build_grid(uint pixel_count, uint pixel_stride, uint traced_total,
+                                 int grid_side, float half_extent,
+                                 __global const float2 *positions, __global const uint *offsets,
+                                 __global uint *cell_start, __global float2 *sorted_points,
+                                 __global uint *sorted_index, __global uint *cell_of)
 {
-    uint p = get_global_id(0);
-    if (p >= pixel_count)
+    uint p;
+    if (!Voronoi_SpreadPixel(pixel_count, pixel_stride, &p))
         return;
     __global const uint *traced_offsets = offsets;
     __global const uint *aux_offsets = offsets + pixel_count + 1;

@@ -21,4 +21,19 @@ typedef float2 area_real2;
 #define VORONOI_WALKED 8
 #define VORONOI_WALKED_ONE_WAY 16
 
+// One work-item per pixel, the pixels spread over the launch: pixel p is work-item p * stride.
+// Launches are padded to at least 65 536 work-items (clrender.runtime.MIN_LAUNCH_SIZE) and PoCL
+// deals work-groups to its threads in chunks from the front (up to 64 at a time, first come
+// first served): packed at the front, a tile's 4096 pixels (64 work-groups) all went to one
+// thread's first chunk. Spread, every chunk holds its share (the host's stride:
+// device_cells.pixel_stride; 1 on a GPU). Sets *pixel; true for a work-item that has a pixel.
+CL_INLINE bool Voronoi_SpreadPixel(uint pixel_count, uint stride, uint *pixel)
+{
+    uint id = get_global_id(0);
+    if (stride == 0u || id % stride != 0u)
+        return false;
+    *pixel = id / stride;
+    return *pixel < pixel_count;
+}
+
 #endif

@@ -1,6 +1,7 @@
-// Per-pixel sums of Voronoi-weighted radiance, one work-item per pixel: what the estimators
-// vor, vor_sn and fvor need (clrender.estimators.registry.PixelSums), computed where the
-// radiance and the cell areas already are, so that no per-sample array leaves the device.
+// Per-pixel sums of Voronoi-weighted radiance, one work-item per pixel (spread over the launch:
+// Voronoi_SpreadPixel in voronoi_common.h): what the estimators vor, vor_sn and fvor need
+// (clrender.estimators.registry.PixelSums), computed where the radiance and the cell areas
+// already are, so that no per-sample array leaves the device.
 //
 // Inputs: each traced sample's RGB radiance (float), its cell area and status byte from
 // voronoi_cell_areas (kernels/voronoi_cells.cl; same -D precision options, and area_real and
@@ -49,14 +50,15 @@ CL_INLINE void Sums_AddPlain(area_real *plain, float r, float g, float b)
     plain[5] += (area_real)b * b;
 }
 
-__kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_offsets,
+__kernel void voronoi_pixel_sums(uint pixel_count, uint pixel_stride,
+                                 __global const uint *traced_offsets,
                                  __global const float *radiance,
                                  __global const area_real *areas,
                                  __global const uchar *status, __global area_real *sums,
                                  __global uchar *flags, __global uint *nonfinite)
 {
-    uint p = get_global_id(0);
-    if (p >= pixel_count)
+    uint p;
+    if (!Voronoi_SpreadPixel(pixel_count, pixel_stride, &p))
         return;
     area_real total[SUMS_PER_PIXEL] = {0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
     uchar flag = 0;
@@ -91,15 +93,15 @@ __kernel void voronoi_pixel_sums(uint pixel_count, __global const uint *traced_o
     nonfinite[p] = bad;
 }
 
-// The plain sums alone, one work-item per pixel, for renders whose estimators need no cells
+// The plain sums alone, one work-item per pixel (spread), for renders whose estimators need no cells
 // (mc, mc_n and the per-pixel variance layer): per pixel MOMENTS_PER_PIXEL values, the same
 // arithmetic and order as voronoi_pixel_sums' plain sums, and the non-finite sample count.
-__kernel void pixel_moments(uint pixel_count, __global const uint *traced_offsets,
-                            __global const float *radiance, __global area_real *moments,
-                            __global uint *nonfinite)
+__kernel void pixel_moments(uint pixel_count, uint pixel_stride,
+                            __global const uint *traced_offsets, __global const float *radiance,
+                            __global area_real *moments, __global uint *nonfinite)
 {
-    uint p = get_global_id(0);
-    if (p >= pixel_count)
+    uint p;
+    if (!Voronoi_SpreadPixel(pixel_count, pixel_stride, &p))
         return;
     area_real total[MOMENTS_PER_PIXEL] = {0, 0, 0, 0, 0, 0};
     uint bad = 0;

@@ -428,6 +428,23 @@ def test_08_render_throughput_splits_the_render_and_compares_in_one_run(tmp_path
     assert len(renders) == 4 and data["command"].startswith("python bench/render_throughput.py")
 
 
+@pytest.mark.device
+def test_08_render_throughput_compares_trees_in_new_processes(tmp_path):
+    import render_throughput
+
+    tree = Path(render_throughput.__file__).resolve().parents[1]
+    render_throughput.main(
+        ["--size", "8", "--spp", "2", "--repeats", "1", "--output", str(tmp_path)]
+        + ["--configs", "sppp/mc_n", "sppp/vor_sn", "--trees", str(tree), str(tree)]
+    )
+    data = json.loads((tmp_path / "trees.json").read_text())
+    assert data["trees"] == [str(tree)] * 2
+    points = data["summary"][str(tree)]["2"]
+    assert points["sppp/mc_n"]["wall_ratio_to_first"] == 1.0
+    assert points["sppp/vor_sn"]["repeats"] == 2 and points["sppp/vor_sn"]["voronoi_s"] > 0
+    assert points["sppp/vor_sn"]["cpu_ratio_to_first"] > 0
+
+
 def test_09_cold_start_times_the_command_line_in_new_processes(tmp_path):
     import cold_start
 

@@ -12,6 +12,7 @@ identical in every precision.
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 import pytest
 
 from clrender.errors import ParameterError
@@ -24,7 +25,7 @@ from clrender.estimators.device_cells import (
 )
 from clrender.estimators.pixel import cell_sums
 from clrender.estimators.qhull_cells import sppp_cells
-from clrender.runtime import has_fp64
+from clrender.runtime import has_fp64, launch_global_size
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 from clrender.sppp import draw_sppp
@@ -687,3 +688,47 @@ def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path):
         # The same cells: areas within rounding (single precision's at most)
         assert (row["areas_differing"] > 0) == (not row["identical_to_first"])
         assert row["largest_relative_area_difference"] < 1e-4
+
+
+# 17. On a CPU, kernels of one work-item per pixel spread their pixels evenly over the whole
+# padded launch (kernels/voronoi_common.h Voronoi_SpreadPixel): PoCL deals work-groups to its
+# threads in chunks from the front, so pixels packed at the front (a tile's 4096 in a launch of
+# 65 536) all ran on one thread; and every pixel is still summed once
+@pytest.mark.parametrize("pixels", [1, 500, 4096, 5000, 40_000, 70_000])
+def test_per_pixel_launches_spread_their_pixels(runtime, pixels):
+    kernel = runtime.kernel(device_cells.SUMS_KERNEL_FILE, "pixel_moments", {})
+    local = runtime.kernel_local_size(kernel)
+    stride = device_cells.pixel_stride(runtime, kernel, pixels)
+    if not runtime.device.type & cl.device_type.CPU:  # a GPU keeps its pixels packed
+        assert stride == 1
+        return
+    launch = launch_global_size(pixels * stride, local)
+    last = (pixels - 1) * stride  # pixel p runs on work-item p * stride
+    assert last < launch <= last + stride + local
+    assert launch <= 2 * launch_global_size(pixels, local)
+
+
+@pytest.mark.parametrize("pixels", [1, 4097, 70_000])
+def test_spread_plain_sums_cover_every_pixel(runtime, pixels):
+    config = make_sampler("independent", 2)
+    sets = generate_sample_sets(runtime, config, 5, np.arange(pixels, dtype=np.uint32))
+    radiance = np.arange(1, 3 * sets.traced_total + 1, dtype=np.float32).reshape(-1, 3)
+    device = device_cells.device_plain_sums(runtime, sets, runtime.upload(radiance))
+    expected = radiance.astype(np.float64).reshape(pixels, 2, 3).sum(axis=1)
+    np.testing.assert_array_equal(device.sums.value, expected)
+
+
+# 18. bench/device_voronoi_speed.py --stages: each stage's CPU per tile and its busiest thread's
+# share of it (the stage's least wall time on an idle machine), never more than the whole
+def test_stage_accounting_reports_the_busiest_thread(runtime, monkeypatch):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import device_voronoi_speed
+
+    monkeypatch.setattr(device_voronoi_speed, "STAGE_PIXELS", 256)
+    row = device_voronoi_speed.stage_accounting(runtime, 16, 1)
+    for name, cpu in row["cpu_s_per_tile"].items():
+        busiest = row["busiest_thread_s_per_tile"][name]
+        assert 0 < busiest <= 1.01 * cpu + 1e-3, name

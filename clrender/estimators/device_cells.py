@@ -82,7 +82,7 @@ from clrender.estimators.qhull_cells import (
     sppp_cells,
 )
 from clrender.estimators.registry import PixelSums
-from clrender.runtime import Runtime, has_fp64
+from clrender.runtime import Runtime, has_fp64, launch_global_size
 from clrender.samples import SampleSets, segments
 from clrender.sampling import DeviceSampleSets
 
@@ -337,10 +337,10 @@ def device_plain_sums(
         moments_buf = runtime.allocate(moments.nbytes)
         nonfinite_buf = runtime.allocate(nonfinite.nbytes)
         kernel = runtime.kernel(SUMS_KERNEL_FILE, "pixel_moments", defines)
-        runtime.launch_1d(
+        launch_per_pixel(
+            runtime,
             kernel,
             pixels,
-            np.uint32(pixels),
             sample_sets.offsets_buffer,
             radiance,
             moments_buf,
@@ -376,10 +376,10 @@ def _device_sums(
         sums_buf, flags_buf = runtime.allocate(sums.nbytes), runtime.allocate(flags.nbytes)
         nonfinite_buf = runtime.allocate(nonfinite.nbytes)
         reduce = runtime.kernel(SUMS_KERNEL_FILE, "voronoi_pixel_sums", defines)
-        runtime.launch_1d(
+        launch_per_pixel(
+            runtime,
             reduce,
             pixels,
-            np.uint32(pixels),
             offsets,
             radiance,
             areas,
@@ -609,10 +609,10 @@ def _enqueue_cells(
     half = np.float32(layout.half_extent)
 
     build = runtime.kernel(KERNEL_FILE, "voronoi_build_grid", defines)
-    runtime.launch_1d(
+    launch_per_pixel(
+        runtime,
         build,
         pixels,
-        np.uint32(pixels),
         np.uint32(traced),
         np.int32(side),
         half,
@@ -644,6 +644,24 @@ def _enqueue_cells(
         status_buf,
     )
     return areas_buf, status_buf, offsets, upload
+
+
+def pixel_stride(runtime: Runtime, kernel: cl.Kernel, pixels: int) -> int:
+    """The work-items between two pixels of a kernel that runs one work-item per pixel: on a
+    CPU device, so that the pixels fill the whole padded launch (kernels/voronoi_common.h
+    Voronoi_SpreadPixel says why; the launch is then pixels x stride work-items, padded to a
+    whole work-group); elsewhere 1 (a GPU would run mostly empty SIMD groups)."""
+    if not runtime.device.type & cl.device_type.CPU:
+        return 1
+    padded = launch_global_size(pixels, runtime.kernel_local_size(kernel))
+    return max(1, -(-padded // max(pixels, 1)))
+
+
+def launch_per_pixel(runtime: Runtime, kernel: cl.Kernel, pixels: int, *args) -> cl.Event:
+    """Launch a one-work-item-per-pixel kernel (arguments: pixel_count, pixel_stride, then
+    args) with its pixels spread over the launch."""
+    stride = pixel_stride(runtime, kernel, pixels)
+    return runtime.launch_1d(kernel, pixels * stride, np.uint32(pixels), np.uint32(stride), *args)
 
 
 def traced_span(layout: _Layout) -> tuple[int, int]:
