@@ -456,6 +456,12 @@ def _leaf_groups(count: np.ndarray) -> np.ndarray:
     return group
 
 
+# A triangle hit through the BVH is named on the device by quad_count + sphere_count + its
+# block's word in the leaf records + its lane (kernels/geometry.h), an int: the records' words
+# stay below this.
+MAX_HIT_ID = 2**31 - 1 - BVH_BLOCK_WIDTH
+
+
 def pack_bvh_leaves(
     nodes: np.ndarray,
     prims: np.ndarray,
@@ -516,6 +522,12 @@ def pack_bvh_leaves(
     quad_words = quad_dtype.itemsize // 4
     size = triangle_words * triangle_blocks + quad_words * quad_blocks + spheres_per
     size = -(-size // BVH_LEAF_ALIGN) * BVH_LEAF_ALIGN
+    if first_triangle + int(size.sum()) > MAX_HIT_ID:
+        raise ClrenderError(
+            f"BVH: {len(triangles):,} triangles and {len(quads):,} quads need "
+            f"{int(size.sum()):,} words of leaf records, beyond the {MAX_HIT_ID:,} the device's "
+            "32-bit hit ids address: use fewer triangles"
+        )
     offset = np.cumsum(size) - size
     quads_at = offset + triangle_words * triangle_blocks
     spheres_at = quads_at + quad_words * quad_blocks

@@ -221,6 +221,24 @@ def test_leaf_records_hold_every_leaf_primitive_once(tmp_path):
     np.testing.assert_array_equal(packed_words, expected[1])
 
 
+def test_leaf_records_beyond_the_hit_ids_are_refused(tmp_path, monkeypatch):
+    # A triangle hit is named by an int (quad_count + sphere_count + word + lane): records the
+    # device could not address are refused in one line, not wrapped into negative ids (holes)
+    from clrender import scene_device
+
+    scene = mixed_scene(tmp_path, 31)
+    tree, prims = build_wide_bvh(*primitive_bounds(scene.quads, scene.spheres, scene.triangles))
+    args = (tree, prims, scene.quads, len(scene.spheres), scene.triangles)
+    _, words = pack_bvh_leaves(*args)
+    first_triangle = len(scene.quads) + len(scene.spheres)
+    monkeypatch.setattr(scene_device, "MAX_HIT_ID", first_triangle + len(words))
+    pack_bvh_leaves(*args)  # the last word addressable: accepted
+    monkeypatch.setattr(scene_device, "MAX_HIT_ID", first_triangle + len(words) - 1)
+    with pytest.raises(ClrenderError, match="32-bit hit ids") as error:
+        pack_bvh_leaves(*args)
+    assert "\n" not in str(error.value)
+
+
 def clear_triangle_hits(scene, origins, directions, t, prim):
     """Where a hit on a triangle is one the geometry bears out: Moller-Trumbore in float64 puts
     the ray inside the triangle, away from its edges, at the same distance. (Triangles far below
