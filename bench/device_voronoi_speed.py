@@ -268,12 +268,14 @@ def stage_accounting(runtime, n: int, repeats: int) -> dict:
     runs = {name: [] for name in stages}
     for repeat in range(repeats + 1):
         for name, stage in stages.items():
-            threads0 = thread_seconds()
+            # The threads' interval inside the process's, so that no thread's share can
+            # exceed the process's CPU (reading /proc costs the main thread about a ms)
             wall0, cpu0 = time.perf_counter(), time.process_time()
+            threads0 = thread_seconds()
             stage()
             runtime.queue.finish()
-            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
             threads1 = thread_seconds()
+            wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
             busiest = max((s - threads0.get(t, 0.0) for t, s in threads1.items()), default=0.0)
             if repeat:  # the first round warms up
                 runs[name].append((wall, cpu, busiest))

@@ -109,16 +109,15 @@ DEFAULT_TILE_SAMPLES = 4_000_000
 # one-pixel render of 5 M samples: 20 B for mc summed on the device, 45 B for vor_sn): a tile
 # needing more than the machine has at this rate cannot render.
 MIN_BYTES_PER_TILE_SAMPLE = 20
-# The device memory a tile holds: per nucleus of the tile (tile_nuclei_per_pixel) and per
-# pixel, in its largest buffer and in all its buffers in flight with the next tile's queued
-# beside them. Bounds of the runtime memory pool's measured peaks over renders of every
-# estimator family, n = 1 to 256: per nucleus up to 12 B in one buffer (the traced samples'
-# float3 radiance) and 20-125 B in all (the most with vor_sn, fvor, mc_n, cvor and pvor in one
-# render, whose pool holds each kind's buffers); per pixel up to 112 B in one buffer (cvor's, pvor's per-pixel records) and about
-# 90-410 B in all (held by tests/test_device_memory.py). The image-level cells (ivor, ivor_sn)
-# hold, per nucleus of their launch (about CHUNK_NUCLEI, at least one pixel's neighbourhood of
-# (2 ring + 1)^2 pixels, at most the image's), 8 B in their largest buffer and about 31-33 B
-# in all.
+# The device memory a tile holds: per nucleus of the tile (tile_nuclei_per_pixel) and per pixel, in
+# its largest buffer and in all its buffers in flight with the next tile's queued beside them.
+# Bounds of the runtime memory pool's measured peaks over renders of every estimator family, n = 1
+# to 256: per nucleus up to 12 B in one buffer (the traced samples' float3 radiance) and 20-125 B in
+# all (the most with vor_sn, fvor, mc_n, cvor and pvor in one render, whose pool holds each kind's
+# buffers); per pixel up to 112 B in one buffer (cvor's and pvor's per-pixel records) and about
+# 90-410 B in all (held by tests/test_device_memory.py). The image-level cells (ivor, ivor_sn) hold,
+# per nucleus of their launch (about CHUNK_NUCLEI, at least one pixel's neighbourhood of (2 ring +
+# 1)^2 pixels, at most the image's), 8 B in their largest buffer and about 31-33 B in all.
 TILE_NUCLEUS_BYTES = (12, 160)  # (largest buffer, all buffers)
 TILE_PIXEL_BYTES = (128, 512)
 IMAGE_CELLS_NUCLEUS_BYTES = (8, 48)
