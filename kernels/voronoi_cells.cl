@@ -27,7 +27,8 @@
 //   VORONOI_INSIDE    every vertex lies in [-inside_box, inside_box]^2 (fvor's W' test); built
 //                     with VORONOI_INSIDE_DISCS: every vertex's disc through the nucleus does
 //                     (image-level cells: the cell is then the same among all nuclei beyond),
-//                     and no other nucleus is within VORONOI_NEAR_LENGTH of the nucleus
+//                     and no other nucleus is within near_length of the nucleus (an
+//                     argument: 0 elsewhere)
 //   VORONOI_FALLBACK  not decided here (vertex overflow, cell beyond the start box, degenerate
 //                     collinear configuration): the host recomputes the pixel with Qhull.
 //   VORONOI_WALKED    the cell came from the walk (diagnostic: the rest were clipped from a box)
@@ -730,7 +731,7 @@ CL_INLINE int VoronoiCell_Unbounded(real2 x, uint s0, uint s1,
 CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
                                    const VoronoiNeighbourhood *hood, bool have_hood,
                                    uint count, int grid_side, float half_extent,
-                                   float start_box, float inside_box,
+                                   float start_box, float inside_box, float near_length,
                                    __global const uint *start, uint base,
                                    __global const float2 *sorted_points,
                                    __global area_real *areas, __global uchar *status)
@@ -790,7 +791,7 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
 #ifdef VORONOI_INSIDE_DISCS
     // Image-level cells: inside instead means every vertex's disc through the nucleus (the
     // Delaunay circumdiscs) lies in [-inside_box, inside_box]^2, where every nucleus is known,
-    // and no other nucleus lies within VORONOI_NEAR_LENGTH (the nearest is a neighbour): the
+    // and no other nucleus lies within near_length (the nearest is a neighbour): the
     // positions are rounded relative to the pixel, which leaves such a pair's bisector to
     // rounding (the host settles them exactly)
     float4 discs = VoronoiPolygon_CutBox(&poly);
@@ -801,7 +802,7 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
     }
     inside = x.x + discs.x >= -inside_box && x.y + discs.y >= -inside_box
              && x.x + discs.z <= inside_box && x.y + discs.w <= inside_box && coincident <= 1
-             && nearest2 >= VORONOI_NEAR_LENGTH * VORONOI_NEAR_LENGTH;
+             && nearest2 >= near_length * near_length;
 #endif
     areas[i] = area / VORONOI_MAX(coincident, 1);
     status[i] = VORONOI_BOUNDED | (inside ? VORONOI_INSIDE : 0) | (walked ? VORONOI_WALKED : 0)
@@ -814,7 +815,7 @@ CL_INLINE void VoronoiCell_Compute(uint i, float2 nucleus, int2 g,
 // the strip's outer cells hold only auxiliary nuclei and get no work-item).
 __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
                                  int grid_side, int span_lo, int span_side, float half_extent,
-                                 float start_box, float inside_box,
+                                 float start_box, float inside_box, float near_length,
                                  __global const uint *offsets, __global const uint *cell_start,
                                  __global const float2 *sorted_points,
                                  __global const uint *sorted_index, __global area_real *areas,
@@ -848,7 +849,7 @@ __kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
             gathered = true;
         }
         VoronoiCell_Compute(i, sorted_points[s], g, &hood, have_hood, count, grid_side,
-                            half_extent, start_box, inside_box, start, base, sorted_points,
-                            areas, status);
+                            half_extent, start_box, inside_box, near_length, start, base,
+                            sorted_points, areas, status);
     }
 }

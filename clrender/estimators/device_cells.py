@@ -141,6 +141,9 @@ class _Layout:
     kind: str = "sppp"  # "periodic": the auxiliary nuclei are torus translates; "clipped":
     # mirror images
     intensity: float = 1.0  # the sampler's n (PixelSums.n)
+    # Image-level cells (built with VORONOI_INSIDE_DISCS): a cell with another nucleus this
+    # close is not certified
+    near_length: float = 0.0
 
     @property
     def pixel_count(self) -> int:
@@ -636,6 +639,7 @@ def _enqueue_cells(
         half,
         np.float32(layout.half_extent * START_BOX_SCALE),
         np.float32(box if box is not None else np.inf),
+        np.float32(layout.near_length),
         offsets,
         cell_start,
         sorted_points,

@@ -17,7 +17,7 @@ vertices (a margin only sends more pixels to the host). The host's rule is the s
 ceil(delta), at least 1, for delta the host's guard distance 2 eps(n), which bounds 2 R(C(x))
 with the tail probability alpha: few cells fail it. The rounding would decide the bisector of
 two nuclei closer than about 1e-4 pixel (errors up to 1e-2 in their cells were measured): a
-cell with another nucleus within image.near_coincident_length (VORONOI_NEAR_LENGTH; also
+cell with another nucleus within image.near_coincident_length (the layout's near_length; also
 coincident ones) is not certified either, and the host settles it exactly as it does its own.
 
 Pixels with a cell that is not certified (or unbounded, or undecided by the kernel) are
@@ -219,7 +219,7 @@ def _device_cells(
     precision: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(areas float64, status) of the traced nuclei, each pixel's diagram on its own; a cell
-    with another nucleus within near_length is not certified (VORONOI_NEAR_LENGTH)."""
+    with another nucleus within near_length is not certified (the cell kernel's near_length)."""
     if len(local) == 0:
         return np.zeros(0), np.zeros(0, np.uint8)
     buffer, upload = runtime.upload_async(np.concatenate([local, aux]))
@@ -233,11 +233,10 @@ def _device_cells(
         0.5,
         kind="image",
         intensity=n,
+        near_length=1.05 * near_length,  # 5 % wider for the rounding of the relative positions
     )
     defines, real = _precision_setup(runtime, precision)
     defines["VORONOI_INSIDE_DISCS"] = True
-    # Rounded up to 2 digits: few program builds
-    defines["VORONOI_NEAR_LENGTH"] = float(f"{1.05 * near_length:.2g}")
     areas, status = _launch(runtime, layout, half_extent - CERTIFY_MARGIN, defines, real)
     del upload
     return areas.astype(np.float64), status
