@@ -31,7 +31,8 @@ environment; on another machine, set PYOPENCL_CTX where the worker starts.
 
 Faults: a worker that dies mid-task has its tasks rerun elsewhere by the scheduler (a pure
 function of the job and the tiles, so the image does not change). A task that raises is
-reported in one line naming the worker and the error (`ClusterTaskError`). Ctrl-C cancels
+reported in one line naming the worker and the error (`ClusterTaskError`), on the client: the
+task returns its failure as a value, so the workers log no traceback for it. Ctrl-C cancels
 the outstanding tasks; the finished pixels are returned with `stats.interrupted` set, as a
 local render returns its finished tiles.
 """
@@ -165,7 +166,10 @@ class DaskExecutor(ClosingExecutor):
         index_of = {future.key: index for index, future in enumerate(futures)}
         try:
             for future in as_completed(futures):
-                yield index_of[future.key], future.result()
+                result = future.result()
+                if isinstance(result, TaskFailure):
+                    raise ClusterTaskError(result.message)
+                yield index_of[future.key], result
         finally:
             pending = [future for future in futures if not future.done()]
             if pending:
@@ -242,9 +246,17 @@ def _identity(value: Any) -> Any:
     return value
 
 
+@dataclass(frozen=True)
+class TaskFailure:
+    """What a task returns instead of raising: one line naming the worker and the error (an
+    exception raised on a worker would have Dask log its traceback there too)."""
+
+    message: str
+
+
 def _run_task(function: Callable | bytes, item: Any, *common: Any) -> Any:
     """function(item, *common) on a worker (function pickled by value: see `shipped`); any
-    exception becomes one line naming the worker."""
+    exception becomes a TaskFailure of one line naming the worker."""
     try:
         if isinstance(function, bytes):
             import cloudpickle
@@ -259,9 +271,7 @@ def _run_task(function: Callable | bytes, item: Any, *common: Any) -> Any:
         except ValueError:
             where = "this process"
         text = " ".join(str(err).split()) or type(err).__name__
-        raise ClusterTaskError(
-            f"task failed on worker {where}: {type(err).__name__}: {text}"
-        ) from None
+        return TaskFailure(f"task failed on worker {where}: {type(err).__name__}: {text}")
 
 
 def make_executor(workers: int | None, scheduler: str | None) -> LocalExecutor | DaskExecutor:

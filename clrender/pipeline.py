@@ -303,6 +303,8 @@ class RenderStats:
 class RenderResult:
     film: Film  # the first estimator's
     stats: RenderStats
+    # as the render ran: a local render's tile_samples lowered to fit the device (a cluster
+    # render's workers fit their own tiles; it reports the requested value)
     settings: RenderSettings
     films: dict[str, Film] = field(default_factory=dict)  # every estimator's, by name
     layers: PixelLayers | None = None
@@ -942,7 +944,7 @@ def render(
     return RenderResult(
         pipeline.film,
         pipeline.stats,
-        settings,
+        pipeline.settings,  # as run: tile_samples lowered where the device needed it
         pipeline.films,
         pipeline.layers,
         pipeline.first_draw_layers,

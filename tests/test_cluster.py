@@ -112,12 +112,21 @@ def test_a_failing_task_names_the_worker_and_the_error_in_one_line(cluster):
     job = RenderJob(
         "analytic:mix", 8, 8, make_sampler("sppp", 4), ("vor_sn",), device="no-such-device"
     )
+    failures_logged = worker_logs_mentioning(cluster, "Compute Failed")
     with pytest.raises(ClusterTaskError) as info:
         render_on(cluster, job, tasks=1)
     message = str(info.value)
     assert "\n" not in message
     assert "task failed on worker tcp://" in message
     assert "no-such-device" in message
+    # The failure came back as a value: no worker logged a traceback for it
+    assert worker_logs_mentioning(cluster, "Compute Failed") == failures_logged
+
+
+def worker_logs_mentioning(cluster, text: str) -> int:
+    """How many records of the workers' recent logs contain the text."""
+    logs = cluster.client.get_worker_logs()
+    return sum(text in message for records in logs.values() for _, message in records)
 
 
 def test_pixels_split_into_consecutive_ranges():

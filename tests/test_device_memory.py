@@ -88,6 +88,8 @@ def test_a_small_device_gets_smaller_tiles_and_the_same_image(runtime, monkeypat
     per_pixel = pipeline.tile_nuclei_per_pixel(settings)
     assert used == [2**20 // (160 * per_pixel + 512) * per_pixel]
     assert small.stats.tiles > whole.stats.tiles
+    # The result reports the tiles it ran with
+    assert small.settings.tile_samples == used[0] < whole.settings.tile_samples
     for name in ("vor_sn", "mc_n"):
         np.testing.assert_array_equal(small.images[name], whole.images[name])
 
