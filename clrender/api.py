@@ -20,6 +20,8 @@ import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from clrender import pipeline
 from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource, is_analytic_scene
 from clrender.errors import ParameterError
@@ -77,7 +79,7 @@ def render(
     tile_samples: int = DEFAULT_TILE_SAMPLES,
     overlap: bool = True,
     voronoi_backend: str = "device",
-    progress: ProgressCallback | None = None,
+    progress: ProgressCallback | bool | None = None,
     executor=None,
 ) -> RenderResult:
     """Render a scene (a loaded Scene, a scene name or file, or `analytic[:KIND]`).
@@ -90,8 +92,10 @@ def render(
     height); device: an index or name substring of an OpenCL device (default PYOPENCL_CTX,
     else the first device); max_depth: scattering vertices per path; russian_roulette: end
     paths at random from their second vertex on (pbrt-v4's rule, unbiased; off by default, as
-    in the paper; refused for analytic images, which have no paths); progress(done_pixels,
-    total_pixels) is called after each tile (each task on a cluster); executor: a
+    in the paper; refused for analytic images, which have no paths); progress: a callable
+    progress(done_pixels, total_pixels), called after each tile (each task on a cluster), or
+    True for a progress bar (tqdm's: on a terminal or in Jupyter), None or False for none;
+    overlap: True or False; executor: a
     clrender.cluster.DaskExecutor (made once, reused across renders) renders on its Dask
     cluster, bit-identical to the local render (default: this process).
     Returns a RenderResult: `.image` (H, W, 3) float32 linear RGB of the (first) estimator,
@@ -102,7 +106,10 @@ def render(
     One render at a time per process and device: renders share the device's runtime (its
     compiled programs), so calls from several threads must be serialised by the caller.
     """
-    check_sampler_name(sampler, spp)
+    spp = check_sampler_name(sampler, spp)
+    if not isinstance(overlap, bool):
+        raise ParameterError(f"overlap must be True or False, got {overlap!r}")
+    check_progress(progress)
     entries = estimator_entries(estimator, estimators, sampler)
     for entry in entries:
         advice = pairing_advice(entry, sampler)
@@ -131,14 +138,24 @@ def render(
         overlap,
         voronoi_backend,
     )
-    if executor is None:
-        result = pipeline.render(runtime, source, settings, progress)
-    else:
-        from clrender.cluster import RenderJob, render_on
+    bar = None
+    if progress is True:
+        from clrender.progress import ProgressBar
 
-        path_depth = 0 if isinstance(scene, str) else max_depth
-        job = RenderJob.of(scene, settings, path_depth, russian_roulette, device)
-        result = render_on(executor, job, progress)
+        label = scene if isinstance(scene, str) else "render"
+        progress = bar = ProgressBar(f"{label} {settings.width}x{settings.height}")
+    try:
+        if executor is None:
+            result = pipeline.render(runtime, source, settings, progress or None)
+        else:
+            from clrender.cluster import RenderJob, render_on
+
+            path_depth = 0 if isinstance(scene, str) else max_depth
+            job = RenderJob.of(scene, settings, path_depth, russian_roulette, device)
+            result = render_on(executor, job, progress or None)
+    finally:
+        if bar is not None:
+            bar.close()
     result.stats.setup_compile_seconds = setup_compile
     return result
 
@@ -163,11 +180,23 @@ def estimator_entries(
     return [check_compatible(name, sampler) for name in estimators]
 
 
-def check_sampler_name(sampler: str, spp: int) -> None:
-    """spp and the sampler's name (checked before the estimator, as on the command line)."""
-    if isinstance(spp, bool) or not isinstance(spp, int) or spp <= 0:
+def check_sampler_name(sampler: str, spp: int) -> int:
+    """spp (a Python or NumPy integer, returned as int) and the sampler's name (checked before
+    the estimator, as on the command line)."""
+    if isinstance(spp, bool) or not isinstance(spp, int | np.integer) or spp <= 0:
         raise ParameterError(f"spp must be a positive integer, got {spp!r}")
     sampler_kind(sampler)
+    return int(spp)
+
+
+def check_progress(progress: object) -> None:
+    """progress is a callable, True (a progress bar), False or None, checked before any work."""
+    if progress is None or isinstance(progress, bool) or callable(progress):
+        return
+    raise ParameterError(
+        "progress must be a callable progress(done_pixels, total_pixels), True for a progress "
+        f"bar, or None, got {type(progress).__name__} {progress!r}"
+    )
 
 
 @functools.cache
@@ -212,15 +241,16 @@ def radiance_source(
 def _resolution(resolution: Resolution) -> tuple[int | None, int | None]:
     if resolution is None:
         return None, None
-    if isinstance(resolution, int) and not isinstance(resolution, bool):
+    if isinstance(resolution, int | np.integer) and not isinstance(resolution, bool):
         sizes = (resolution,)
     elif isinstance(resolution, tuple) and len(resolution) == 2:
         sizes = resolution
     else:
         sizes = ()
-    if not sizes or any(isinstance(v, bool) or not isinstance(v, int) or v <= 0 for v in sizes):
+    whole = (int, np.integer)
+    if not sizes or any(isinstance(v, bool) or not isinstance(v, whole) or v <= 0 for v in sizes):
         raise ParameterError(
             f"resolution must be None, a width N or (width, height) of positive integers, "
             f"got {resolution!r}"
         )
-    return (sizes[0], sizes[1]) if len(sizes) == 2 else (sizes[0], None)
+    return (int(sizes[0]), int(sizes[1])) if len(sizes) == 2 else (int(sizes[0]), None)

@@ -450,14 +450,19 @@ class Reference:
     noise: float | None
 
 
-def load_reference(args: argparse.Namespace, source, settings) -> Reference | None:
-    """--reference (checked against the render's size before it starts), else the exact
-    pixel integrals of an analytic image, else None."""
-    from clrender.compare import read_reference
+def load_reference(args: argparse.Namespace, source, settings, label: str) -> Reference | None:
+    """--reference (checked against the render's size before it starts; what makes its errors
+    untrustworthy printed as warnings), else the exact pixel integrals of an analytic image,
+    else None."""
+    from clrender.compare import noise_from_metadata, read_image, reference_warnings
 
     if args.reference:
         shape = (settings.height, settings.width)
-        pixels, noise = read_reference(args.reference, expected_shape=shape)
+        pixels, metadata = read_image(args.reference, "reference", shape)
+        noise = noise_from_metadata(metadata, args.reference)
+        rendered = {"scene": label, "seed": settings.seed}
+        for warning in reference_warnings(rendered, metadata, args.reference):
+            print(f"clrender: warning: {warning}", file=sys.stderr)
         return Reference(args.reference, pixels, noise)
     if hasattr(source, "pixel_integrals"):
         return Reference("exact pixel integrals", source.pixel_integrals(), 0.0)
@@ -516,7 +521,7 @@ def command_render(args: argparse.Namespace) -> int:
         source, max_depth, roulette = make_source(args, runtime, scene)
         setup_compile = thread_build_seconds() - built
         settings = settings_from_args(args, source.width, source.height)
-        reference = load_reference(args, source, settings)
+        reference = load_reference(args, source, settings, label)
         labels = RenderLabels(label, runtime.describe(), max_depth, roulette)
     progress = ProgressBar(
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None

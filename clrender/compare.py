@@ -230,18 +230,23 @@ def read_image(
         raise ComparisonInputError(f"{prefix}: {err.strerror or err}") from None
     if magic != EXR_MAGIC:  # checked here: the library's message says only "Unable to open"
         raise ComparisonInputError(f"{prefix}: not an OpenEXR file")
-    library_output = io.StringIO()  # the bindings print warnings on sys.stdout
+    # The bindings print warnings on sys.stdout, and the C library its errors on file
+    # descriptor 2: both kept apart, so that a damaged file gives one line
+    library_output = io.StringIO()
     try:
-        with contextlib.redirect_stdout(library_output):
+        with contextlib.redirect_stdout(library_output), library_stderr() as library_errors:
             pixels, metadata = read_exr(path)
     except MissingChannelsError as err:
         raise ComparisonInputError(f"{prefix}: {err}") from None
     except (RuntimeError, ValueError, OSError) as err:  # ValueError: one cut in its pixel data
-        reason = " ".join(str(err).split()) or type(err).__name__
+        first = (library_errors or [""])[0].strip().splitlines()
+        reason = first[0].removeprefix(f"{path}: ") if first else str(err)
+        reason = " ".join(reason.split()) or type(err).__name__
         raise ComparisonInputError(
             f"{prefix}: a damaged or truncated EXR (OpenEXR: {reason})"
         ) from None
-    sys.stderr.write(library_output.getvalue())  # stdout is for the errors (--json) only
+    # stdout is for the errors (--json) only
+    sys.stderr.write(library_output.getvalue() + "".join(library_errors))
     if expected_shape is not None and pixels.shape[:2] != tuple(expected_shape[:2]):
         height, width = expected_shape[:2]
         raise ComparisonInputError(
@@ -252,6 +257,57 @@ def read_image(
     if bad:
         raise ComparisonInputError(f"{role} {path} has {bad} pixels with NaN or infinite values")
     return pixels, metadata
+
+
+@contextlib.contextmanager
+def library_stderr():
+    """File descriptor 2 sent to a temporary file while the block runs; yields a list that
+    gets the text written there (by C libraries, which bypass sys.stderr) when it ends."""
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    captured: list[str] = []
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield captured
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read().decode(errors="replace")
+            if text:
+                captured.append(text)
+
+
+def reference_warnings(
+    image: dict, reference: dict, reference_path: str | os.PathLike
+) -> list[str]:
+    """What makes errors against a reference untrustworthy, from the two images' metadata (a
+    render's EXR attributes, or those of the image being rendered): a partial reference, a
+    reference of another scene, or one rendered from the same seed (the image's samples are
+    then the reference's, or correlated with them, and its errors come out too low)."""
+    warnings = []
+    if reference.get("partial") == 1:
+        warnings.append(
+            f"the reference {reference_path} is partial (an interrupted render: its unfinished "
+            "pixels are black)"
+        )
+    image_scene, reference_scene = image.get("scene"), reference.get("scene")
+    if image_scene is not None and reference_scene is not None:
+        if image_scene != reference_scene:
+            warnings.append(
+                f"the reference {reference_path} is of scene {reference_scene!r}, the image of "
+                f"{image_scene!r}"
+            )
+        elif "seed" in image and image.get("seed") == reference.get("seed"):
+            warnings.append(
+                f"the image and the reference {reference_path} were rendered from the same seed "
+                f"({image['seed']}): the image's samples are the reference's or correlated with "
+                "them, so its errors come out too low; render the reference with another --seed"
+            )
+    return warnings
 
 
 def read_reference(
@@ -340,6 +396,20 @@ def map_paths(output: str | os.PathLike) -> tuple[Path, Path]:
     return check_writable(exr), check_writable(exr.with_suffix(".png"))
 
 
+def check_map_spares_inputs(paths: tuple[Path, Path], inputs: tuple[str, str]) -> None:
+    """ParameterError if the error map or its preview would replace an input or an input's
+    PNG preview (the render wrote IMAGE.png beside IMAGE.exr)."""
+    spared = [Path(name) for name in inputs]
+    spared += [name.with_suffix(".png") for name in spared]
+    for written in paths:
+        for other in spared:
+            if os.path.realpath(written) == os.path.realpath(other):
+                raise ParameterError(
+                    f"--map {paths[0]} would overwrite {other}, an input or its preview: "
+                    "choose another name"
+                )
+
+
 def write_error_map(
     paths: tuple[Path, Path],
     image: np.ndarray,
@@ -407,19 +477,20 @@ def run_compare(args: argparse.Namespace) -> int:
     """The `compare` command: print the errors of args.image against args.reference, and
     write the error map if args.map; 0 when done (bad input raises a ClrenderError)."""
     paths = map_paths(args.map) if args.map is not None else None
+    if paths is not None:
+        check_map_spares_inputs(paths, (args.image, args.reference))
     image, image_metadata = read_image(args.image, "image")
     reference, reference_metadata = read_image(args.reference, "reference", image.shape)
     errors = image_errors(image, reference, noise_from_metadata(reference_metadata, args.reference))
-    for role, path, metadata in (
-        ("image", args.image, image_metadata),
-        ("reference", args.reference, reference_metadata),
-    ):
-        if metadata.get("partial") == 1:
-            print(
-                f"clrender: warning: the {role} {path} is partial (an interrupted render: "
-                "its unfinished pixels are black)",
-                file=sys.stderr,
-            )
+    warnings = reference_warnings(image_metadata, reference_metadata, args.reference)
+    if image_metadata.get("partial") == 1:
+        warnings.insert(
+            0,
+            f"the image {args.image} is partial (an interrupted render: its unfinished pixels "
+            "are black)",
+        )
+    for warning in warnings:
+        print(f"clrender: warning: {warning}", file=sys.stderr)
     scale = None
     if paths is not None:
         labels = {"image": str(args.image), "reference": str(args.reference)}

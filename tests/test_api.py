@@ -91,12 +91,32 @@ def test_render_equals_the_pipeline_with_the_same_settings(runtime):
         ({"sampler": "stratified", "spp": 2**22}, "at most 1048576 samples"),
         ({"resolution": (8, 0)}, "resolution must be"),
         ({"resolution": "big"}, "resolution must be"),
+        ({"overlap": "no"}, "overlap must be True or False"),
+        ({"progress": "yes"}, "progress must be a callable"),
     ],
 )
 def test_bad_arguments_are_one_line_errors(arguments, message):
     with pytest.raises(clrender.ClrenderError, match=message) as info:
         clrender.render("analytic:edge", **{"spp": 4, **arguments})
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.device
+def test_numpy_integers_are_accepted_and_progress_takes_a_bool_or_a_callable(capsys):
+    # A sweep such as `for n in 2 ** np.arange(2, 5)` passes NumPy integers
+    calls = []
+    result = clrender.render(
+        "analytic:edge",
+        spp=np.int64(4),
+        resolution=(np.int32(8), np.int64(6)),
+        progress=lambda done, total: calls.append((done, total)),
+    )
+    assert result.settings.sampler.n == 4 and type(result.settings.sampler.n) is int
+    assert result.image.shape == (6, 8, 3)
+    assert calls[-1] == (48, 48)
+    same = clrender.render("analytic:edge", spp=4, resolution=(8, 6), progress=False)
+    assert np.array_equal(same.image, result.image)
+    clrender.render("analytic:edge", spp=4, resolution=(8, 6), progress=True)
 
 
 def test_load_scene_names_shipped_scenes_and_analytic_images():

@@ -406,3 +406,53 @@ def test_the_parser_does_not_load_openexr():
     )
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert run.stdout == "False\n"
+
+
+def test_a_damaged_exr_is_one_line_even_where_the_library_prints(capfd, tmp_path):
+    # OpenEXR's C library prints its errors on file descriptor 2 itself (sys.stderr is not it)
+    write_exr(tmp_path / "image.exr", np.zeros((4, 5, 3)))
+    path, _ = make_bad_input(tmp_path, "truncated")
+    status = cli.main(["compare", str(tmp_path / "image.exr"), str(path)])
+    out, err = capfd.readouterr()
+    assert (status, out) == (2, "")
+    assert err.count("\n") == 1 and err.startswith("clrender: error: cannot read reference")
+    assert "(EXR_ERR_" in err  # the library's reason, in the one line
+
+
+@pytest.mark.parametrize("name", ["image.exr", "reference", "image"])
+def test_a_map_is_never_written_over_an_input(capsys, tmp_path, name):
+    reference = dyadic_image(13)
+    paths = write_pair(tmp_path, dyadic_image(14), reference)
+    (tmp_path / "image.png").write_bytes(b"the render's preview")
+    before = {path: path.read_bytes() for path in tmp_path.iterdir()}
+    status, out, err = run_cli(capsys, "compare", *paths, "--map", tmp_path / name)
+    assert (status, out) == (2, "")
+    assert err.startswith(f"clrender: error: --map {tmp_path}/") and "would overwrite" in err
+    assert {path: path.read_bytes() for path in tmp_path.iterdir()} == before
+
+
+@pytest.mark.parametrize(
+    "image, reference, warned",
+    [
+        ({"scene": "cornell-box", "seed": 0}, {"scene": "cornell-box", "seed": 0}, ["same seed"]),
+        ({"scene": "cornell-box", "seed": 0}, {"scene": "cornell-box", "seed": 1}, []),
+        ({"scene": "cornell-box", "seed": 0}, {"scene": "mitsuba-cbox", "seed": 1}, ["scene"]),
+        ({"scene": "cornell-box", "seed": 0}, {}, []),  # another renderer's reference
+        ({}, {"scene": "cornell-box", "seed": 0, "partial": 1}, ["partial"]),
+    ],
+)
+def test_what_makes_a_reference_untrustworthy_is_warned_about(image, reference, warned):
+    from clrender.compare import reference_warnings
+
+    warnings = reference_warnings(image, reference, "ref.exr")
+    assert len(warnings) == len(warned)
+    for text, expected in zip(warnings, warned, strict=True):
+        assert expected in text and "ref.exr" in text and "\n" not in text
+
+
+def test_compare_warns_of_a_reference_from_the_same_seed(capsys, tmp_path):
+    labels = {"scene": "cornell-box", "seed": 3, "sampler": "independent"}
+    paths = write_pair(tmp_path, dyadic_image(15), dyadic_image(16), labels, labels)
+    status, out, err = run_cli(capsys, "compare", *paths)
+    assert status == 0 and out.startswith("MSE ")
+    assert err.startswith("clrender: warning: the image and the reference") and "(3)" in err
