@@ -112,7 +112,7 @@ def render(
     check_progress(progress)
     entries = estimator_entries(estimator, estimators, sampler)
     for entry in entries:
-        advice = pairing_advice(entry, sampler)
+        advice = pairing_advice(entry, sampler, spp)
         if advice:
             warnings.warn(advice, EstimatorWarning, stacklevel=2)
     config = make_sampler(sampler, spp)

@@ -497,6 +497,7 @@ def error_lines(errors: dict[str, dict], result, reference: Reference | None) ->
 
 
 def command_render(args: argparse.Namespace) -> int:
+    args.outputs_written = False  # an interrupt that escapes says whether the files were written
     with interrupts.signals_blocked():  # SciPy and OpenEXR initialise whole
         from clrender.estimators import pairing_advice
         from clrender.pipeline import render
@@ -513,7 +514,7 @@ def command_render(args: argparse.Namespace) -> int:
         paths = output_paths(args.output, label, names)
         scene = load_scene_arg(args)
         for name in names:
-            advice = pairing_advice(name, args.sampler)
+            advice = pairing_advice(name, args.sampler, args.spp)
             if advice:
                 print(f"clrender: warning: {advice}", file=sys.stderr)
         runtime = create_runtime(args.device)
@@ -533,23 +534,25 @@ def command_render(args: argparse.Namespace) -> int:
             result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
     finally:
         progress.close()
-    result.stats.setup_compile_seconds = setup_compile
-    rendered = max(film.rendered_count for film in result.films.values())
-    if result.stats.interrupted and rendered == 0:
-        # Nothing to save: an all-black partial image would replace the previous one
-        signum = interrupts.last_signal()
-        print(
-            f"clrender: interrupted ({signal.Signals(signum).name}) before any pixel was "
-            "finished: nothing written (a previous image there is kept)",
-            file=sys.stderr,
-        )
-        if args.json:
-            summary = summary_json(result, labels, {}, {}, reference and reference.label)
-            print(json.dumps(json_ready(summary), indent=1, allow_nan=False))
-        return interrupts.exit_status(signum)
-    errors = reference_errors(result, reference)
+    # From here a signal is held until the finished pixels are written (or found to be none)
     with interrupts.signals_held() as held:
+        result.stats.setup_compile_seconds = setup_compile
+        rendered = max(film.rendered_count for film in result.films.values())
+        if result.stats.interrupted and rendered == 0:
+            # Nothing to save: an all-black partial image would replace the previous one
+            signum = interrupts.last_signal()
+            print(
+                f"clrender: interrupted ({signal.Signals(signum).name}) before any pixel was "
+                "finished: nothing written (a previous image there is kept)",
+                file=sys.stderr,
+            )
+            if args.json:
+                summary = summary_json(result, labels, {}, {}, reference and reference.label)
+                print(json.dumps(json_ready(summary), indent=1, allow_nan=False))
+            return interrupts.exit_status(signum)
+        errors = reference_errors(result, reference)
         write_outputs(result, labels, paths, errors)
+    args.outputs_written = True
     outputs = {name: pair for name, pair in zip(result.films, paths.values(), strict=True)}
     if args.json:
         summary = summary_json(result, labels, outputs, errors, reference and reference.label)
@@ -602,6 +605,13 @@ def command_scenes(args: argparse.Namespace) -> int:
 def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> int:
     """The command's status; held_signals: the signals that came while the images were
     written (the render itself reports an interrupt in its stats)."""
+    if held_signals and not result.stats.interrupted:
+        print(
+            f"clrender: interrupted ({signal.Signals(held_signals[-1]).name}) while the "
+            "finished images were written: they are complete",
+            file=sys.stderr,
+        )
+        return interrupts.exit_status(held_signals[-1])
     if result.stats.interrupted or held_signals:
         counts = sorted({film.rendered_count for film in result.films.values()})
         held = " to ".join(str(count) for count in (counts[0], counts[-1])[: len(counts)])
@@ -663,4 +673,4 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as interrupt:
         if args.debug:
             raise
-        return interrupts.report(interrupt)
+        return interrupts.report(interrupt, getattr(args, "outputs_written", None))

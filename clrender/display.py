@@ -21,6 +21,7 @@ from clrender.errors import ParameterError
 from clrender.imageio import srgb8
 
 MIN_PREVIEW_SIDE = 192
+MAX_PREVIEW_PIXELS = 2**26  # 64 M pixels (192 MB of RGB): a larger preview is refused
 LABEL_HEIGHT = 14  # pixels above each named image for its name
 GAP = 6  # pixels between images
 
@@ -28,8 +29,10 @@ GAP = 6  # pixels between images
 def tone_map(image: np.ndarray, exposure: float = 0.0) -> np.ndarray:
     """(H, W, 3) uint8 sRGB of a linear RGB image scaled by 2^exposure."""
     image = np.asarray(image)
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise ParameterError(f"preview takes an (H, W, 3) RGB image, got shape {image.shape}")
+    if image.ndim != 3 or image.shape[2] != 3 or 0 in image.shape:
+        raise ParameterError(
+            f"preview takes a non-empty (H, W, 3) RGB image, got shape {image.shape}"
+        )
     if not np.isfinite(exposure):
         raise ParameterError(f"exposure must be a finite number of stops, got {exposure!r}")
     return srgb8(np.asarray(image, np.float64) * 2.0**exposure)
@@ -56,6 +59,12 @@ def preview(
         raise ParameterError(f"scale must be a positive integer, got {scale!r}")
     label = LABEL_HEIGHT if any(named) else 0
     side_w, side_h = width * factor, height * factor
+    canvas_pixels = (len(tiles) * (side_w + GAP) - GAP) * (side_h + label)
+    if canvas_pixels > MAX_PREVIEW_PIXELS:
+        raise ParameterError(
+            f"a preview at scale {factor} would be {canvas_pixels:,} pixels, more than "
+            f"{MAX_PREVIEW_PIXELS:,}: use a smaller scale"
+        )
     canvas = Image.new("RGB", (len(tiles) * (side_w + GAP) - GAP, side_h + label), "white")
     draw = ImageDraw.Draw(canvas)
     for index, (name, tile) in enumerate(tiles.items()):

@@ -102,8 +102,12 @@ def exit_status(signum: int) -> int:
     return 128 + int(signum)
 
 
-def report(interrupt: KeyboardInterrupt) -> int:
-    """Print the one line of an interrupted command; its exit status."""
+def report(interrupt: KeyboardInterrupt, written: bool | None = None) -> int:
+    """Print the one line of an interrupted command (written=False: a command that writes
+    files had written none, so it says so); its exit status."""
     signum = getattr(interrupt, "signum", int(signal.SIGINT))
-    print(f"clrender: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+    line = f"clrender: interrupted ({signal.Signals(signum).name})"
+    if written is False:
+        line += ": nothing written (a previous image there is kept)"
+    print(line, file=sys.stderr)
     return exit_status(signum)

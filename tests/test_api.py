@@ -152,3 +152,29 @@ def test_a_new_estimator_is_one_registry_entry(monkeypatch):
         assert np.array_equal(new.image, 0.5 * old.image)
     with pytest.raises(clrender.ClrenderError, match="half_vor_sn.*auxiliary nuclei"):
         clrender.render("analytic:mix", sampler="independent", estimator="half_vor_sn", spp=4)
+
+
+@pytest.mark.device
+def test_pvor_over_a_poisson_count_has_the_mean_its_advice_states():
+    # Over the SPPP sampler's Poisson count pvor's mean is (1 - e^-n) times the pixel's value
+    # (the empty pixels' 0): at n = 1 the image mean is 0.632 of the exact one, and the pair is
+    # warned about; 16 384 pixels, the bound 4 standard errors of the pixels' mean
+    with pytest.warns(EstimatorWarning, match=r"e\^-n = 0.37"):
+        result = clrender.render("analytic:smooth", spp=1, estimator="pvor", resolution=128)
+    from clrender.analytic import AnalyticSource
+    from clrender.api import runtime_for
+
+    exact = AnalyticSource.for_scene("analytic:smooth", runtime_for(None).queue, 128, 128)
+    truth = exact.pixel_integrals().mean()
+    values = result.image.mean(axis=-1).ravel()
+    error = values.std() / np.sqrt(values.size)
+    assert abs(values.mean() - (1 - np.exp(-1)) * truth) < 4 * error
+    assert abs(values.mean() - truth) > 40 * error  # the bias is real, not noise
+
+
+@pytest.mark.parametrize("n, warned", [(6, True), (7, False)])
+def test_pvor_advice_stops_where_the_empty_pixels_stop_mattering(n, warned):
+    from clrender.estimators import pairing_advice
+
+    assert (pairing_advice("pvor", "sppp", n) is not None) == warned
+    assert pairing_advice("pvor", "independent", 1) is None

@@ -55,6 +55,8 @@ def test_a_render_result_displays_itself_in_a_notebook():
         (np.zeros((4, 4, 3)), {"exposure": float("nan")}, "exposure"),
         (np.zeros((4, 4, 3)), {"scale": 0}, "scale"),
         ({}, {}, "no image"),
+        (np.zeros((0, 0, 3)), {}, "non-empty"),
+        (np.zeros((16, 16, 3)), {"scale": 100_000}, "use a smaller scale"),  # 2.6e11 pixels
     ],
 )
 def test_bad_previews_are_one_line_errors(images, options, message):

@@ -215,6 +215,9 @@ def test_a_signal_held_while_writing_gives_its_own_status(capsys):
     args = cli.build_parser().parse_args(["render"])
     held = [int(signal.SIGTERM)]
     assert cli.exit_status(args, fake_result(0, 0, False), held_signals=held) == 143
+    # The render was complete: so are its images (not "partial")
+    assert "while the finished images were written: they are complete" in capsys.readouterr().err
+    assert cli.exit_status(args, fake_result(0, 0, True), held_signals=held) == 143
     assert "interrupted: the image holds" in capsys.readouterr().err
 
 
@@ -385,6 +388,28 @@ def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment
     assert child.stderr.startswith("clrender: interrupted (SIGTERM)"), child.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.exr"]
     assert (tmp_path / "old.exr").read_bytes() == b"a previous image"
+
+
+@pytest.mark.device
+def test_a_signal_after_the_last_pixel_still_writes_the_finished_image(tmp_path):
+    # It comes after the render returned and before the files are written: held, the complete
+    # image is written and the command says so (before: nothing written, the render lost)
+    (tmp_path / "old.exr").write_bytes(b"a previous image")
+    patch = "import clrender.cli\n" + (
+        "clrender.cli.reference_errors = interrupting(clrender.cli.reference_errors)"
+    )
+    child = subprocess.run(
+        [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert child.returncode == 143, child.stderr
+    assert child.stderr == (
+        "clrender: interrupted (SIGTERM) while the finished images were written: they are "
+        "complete\n"
+    )
+    assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
 
 
 @pytest.mark.device

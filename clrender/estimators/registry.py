@@ -27,7 +27,10 @@ Conventions and choices:
 - A pixel with N = 0 estimates 0 with every estimator (counted in stats.empty_pixels).
 - A non-finite value (NaN, +-Inf) makes its pixel's estimate non-finite (fvor: only if the
   nucleus is kept); other pixels are unaffected.
-- pvor: W as a torus; exactly unbiased for N i.i.d. uniform points, no aux nuclei, no rejection.
+- pvor: W as a torus; exactly unbiased for N i.i.d. uniform points (a fixed N >= 1), no aux
+  nuclei, no rejection. Over a Poisson count its mean is (1 - e^-n) times the pixel's value
+  (Mecke's formula: the torus cell of an added point has mean area (1 - e^-n) / n), exactly
+  the pixels with N = 0, which estimate 0: a bias only at small n (pairing_advice warns).
 - ivor, ivor_sn: the pixels' nuclei together form one Poisson process of intensity n on the
   image plane; neighbours' nuclei shape the cells (clrender.estimators.image).
 
@@ -37,6 +40,7 @@ pipeline, the command line and the redraw driver ask the entry, never the name.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -194,7 +198,8 @@ ESTIMATORS: dict[str, Estimator] = {
         ),
         Estimator(
             "pvor",
-            "periodic Voronoi: cells on the torus W (unbiased, no auxiliary nuclei, no rejection)",
+            "periodic Voronoi: cells on the torus W (unbiased for a fixed number of points; over "
+            "a Poisson count (1 - e^-n) times the value), no auxiliary nuclei, no rejection",
             weighted_sum,
             cells="periodic",
             device_sums=True,
@@ -257,11 +262,24 @@ class EstimatorWarning(UserWarning):
     """An estimator and sampler pair that works but is known to be a poor choice."""
 
 
-def pairing_advice(estimator: str | Estimator, sampler: str) -> str | None:
-    """One line saying why the pair is a poor choice and what to use instead, or None."""
+# Below this empty-pixel probability e^-n pvor's bias over a Poisson count goes unmentioned
+PVOR_EMPTY_PIXEL_ADVICE = 1e-3
+
+
+def pairing_advice(estimator: str | Estimator, sampler: str, n: int | None = None) -> str | None:
+    """One line saying why the pair (at n samples per pixel, when given) is a poor choice and
+    what to use instead, or None."""
     from clrender.sampling import sampler_kind
 
     entry = estimator_info(estimator)
+    empty = math.exp(-n) if n is not None else 0.0
+    if entry.name == "pvor" and sampler_kind(sampler).is_sppp and empty >= PVOR_EMPTY_PIXEL_ADVICE:
+        return (
+            f"pvor over the {sampler} sampler at n = {n}: a pixel draws no sample with "
+            f"probability e^-n = {empty:.2g} and then estimates 0, so pvor's mean is "
+            f"(1 - e^-n) times the pixel's value; it is unbiased over fixed-count samplers "
+            "(--sampler independent, stratified or sobol)"
+        )
     if entry.name == "mc" and sampler_kind(sampler).is_sppp:
         return (
             f"mc over the {sampler} sampler divides by the intensity n while each pixel draws a "
