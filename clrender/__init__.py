@@ -37,9 +37,17 @@ _LAZY = {
 }
 
 
+# Submodules a user reaches as attributes (clrender.compare.read_reference) without importing
+_SUBMODULES = ("compare",)
+
+
 def __getattr__(name: str):
     if name in _LAZY:
         import importlib
 
         return getattr(importlib.import_module(_LAZY[name]), name)
+    if name in _SUBMODULES:
+        import importlib
+
+        return importlib.import_module(f"clrender.{name}")
     raise AttributeError(f"module 'clrender' has no attribute {name!r}")

@@ -23,6 +23,10 @@ def run() -> int:
             return main()
         except KeyboardInterrupt as interrupt:  # before the command's own handling
             return interrupts.report(interrupt)
+        except BrokenPipeError:  # stdout's reader left (`... | head`): quietly, as cat does
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())  # Python's flush at exit must not fail too
+            return 141  # 128 + SIGPIPE, as a shell reports a writer the pipe ended
 
 
 if __name__ == "__main__":

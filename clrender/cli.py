@@ -23,10 +23,10 @@ from pathlib import Path
 
 import pyopencl as cl
 
-from clrender import interrupts
+from clrender import __version__, interrupts
 from clrender.errors import ClrenderError, ParameterError
 from clrender.runtime import create_runtime, describe_device, list_devices
-from clrender.trace import DEFAULT_MAX_DEPTH
+from clrender.trace import DEFAULT_MAX_DEPTH, MAX_DEPTH_LIMIT
 
 EXIT_USAGE = 2
 EXIT_STRICT = 3
@@ -52,7 +52,7 @@ SCENE is a shipped scene name, a .toml or pbrt-v4 .pbrt path, or
 analytic[:edge|smooth|disc|bowl|mix] (images with exact pixel integrals).
 exit status: 0 done, 2 bad arguments, 3 --strict and non-finite radiance, 128 + signal when
 interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP: the pixels done so far are written, with
-partial=1 in the EXR metadata)."""
+partial=1 in the EXR metadata), 141 when stdout's reader left (`... | head`)."""
 
 
 class OneLineErrorParser(argparse.ArgumentParser):
@@ -65,6 +65,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineErrorParser(prog="python -m clrender", description=__doc__.split("\n")[0])
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"clrender {__version__}")
     commands = parser.add_subparsers(dest="command", parser_class=OneLineErrorParser)
     devices = commands.add_parser("devices", help="list OpenCL devices and run a self-check")
     add_device_option(devices)
@@ -180,8 +181,8 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="D",
-        help=f"scattering vertices per path (default: {DEFAULT_MAX_DEPTH}; not for analytic "
-        "images)",
+        help=f"scattering vertices per path, 0 <= D <= {MAX_DEPTH_LIMIT} (default: "
+        f"{DEFAULT_MAX_DEPTH}; not for analytic images)",
     )
     add(
         "--russian-roulette",
@@ -360,8 +361,10 @@ def check_render_args(args: argparse.Namespace) -> None:
     size = parse_resolution(args.res)
     if isinstance(size, tuple):  # else known only with the scene: checked by RenderSettings
         check_image_memory(*size)
-    if args.max_depth is not None and args.max_depth < 0:
-        raise ParameterError(f"--max-depth must be a non-negative integer, got {args.max_depth}")
+    if args.max_depth is not None and not 0 <= args.max_depth <= MAX_DEPTH_LIMIT:
+        raise ParameterError(
+            f"--max-depth must be an integer in [0, {MAX_DEPTH_LIMIT}], got {args.max_depth}"
+        )
     if args.max_depth is not None and is_analytic_scene(args.scene):
         raise ParameterError(
             f"--max-depth needs a path-traced scene: {args.scene} is an analytic image "
@@ -595,8 +598,8 @@ def command_scenes(args: argparse.Namespace) -> int:
         width, height = scene.camera.resolution
         text = " ".join(scene.description.split())
         first = text.split(". ")[0].rstrip(".") + "." if text else "(no description)"
-        line = f"  {name:20s} {width}x{height}  {first}"
-        print(textwrap.fill(line, 100, subsequent_indent=" " * 34))
+        line = f"  {name:20s} {f'{width}x{height}':9s} {first}"
+        print(textwrap.fill(line, 100, subsequent_indent=" " * 33))
     kinds = "|".join(ANALYTIC_KINDS)
     print(f"analytic images with exact pixel integrals: analytic[:{kinds}] (default size 64x64)")
     return 0

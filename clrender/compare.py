@@ -127,6 +127,11 @@ def checked_arrays(image: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray
     otherwise."""
     arrays = []
     for role, array in (("image", image), ("reference", reference)):
+        if hasattr(array, "images") and hasattr(array, "film"):  # a RenderResult
+            raise ParameterError(
+                f"the {role} must be an (H, W, 3) RGB array: pass a render result's .image "
+                "(or .images[name])"
+            )
         array = np.asarray(array)
         if array.ndim != 3 or array.shape[2] != 3:
             raise ParameterError(

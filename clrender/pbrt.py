@@ -62,6 +62,15 @@ DEFAULT_RESOLUTION = (1280, 720)
 DEFAULT_FOV = 90.0
 # Directives read only to be ignored: clrender's command line chooses what they choose.
 IGNORED_DIRECTIVES = ("Integrator", "Sampler", "PixelFilter", "ColorSpace", "Option", "Accelerator")
+# Why a rendering option is ignored (the warning's reason)
+IGNORED_BECAUSE = {
+    "Integrator": "clrender path-traces with next-event estimation (--max-depth, "
+    "--russian-roulette)",
+    "Sampler": "clrender's sampler is chosen on its command line (--sampler, --spp)",
+    "PixelFilter": "clrender integrates each pixel with a box filter (the estimators' pixel "
+    "integrals)",
+    "Accelerator": "clrender builds its own BVH",
+}
 # pbrt-v4 directives outside the subset (refused as "not supported", not as unknown).
 UNSUPPORTED_DIRECTIVES = (
     "ActiveTransform",
@@ -648,8 +657,8 @@ class PbrtReader:
         cursor.parameters(where)
         self.warn_once(
             where.directive,
-            f"{where.path}:{where.line}: {where.directive} ignored: clrender chooses it on its "
-            "command line (--spp, --sampler, --max-depth, ...)",
+            f"{where.path}:{where.line}: {where.directive} ignored: "
+            f"{IGNORED_BECAUSE.get(where.directive, 'clrender chooses it')}",
         )
 
     def ignore_rendering_option(self, cursor, where):

@@ -136,7 +136,7 @@ def select_device(request: str | None = None) -> cl.Device:
     the first available device."""
     devices = list_devices()
     if request is not None and request != "":
-        return _match_one(str(request), devices, "--device")
+        return _match_one(str(request), devices, "--device (device=)")
     env = os.environ.get("PYOPENCL_CTX", "").strip()
     if env:
         return _pick_from_pyopencl_ctx(env, cl.get_platforms())

@@ -308,7 +308,15 @@ def parse_scene_text(path: Path, data: bytes) -> dict:
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise SceneError(f"{path}: TOML syntax error: {err}") from None
+        kind = (
+            ""
+            if path.suffix.lower() == ".toml"
+            else (
+                f" (scene files are TOML, .toml, or pbrt-v4's format, .pbrt: read as TOML, this "
+                f"{path.suffix or 'file without a suffix'} is not)"
+            )
+        )
+        raise SceneError(f"{path}: TOML syntax error: {err}{kind}") from None
     except RecursionError:
         raise SceneError(
             f"{path}: arrays or tables nested too deeply to read (a scene nests at most 3)"
@@ -669,7 +677,7 @@ class SceneBuilder:
             table.fail(
                 "max",
                 f"expected max > min on every axis (a box of positive size), "
-                f"got min {list(low)}, max {list(high)}",
+                f"got min {low.tolist()}, max {high.tolist()}",
             )
         angle = math.radians(table.number("rotate_y", 0.0))
         translate = np.array(table.vector("translate", [0.0, 0.0, 0.0]))

@@ -3,6 +3,8 @@ a new estimator is one entry plus its formula."""
 
 import ast
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +180,18 @@ def test_pvor_advice_stops_where_the_empty_pixels_stop_mattering(n, warned):
 
     assert (pairing_advice("pvor", "sppp", n) is not None) == warned
     assert pairing_advice("pvor", "independent", 1) is None
+
+
+def test_the_version_and_the_compare_module_are_reachable(capsys):
+    from clrender import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["--version"])
+    assert exit_.value.code == 0
+    assert capsys.readouterr().out == f"clrender {clrender.__version__}\n"
+    # The README's `clrender.compare.read_reference` works after a plain `import clrender` (in
+    # a new process: here another test may have imported the module already)
+    code = "import clrender; print(callable(clrender.compare.read_reference))"
+    root = str(Path(clrender.__file__).parents[1])
+    shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root)
+    assert shown.stdout == "True\n", shown.stderr

@@ -529,6 +529,9 @@ def test_21_ignored_directives_warn_once_each(tmp_path):
         ('Film "string filename"', 8),
     ]:
         assert sum(f":{line}: {directive} ignored" in note for note in notes) == 1
+    # Each reason names no option clrender lacks (there is no pixel filter option)
+    assert any("box filter" in note for note in notes if "PixelFilter" in note)
+    assert not any("--" in note for note in notes if "PixelFilter" in note)
 
 
 # --------------------------------------------------------------------------- whole scenes

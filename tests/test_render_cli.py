@@ -8,6 +8,7 @@ import struct
 import subprocess
 import sys
 import termios
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,8 @@ from clrender.film import Film
 from clrender.imageio import read_exr, read_png, srgb8
 from clrender.pipeline import RenderResult, RenderStats
 from clrender.sampling import make_sampler
+
+ROOT = Path(__file__).resolve().parents[1]  # a child run here imports this tree's clrender
 
 
 def run_cli(capsys, *argv):
@@ -133,7 +136,8 @@ def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
         (["--res", "wide"], "--res must be WxH"),
         (["--seed", "-1"], "seed must be an integer in [0, 2^32)"),
         (["--tile-samples", "0"], "--tile-samples must be a positive integer"),
-        (["--max-depth", "-2"], "--max-depth must be a non-negative integer"),
+        (["--max-depth", "-2"], "--max-depth must be an integer in [0, 1024]"),
+        (["--max-depth", "1025"], "--max-depth must be an integer in [0, 1024], got 1025"),
         (["analytic", "--max-depth", "3"], "--max-depth needs a path-traced scene: analytic is"),
         (["analytic:plaid"], "unknown analytic scene 'analytic:plaid'; accepted:"),
         (["no-such-scene"], "no shipped scene of that name"),
@@ -466,3 +470,21 @@ def test_the_command_line_starts_without_importing_scipy():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(tmp_path):
+    # `python -m clrender scenes | head -1`: stdout's reader is gone before the command writes
+    reader, writer = os.pipe()
+    os.close(reader)
+    try:
+        child = subprocess.run(
+            [sys.executable, "-m", "clrender", "scenes"],
+            stdout=writer,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
+    finally:
+        os.close(writer)
+    assert child.returncode == 141, child.stderr
+    assert child.stderr == ""
