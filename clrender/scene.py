@@ -586,6 +586,12 @@ class SceneBuilder:
         emission = table.rgb("emission", None) if table.has("emission") else None
         if emission is not None and max(emission) == 0.0:
             emission = None
+        if emission is None and table.has("emission") and not table.has("material"):
+            table.fail(
+                "material",
+                "missing: a shape needs a material unless it emits, and its emission "
+                "[0, 0, 0] emits nothing",
+            )
         material = self.material_reference(table, required=emission is None)
         if kind == "quad":
             corner, edge1, edge2 = self.read_quad_frame(table)

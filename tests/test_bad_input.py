@@ -113,7 +113,16 @@ SCENE_ERRORS = [
     (
         'type = "sphere"\ncenter = [0.0, 0.0, -2.0]\nradius = 1.0',
         'type = "box"\nmin = [0.0, 0.0, 0.0]\nmax = [1.0, -1.0, 1.0]',
-        ["shapes[1] ('ball'), field 'max'", "max > min on every axis"],
+        [
+            "shapes[1] ('ball'), field 'max'",
+            "max > min on every axis",
+            "got min [0.0, 0.0, 0.0], max [1.0, -1.0, 1.0]",
+        ],
+    ),
+    (  # the lamp without its light: it needs a material, and the message says why
+        "emission = [1.0, 1.0, 1.0]",
+        "emission = [0.0, 0.0, 0.0]",
+        ["shapes[0] ('lamp'), field 'material'", "unless it emits", "[0, 0, 0] emits nothing"],
     ),
     (  # before: a numpy overflow warning, then "degenerate quad"
         "edge2 = [0.0, 2.0, 0.0]",
@@ -137,6 +146,7 @@ SCENE_ERROR_IDS = [
     "inf-vector",
     "degenerate-quad",
     "negative-box-size",
+    "dark-emitter-without-material",
     "overflowing-edge",
 ]
 
