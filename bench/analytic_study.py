@@ -39,7 +39,6 @@ import numpy as np  # noqa: E402
 from bootstrap import statistic_interval  # noqa: E402
 from common import add_executor_options, executor_from_args  # noqa: E402
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     draw_caption,
     legend_beside,
@@ -357,7 +356,7 @@ def interval_bars(values, intervals) -> np.ndarray:
 
 
 def save_figure(fig, path: Path) -> None:
-    fig.savefig(path, dpi=110, **SAVE_OPTIONS)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 

@@ -35,7 +35,6 @@ import numpy as np  # noqa: E402
 from bootstrap import ratio_interval  # noqa: E402
 from common import MAX_DEPTH, VORONOI_ESTIMATORS, markdown_table, write_json  # noqa: E402
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     decade_log_axis,
     draw_caption,
@@ -266,7 +265,7 @@ def finished(results: dict) -> dict:
 def plot_all(results: dict, out: Path) -> None:
     for scene, entry in finished(results).items():
         fig = scene_figure(scene, entry)
-        fig.savefig(out / f"efficiency_{scene}.png", dpi=100, **SAVE_OPTIONS)
+        fig.savefig(out / f"efficiency_{scene}.png", dpi=100)
         plt.close(fig)
 
 

@@ -3,7 +3,9 @@ every parameter of a figure, the spread over seeds behind each error bar, log ax
 labels cannot collide, and a legend beside the axes rather than on the data.
 
 Captions are drawn at the top of the figure (a wrapped suptitle, which constrained layout
-makes room for) and repeated under the figure in the report, from one string.
+makes room for) and repeated under the figure in the report, from one string. A figure with
+constrained layout is saved as it is (no bbox_inches="tight"): the layout already fits its
+caption, labels and legends inside it, and "tight" would draw it twice, once only to measure it.
 """
 
 from __future__ import annotations
@@ -21,7 +23,6 @@ from matplotlib.ticker import LogLocator, NullFormatter  # noqa: E402
 
 CAPTION_WIDTH = 150  # characters per caption line in a figure
 CAPTION_FONT_SIZE = 8
-SAVE_OPTIONS = {"bbox_inches": "tight", "pad_inches": 0.1}  # nothing outside the axes is cut
 
 
 def caption(what: str, parameters: dict) -> str:

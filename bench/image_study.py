@@ -71,7 +71,6 @@ from common import (  # noqa: E402
     write_json,
 )
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     draw_caption,
     legend_beside,
@@ -278,7 +277,7 @@ def plot_grids(
                 label="|render - reference| (linear radiance, mean of RGB)",
             )
         draw_caption(fig, figure_caption(kind, args, device), width=110)
-        fig.savefig(out / f"{kind}.png", dpi=90, **SAVE_OPTIONS)
+        fig.savefig(out / f"{kind}.png", dpi=90)
         plt.close(fig)
 
 
@@ -335,7 +334,7 @@ def plot_mse(rows: list[dict], args, device: str, out: Path) -> None:
     ax.set(xlabel="MSE (linear radiance, mean of RGB)", title=f"{args.scene}: MSE per pair")
     legend_beside(fig, [ax])
     draw_caption(fig, figure_caption("mse", args, device), width=120)
-    fig.savefig(out / "mse.png", dpi=90, **SAVE_OPTIONS)
+    fig.savefig(out / "mse.png", dpi=90)
     plt.close(fig)
 
 
