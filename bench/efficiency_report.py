@@ -40,6 +40,7 @@ from figures import (  # noqa: E402
     draw_caption,
     legend_beside,
     report_caption,
+    save_figure,
     spread,
 )
 
@@ -265,7 +266,7 @@ def finished(results: dict) -> dict:
 def plot_all(results: dict, out: Path) -> None:
     for scene, entry in finished(results).items():
         fig = scene_figure(scene, entry)
-        fig.savefig(out / f"efficiency_{scene}.png", dpi=100)
+        save_figure(fig, out / f"efficiency_{scene}.png", dpi=100)
         plt.close(fig)
 
 

@@ -3,9 +3,9 @@ every parameter of a figure, the spread over seeds behind each error bar, log ax
 labels cannot collide, and a legend beside the axes rather than on the data.
 
 Captions are drawn at the top of the figure (a wrapped suptitle, which constrained layout
-makes room for) and repeated under the figure in the report, from one string. A figure with
-constrained layout is saved as it is (no bbox_inches="tight"): the layout already fits its
-caption, labels and legends inside it, and "tight" would draw it twice, once only to measure it.
+makes room for) and repeated under the figure in the report, from one string. Figures with
+constrained layout are saved with save_figure: the layout already fits their captions, labels and
+legends inside them (no bbox_inches="tight"), and each is drawn once.
 """
 
 from __future__ import annotations
@@ -35,6 +35,17 @@ def caption(what: str, parameters: dict) -> str:
 def draw_caption(fig, text: str, width: int = CAPTION_WIDTH) -> None:
     """The caption above the axes of a constrained-layout figure, wrapped to `width`."""
     fig.suptitle(textwrap.fill(text, width), fontsize=CAPTION_FONT_SIZE, x=0.01, ha="left")
+
+
+def save_figure(fig, path, dpi: int) -> None:
+    """Save a constrained-layout figure drawn once: its layout is computed at the saved dpi and
+    then frozen. (savefig of a figure with a layout engine walks every artist twice, once with
+    drawing disabled only to run the layout; for the benches' many-panel figures with log axes
+    that walk is about a fifth of the save.)"""
+    fig.set_dpi(dpi)
+    fig.get_layout_engine().execute(fig)
+    fig.set_layout_engine("none")
+    fig.savefig(path, dpi=dpi)
 
 
 def report_caption(text: str) -> str:

@@ -75,6 +75,7 @@ from figures import (  # noqa: E402
     draw_caption,
     legend_beside,
     report_caption,
+    save_figure,
     spread,
 )
 
@@ -277,7 +278,7 @@ def plot_grids(
                 label="|render - reference| (linear radiance, mean of RGB)",
             )
         draw_caption(fig, figure_caption(kind, args, device), width=110)
-        fig.savefig(out / f"{kind}.png", dpi=90)
+        save_figure(fig, out / f"{kind}.png", dpi=90)
         plt.close(fig)
 
 
@@ -334,7 +335,7 @@ def plot_mse(rows: list[dict], args, device: str, out: Path) -> None:
     ax.set(xlabel="MSE (linear radiance, mean of RGB)", title=f"{args.scene}: MSE per pair")
     legend_beside(fig, [ax])
     draw_caption(fig, figure_caption("mse", args, device), width=120)
-    fig.savefig(out / "mse.png", dpi=90)
+    save_figure(fig, out / "mse.png", dpi=90)
     plt.close(fig)
 
 

@@ -94,6 +94,7 @@ from figures import (  # noqa: E402
     decade_log_axis,
     draw_caption,
     report_caption,
+    save_figure,
 )
 from scipy.stats import bootstrap  # noqa: E402
 
@@ -868,7 +869,7 @@ def analyse(results: dict, out: Path) -> None:
     captions = {}
     for name, make in (("efficiency", efficiency_figure), ("mse_time", mse_time_figure)):
         fig, captions[name] = make(results)
-        fig.savefig(out / f"{name}.png", dpi=100)
+        save_figure(fig, out / f"{name}.png", dpi=100)
         plt.close(fig)
     write_json(out / "results.json", results)
     (out / "report.md").write_text(report(results, captions))
