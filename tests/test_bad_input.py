@@ -151,6 +151,7 @@ def test_scene_errors_are_one_line_naming_the_file(capsys, tmp_path, old, new, f
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize(
     "text, message",
