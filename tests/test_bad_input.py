@@ -261,7 +261,9 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     (kernels / "sampling.cl").write_text(BROKEN_KERNEL)
     out = tmp_path / "o.exr"
     env = {"CLRENDER_KERNELS_DIR": str(kernels)}
-    child = run_child("render", "analytic", "--res", "4", "-o", str(out), env=env)
+    argv = ["render", "analytic", "--res", "4", "-o", str(out)]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # without and with --debug, at once
+        child, debug = pool.map(lambda first: run_child(*first, *argv, env=env), [[], ["--debug"]])
     assert child.returncode == 2, child.stderr
     # The compiler itself may print a line or two ("1 error generated.") before ours; our
     # message is the rest of stderr and may span lines: it carries the compiler log.
@@ -271,7 +273,6 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     assert message.startswith(f"clrender: error: OpenCL build of {kernels / 'sampling.cl'} failed")
     assert f"{kernels / 'sampling.cl'}:3:" in message and "undefined_symbol" in message
     assert not out.exists()
-    debug = run_child("--debug", "render", "analytic", "--res", "4", "-o", str(out), env=env)
     assert debug.returncode != 0 and "Traceback" in debug.stderr
     assert "KernelBuildError" in debug.stderr
 

@@ -251,8 +251,7 @@ def test_03c_efficiency_chart_labels_do_not_overlap(tmp_path):
             "device": "test device",
         }
         fig = efficiency_report.scene_figure("cornell-box", entry)
-        assert figures.overlapping_texts(fig) == []
-        fig.canvas.draw()
+        assert figures.overlapping_texts(fig) == []  # a draw: the layout is final
         (legend,) = fig.legends
         box = legend.get_window_extent()
         assert not any(box.overlaps(ax.get_window_extent()) for ax in fig.axes)
