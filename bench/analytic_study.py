@@ -39,11 +39,11 @@ import numpy as np  # noqa: E402
 from bootstrap import statistic_interval  # noqa: E402
 from common import add_executor_options, executor_from_args  # noqa: E402
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     draw_caption,
     legend_beside,
     report_caption,
+    save_figure,
 )
 
 from clrender.cluster import LocalExecutor  # noqa: E402
@@ -356,8 +356,8 @@ def interval_bars(values, intervals) -> np.ndarray:
     return np.maximum(np.stack([values - intervals[:, 0], intervals[:, 1] - values]), 0.0)
 
 
-def save_figure(fig, path: Path) -> None:
-    fig.savefig(path, dpi=110, **SAVE_OPTIONS)
+def save_and_close(fig, path: Path) -> None:
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -384,7 +384,7 @@ def plot_sweep(sweep: dict, out: Path, config: dict) -> None:
         ax_std.set(xlabel="n", ylabel="std", title="std against n")
         legend_beside(fig, axes)
         draw_caption(fig, figure_caption("fig2", config, function), width=160)
-        save_figure(fig, out / f"fig2_{function}.png")
+        save_and_close(fig, out / f"fig2_{function}.png")
 
 
 def plot_efficiency(sweep: dict, out: Path, config: dict) -> None:
@@ -406,7 +406,7 @@ def plot_efficiency(sweep: dict, out: Path, config: dict) -> None:
         )
         legend_beside(fig, [ax])
         draw_caption(fig, figure_caption("fig3", config, function), width=100)
-        save_figure(fig, out / f"fig3_{function}.png")
+        save_and_close(fig, out / f"fig3_{function}.png")
 
 
 def plot_table2(table: dict, out: Path, config: dict) -> None:
@@ -428,7 +428,7 @@ def plot_table2(table: dict, out: Path, config: dict) -> None:
     ax.set(ylabel=f"std at n = {config['table_n']}", title="Table 2: std per estimator")
     legend_beside(fig, [ax])
     draw_caption(fig, figure_caption("table2", config), width=140)
-    save_figure(fig, out / "table2.png")
+    save_and_close(fig, out / "table2.png")
 
 
 def figures_markdown(config: dict) -> str:

@@ -27,7 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from common import MAX_DEPTH, RESULTS, make_source, make_tracer, timed_render  # noqa: E402
-from figures import SAVE_OPTIONS, caption, draw_caption  # noqa: E402
+from figures import caption, draw_caption, save_figure  # noqa: E402
 from matplotlib.collections import PolyCollection  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from scipy.spatial import Voronoi  # noqa: E402
@@ -212,7 +212,7 @@ def main(argv=None) -> None:
             draw_cells(axes[row, col], *drawn, title)
     legend(axes[0, 0])
     draw_caption(fig, figure_caption(args, runtime.describe()), width=130)
-    fig.savefig(args.out / "cells.png", dpi=90, **SAVE_OPTIONS)
+    save_figure(fig, args.out / "cells.png", dpi=90)
     plt.close(fig)
     print(f"wrote {args.out}/cells.png and one PNG per pixel and n")
 

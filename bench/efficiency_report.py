@@ -35,12 +35,12 @@ import numpy as np  # noqa: E402
 from bootstrap import ratio_interval  # noqa: E402
 from common import MAX_DEPTH, VORONOI_ESTIMATORS, markdown_table, write_json  # noqa: E402
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     decade_log_axis,
     draw_caption,
     legend_beside,
     report_caption,
+    save_figure,
     spread,
 )
 
@@ -266,7 +266,7 @@ def finished(results: dict) -> dict:
 def plot_all(results: dict, out: Path) -> None:
     for scene, entry in finished(results).items():
         fig = scene_figure(scene, entry)
-        fig.savefig(out / f"efficiency_{scene}.png", dpi=100, **SAVE_OPTIONS)
+        save_figure(fig, out / f"efficiency_{scene}.png", dpi=100)
         plt.close(fig)
 
 

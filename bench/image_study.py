@@ -71,11 +71,11 @@ from common import (  # noqa: E402
     write_json,
 )
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     draw_caption,
     legend_beside,
     report_caption,
+    save_figure,
     spread,
 )
 
@@ -253,8 +253,10 @@ def plot_grids(
             squeeze=False,
             layout="constrained",
         )
-        for ax in axes.flat:
+        for ax in axes.flat:  # no axes drawn, and no ticks for the layout to measure
             ax.set_axis_off()
+            ax.set_xticks([])
+            ax.set_yticks([])
         # The reference itself, and on the error maps its own noise (std of the mean).
         noise = np.sqrt(ref_var).mean(axis=-1)
         axes.flat[0].imshow(
@@ -278,7 +280,7 @@ def plot_grids(
                 label="|render - reference| (linear radiance, mean of RGB)",
             )
         draw_caption(fig, figure_caption(kind, args, device), width=110)
-        fig.savefig(out / f"{kind}.png", dpi=90, **SAVE_OPTIONS)
+        save_figure(fig, out / f"{kind}.png", dpi=90)
         plt.close(fig)
 
 
@@ -335,7 +337,7 @@ def plot_mse(rows: list[dict], args, device: str, out: Path) -> None:
     ax.set(xlabel="MSE (linear radiance, mean of RGB)", title=f"{args.scene}: MSE per pair")
     legend_beside(fig, [ax])
     draw_caption(fig, figure_caption("mse", args, device), width=120)
-    fig.savefig(out / "mse.png", dpi=90, **SAVE_OPTIONS)
+    save_figure(fig, out / "mse.png", dpi=90)
     plt.close(fig)
 
 

@@ -274,9 +274,10 @@ def wave_size_sweep(runtime, args, log) -> dict:
     return {"scene": "mitsuba-cbox", "spp": args.lane_spp, "rows": rows}
 
 
-def stage_times(device, args, log) -> dict:
-    """Kernel time per wavefront stage and of the megakernel, on a profiling queue (medians)."""
-    context = cl.Context([device])
+def stage_times(device_runtime: Runtime, args, log) -> dict:
+    """Kernel time per wavefront stage and of the megakernel, on a profiling queue (medians) of
+    the device's context (its programs are built already)."""
+    device, context = device_runtime.device, device_runtime.context
     queue = cl.CommandQueue(context, properties=cl.command_queue_properties.PROFILING_ENABLE)
     runtime = Runtime(device, context, queue)
     scene = load_scene("mitsuba-cbox")
@@ -800,8 +801,9 @@ def main(argv=None):
     indices = args.devices or [str(i) for i in range(len(all_devices))]
     cases = [(c.split(":")[0], int(c.split(":")[1])) for c in args.cases]
     devices = []
+    runtimes = {}
     for index in indices:
-        runtime = create_runtime(index)
+        runtime = runtimes[index] = create_runtime(index)
         device = runtime.device
         log(f"device {index}: {runtime.describe()}")
         entry = {
@@ -815,12 +817,12 @@ def main(argv=None):
             entry["local_sizes"] = local_size_sweep(runtime, args, log)
         if args.wave_sizes:
             entry["wave_paths"] = wave_size_sweep(runtime, args, log)
-        entry["stages"] = stage_times(device, args, log)
+        entry["stages"] = stage_times(runtime, args, log)
         if not args.no_vectorizer:
             entry["vectorizer"] = vectorizer_report(index, log)
         devices.append(entry)
     # The paths are the same on every device (bit-identical radiance): lanes from the first
-    runtime = create_runtime(indices[0])
+    runtime = runtimes[indices[0]]
     lanes = {
         scene: lane_figures(runtime, scene, args) for scene in dict.fromkeys(s for s, _ in cases)
     }

@@ -88,7 +88,7 @@ from common import (  # noqa: E402
     timed_render,
     write_json,
 )
-from figures import SAVE_OPTIONS, caption, draw_caption, report_caption  # noqa: E402
+from figures import caption, draw_caption, report_caption, save_figure  # noqa: E402
 
 from clrender.api import runtime_for  # noqa: E402
 from clrender.estimators import ESTIMATORS, estimate, estimate_all  # noqa: E402
@@ -692,7 +692,7 @@ def plot_fig6(
     for ax in list(axes.flat)[len(others) + 1 :]:
         ax.set_visible(False)
     draw_caption(fig, figure_caption("fig6", name, scene, pixel, args), width=180)
-    fig.savefig(out / f"fig6_{name}.png", dpi=100, **SAVE_OPTIONS)
+    save_figure(fig, out / f"fig6_{name}.png", dpi=100)
     plt.close(fig)
 
 
@@ -739,7 +739,7 @@ def plot_fig9(table: dict, name: str, scene: str, pixel: ProbePixel, args, out: 
     )
     ax_v.legend(fontsize=6, loc="center left", bbox_to_anchor=(1.01, 0.5))
     draw_caption(fig, figure_caption("fig9", name, scene, pixel, args), width=170)
-    fig.savefig(out / f"fig9_{name}.png", dpi=100, **SAVE_OPTIONS)
+    save_figure(fig, out / f"fig9_{name}.png", dpi=100)
     plt.close(fig)
 
 

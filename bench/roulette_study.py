@@ -90,11 +90,11 @@ from common import (  # noqa: E402
 )
 from efficiency_report import time_to_mse  # noqa: E402
 from figures import (  # noqa: E402
-    SAVE_OPTIONS,
     caption,
     decade_log_axis,
     draw_caption,
     report_caption,
+    save_figure,
 )
 from scipy.stats import bootstrap  # noqa: E402
 
@@ -869,7 +869,7 @@ def analyse(results: dict, out: Path) -> None:
     captions = {}
     for name, make in (("efficiency", efficiency_figure), ("mse_time", mse_time_figure)):
         fig, captions[name] = make(results)
-        fig.savefig(out / f"{name}.png", dpi=100, **SAVE_OPTIONS)
+        save_figure(fig, out / f"{name}.png", dpi=100)
         plt.close(fig)
     write_json(out / "results.json", results)
     (out / "report.md").write_text(report(results, captions))

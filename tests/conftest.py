@@ -39,6 +39,22 @@ def runtime():
 
 
 @pytest.fixture
+def shared_cli_runtime(runtime, monkeypatch):
+    """The in-process command line (clrender.cli.main) renders on the session's runtime instead
+    of a new one per call, so its programs are built once per session, not once per test: for
+    tests of what a render writes and says, not of a new process's first builds (those run
+    the command line in child processes, or without this fixture). A --device request still
+    gets its own runtime."""
+    from clrender import cli
+
+    monkeypatch.setattr(
+        cli,
+        "create_runtime",
+        lambda request=None: runtime if request is None else create_runtime(request),
+    )
+
+
+@pytest.fixture
 def single_precision(runtime) -> bool:
     """Whether the device cells and sums run in float32 here (a device without cl_khr_fp64, or
     CLRENDER_NO_FP64 set): tests of them then hold to their stated single-precision bounds."""

@@ -174,21 +174,22 @@ def snippet_case(label: str, body: str, image: bool = False) -> Case:
 
 @pytest.mark.device
 def test_known_cases_land_in_their_classes(tmp_path, every_case):
+    # Two at a time, as `--jobs 2` runs them (each case is a new process).
     runner = adv.Runner(adv.REPO, tmp_path, timeout=60, memory_gb=6)
     known = {c.id: c for c in every_case}
-    expected = {
-        "cli-scene-missing-file": "clean error",
-        "cli-valid": "ok",
-        "api-settings-width-minus1": "clean error",
-        "scene-encoding-junk": "clean error",
-    }
-    for case_id, outcome in expected.items():
-        result = runner.run(known[case_id])
-        assert result["outcome"] == outcome, result
-    broken = runner.run(snippet_case("broken", 'raise RuntimeError("boom")'))
-    assert broken["outcome"] == "traceback" and broken["message"] == "RuntimeError: boom"
     nan = "import numpy as np\nnp.save('image.npy', np.full((2, 2, 3), np.nan))"
-    assert runner.run(snippet_case("nan", nan, image=True))["outcome"] == "wrong image"
+    expected = [
+        (known["cli-scene-missing-file"], "clean error"),
+        (known["cli-valid"], "ok"),
+        (known["api-settings-width-minus1"], "clean error"),
+        (known["scene-encoding-junk"], "clean error"),
+        (snippet_case("broken", 'raise RuntimeError("boom")'), "traceback"),
+        (snippet_case("nan", nan, image=True), "wrong image"),
+    ]
+    results = adv.run_cases(runner, [case for case, _ in expected], jobs=2, log=lambda _: None)
+    for (case, outcome), result in zip(expected, results, strict=True):
+        assert result["id"] == case.id and result["outcome"] == outcome, result
+    assert results[4]["message"] == "RuntimeError: boom"
     assert list(tmp_path.iterdir()) == []  # every case directory removed
 
 

@@ -12,6 +12,7 @@ determinism across tilings in process (tests/test_render_pipeline.py).
 import os
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -160,6 +161,7 @@ def test_scene_errors_are_one_line_naming_the_file(capsys, tmp_path, old, new, f
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize(
     "text, message",
@@ -269,7 +271,9 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     (kernels / "sampling.cl").write_text(BROKEN_KERNEL)
     out = tmp_path / "o.exr"
     env = {"CLRENDER_KERNELS_DIR": str(kernels)}
-    child = run_child("render", "analytic", "--res", "4", "-o", str(out), env=env)
+    argv = ["render", "analytic", "--res", "4", "-o", str(out)]
+    with ThreadPoolExecutor(max_workers=2) as pool:  # without and with --debug, at once
+        child, debug = pool.map(lambda first: run_child(*first, *argv, env=env), [[], ["--debug"]])
     assert child.returncode == 2, child.stderr
     # The compiler itself may print a line or two ("1 error generated.") before ours; our
     # message is the rest of stderr and may span lines: it carries the compiler log.
@@ -279,7 +283,6 @@ def test_kernel_build_failure_shows_the_compiler_log_without_traceback(tmp_path)
     assert message.startswith(f"clrender: error: OpenCL build of {kernels / 'sampling.cl'} failed")
     assert f"{kernels / 'sampling.cl'}:3:" in message and "undefined_symbol" in message
     assert not out.exists()
-    debug = run_child("--debug", "render", "analytic", "--res", "4", "-o", str(out), env=env)
     assert debug.returncode != 0 and "Traceback" in debug.stderr
     assert "KernelBuildError" in debug.stderr
 
@@ -306,12 +309,15 @@ def test_two_runs_give_byte_identical_pixels_whatever_the_tile_size(tmp_path):
         "c": ["--tile-samples", "37"],
         "other-seed": ["--seed", "12"],
     }
-    images = {}
-    for name, extra in runs.items():
+
+    def render(name: str) -> tuple:
         out = tmp_path / f"{name}.exr"
-        child = run_child(*common, *extra, "-o", str(out))
+        child = run_child(*common, *runs[name], "-o", str(out))
         assert child.returncode == 0, child.stderr
-        images[name] = read_exr(out)
+        return read_exr(out)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:  # two processes at a time
+        images = dict(zip(runs, pool.map(render, runs), strict=True))
     reference, meta = images["a"]
     assert reference.std() > 0  # a lit image, not all black
     for name in ("b", "c"):
@@ -375,8 +381,8 @@ def peak_rss_mb(tmp_path: Path, width: int, tile_samples: int) -> float:
 def test_peak_memory_is_bounded_by_the_tile_not_the_image(tmp_path):
     tile_samples = 4096
     small = peak_rss_mb(tmp_path, 512, tile_samples)  # builds the kernels if the cache is cold
-    large = peak_rss_mb(tmp_path, 1024, tile_samples)
-    baseline = peak_rss_mb(tmp_path, 16, tile_samples)
+    with ThreadPoolExecutor(max_workers=2) as pool:  # then two processes at a time
+        large, baseline = pool.map(peak_rss_mb, [tmp_path] * 2, [1024, 16], [tile_samples] * 2)
     extra_pixels = 1024 * 1024 - 512 * 512
     allowance = extra_pixels * BYTES_PER_PIXEL / 2**20 + SLACK_MB
     assert large - baseline < RENDER_BOUND_MB, (baseline, small, large)

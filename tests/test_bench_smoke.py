@@ -251,8 +251,7 @@ def test_03c_efficiency_chart_labels_do_not_overlap(tmp_path):
             "device": "test device",
         }
         fig = efficiency_report.scene_figure("cornell-box", entry)
-        assert figures.overlapping_texts(fig) == []
-        fig.canvas.draw()
+        assert figures.overlapping_texts(fig) == []  # a draw: the layout is final
         (legend,) = fig.legends
         box = legend.get_window_extent()
         assert not any(box.overlaps(ax.get_window_extent()) for ax in fig.axes)
@@ -275,6 +274,44 @@ def test_03d_figure_helpers():
     result = figures.spread([1.0, 2.0, 4.0])
     assert result["mean"] == pytest.approx(7 / 3) and result["values"] == [1.0, 2.0, 4.0]
     assert result["se"] == pytest.approx(np.std([1, 2, 4], ddof=1) / np.sqrt(3))
+
+
+def test_03d_save_figure_draws_once_what_savefig_draws(tmp_path):
+    """save_figure writes savefig's PNG pixel for pixel (a caption, log axes, the legend beside
+    them, at a dpi other than the figure's) from one draw of the figure instead of two."""
+    from unittest.mock import patch
+
+    import figures
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    def chart():
+        fig, axes = plt.subplots(1, 2, figsize=(6, 3), layout="constrained")
+        for ax in axes:
+            ax.loglog([1, 10, 100], [3, 2, 1], label="a series")
+            ax.set_title("a panel")
+        figures.legend_beside(fig, axes)
+        figures.draw_caption(fig, figures.caption("A chart", {"runs": 4, "seed": 7}), width=40)
+        return fig
+
+    fig = chart()
+    fig.savefig(tmp_path / "savefig.png", dpi=90)
+    plt.close(fig)
+    draws = []
+    draw = Figure.draw
+
+    def counted(figure, renderer):
+        draws.append(figure)
+        return draw(figure, renderer)
+
+    fig = chart()
+    with patch.object(Figure, "draw", counted):
+        figures.save_figure(fig, tmp_path / "once.png", dpi=90)
+    plt.close(fig)
+    assert len(draws) == 1
+    once, reference = (np.asarray(Image.open(tmp_path / n)) for n in ("once.png", "savefig.png"))
+    assert once.shape == reference.shape and np.array_equal(once, reference)
 
 
 def test_03e_statistic_interval_covers_the_std():

@@ -3,6 +3,7 @@ rendered alone (the per-pixel estimators of a redrawn pixel share its accepted d
 per-pixel layers hold the accepted draw's count, redraw number and an unbiased variance, and
 the render's time is split into stages."""
 
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -31,6 +32,18 @@ def settings(estimator, sampler="sppp", spp=16, eps=None, **options):
     return RenderSettings(WIDTH, HEIGHT, config, estimator, seed=3, **options)
 
 
+@pytest.fixture(scope="module")
+def rendered_alone(runtime):
+    """image_alone(name, backend): an estimator's image rendered alone with eps = 0.02, rendered
+    once for every parametrisation that compares with it."""
+
+    @functools.cache
+    def image_alone(name, backend):
+        return render(runtime, source(runtime), settings(name, eps=0.02, voronoi_backend=backend))
+
+    return image_alone
+
+
 @pytest.mark.parametrize(
     "names, backend",
     [
@@ -40,13 +53,13 @@ def settings(estimator, sampler="sppp", spp=16, eps=None, **options):
         (["mc", "vor_sn", "fvor"], "qhull"),
     ],
 )
-def test_each_image_equals_its_estimator_rendered_alone(runtime, names, backend):
+def test_each_image_equals_its_estimator_rendered_alone(runtime, rendered_alone, names, backend):
     # eps = 0.02 makes most pixels reject their first draw: the redraw path is exercised
     many = render(runtime, source(runtime), settings(names, eps=0.02, voronoi_backend=backend))
     redrawn = many.layers.redraws.reshape(-1) > 0
     assert list(many.images) == names and redrawn.sum() > WIDTH * HEIGHT // 4
     for name in names:
-        alone = render(runtime, source(runtime), settings(name, eps=0.02, voronoi_backend=backend))
+        alone = rendered_alone(name, backend)
         same = (alone.image == many.images[name]).all(axis=-1).reshape(-1)
         if estimator_info(name).cells in ("sppp",) or estimator_info(name).image_level:
             assert same.all(), name  # it redraws the same pixels alone, or never redraws

@@ -34,6 +34,7 @@ def run_cli(capsys, *argv):
     return status, captured.out, captured.err
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_path):
     out = tmp_path / "mix.exr"
@@ -64,6 +65,7 @@ def test_analytic_render_writes_exr_with_metadata_and_matching_png(capsys, tmp_p
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mix.exr", "mix.png"]
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_default_output_name_is_the_scene_name_in_the_current_directory(
     capsys, tmp_path, monkeypatch
@@ -74,6 +76,7 @@ def test_default_output_name_is_the_scene_name_in_the_current_directory(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["analytic-edge.exr", "analytic-edge.png"]
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize("estimator", list(ESTIMATORS))
 def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
@@ -95,6 +98,7 @@ def test_every_estimator_renders_over_sppp(capsys, tmp_path, estimator):
     assert read_exr(out)[1]["estimator"] == estimator
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize("sampler", ["independent", "stratified"])
 def test_mc_over_uniform_and_stratified_samples(capsys, tmp_path, sampler):
@@ -169,6 +173,7 @@ def test_output_under_a_file_fails_before_any_device_work(capsys, tmp_path, monk
     )
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_missing_output_folders_are_created(capsys, tmp_path):
     """The README's `-o out/cbox.exr` on a fresh clone: before, 'directory out does not exist'."""
@@ -431,6 +436,7 @@ def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monk
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize("estimator, drawn", [("vor_sn", True), ("mc", False), ("ivor", False)])
 def test_auxiliary_nuclei_are_drawn_only_for_estimators_that_use_them(
@@ -445,6 +451,7 @@ def test_auxiliary_nuclei_are_drawn_only_for_estimators_that_use_them(
     assert metadata["sppp_eps"] > 0
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize(
     "sampler, estimator, shifted", [("sobol", "pvor", True), ("sobol", "mc", False)]

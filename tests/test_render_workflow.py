@@ -21,6 +21,7 @@ def run_cli(capsys, *argv):
     return status, out, err
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_several_estimators_write_one_pair_each_from_one_trace(capsys, tmp_path):
     out = tmp_path / "many.exr"
@@ -43,6 +44,7 @@ def test_several_estimators_write_one_pair_each_from_one_trace(capsys, tmp_path)
         assert read_exr(single)[0].tobytes() == images[name].tobytes(), name
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_layers_beside_rgb_hold_counts_redraws_flags_and_variance(capsys, tmp_path):
     out = tmp_path / "layers.exr"
@@ -60,6 +62,7 @@ def test_layers_beside_rgb_hold_counts_redraws_flags_and_variance(capsys, tmp_pa
     assert "noise_mse" not in read_exr(out)[1]
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_a_reference_gives_errors_in_summary_metadata_and_json(capsys, tmp_path):
     # A reference rendered with mc over independent samples carries its own noise
@@ -111,6 +114,7 @@ def test_a_reference_gives_errors_in_summary_metadata_and_json(capsys, tmp_path)
     assert summary["images"]["mc"]["metadata"]["spp"] == 16
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_one_sample_per_pixel_writes_no_noise_and_valid_json(capsys, tmp_path):
     # The variance of one sample is unknown (NaN layer): no noise_mse, and JSON stays strict
@@ -187,6 +191,7 @@ def narrow_eps(make_settings):
     return made
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_analytic_images_report_their_error_against_the_exact_integrals(capsys, tmp_path):
     out = tmp_path / "exact.exr"
@@ -216,6 +221,7 @@ def test_a_reference_of_another_size_is_refused_before_rendering(capsys, tmp_pat
     assert not (tmp_path / "o.exr").exists()
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_quiet_prints_nothing_but_warnings(capsys, tmp_path):
     status, stdout, err = run_cli(
@@ -235,6 +241,7 @@ def test_quiet_prints_nothing_but_warnings(capsys, tmp_path):
     assert "mc_n" in err and "--sampler sobol" in err
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 def test_good_pairs_get_no_warning(capsys, tmp_path):
     status, _, err = run_cli(

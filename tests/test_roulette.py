@@ -127,6 +127,7 @@ def run_cli(capsys, *argv):
     return status, captured.out, captured.err
 
 
+@pytest.mark.usefixtures("shared_cli_runtime")
 def test_cli_flag_reaches_the_render_the_metadata_and_the_json(capsys, tmp_path):
     args = ["render", "mitsuba-cbox", "--res", "12", "--spp", "8", "--sampler", "sobol"]
     summaries, images = {}, {}
