@@ -142,7 +142,7 @@ def render(
     if progress is True:
         from clrender.progress import ProgressBar
 
-        label = scene if isinstance(scene, str) else "render"
+        label = scene if isinstance(scene, str) else scene.name
         progress = bar = ProgressBar(f"{label} {settings.width}x{settings.height}")
     try:
         if executor is None:

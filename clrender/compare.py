@@ -295,10 +295,7 @@ def reference_warnings(
     then the reference's, or correlated with them, and its errors come out too low)."""
     warnings = []
     if reference.get("partial") == 1:
-        warnings.append(
-            f"the reference {reference_path} is partial (an interrupted render: its unfinished "
-            "pixels are black)"
-        )
+        warnings.append(partial_warning("reference", reference_path))
     image_scene, reference_scene = image.get("scene"), reference.get("scene")
     if image_scene is not None and reference_scene is not None:
         if image_scene != reference_scene:
@@ -313,6 +310,11 @@ def reference_warnings(
                 "them, so its errors come out too low; render the reference with another --seed"
             )
     return warnings
+
+
+def partial_warning(role: str, path: str | os.PathLike) -> str:
+    """The warning about an input that is an interrupted render (partial=1)."""
+    return f"the {role} {path} is partial (an interrupted render: its unfinished pixels are black)"
 
 
 def read_reference(
@@ -489,11 +491,7 @@ def run_compare(args: argparse.Namespace) -> int:
     errors = image_errors(image, reference, noise_from_metadata(reference_metadata, args.reference))
     warnings = reference_warnings(image_metadata, reference_metadata, args.reference)
     if image_metadata.get("partial") == 1:
-        warnings.insert(
-            0,
-            f"the image {args.image} is partial (an interrupted render: its unfinished pixels "
-            "are black)",
-        )
+        warnings.insert(0, partial_warning("image", args.image))
     for warning in warnings:
         print(f"clrender: warning: {warning}", file=sys.stderr)
     scale = None
