@@ -515,6 +515,13 @@ def command_render(args: argparse.Namespace) -> int:
         label = scene_label(args.scene)
         names = estimator_names(args.estimator, args.sampler)
         paths = output_paths(args.output, label, names)
+        if args.reference:
+            from clrender.compare import check_outputs_spare_inputs
+
+            written = [path for pair in paths.values() for path in (pair.exr, pair.png)]
+            check_outputs_spare_inputs(
+                written, [args.reference], "-o/--output", "the --reference image or its preview"
+            )
         scene = load_scene_arg(args)
         for name in names:
             advice = pairing_advice(name, args.sampler, args.spp)

@@ -39,6 +39,7 @@ import json
 import math
 import os
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -403,17 +404,18 @@ def map_paths(output: str | os.PathLike) -> tuple[Path, Path]:
     return check_writable(exr), check_writable(exr.with_suffix(".png"))
 
 
-def check_map_spares_inputs(paths: tuple[Path, Path], inputs: tuple[str, str]) -> None:
-    """ParameterError if the error map or its preview would replace an input or an input's
-    PNG preview (the render wrote IMAGE.png beside IMAGE.exr)."""
+def check_outputs_spare_inputs(
+    outputs: Iterable[Path], inputs: Iterable[str], option: str, role: str
+) -> None:
+    """ParameterError if an output would replace an input or an input's PNG preview (a render
+    wrote IMAGE.png beside IMAGE.exr); option names the outputs, role the inputs."""
     spared = [Path(name) for name in inputs]
     spared += [name.with_suffix(".png") for name in spared]
-    for written in paths:
+    for written in outputs:
         for other in spared:
             if os.path.realpath(written) == os.path.realpath(other):
                 raise ParameterError(
-                    f"--map {paths[0]} would overwrite {other}, an input or its preview: "
-                    "choose another name"
+                    f"{option} {written} would overwrite {other}, {role}: choose another name"
                 )
 
 
@@ -485,7 +487,9 @@ def run_compare(args: argparse.Namespace) -> int:
     write the error map if args.map; 0 when done (bad input raises a ClrenderError)."""
     paths = map_paths(args.map) if args.map is not None else None
     if paths is not None:
-        check_map_spares_inputs(paths, (args.image, args.reference))
+        check_outputs_spare_inputs(
+            paths, (args.image, args.reference), "--map", "an input or its preview"
+        )
     image, image_metadata = read_image(args.image, "image")
     reference, reference_metadata = read_image(args.reference, "reference", image.shape)
     errors = image_errors(image, reference, noise_from_metadata(reference_metadata, args.reference))

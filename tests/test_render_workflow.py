@@ -276,3 +276,31 @@ def test_scenes_lists_every_shipped_scene_with_its_description(capsys):
         assert f"  {name} " in stdout
     assert "The Cornell box of the paper's authors" in stdout
     assert "analytic[:edge|smooth|disc|bowl|mix]" in stdout
+
+
+@pytest.mark.parametrize(
+    ("reference_name", "output", "estimators"),
+    [("ref.exr", "ref.exr", "mc"), ("ref.exr", "ref", "mc"), ("out.vor.exr", "out", "mc,vor")],
+)
+def test_a_render_never_overwrites_its_reference(
+    capsys, tmp_path, reference_name, output, estimators
+):
+    reference = tmp_path / reference_name
+    write_exr(reference, np.full((16, 24, 3), 0.5, np.float32), {"spp": 64})
+    before = reference.read_bytes()
+    status, stdout, err = run_cli(
+        capsys,
+        "render",
+        "analytic:smooth",
+        *FAST,
+        "--estimator",
+        estimators,
+        "--reference",
+        str(reference),
+        "-o",
+        str(tmp_path / output),
+    )
+    assert status == 2 and stdout == ""
+    assert err.startswith("clrender: error: -o/--output ") and err.count("\n") == 1
+    assert f"would overwrite {reference}, the --reference image" in err
+    assert reference.read_bytes() == before
