@@ -453,7 +453,26 @@ class Reference:
     noise: float | None
 
 
-def load_reference(args: argparse.Namespace, source, settings, label: str) -> Reference | None:
+def render_labels(label: str, scene, runtime, max_depth, roulette, cluster: bool):
+    """The render's RenderLabels: what the pipeline does not know, provenance included (a
+    cluster's workers pick their own devices: their precision is not known here)."""
+    from clrender.estimators.device_cells import resolve_precision
+    from clrender.provenance import kernels_fingerprint, scene_fingerprint
+    from clrender.report import RenderLabels
+
+    return RenderLabels(
+        label,
+        runtime.describe(),
+        max_depth,
+        roulette,
+        scene_file=None if scene is None else str(Path(scene.path).resolve()),
+        scene_sha256=None if scene is None else scene_fingerprint(scene),
+        kernels_sha256=kernels_fingerprint(),
+        device_precision=None if cluster else resolve_precision(runtime, "auto"),
+    )
+
+
+def load_reference(args: argparse.Namespace, source, settings, labels) -> Reference | None:
     """--reference (checked against the render's size before it starts; what makes its errors
     untrustworthy printed as warnings), else the exact pixel integrals of an analytic image,
     else None."""
@@ -463,7 +482,9 @@ def load_reference(args: argparse.Namespace, source, settings, label: str) -> Re
         shape = (settings.height, settings.width)
         pixels, metadata = read_image(args.reference, "reference", shape)
         noise = noise_from_metadata(metadata, args.reference)
-        rendered = {"scene": label, "seed": settings.seed}
+        rendered = {"scene": labels.scene, "seed": settings.seed}
+        if labels.scene_sha256 is not None:
+            rendered["scene_sha256"] = labels.scene_sha256
         for warning in reference_warnings(rendered, metadata, args.reference):
             print(f"clrender: warning: {warning}", file=sys.stderr)
         return Reference(args.reference, pixels, noise)
@@ -505,7 +526,7 @@ def command_render(args: argparse.Namespace) -> int:
         from clrender.estimators import pairing_advice
         from clrender.pipeline import render
         from clrender.progress import ProgressBar
-        from clrender.report import RenderLabels, json_ready, summary_json, summary_lines
+        from clrender.report import json_ready, summary_json, summary_lines
         from clrender.runtime import thread_build_seconds
 
     # Set-up with the ending signals blocked: one that comes is acted on when it is done, not
@@ -532,13 +553,14 @@ def command_render(args: argparse.Namespace) -> int:
         source, max_depth, roulette = make_source(args, runtime, scene)
         setup_compile = thread_build_seconds() - built
         settings = settings_from_args(args, source.width, source.height)
-        reference = load_reference(args, source, settings, label)
-        labels = RenderLabels(label, runtime.describe(), max_depth, roulette)
+        cluster = args.workers is not None or args.scheduler is not None
+        labels = render_labels(label, scene, runtime, max_depth, roulette, cluster)
+        reference = load_reference(args, source, settings, labels)
     progress = ProgressBar(
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
     )
     try:
-        if args.workers is None and args.scheduler is None:
+        if not cluster:
             result = render(runtime, source, settings, progress)
         else:
             result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)

@@ -304,6 +304,12 @@ def reference_warnings(
                 f"the reference {reference_path} is of scene {reference_scene!r}, the image of "
                 f"{image_scene!r}"
             )
+        elif _differ(image.get("scene_sha256"), reference.get("scene_sha256")):
+            warnings.append(
+                f"the reference {reference_path} is of another scene of the same name "
+                f"{image_scene!r}: the scene the device got differs (scene_sha256 "
+                f"{reference['scene_sha256']} against the image's {image['scene_sha256']})"
+            )
         elif "seed" in image and image.get("seed") == reference.get("seed"):
             warnings.append(
                 f"the image and the reference {reference_path} were rendered from the same seed "
@@ -311,6 +317,11 @@ def reference_warnings(
                 "them, so its errors come out too low; render the reference with another --seed"
             )
     return warnings
+
+
+def _differ(a: object, b: object) -> bool:
+    """Whether two recorded values are both there and differ."""
+    return a is not None and b is not None and a != b
 
 
 def partial_warning(role: str, path: str | os.PathLike) -> str:

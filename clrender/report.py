@@ -22,6 +22,13 @@ class RenderLabels:
     device: str
     max_depth: int | None  # None for sources without paths (analytic images)
     russian_roulette: bool | None = None  # likewise None without paths
+    # Provenance (clrender.provenance), None where not known: the scene file and the scene as
+    # the device got it (none for analytic images), the kernel sources, and the precision of
+    # the device's Voronoi cells and sums ("mixed" with cl_khr_fp64, else "single")
+    scene_file: str | None = None
+    scene_sha256: str | None = None
+    kernels_sha256: str | None = None
+    device_precision: str | None = None
 
 
 def render_metadata(
@@ -76,6 +83,11 @@ def render_metadata(
         metadata["toroidal_shift"] = 1
     if sampler.is_sppp:
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
+    metadata["voronoi_backend"] = settings.voronoi_backend
+    for key in ("scene_file", "scene_sha256", "kernels_sha256", "device_precision"):
+        value = getattr(labels, key)
+        if value is not None:
+            metadata[key] = value
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
     if labels.russian_roulette is not None:
