@@ -175,11 +175,33 @@ def test_pvor_over_a_poisson_count_has_the_mean_its_advice_states():
 
 
 @pytest.mark.parametrize("n, warned", [(6, True), (7, False)])
-def test_pvor_advice_stops_where_the_empty_pixels_stop_mattering(n, warned):
+@pytest.mark.parametrize("estimator", ["mc_n", "vor_sn", "fvor", "cvor", "pvor", "ivor_sn"])
+def test_empty_pixel_advice_stops_where_the_empty_pixels_stop_mattering(estimator, n, warned):
     from clrender.estimators import pairing_advice
 
-    assert (pairing_advice("pvor", "sppp", n) is not None) == warned
-    assert pairing_advice("pvor", "independent", 1) is None
+    advice = pairing_advice(estimator, "sppp", n)
+    assert (advice is not None) == warned
+    if warned:
+        assert advice.startswith(f"{estimator} over the sppp sampler at n = {n}")
+        assert "unbiased at this n: mc or vor over sppp" in advice
+    assert pairing_advice(estimator, "sobol", 1) is None  # fixed counts: no empty pixel
+
+
+@pytest.mark.parametrize("estimator", ["mc", "vor", "ivor"])
+def test_estimators_unbiased_over_a_poisson_count_get_no_empty_pixel_advice(estimator):
+    from clrender.estimators import pairing_advice
+
+    advice = pairing_advice(estimator, "sppp", 1)
+    assert advice is None or "e^-n" not in advice
+
+
+@pytest.mark.parametrize("n, recommends_mc_n", [(2, False), (64, True)])
+def test_the_mc_over_sppp_advice_recommends_mc_n_only_where_it_is_unbiased(n, recommends_mc_n):
+    from clrender.estimators import pairing_advice
+
+    advice = pairing_advice("mc", "sppp", n)
+    assert advice.endswith("mc with --sampler sobol")
+    assert ("mc_n or vor_sn" in advice) == recommends_mc_n
 
 
 def test_the_version_and_the_compare_module_are_reachable(capsys):
