@@ -174,7 +174,11 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="print the closing summary as one JSON object on stdout (and nothing else there)",
     )
-    add("--quiet", action="store_true", help="no progress bar and no summary: warnings only")
+    add(
+        "--quiet",
+        action="store_true",
+        help="no progress bar and no summary: warnings and errors only",
+    )
     add("--seed", type=int, default=0, help="random seed, 0 <= S < 2^32 (default: 0)")
     add(
         "--max-depth",
@@ -618,10 +622,13 @@ def command_scenes(args: argparse.Namespace) -> int:
     analytic images."""
     import textwrap
 
-    from clrender.analytic import ANALYTIC_KINDS
+    from clrender.analytic import ANALYTIC_KINDS, DEFAULT_RESOLUTION
     from clrender.scene import list_scenes, load_scene
 
-    print("shipped scenes (python -m clrender render NAME):")
+    print(
+        f"shipped scenes (python -m clrender render NAME: {DEFAULT_WIDTH} pixels wide unless "
+        "--res says otherwise; --res scene for the size below):"
+    )
     for name in list_scenes():
         scene = load_scene(name)
         width, height = scene.camera.resolution
@@ -630,7 +637,11 @@ def command_scenes(args: argparse.Namespace) -> int:
         line = f"  {name:20s} {f'{width}x{height}':9s} {first}"
         print(textwrap.fill(line, 100, subsequent_indent=" " * 33))
     kinds = "|".join(ANALYTIC_KINDS)
-    print(f"analytic images with exact pixel integrals: analytic[:{kinds}] (default size 64x64)")
+    width, height = DEFAULT_RESOLUTION
+    print(
+        f"analytic images with exact pixel integrals: analytic[:{kinds}] "
+        f"(own size {width}x{height})"
+    )
     return 0
 
 
