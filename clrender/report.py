@@ -151,6 +151,7 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
     sampler = settings.sampler
     status = "interrupted" if stats.interrupted else "done"
     overlap = "on" if settings.overlap else "off"
+    tiles = f"{stats.tiles} tile" + ("" if stats.tiles == 1 else "s")
     names = " ".join(entry.name for entry in settings.estimators)
     stages = ", ".join(
         f"{stage.replace('_', ' ')} {format_seconds(stats.stage_seconds[stage])}"
@@ -165,7 +166,7 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
         f"{names}, seed {settings.seed} on {labels.device}",
         f"{status}: {film.rendered_count}/{film.pixel_count} pixels in "
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
-        f"host estimators {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "
+        f"host estimators {format_seconds(stats.host_seconds)}, {tiles}, "
         f"overlap {overlap}; kernel builds {format_seconds(stats.compile_seconds)}, and "
         f"{format_seconds(stats.setup_compile_seconds)} before the render)",
         f"device stages: {stages}; host: {estimators or 'none'}",
