@@ -257,41 +257,6 @@ def command_devices(args: argparse.Namespace) -> int:
 # --- render --------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class OutputPaths:
-    exr: Path
-    png: Path
-
-
-def output_paths(
-    output: str | None, scene_label: str, estimators: list[str] | None = None
-) -> dict[str, OutputPaths]:
-    """OUT.exr and OUT.png for one estimator, OUT.<estimator>.exr and .png for each of several,
-    all checked writable before anything renders."""
-    from clrender.imageio import check_writable
-
-    if output is not None and not output.strip():
-        raise ParameterError("-o/--output is empty: give a file name such as out.exr")
-    exr = Path(output) if output else Path(scene_label.replace(":", "-") + ".exr")
-    if exr.name.lower() in (".exr", ".png"):
-        raise ParameterError(f"-o/--output {str(exr)!r} has no file name before {exr.name}")
-    if output and exr.suffix == "" and exr.exists() and not exr.is_file():
-        raise ParameterError(
-            f"-o/--output {str(exr)!r} is not a file name (a directory or device): clrender "
-            "writes OUT.exr and OUT.png, give OUT"
-        )
-    if exr.suffix.lower() != ".exr":
-        if exr.suffix:
-            raise ParameterError(f"-o/--output must name an .exr file, got {str(exr)!r}")
-        exr = exr.with_suffix(".exr")
-    names = estimators or [""]
-    paths = {}
-    for name in names:
-        named = exr.with_name(f"{exr.stem}.{name}{exr.suffix}") if len(names) > 1 else exr
-        paths[name] = OutputPaths(check_writable(named), check_writable(named.with_suffix(".png")))
-    return paths
-
-
 def estimator_names(text: str | None, sampler: str) -> list[str]:
     """The estimators of --estimator NAME[,NAME...], each checked against the sampler (the
     sampler's default estimator without the option; a name given twice is refused by
@@ -426,27 +391,6 @@ def path_depth(args: argparse.Namespace) -> int:
     return DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
 
 
-def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:
-    """Every estimator's EXR (RGB, the per-pixel layers, the metadata with its errors) and PNG,
-    each checked on disk before any replaces its old version."""
-    from clrender.imageio import (
-        exr_header,
-        exr_writer,
-        png_writer,
-        rgb_float32,
-        write_all_atomically,
-    )
-    from clrender.report import exr_layers, render_metadata
-
-    jobs = []
-    for name, pair in zip(result.films, paths.values(), strict=True):
-        image = rgb_float32(result.films[name].image())
-        header = exr_header(render_metadata(result, labels, name, errors.get(name)))
-        jobs.append((pair.exr, exr_writer(image, header, exr_layers(result, name))))
-        jobs.append((pair.png, png_writer(image)))
-    write_all_atomically(jobs)
-
-
 @dataclass(frozen=True)
 class Reference:
     """What the images are compared with: a reference EXR, or an analytic image's exact
@@ -455,25 +399,6 @@ class Reference:
     label: str
     pixels: object  # (H, W, 3) array
     noise: float | None
-
-
-def render_labels(label: str, scene, runtime, max_depth, roulette, cluster: bool):
-    """The render's RenderLabels: what the pipeline does not know, provenance included (a
-    cluster's workers pick their own devices: their precision is not known here)."""
-    from clrender.estimators.device_cells import resolve_precision
-    from clrender.provenance import kernels_fingerprint, scene_fingerprint
-    from clrender.report import RenderLabels
-
-    return RenderLabels(
-        label,
-        runtime.describe(),
-        max_depth,
-        roulette,
-        scene_file=None if scene is None else str(Path(scene.path).resolve()),
-        scene_sha256=None if scene is None else scene_fingerprint(scene),
-        kernels_sha256=kernels_fingerprint(),
-        device_precision=None if cluster else resolve_precision(runtime, "auto"),
-    )
 
 
 def load_reference(args: argparse.Namespace, source, settings, labels) -> Reference | None:
@@ -528,6 +453,7 @@ def command_render(args: argparse.Namespace) -> int:
     args.outputs_written = False  # an interrupt that escapes says whether the files were written
     with interrupts.signals_blocked():  # SciPy and OpenEXR initialise whole
         from clrender.estimators import pairing_advice
+        from clrender.outputs import output_paths, render_labels, write_outputs
         from clrender.pipeline import render
         from clrender.progress import ProgressBar
         from clrender.report import json_ready, summary_json, summary_lines

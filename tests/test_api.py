@@ -42,7 +42,7 @@ def test_readme_python_example_runs_as_a_notebook_cell(capsys):
 @pytest.mark.device
 def test_a_poor_estimator_sampler_pair_warns_once_with_advice():
     with pytest.warns(EstimatorWarning, match="use --estimator mc_n") as caught:
-        clrender.render("analytic:edge", spp=4, estimators=["mc", "vor_sn"], resolution=(8, 6))
+        clrender.render("analytic:edge", spp=16, estimators=["mc", "vor_sn"], resolution=(8, 6))
     assert len(caught) == 1
 
 
@@ -217,3 +217,41 @@ def test_the_version_and_the_compare_module_are_reachable(capsys):
     root = str(Path(clrender.__file__).parents[1])
     shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root)
     assert shown.stdout == "True\n", shown.stderr
+
+
+TIMES = ("time_s", "render_time_s")
+
+
+def test_save_writes_what_the_command_line_writes(tmp_path, capsys):
+    from clrender import cli
+    from clrender.imageio import read_exr, read_exr_channels
+
+    argv = ["cornell-box", "--res", "12x8", "--spp", "8", "--estimator", "mc_n,vor_sn"]
+    assert cli.main(["render", *argv, "-o", str(tmp_path / "cli.exr"), "--quiet"]) == 0
+    result = clrender.render(
+        "cornell-box", spp=8, resolution=(12, 8), estimators=["mc_n", "vor_sn"]
+    )
+    written = result.save(tmp_path / "api")
+    assert list(written) == ["mc_n", "vor_sn"]
+    for name, pair in written.items():
+        assert pair.exr == tmp_path / f"api.{name}.exr" and pair.png.is_file()
+        pixels, metadata = read_exr(pair.exr)
+        cli_pixels, cli_metadata = read_exr(tmp_path / f"cli.{name}.exr")
+        assert pixels.tobytes() == cli_pixels.tobytes()
+        assert metadata.keys() == cli_metadata.keys()
+        for key, value in cli_metadata.items():
+            if not key.endswith(TIMES):
+                assert metadata[key] == value, key
+        assert (
+            read_exr_channels(pair.exr).keys()
+            == read_exr_channels(tmp_path / f"cli.{name}.exr").keys()
+        )
+        assert (tmp_path / f"cli.{name}.png").read_bytes() == pair.png.read_bytes()
+
+
+def test_save_needs_a_result_of_render(tmp_path):
+    result = clrender.render("analytic:disc", spp=8, resolution=8)
+    result.labels = None
+    with pytest.raises(clrender.ParameterError, match="save the result of clrender.render"):
+        result.save(tmp_path / "out.exr")
+    assert not list(tmp_path.iterdir())
