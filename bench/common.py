@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import hashlib
 import json
 import os
 import subprocess
@@ -48,8 +47,9 @@ from clrender.cluster import (
 )
 from clrender.imageio import read_exr, srgb_encode, write_atomically, write_exr
 from clrender.pipeline import RenderResult, RenderSettings, render
+from clrender.provenance import kernels_fingerprint, scene_fingerprint
 from clrender.radiance import PathTracerSource
-from clrender.runtime import Runtime, create_runtime, kernels_dir
+from clrender.runtime import Runtime, create_runtime
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
 from clrender.trace import PathTracer
@@ -304,16 +304,9 @@ def reference_path(scene: str, size: tuple[int, int], spp: int) -> Path:
 def reference_fingerprint(scene: str) -> str:
     """What a scene's reference depends on besides the settings in its file name: the scene as
     the device gets it (camera, materials, every shape and emitter, whatever file it came from)
-    and the kernel sources that trace it; 16 hex digits of their SHA-256. A cached reference
-    whose fingerprint differs is rendered anew (an edited scene or a changed kernel)."""
-    loaded = load_scene(scene)
-    digest = hashlib.sha256(repr(loaded.camera).encode())
-    for name in ("materials", "quads", "spheres", "emitters", "triangles", "triangle_normals"):
-        digest.update(np.ascontiguousarray(getattr(loaded, name)).tobytes())
-    for source in sorted(kernels_dir().glob("*")):
-        if source.suffix in (".cl", ".h") and not source.stem.endswith("_test"):
-            digest.update(source.name.encode() + source.read_bytes())
-    return digest.hexdigest()[:16]
+    and the kernel sources that trace it (clrender.provenance). A cached reference whose
+    fingerprint differs is rendered anew (an edited scene or a changed kernel)."""
+    return f"{scene_fingerprint(load_scene(scene))}-{kernels_fingerprint()}"
 
 
 def reference(

@@ -135,7 +135,7 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     sets = generate_sample_sets(runtime, config, 1, np.arange(pixels, dtype=np.uint32))
     default_layout = device_cells._sample_set_layout(sets)
     box = float(np.float32(0.5 + config.eps))
-    base, real = device_cells._precision_setup(runtime, "auto")
+    base, real = device_cells.precision_setup(runtime, "auto")
     size = np.dtype(real).itemsize
     options, layouts, folders = [], [], []
     for k, variant in enumerate(variants):

@@ -23,9 +23,15 @@ from pathlib import Path
 import numpy as np
 
 from clrender import pipeline
-from clrender.analytic import DEFAULT_RESOLUTION, AnalyticSource, is_analytic_scene
+from clrender.analytic import (
+    DEFAULT_RESOLUTION,
+    AnalyticSource,
+    analytic_image,
+    is_analytic_scene,
+)
 from clrender.errors import ParameterError
 from clrender.estimators import Estimator, EstimatorWarning, check_compatible, pairing_advice
+from clrender.outputs import render_labels
 from clrender.pipeline import (
     DEFAULT_TILE_SAMPLES,
     ProgressCallback,
@@ -157,6 +163,14 @@ def render(
         if bar is not None:
             bar.close()
     result.stats.setup_compile_seconds = setup_compile
+    result.labels = render_labels(
+        analytic_image(scene, 1, 1).name if isinstance(scene, str) else scene.name,
+        None if isinstance(scene, str) else scene,
+        runtime,
+        result.max_depth,
+        result.russian_roulette,
+        cluster=executor is not None,
+    )
     return result
 
 

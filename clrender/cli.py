@@ -174,7 +174,11 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="print the closing summary as one JSON object on stdout (and nothing else there)",
     )
-    add("--quiet", action="store_true", help="no progress bar and no summary: warnings only")
+    add(
+        "--quiet",
+        action="store_true",
+        help="no progress bar and no summary: warnings and errors only",
+    )
     add("--seed", type=int, default=0, help="random seed, 0 <= S < 2^32 (default: 0)")
     add(
         "--max-depth",
@@ -251,41 +255,6 @@ def command_devices(args: argparse.Namespace) -> int:
 
 
 # --- render --------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class OutputPaths:
-    exr: Path
-    png: Path
-
-
-def output_paths(
-    output: str | None, scene_label: str, estimators: list[str] | None = None
-) -> dict[str, OutputPaths]:
-    """OUT.exr and OUT.png for one estimator, OUT.<estimator>.exr and .png for each of several,
-    all checked writable before anything renders."""
-    from clrender.imageio import check_writable
-
-    if output is not None and not output.strip():
-        raise ParameterError("-o/--output is empty: give a file name such as out.exr")
-    exr = Path(output) if output else Path(scene_label.replace(":", "-") + ".exr")
-    if exr.name.lower() in (".exr", ".png"):
-        raise ParameterError(f"-o/--output {str(exr)!r} has no file name before {exr.name}")
-    if output and exr.suffix == "" and exr.exists() and not exr.is_file():
-        raise ParameterError(
-            f"-o/--output {str(exr)!r} is not a file name (a directory or device): clrender "
-            "writes OUT.exr and OUT.png, give OUT"
-        )
-    if exr.suffix.lower() != ".exr":
-        if exr.suffix:
-            raise ParameterError(f"-o/--output must name an .exr file, got {str(exr)!r}")
-        exr = exr.with_suffix(".exr")
-    names = estimators or [""]
-    paths = {}
-    for name in names:
-        named = exr.with_name(f"{exr.stem}.{name}{exr.suffix}") if len(names) > 1 else exr
-        paths[name] = OutputPaths(check_writable(named), check_writable(named.with_suffix(".png")))
-    return paths
 
 
 def estimator_names(text: str | None, sampler: str) -> list[str]:
@@ -422,27 +391,6 @@ def path_depth(args: argparse.Namespace) -> int:
     return DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
 
 
-def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:
-    """Every estimator's EXR (RGB, the per-pixel layers, the metadata with its errors) and PNG,
-    each checked on disk before any replaces its old version."""
-    from clrender.imageio import (
-        exr_header,
-        exr_writer,
-        png_writer,
-        rgb_float32,
-        write_all_atomically,
-    )
-    from clrender.report import exr_layers, render_metadata
-
-    jobs = []
-    for name, pair in zip(result.films, paths.values(), strict=True):
-        image = rgb_float32(result.films[name].image())
-        header = exr_header(render_metadata(result, labels, name, errors.get(name)))
-        jobs.append((pair.exr, exr_writer(image, header, exr_layers(result, name))))
-        jobs.append((pair.png, png_writer(image)))
-    write_all_atomically(jobs)
-
-
 @dataclass(frozen=True)
 class Reference:
     """What the images are compared with: a reference EXR, or an analytic image's exact
@@ -453,7 +401,7 @@ class Reference:
     noise: float | None
 
 
-def load_reference(args: argparse.Namespace, source, settings, label: str) -> Reference | None:
+def load_reference(args: argparse.Namespace, source, settings, labels) -> Reference | None:
     """--reference (checked against the render's size before it starts; what makes its errors
     untrustworthy printed as warnings), else the exact pixel integrals of an analytic image,
     else None."""
@@ -463,7 +411,9 @@ def load_reference(args: argparse.Namespace, source, settings, label: str) -> Re
         shape = (settings.height, settings.width)
         pixels, metadata = read_image(args.reference, "reference", shape)
         noise = noise_from_metadata(metadata, args.reference)
-        rendered = {"scene": label, "seed": settings.seed}
+        rendered = {"scene": labels.scene, "seed": settings.seed}
+        if labels.scene_sha256 is not None:
+            rendered["scene_sha256"] = labels.scene_sha256
         for warning in reference_warnings(rendered, metadata, args.reference):
             print(f"clrender: warning: {warning}", file=sys.stderr)
         return Reference(args.reference, pixels, noise)
@@ -503,9 +453,10 @@ def command_render(args: argparse.Namespace) -> int:
     args.outputs_written = False  # an interrupt that escapes says whether the files were written
     with interrupts.signals_blocked():  # SciPy and OpenEXR initialise whole
         from clrender.estimators import pairing_advice
+        from clrender.outputs import output_paths, render_labels, write_outputs
         from clrender.pipeline import render
         from clrender.progress import ProgressBar
-        from clrender.report import RenderLabels, json_ready, summary_json, summary_lines
+        from clrender.report import json_ready, summary_json, summary_lines
         from clrender.runtime import thread_build_seconds
 
     # Set-up with the ending signals blocked: one that comes is acted on when it is done, not
@@ -515,6 +466,13 @@ def command_render(args: argparse.Namespace) -> int:
         label = scene_label(args.scene)
         names = estimator_names(args.estimator, args.sampler)
         paths = output_paths(args.output, label, names)
+        if args.reference:
+            from clrender.compare import check_outputs_spare_inputs
+
+            written = [path for pair in paths.values() for path in (pair.exr, pair.png)]
+            check_outputs_spare_inputs(
+                written, [args.reference], "-o/--output", "the --reference image or its preview"
+            )
         scene = load_scene_arg(args)
         for name in names:
             advice = pairing_advice(name, args.sampler, args.spp)
@@ -525,13 +483,14 @@ def command_render(args: argparse.Namespace) -> int:
         source, max_depth, roulette = make_source(args, runtime, scene)
         setup_compile = thread_build_seconds() - built
         settings = settings_from_args(args, source.width, source.height)
-        reference = load_reference(args, source, settings, label)
-        labels = RenderLabels(label, runtime.describe(), max_depth, roulette)
+        cluster = args.workers is not None or args.scheduler is not None
+        labels = render_labels(label, scene, runtime, max_depth, roulette, cluster)
+        reference = load_reference(args, source, settings, labels)
     progress = ProgressBar(
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
     )
     try:
-        if args.workers is None and args.scheduler is None:
+        if not cluster:
             result = render(runtime, source, settings, progress)
         else:
             result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
@@ -589,10 +548,13 @@ def command_scenes(args: argparse.Namespace) -> int:
     analytic images."""
     import textwrap
 
-    from clrender.analytic import ANALYTIC_KINDS
+    from clrender.analytic import ANALYTIC_KINDS, DEFAULT_RESOLUTION
     from clrender.scene import list_scenes, load_scene
 
-    print("shipped scenes (python -m clrender render NAME):")
+    print(
+        f"shipped scenes (python -m clrender render NAME: {DEFAULT_WIDTH} pixels wide unless "
+        "--res says otherwise; --res scene for the size below):"
+    )
     for name in list_scenes():
         scene = load_scene(name)
         width, height = scene.camera.resolution
@@ -601,7 +563,11 @@ def command_scenes(args: argparse.Namespace) -> int:
         line = f"  {name:20s} {f'{width}x{height}':9s} {first}"
         print(textwrap.fill(line, 100, subsequent_indent=" " * 33))
     kinds = "|".join(ANALYTIC_KINDS)
-    print(f"analytic images with exact pixel integrals: analytic[:{kinds}] (default size 64x64)")
+    width, height = DEFAULT_RESOLUTION
+    print(
+        f"analytic images with exact pixel integrals: analytic[:{kinds}] "
+        f"(own size {width}x{height})"
+    )
     return 0
 
 

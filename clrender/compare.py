@@ -39,6 +39,7 @@ import json
 import math
 import os
 import sys
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -303,6 +304,12 @@ def reference_warnings(
                 f"the reference {reference_path} is of scene {reference_scene!r}, the image of "
                 f"{image_scene!r}"
             )
+        elif _differ(image.get("scene_sha256"), reference.get("scene_sha256")):
+            warnings.append(
+                f"the reference {reference_path} is of another scene of the same name "
+                f"{image_scene!r}: the scene the device got differs (scene_sha256 "
+                f"{reference['scene_sha256']} against the image's {image['scene_sha256']})"
+            )
         elif "seed" in image and image.get("seed") == reference.get("seed"):
             warnings.append(
                 f"the image and the reference {reference_path} were rendered from the same seed "
@@ -310,6 +317,11 @@ def reference_warnings(
                 "them, so its errors come out too low; render the reference with another --seed"
             )
     return warnings
+
+
+def _differ(a: object, b: object) -> bool:
+    """Whether two recorded values are both there and differ."""
+    return a is not None and b is not None and a != b
 
 
 def partial_warning(role: str, path: str | os.PathLike) -> str:
@@ -403,17 +415,18 @@ def map_paths(output: str | os.PathLike) -> tuple[Path, Path]:
     return check_writable(exr), check_writable(exr.with_suffix(".png"))
 
 
-def check_map_spares_inputs(paths: tuple[Path, Path], inputs: tuple[str, str]) -> None:
-    """ParameterError if the error map or its preview would replace an input or an input's
-    PNG preview (the render wrote IMAGE.png beside IMAGE.exr)."""
+def check_outputs_spare_inputs(
+    outputs: Iterable[Path], inputs: Iterable[str], option: str, role: str
+) -> None:
+    """ParameterError if an output would replace an input or an input's PNG preview (a render
+    wrote IMAGE.png beside IMAGE.exr); option names the outputs, role the inputs."""
     spared = [Path(name) for name in inputs]
     spared += [name.with_suffix(".png") for name in spared]
-    for written in paths:
+    for written in outputs:
         for other in spared:
             if os.path.realpath(written) == os.path.realpath(other):
                 raise ParameterError(
-                    f"--map {paths[0]} would overwrite {other}, an input or its preview: "
-                    "choose another name"
+                    f"{option} {written} would overwrite {other}, {role}: choose another name"
                 )
 
 
@@ -485,7 +498,9 @@ def run_compare(args: argparse.Namespace) -> int:
     write the error map if args.map; 0 when done (bad input raises a ClrenderError)."""
     paths = map_paths(args.map) if args.map is not None else None
     if paths is not None:
-        check_map_spares_inputs(paths, (args.image, args.reference))
+        check_outputs_spare_inputs(
+            paths, (args.image, args.reference), "--map", "an input or its preview"
+        )
     image, image_metadata = read_image(args.image, "image")
     reference, reference_metadata = read_image(args.reference, "reference", image.shape)
     errors = image_errors(image, reference, noise_from_metadata(reference_metadata, args.reference))

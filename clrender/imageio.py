@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -33,6 +34,7 @@ from PIL import Image, PngImagePlugin
 from clrender.errors import ClrenderError
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+LONG_INTEGER = re.compile(r"-?[1-9][0-9]{9,}")  # the digits of an integer beyond int32
 NAME_MAX = 255  # bytes in one file name (Linux, macOS, Windows alike)
 PATH_MAX = 4096  # bytes in a whole path (Linux; longer ones fail with ENAMETOOLONG)
 SRGB_PERCEPTUAL = 0  # the sRGB chunk's rendering intent
@@ -228,16 +230,30 @@ def incomplete(temp: Path, detail: str) -> IncompleteWrite:
 # --- OpenEXR ---------------------------------------------------------------------------------
 
 
-def exr_attribute(value: object) -> int | float | str:
-    """A metadata value as an EXR attribute (int32, float or string)."""
+def exr_attribute(value: object) -> int | np.ndarray | str:
+    """A metadata value as an EXR attribute: int32 for an integer that fits, double for a
+    float (a 0-d float64 array: the bindings write a Python float as a 32-bit float), string
+    otherwise (an integer beyond int32 as its decimal digits: metadata_value reads it back)."""
     if isinstance(value, bool | np.bool_):
         return int(value)
     if isinstance(value, int | np.integer):
         value = int(value)
         return value if INT32_MIN <= value <= INT32_MAX else str(value)
     if isinstance(value, float | np.floating):
-        return float(value)
+        return np.array(float(value), np.float64)
     return str(value)
+
+
+def metadata_value(value: object) -> object:
+    """An EXR attribute as exr_attribute was given it: a double as a float, an integer beyond
+    int32 (written as its digits) as an int; other values as the bindings read them."""
+    if isinstance(value, np.ndarray) and value.dtype == np.float64 and value.size == 1:
+        return float(value.reshape(()))
+    if isinstance(value, str) and LONG_INTEGER.fullmatch(value):
+        number = int(value)
+        if not INT32_MIN <= number <= INT32_MAX:
+            return number
+    return value
 
 
 def rgb_float32(image: np.ndarray) -> np.ndarray:
@@ -330,7 +346,9 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
     with OpenEXR.File(str(path), separate_channels=True) as exr:
         # Copy inside the block: the bindings empty the header dict when the file closes.
         header = exr.header()
-        metadata = {k: v for k, v in header.items() if k not in STANDARD_EXR_ATTRIBUTES}
+        metadata = {
+            k: metadata_value(v) for k, v in header.items() if k not in STANDARD_EXR_ATTRIBUTES
+        }
         channels = exr.channels()
         missing = [name for name in "RGB" if name not in channels]
         if missing:

@@ -71,6 +71,7 @@ are in flight is finished (without its redraws), and `render` returns the partia
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -315,6 +316,9 @@ class RenderResult:
     # roulette ended them (None for sources without paths, such as analytic images)
     max_depth: int | None = None
     russian_roulette: bool | None = None
+    # What the pipeline does not know (clrender.report.RenderLabels: scene, device,
+    # provenance), recorded by clrender.render for save()
+    labels: object | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film
@@ -326,6 +330,15 @@ class RenderResult:
         if entry.image_level and self.first_draw_layers is not None:
             return self.first_draw_layers
         return self.layers
+
+    def save(self, output: str | os.PathLike) -> dict:
+        """Write OUT.exr and OUT.png (with several estimators OUT.<estimator>.exr and .png
+        each) as the command line does: RGB, per-pixel layers, metadata with provenance;
+        atomically, a failed write keeps the old files (clrender.outputs.save). Returns the
+        paths written, by estimator."""
+        from clrender.outputs import save
+
+        return save(self, output)
 
     @property
     def image(self) -> np.ndarray:

@@ -22,6 +22,13 @@ class RenderLabels:
     device: str
     max_depth: int | None  # None for sources without paths (analytic images)
     russian_roulette: bool | None = None  # likewise None without paths
+    # Provenance (clrender.provenance), None where not known: the scene file and the scene as
+    # the device got it (none for analytic images), the kernel sources, and the precision of
+    # the device's Voronoi cells and sums ("mixed" with cl_khr_fp64, else "single")
+    scene_file: str | None = None
+    scene_sha256: str | None = None
+    kernels_sha256: str | None = None
+    device_precision: str | None = None
 
 
 def render_metadata(
@@ -76,6 +83,11 @@ def render_metadata(
         metadata["toroidal_shift"] = 1
     if sampler.is_sppp:
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
+    metadata["voronoi_backend"] = settings.voronoi_backend
+    for key in ("scene_file", "scene_sha256", "kernels_sha256", "device_precision"):
+        value = getattr(labels, key)
+        if value is not None:
+            metadata[key] = value
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
     if labels.russian_roulette is not None:
@@ -139,6 +151,7 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
     sampler = settings.sampler
     status = "interrupted" if stats.interrupted else "done"
     overlap = "on" if settings.overlap else "off"
+    tiles = f"{stats.tiles} tile" + ("" if stats.tiles == 1 else "s")
     names = " ".join(entry.name for entry in settings.estimators)
     stages = ", ".join(
         f"{stage.replace('_', ' ')} {format_seconds(stats.stage_seconds[stage])}"
@@ -153,7 +166,7 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
         f"{names}, seed {settings.seed} on {labels.device}",
         f"{status}: {film.rendered_count}/{film.pixel_count} pixels in "
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
-        f"host estimators {format_seconds(stats.host_seconds)}, {stats.tiles} tiles, "
+        f"host estimators {format_seconds(stats.host_seconds)}, {tiles}, "
         f"overlap {overlap}; kernel builds {format_seconds(stats.compile_seconds)}, and "
         f"{format_seconds(stats.setup_compile_seconds)} before the render)",
         f"device stages: {stages}; host: {estimators or 'none'}",

@@ -10,6 +10,8 @@
 // quad_count + sphere_count + k. Hit ids (Scene_Intersect's): -1 is a miss; primitive ids, but
 // for a triangle found through the BVH: quad_count + sphere_count + the word of its leaf block
 // in bvh_prims + its lane (Scene_Surface reads the block, Scene_HitPrimitive its primitive id).
+// With a BVH nothing here reads scene->triangles (a scene without emitting triangles gets
+// none: clrender/trace.py device_triangles); lights.h reads the emitting ones.
 #ifndef CLRENDER_GEOMETRY_H
 #define CLRENDER_GEOMETRY_H
 

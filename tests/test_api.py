@@ -42,7 +42,7 @@ def test_readme_python_example_runs_as_a_notebook_cell(capsys):
 @pytest.mark.device
 def test_a_poor_estimator_sampler_pair_warns_once_with_advice():
     with pytest.warns(EstimatorWarning, match="use --estimator mc_n") as caught:
-        clrender.render("analytic:edge", spp=4, estimators=["mc", "vor_sn"], resolution=(8, 6))
+        clrender.render("analytic:edge", spp=16, estimators=["mc", "vor_sn"], resolution=(8, 6))
     assert len(caught) == 1
 
 
@@ -175,11 +175,33 @@ def test_pvor_over_a_poisson_count_has_the_mean_its_advice_states():
 
 
 @pytest.mark.parametrize("n, warned", [(6, True), (7, False)])
-def test_pvor_advice_stops_where_the_empty_pixels_stop_mattering(n, warned):
+@pytest.mark.parametrize("estimator", ["mc_n", "vor_sn", "fvor", "cvor", "pvor", "ivor_sn"])
+def test_empty_pixel_advice_stops_where_the_empty_pixels_stop_mattering(estimator, n, warned):
     from clrender.estimators import pairing_advice
 
-    assert (pairing_advice("pvor", "sppp", n) is not None) == warned
-    assert pairing_advice("pvor", "independent", 1) is None
+    advice = pairing_advice(estimator, "sppp", n)
+    assert (advice is not None) == warned
+    if warned:
+        assert advice.startswith(f"{estimator} over the sppp sampler at n = {n}")
+        assert "unbiased at this n: mc or vor over sppp" in advice
+    assert pairing_advice(estimator, "sobol", 1) is None  # fixed counts: no empty pixel
+
+
+@pytest.mark.parametrize("estimator", ["mc", "vor", "ivor"])
+def test_estimators_unbiased_over_a_poisson_count_get_no_empty_pixel_advice(estimator):
+    from clrender.estimators import pairing_advice
+
+    advice = pairing_advice(estimator, "sppp", 1)
+    assert advice is None or "e^-n" not in advice
+
+
+@pytest.mark.parametrize("n, recommends_mc_n", [(2, False), (64, True)])
+def test_the_mc_over_sppp_advice_recommends_mc_n_only_where_it_is_unbiased(n, recommends_mc_n):
+    from clrender.estimators import pairing_advice
+
+    advice = pairing_advice("mc", "sppp", n)
+    assert advice.endswith("mc with --sampler sobol")
+    assert ("mc_n or vor_sn" in advice) == recommends_mc_n
 
 
 def test_the_version_and_the_compare_module_are_reachable(capsys):
@@ -195,3 +217,41 @@ def test_the_version_and_the_compare_module_are_reachable(capsys):
     root = str(Path(clrender.__file__).parents[1])
     shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root)
     assert shown.stdout == "True\n", shown.stderr
+
+
+TIMES = ("time_s", "render_time_s")
+
+
+def test_save_writes_what_the_command_line_writes(tmp_path, capsys):
+    from clrender import cli
+    from clrender.imageio import read_exr, read_exr_channels
+
+    argv = ["cornell-box", "--res", "12x8", "--spp", "8", "--estimator", "mc_n,vor_sn"]
+    assert cli.main(["render", *argv, "-o", str(tmp_path / "cli.exr"), "--quiet"]) == 0
+    result = clrender.render(
+        "cornell-box", spp=8, resolution=(12, 8), estimators=["mc_n", "vor_sn"]
+    )
+    written = result.save(tmp_path / "api")
+    assert list(written) == ["mc_n", "vor_sn"]
+    for name, pair in written.items():
+        assert pair.exr == tmp_path / f"api.{name}.exr" and pair.png.is_file()
+        pixels, metadata = read_exr(pair.exr)
+        cli_pixels, cli_metadata = read_exr(tmp_path / f"cli.{name}.exr")
+        assert pixels.tobytes() == cli_pixels.tobytes()
+        assert metadata.keys() == cli_metadata.keys()
+        for key, value in cli_metadata.items():
+            if not key.endswith(TIMES):
+                assert metadata[key] == value, key
+        assert (
+            read_exr_channels(pair.exr).keys()
+            == read_exr_channels(tmp_path / f"cli.{name}.exr").keys()
+        )
+        assert (tmp_path / f"cli.{name}.png").read_bytes() == pair.png.read_bytes()
+
+
+def test_save_needs_a_result_of_render(tmp_path):
+    result = clrender.render("analytic:disc", spp=8, resolution=8)
+    result.labels = None
+    with pytest.raises(clrender.ParameterError, match="save the result of clrender.render"):
+        result.save(tmp_path / "out.exr")
+    assert not list(tmp_path.iterdir())

@@ -73,7 +73,7 @@ def assert_same_cells(device, host, rtol):
 def cell_status(runtime, traced, aux, box=None):
     """The device's status byte of each traced cell of one pixel (float32-rounded nuclei)."""
     flat = np.concatenate([rounded(traced), rounded(aux)]).astype(np.float32)
-    layout = device_cells._Layout(
+    layout = device_cells.CellLayout(
         runtime.upload(flat),
         offsets_of([len(rounded(traced))]),
         offsets_of([len(rounded(aux))]),
@@ -81,8 +81,8 @@ def cell_status(runtime, traced, aux, box=None):
         device_cells.grid_side(len(flat), 1),
         float(np.abs(rounded(traced)).max()),
     )
-    defines, real = device_cells._precision_setup(runtime, "auto")
-    return device_cells._launch(runtime, layout, box, defines, real)[1]
+    defines, real = device_cells.precision_setup(runtime, "auto")
+    return device_cells.launch_cell_kernels(runtime, layout, box, defines, real)[1]
 
 
 def sppp_batch(n, pixels, seed, eps=None):

@@ -32,6 +32,7 @@ def test_exr_round_trip_keeps_pixels_and_metadata(tmp_path):
         "seed": 4_000_000_000,
         "partial": True,
         "render_time_s": 1.25,
+        "error_mse": 0.019338188512607515,  # no float32: written as a double
         "nonfinite_samples": 0,
     }
     write_exr(tmp_path / "out.exr", image, metadata)
@@ -41,11 +42,13 @@ def test_exr_round_trip_keeps_pixels_and_metadata(tmp_path):
     assert meta == {
         "scene": "cornell-box",
         "spp": 64,
-        "seed": "4000000000",
+        "seed": 4_000_000_000,  # beyond int32: written as digits, read back as an int
         "partial": 1,
         "render_time_s": 1.25,
+        "error_mse": 0.019338188512607515,
         "nonfinite_samples": 0,
     }
+    assert all(type(meta[key]) is type(metadata[key]) for key in ("seed", "error_mse", "spp"))
 
 
 def test_exr_writes_non_contiguous_and_float64_images_correctly(tmp_path):

@@ -179,7 +179,7 @@ def test_missing_output_folders_are_created(capsys, tmp_path):
     """The README's `-o out/cbox.exr` on a fresh clone: before, 'directory out does not exist'."""
     target = tmp_path / "out" / "deeper" / "cbox.exr"
     status, out, err = run_cli(
-        capsys, "render", "analytic:edge", "--res", "4", "--spp", "1", "-o", str(target)
+        capsys, "render", "analytic:edge", "--res", "4", "--spp", "8", "-o", str(target)
     )
     assert status == 0, err
     assert target.is_file() and target.with_suffix(".png").is_file()
@@ -372,7 +372,7 @@ def interrupting(real):
     return call
 sent = []
 {patch}
-sys.argv = ["clrender", "render", "cornell-box", "--res", "8", "--spp", "1", "-o", "old.exr"]
+sys.argv = ["clrender", "render", "cornell-box", "--res", "8", "--spp", "8", "-o", "old.exr"]
 from clrender.__main__ import run
 sys.exit(run())
 """
@@ -426,7 +426,7 @@ def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monk
     import OpenEXR
 
     out = tmp_path / "edge.exr"
-    argv = ["render", "analytic:edge", "--res", "8", "--spp", "1", "-o", str(out)]
+    argv = ["render", "analytic:edge", "--res", "8", "--spp", "8", "-o", str(out)]
     assert run_cli(capsys, *argv)[0] == 0
     before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
     monkeypatch.setattr(OpenEXR.File, "write", lambda self, name: open(name, "wb").close())

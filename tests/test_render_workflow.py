@@ -276,3 +276,45 @@ def test_scenes_lists_every_shipped_scene_with_its_description(capsys):
         assert f"  {name} " in stdout
     assert "The Cornell box of the paper's authors" in stdout
     assert "analytic[:edge|smooth|disc|bowl|mix]" in stdout
+
+
+@pytest.mark.usefixtures("shared_cli_runtime")
+@pytest.mark.device
+def test_the_sizes_the_scenes_list_gives_are_the_ones_rendered(capsys, tmp_path):
+    stdout = run_cli(capsys, "scenes")[1]
+    listed = stdout.split("(own size ")[1].split(")")[0]
+    assert f"{cli.DEFAULT_WIDTH} pixels wide unless --res says otherwise" in stdout
+    for res, size in (("scene", listed), (None, f"{cli.DEFAULT_WIDTH}x{cli.DEFAULT_WIDTH}")):
+        out = tmp_path / f"{res}.exr"
+        argv = ["render", "analytic:disc", "--spp", "8", "-o", str(out), "--quiet"]
+        assert run_cli(capsys, *argv, *(["--res", res] if res else []))[0] == 0
+        height, width = read_exr(out)[0].shape[:2]
+        assert f"{width}x{height}" == size
+
+
+@pytest.mark.parametrize(
+    ("reference_name", "output", "estimators"),
+    [("ref.exr", "ref.exr", "mc"), ("ref.exr", "ref", "mc"), ("out.vor.exr", "out", "mc,vor")],
+)
+def test_a_render_never_overwrites_its_reference(
+    capsys, tmp_path, reference_name, output, estimators
+):
+    reference = tmp_path / reference_name
+    write_exr(reference, np.full((16, 24, 3), 0.5, np.float32), {"spp": 64})
+    before = reference.read_bytes()
+    status, stdout, err = run_cli(
+        capsys,
+        "render",
+        "analytic:smooth",
+        *FAST,
+        "--estimator",
+        estimators,
+        "--reference",
+        str(reference),
+        "-o",
+        str(tmp_path / output),
+    )
+    assert status == 2 and stdout == ""
+    assert err.startswith("clrender: error: -o/--output ") and err.count("\n") == 1
+    assert f"would overwrite {reference}, the --reference image" in err
+    assert reference.read_bytes() == before

@@ -129,7 +129,7 @@ def host_cells(kind: str, sets: SampleSets, box: float | None) -> CellAreas:
 
 
 @dataclass(frozen=True)
-class _Layout:
+class CellLayout:
     """A launch's point layout: traced nuclei then auxiliary ones in one float2 buffer."""
 
     positions: cl.Buffer
@@ -195,7 +195,7 @@ def device_sppp_cells_from_arrays(
     buffer, upload = runtime.upload_async(flat)  # held until _cells has read its results
     side = grid_side(len(flat), len(offsets) - 1)
     traced_extent = float(np.abs(traced32).max()) if len(traced32) else 0.0
-    layout = _Layout(buffer, offsets, aux_offsets, max(extent, 0.5), side, traced_extent)
+    layout = CellLayout(buffer, offsets, aux_offsets, max(extent, 0.5), side, traced_extent)
 
     def fetch(wanted: np.ndarray) -> SampleSets:
         return SampleSets(traced32, offsets, 1.0, aux32, aux_offsets, 0.0).subset(wanted)
@@ -333,7 +333,7 @@ def device_plain_sums(
     the plain sums of device_sppp_sums, the same arithmetic (bit-identical), without cells. No
     pixel is redrawn or recomputed."""
     pixels = sample_sets.pixel_count
-    defines, real = _precision_setup(runtime, precision)
+    defines, real = precision_setup(runtime, precision)
     moments = np.zeros((pixels, MOMENTS_PER_PIXEL), real)
     nonfinite = np.zeros(pixels, np.uint32)
     if sample_sets.traced_total and pixels:
@@ -364,11 +364,11 @@ def device_plain_sums(
 
 
 def _device_sums(
-    runtime: Runtime, layout: _Layout, radiance, box: float | None, precision: str
+    runtime: Runtime, layout: CellLayout, radiance, box: float | None, precision: str
 ) -> DeviceSums:
     """Cells and per-pixel sums of a layout on the device (see device_sppp_sums)."""
     pixels = layout.pixel_count
-    defines, real = _precision_setup(runtime, precision)
+    defines, real = precision_setup(runtime, precision)
     sums = np.zeros((pixels, SUMS_PER_PIXEL), real)
     flags = np.zeros(pixels, np.uint8)
     nonfinite = np.zeros(pixels, np.uint32)
@@ -481,13 +481,13 @@ def grid_side(layout_points: int, pixels: int) -> int:
 # Launch and host fallback
 
 
-def _sample_set_layout(sample_sets: DeviceSampleSets) -> _Layout:
+def _sample_set_layout(sample_sets: DeviceSampleSets) -> CellLayout:
     """The layout of a launch's SPPP sample sets (n_aux auxiliary nuclei per pixel). The grid
     follows the sampler, not the launch: a pixel's cells are then bit-identical whatever tile
     it is computed in."""
     config = sample_sets.config
     aux_offsets = np.arange(sample_sets.pixel_count + 1, dtype=np.int64) * config.n_aux
-    return _Layout(
+    return CellLayout(
         sample_sets.positions,
         np.asarray(sample_sets.traced_offsets, np.int64),
         aux_offsets,
@@ -505,7 +505,7 @@ def _copies_layout(
     mean_count: float,
     defines: dict[str, object],
     kind: str,
-) -> _Layout:
+) -> CellLayout:
     """Queue the copies of a launch's traced nuclei that make their cells those of the kind:
     torus translates ("periodic", voronoi_periodic_copies: the wrapped nuclei, then 8 translates
     each, pixel p's from 8 traced_offsets[p]) or mirror images ("clipped",
@@ -524,7 +524,7 @@ def _copies_layout(
             positions,
             nuclei,
         )
-    return _Layout(
+    return CellLayout(
         nuclei,
         traced_offsets,
         (copies - 1) * traced_offsets,
@@ -536,17 +536,17 @@ def _copies_layout(
     )
 
 
-def _precision_setup(runtime: Runtime, precision: str) -> tuple[dict[str, object], type]:
+def precision_setup(runtime: Runtime, precision: str) -> tuple[dict[str, object], type]:
     """(build options, NumPy type of the areas) for the precision."""
     resolved = resolve_precision(runtime, precision)
     return _defines(resolved), np.float32 if resolved == "single" else np.float64
 
 
 def _cells(
-    runtime: Runtime, layout: _Layout, box: float | None, precision: str, fetch: FetchPixels
+    runtime: Runtime, layout: CellLayout, box: float | None, precision: str, fetch: FetchPixels
 ) -> CellAreas:
-    defines, real = _precision_setup(runtime, precision)
-    areas, status = _launch(runtime, layout, box, defines, real)
+    defines, real = precision_setup(runtime, precision)
+    areas, status = launch_cell_kernels(runtime, layout, box, defines, real)
     bounded = (status & STATUS_BOUNDED) != 0
     cells = CellAreas(
         np.where(bounded, areas.astype(np.float64), np.nan),
@@ -563,8 +563,8 @@ def _cells(
     return cells
 
 
-def _launch(
-    runtime: Runtime, layout: _Layout, box: float | None, defines: dict[str, object], real: type
+def launch_cell_kernels(
+    runtime: Runtime, layout: CellLayout, box: float | None, defines: dict[str, object], real: type
 ) -> tuple[np.ndarray, np.ndarray]:
     """Run both kernels; (areas, status) of every traced nucleus."""
     traced = layout.traced_total
@@ -582,7 +582,7 @@ def _launch(
 
 def _enqueue_cells(
     runtime: Runtime,
-    layout: _Layout,
+    layout: CellLayout,
     box: float | None,
     defines: dict[str, object],
     area_bytes: int,
@@ -668,7 +668,7 @@ def launch_per_pixel(runtime: Runtime, kernel: cl.Kernel, pixels: int, *args) ->
     return runtime.launch_1d(kernel, pixels * stride, np.uint32(pixels), np.uint32(stride), *args)
 
 
-def traced_span(layout: _Layout) -> tuple[int, int]:
+def traced_span(layout: CellLayout) -> tuple[int, int]:
     """(first, count): the grid rows (and columns) that can hold traced nuclei, the same in x
     and y. A nucleus at x goes to grid column floor((x + half_extent) grid_side / (2
     half_extent)), clamped (VoronoiGrid_Index), which rises with x: the columns of -traced_extent
@@ -693,7 +693,7 @@ def _fallback_pixels(traced_offsets: np.ndarray, flagged: np.ndarray) -> np.ndar
 
 
 def _recompute_on_host(
-    cells: CellAreas, layout: _Layout, pixels: np.ndarray, fetch: FetchPixels, box: float | None
+    cells: CellAreas, layout: CellLayout, pixels: np.ndarray, fetch: FetchPixels, box: float | None
 ) -> None:
     """Exact cells of the given pixels from Qhull, written over the device's."""
     redo = host_cells(layout.kind, fetch(pixels), box)

@@ -324,7 +324,7 @@ def estimate_block(
     stats.settled_nuclei = cells.settled
     stats.empty_pixels = int((traced.counts == 0).sum())
     return BlockResult(
-        _bincount_columns(owner, weighted, rect.count),
+        bincount_columns(owner, weighted, rect.count),
         np.bincount(owner, areas, rect.count),
         traced.counts,
         traced.ids,
@@ -360,7 +360,7 @@ def _block_cells(
     return cells, int(near.sum())
 
 
-def _bincount_columns(owner: np.ndarray, weights: np.ndarray, count: int) -> np.ndarray:
+def bincount_columns(owner: np.ndarray, weights: np.ndarray, count: int) -> np.ndarray:
     if weights.ndim == 1:
         return np.bincount(owner, weights, count)
     return np.column_stack(

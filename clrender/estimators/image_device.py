@@ -38,15 +38,15 @@ from clrender.estimators.device_cells import (
     STATUS_BOUNDED,
     STATUS_FALLBACK,
     STATUS_INSIDE,
-    _launch,
-    _Layout,
-    _precision_setup,
+    CellLayout,
     grid_side,
+    launch_cell_kernels,
+    precision_setup,
 )
 from clrender.estimators.image import (
     ImageVoronoiStats,
     RunEstimate,
-    _bincount_columns,
+    bincount_columns,
     empty_run,
     estimate_block,
     near_coincident_length,
@@ -201,7 +201,7 @@ def _estimate_pixels(
     sums = PixelSums(
         traced_counts,
         n,
-        weighted=_bincount_columns(owner, weighted, count),
+        weighted=bincount_columns(owner, weighted, count),
         area=np.bincount(owner, areas, count),
     )
     return RunEstimate(sums, ids, areas, stats)
@@ -224,7 +224,7 @@ def _device_cells(
         return np.zeros(0), np.zeros(0, np.uint8)
     buffer, upload = runtime.upload_async(np.concatenate([local, aux]))
     half_extent = 0.5 + ring
-    layout = _Layout(
+    layout = CellLayout(
         buffer,
         traced_offsets,
         aux_offsets,
@@ -235,8 +235,10 @@ def _device_cells(
         intensity=n,
         near_length=1.05 * near_length,  # 5 % wider for the rounding of the relative positions
     )
-    defines, real = _precision_setup(runtime, precision)
+    defines, real = precision_setup(runtime, precision)
     defines["VORONOI_INSIDE_DISCS"] = True
-    areas, status = _launch(runtime, layout, half_extent - CERTIFY_MARGIN, defines, real)
+    areas, status = launch_cell_kernels(
+        runtime, layout, half_extent - CERTIFY_MARGIN, defines, real
+    )
     del upload
     return areas.astype(np.float64), status

@@ -31,6 +31,9 @@ Conventions and choices:
   nuclei, no rejection. Over a Poisson count its mean is (1 - e^-n) times the pixel's value
   (Mecke's formula: the torus cell of an added point has mean area (1 - e^-n) / n), exactly
   the pixels with N = 0, which estimate 0: a bias only at small n (pairing_advice warns).
+  The same holds for every count-normalised estimator (Estimator.count_normalised: mc_n,
+  vor_sn, fvor, cvor, pvor, ivor_sn; the self-normalised ones add their ratio bias), while mc,
+  vor and ivor stay unbiased over a Poisson count.
 - ivor, ivor_sn: the pixels' nuclei together form one Poisson process of intensity n on the
   image plane; neighbours' nuclei shape the cells (clrender.estimators.image).
 
@@ -134,6 +137,10 @@ class Estimator:
     needs_poisson: bool = False  # Poisson sample counts (the whole image is one process)
     kept_cells: bool = False  # sums also over the nuclei whose cell lies inside W'
     device_sums: bool = False  # the device can form its cells and sums (kernels/voronoi_*.cl)
+    # Its weights sum to 1 over a pixel's drawn samples, and a pixel that draws none estimates
+    # 0: over a Poisson count (the SPPP samplers) its mean is (1 - e^-n) times the value
+    # (exactly for mc_n and pvor; with the self-normalised ratio's own bias for the others)
+    count_normalised: bool = False
 
     def __post_init__(self) -> None:
         device_kinds = ("sppp", "periodic", "clipped")  # device_cells.CELL_KINDS
@@ -162,6 +169,7 @@ ESTIMATORS: dict[str, Estimator] = {
             "mc_n",
             "Monte Carlo, conditional form: mean of the N values (0 if N = 0)",
             mean_over_count,
+            count_normalised=True,
         ),
         Estimator(
             "vor",
@@ -179,6 +187,7 @@ ESTIMATORS: dict[str, Estimator] = {
             cells="sppp",
             needs_aux=True,
             device_sums=True,
+            count_normalised=True,
         ),
         Estimator(
             "fvor",
@@ -188,6 +197,7 @@ ESTIMATORS: dict[str, Estimator] = {
             needs_aux=True,
             kept_cells=True,
             device_sums=True,
+            count_normalised=True,
         ),
         Estimator(
             "cvor",
@@ -195,6 +205,7 @@ ESTIMATORS: dict[str, Estimator] = {
             weighted_sum,
             cells="clipped",
             device_sums=True,
+            count_normalised=True,
         ),
         Estimator(
             "pvor",
@@ -203,6 +214,7 @@ ESTIMATORS: dict[str, Estimator] = {
             weighted_sum,
             cells="periodic",
             device_sums=True,
+            count_normalised=True,
         ),
         Estimator(
             "ivor",
@@ -218,6 +230,7 @@ ESTIMATORS: dict[str, Estimator] = {
             self_normalised,
             cells="image",
             needs_poisson=True,
+            count_normalised=True,
         ),
     ]
 }
@@ -262,8 +275,9 @@ class EstimatorWarning(UserWarning):
     """An estimator and sampler pair that works but is known to be a poor choice."""
 
 
-# Below this empty-pixel probability e^-n pvor's bias over a Poisson count goes unmentioned
-PVOR_EMPTY_PIXEL_ADVICE = 1e-3
+# Below this empty-pixel probability e^-n the count-normalised estimators' bias over a Poisson
+# count goes unmentioned (n >= 7)
+EMPTY_PIXEL_ADVICE = 1e-3
 
 
 def pairing_advice(estimator: str | Estimator, sampler: str, n: int | None = None) -> str | None:
@@ -273,18 +287,25 @@ def pairing_advice(estimator: str | Estimator, sampler: str, n: int | None = Non
 
     entry = estimator_info(estimator)
     empty = math.exp(-n) if n is not None else 0.0
-    if entry.name == "pvor" and sampler_kind(sampler).is_sppp and empty >= PVOR_EMPTY_PIXEL_ADVICE:
+    poisson = sampler_kind(sampler).is_sppp
+    if entry.count_normalised and poisson and empty >= EMPTY_PIXEL_ADVICE:
+        exactly = "" if entry.name in ("mc_n", "pvor") else "about "
         return (
-            f"pvor over the {sampler} sampler at n = {n}: a pixel draws no sample with "
-            f"probability e^-n = {empty:.2g} and then estimates 0, so pvor's mean is "
-            f"(1 - e^-n) times the pixel's value; it is unbiased over fixed-count samplers "
-            "(--sampler independent, stratified or sobol)"
+            f"{entry.name} over the {sampler} sampler at n = {n}: a pixel draws no sample with "
+            f"probability e^-n = {empty:.2g} and then estimates 0, so {entry.name}'s mean is "
+            f"{exactly}(1 - e^-n) times the pixel's value; unbiased at this n: mc or vor over "
+            f"{sampler}, or mc over --sampler sobol"
         )
     if entry.name == "mc" and sampler_kind(sampler).is_sppp:
         return (
             f"mc over the {sampler} sampler divides by the intensity n while each pixel draws a "
             "Poisson number N of samples, so the count's own variance adds to every pixel "
-            "(far noisier than mc over fixed counts): use --estimator mc_n or vor_sn with "
-            f"{sampler}, or mc with --sampler sobol"
+            "(far noisier than mc over fixed counts): use "
+            + (
+                f"--estimator mc_n or vor_sn with {sampler}, or "
+                if empty < EMPTY_PIXEL_ADVICE
+                else ""  # at small n those lose the empty pixels (above)
+            )
+            + "mc with --sampler sobol"
         )
     return None

@@ -1,0 +1,104 @@
+"""A render's files: OUT.exr (RGB, per-pixel layers, metadata with provenance and errors) and
+OUT.png per estimator, written together and atomically. The command line and
+`RenderResult.save` write them alike."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from clrender.errors import ParameterError
+
+
+@dataclass(frozen=True)
+class OutputPaths:
+    exr: Path
+    png: Path
+
+
+def output_paths(
+    output: str | None,
+    scene_label: str,
+    estimators: list[str] | None = None,
+    option: str = "-o/--output",
+) -> dict[str, OutputPaths]:
+    """OUT.exr and OUT.png for one estimator, OUT.<estimator>.exr and .png for each of several,
+    all checked writable before anything renders; option names the path in messages."""
+    from clrender.imageio import check_writable
+
+    if output is not None and not output.strip():
+        raise ParameterError(f"{option} is empty: give a file name such as out.exr")
+    exr = Path(output) if output else Path(scene_label.replace(":", "-") + ".exr")
+    if exr.name.lower() in (".exr", ".png"):
+        raise ParameterError(f"{option} {str(exr)!r} has no file name before {exr.name}")
+    if output and exr.suffix == "" and exr.exists() and not exr.is_file():
+        raise ParameterError(
+            f"{option} {str(exr)!r} is not a file name (a directory or device): clrender "
+            "writes OUT.exr and OUT.png, give OUT"
+        )
+    if exr.suffix.lower() != ".exr":
+        if exr.suffix:
+            raise ParameterError(f"{option} must name an .exr file, got {str(exr)!r}")
+        exr = exr.with_suffix(".exr")
+    names = estimators or [""]
+    paths = {}
+    for name in names:
+        named = exr.with_name(f"{exr.stem}.{name}{exr.suffix}") if len(names) > 1 else exr
+        paths[name] = OutputPaths(check_writable(named), check_writable(named.with_suffix(".png")))
+    return paths
+
+
+def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -> None:
+    """Every estimator's EXR (RGB, the per-pixel layers, the metadata with its errors) and PNG,
+    each checked on disk before any replaces its old version."""
+    from clrender.imageio import (
+        exr_header,
+        exr_writer,
+        png_writer,
+        rgb_float32,
+        write_all_atomically,
+    )
+    from clrender.report import exr_layers, render_metadata
+
+    jobs = []
+    for name, pair in zip(result.films, paths.values(), strict=True):
+        image = rgb_float32(result.films[name].image())
+        header = exr_header(render_metadata(result, labels, name, errors.get(name)))
+        jobs.append((pair.exr, exr_writer(image, header, exr_layers(result, name))))
+        jobs.append((pair.png, png_writer(image)))
+    write_all_atomically(jobs)
+
+
+def render_labels(label: str, scene, runtime, max_depth, roulette, cluster: bool):
+    """The render's RenderLabels: what the pipeline does not know, provenance included (a
+    cluster's workers pick their own devices: their precision is not known here)."""
+    from clrender.estimators.device_cells import resolve_precision
+    from clrender.provenance import kernels_fingerprint, scene_fingerprint
+    from clrender.report import RenderLabels
+
+    return RenderLabels(
+        label,
+        runtime.describe(),
+        max_depth,
+        roulette,
+        scene_file=None if scene is None else str(Path(scene.path).resolve()),
+        scene_sha256=None if scene is None else scene_fingerprint(scene),
+        kernels_sha256=kernels_fingerprint(),
+        device_precision=None if cluster else resolve_precision(runtime, "auto"),
+    )
+
+
+def save(result, output: str | Path) -> dict[str, OutputPaths]:
+    """Write a render's files as the command line does (OUT.exr and OUT.png; with several
+    estimators OUT.<estimator>.exr and .png each), atomically: a failed write keeps the old
+    files. The result must come from clrender.render (which records its labels: scene,
+    device, provenance). Returns the paths written, by estimator."""
+    labels = getattr(result, "labels", None)
+    if labels is None:
+        raise ParameterError(
+            "this RenderResult carries no labels (scene, device, provenance): save the result "
+            "of clrender.render"
+        )
+    paths = output_paths(str(output), labels.scene, list(result.films), "save's path")
+    write_outputs(result, labels, paths, {})
+    return dict(zip(result.films, paths.values(), strict=True))
