@@ -11,11 +11,13 @@ All six functions are value columns of the same draws, so each tessellation serv
 
 Outputs (default bench/results/analytic/): results.json (every number), report.md (tables and
 the figures with their captions), table2.png, fig2_<function>.png (mean +- std and std against
-n), fig3_<function>.png (RMSE against time per estimate). Times are per estimate, one core,
-excluding sample drawing and function evaluation (the estimator alone: tessellation + weighted
-sums). Error bars on std and RMSE: 95 % percentile bootstrap intervals over the runs
-(bench/bootstrap.py). The paper's Table 2 is at n = 4096 over 10 000 runs; a run at another n
-(--quick: 256) says so beside the paper's columns.
+n), fig3_<function>.png (RMSE against time per estimate). Times ("ms") are wall-clock
+milliseconds (time.perf_counter) per estimate, in this process on one core whatever the
+executor, excluding sample drawing and function evaluation (the estimator alone: tessellation +
+weighted sums); results.json names the clock ("timing") and records the machine's load before
+and after ("machine_before", "machine_after"). Error bars on std and RMSE: 95 % percentile
+bootstrap intervals over the runs (bench/bootstrap.py). The paper's Table 2 is at n = 4096 over
+10 000 runs; a run at another n (--quick: 256) says so beside the paper's columns.
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from bootstrap import statistic_interval  # noqa: E402
-from common import add_executor_options, executor_from_args  # noqa: E402
+from common import add_executor_options, executor_from_args, machine  # noqa: E402
 from figures import (  # noqa: E402
     caption,
     draw_caption,
@@ -161,14 +163,18 @@ def run_estimates(
     return estimates, stats
 
 
-def time_estimators(n: int, pixels: int, rng: np.random.Generator, repeats: int = 3) -> dict:
-    """Median ms per estimate of each estimator alone (holder_1 values, SPPP draws)."""
+TIMING_REPEATS = 3  # calls per estimator and n; the median is kept
+
+
+def time_estimators(n: int, pixels: int, rng: np.random.Generator) -> dict:
+    """Median wall-clock ms (time.perf_counter) per estimate of each estimator alone over
+    TIMING_REPEATS calls on `pixels` pixels (holder_1 values, SPPP draws), in this process."""
     samples = draw_sppp(rng, n, pixels)
     values = np.abs(samples.traced[:, 0] * samples.traced[:, 1])
     times = {}
     for name in ESTIMATOR_NAMES:
         runs = []
-        for _ in range(repeats):
+        for _ in range(TIMING_REPEATS):
             start = time.perf_counter()
             estimate(name, samples, values)
             runs.append(time.perf_counter() - start)
@@ -251,11 +257,11 @@ def table2_markdown(table: dict, runs: int, n: int) -> str:
     paper = f"n = {PAPER_TABLE2_N}"
     lines = [
         f"## Table 2: std over {runs} runs at n = {n} (95 % bootstrap interval; bias +- "
-        "standard error; ms per estimate, this machine, one core)",
+        "standard error; wall-clock ms per estimate, this machine, one core)",
         "",
         paper_columns_note(runs, n),
         "",
-        f"| function | estimator | std at n = {n} [95 %] | bias +- se | IQR | ms | "
+        f"| function | estimator | std at n = {n} [95 %] | bias +- se | IQR | wall ms | "
         f"paper std ({paper}) | paper ms ({paper}) |",
         "|---|---|---|---|---|---|---|---|",
     ]
@@ -338,7 +344,8 @@ def figure_caption(figure: str, config: dict, function: str | None = None) -> st
             if figure != "fig2"
             else f"std: 95 % percentile bootstrap interval over the runs ({BOOTSTRAP} "
             "resamples); mean: band of +- 1 std",
-            "times": f"median of 3 calls on {config['timing_pixels']} pixels, estimator only"
+            "times": f"wall clock, median of {TIMING_REPEATS} calls on {config['timing_pixels']} "
+            "pixels, estimator only"
             if figure == "fig3"
             else None,
             "seed": config["seed"],
@@ -400,7 +407,7 @@ def plot_efficiency(sweep: dict, out: Path, config: dict) -> None:
         ax.set(
             xscale="log",
             yscale="log",
-            xlabel="ms per estimate (estimator only, one core)",
+            xlabel="wall ms per estimate (estimator only, one core)",
             ylabel="RMSE",
             title="error against time",
         )
@@ -459,7 +466,12 @@ def figures_markdown(config: dict) -> str:
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run of a few seconds")
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "analytic")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).parent / "results" / "analytic",
+        help="output folder (default bench/results/analytic)",
+    )
     parser.add_argument("--runs", type=int, default=None, help="Table 2 runs (default 10000)")
     parser.add_argument(
         "--sweep-runs", type=int, default=None, help="runs per n for Figure 2 (default 1000)"
@@ -472,7 +484,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=None,
         help="intensities of Figures 2 and 3 (default 32 64 ... 16384; --quick: 32 ... 256)",
     )
-    parser.add_argument("--seed", type=int, default=2025)
+    parser.add_argument(
+        "--seed", type=int, default=2025, help="seed of the draws and the bootstrap (default 2025)"
+    )
     add_executor_options(parser)
     return parser.parse_args(argv)
 
@@ -491,6 +505,7 @@ def main(argv=None) -> None:
     boot_rng = np.random.default_rng([args.seed, 1])
     exact = np.array([e for _, e in FUNCTIONS.values()])
     args.out.mkdir(parents=True, exist_ok=True)
+    machine_before = machine()
 
     with executor_from_args(args) as executor:
         # Table 2 (its runs from stream (seed, 2), the sweep's from (seed, 3))
@@ -556,6 +571,17 @@ def main(argv=None) -> None:
         "sweep": sweep,
         "slopes": slopes,
         "slope_explanation": SLOPE_EXPLANATION,
+        "timing": {
+            "clock": "wall",
+            "timer": "time.perf_counter",
+            "ms": "milliseconds per estimate of the estimator alone (tessellation and weighted "
+            "sums; no drawing or function evaluation): the median of "
+            f"{TIMING_REPEATS} calls on {timing_pixels} pixels, divided by the pixels",
+            "where": "this process, one thread, whatever --workers / --scheduler",
+        },
+        # The machine is shared: its load before and after the study
+        "machine_before": machine_before,
+        "machine_after": machine(),
     }
     (args.out / "results.json").write_text(json.dumps(results, indent=1))
     report = [

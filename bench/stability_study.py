@@ -60,9 +60,11 @@ from common import (  # noqa: E402
     add_executor_options,
     executor_from_args,
     executor_label,
+    machine,
     positive_int,
 )
 from figures import caption, draw_caption, report_caption  # noqa: E402
+from matplotlib.ticker import LogFormatter  # noqa: E402
 from scipy.stats import beta  # noqa: E402
 
 from clrender.analytic import SmoothSines, StepEdge  # noqa: E402
@@ -756,20 +758,50 @@ def plot_atlas(atlas: list[dict], out: Path, config: dict) -> str:
     return save(fig, out, "atlas.png", tight=False)
 
 
+def draw_fractions(
+    ax, x, fractions, trials, label: str, style: str, zero_size: float = 7, **kwargs
+) -> None:
+    """Measured fractions (count / trials) on a log y axis: the nonzero ones as `style`, lines
+    broken at zeros; a zero count (not drawable on a log axis) as a hollow down-triangle of the
+    same colour at its 95 % upper bound (the true fraction lies below it), `zero_size` points
+    wide (series of one chart take sizes that nest, so coinciding triangles all show)."""
+    x, fractions = np.asarray(x, float), np.asarray(fractions, float)
+    (line,) = ax.plot(x, np.where(fractions > 0, fractions, np.nan), style, label=label, **kwargs)
+    zero = fractions == 0
+    bounds = [upper_95(0, t) for t in np.asarray(trials)[zero]]
+    ax.plot(x[zero], bounds, "v", mfc="none", ms=zero_size, color=line.get_color())
+
+
+ZERO_COUNT_LABEL = "0 of N: 95 % upper bound"
+
+
+def zero_count_legend_entry(ax) -> None:
+    """The legend entry of draw_fractions' zero counts (drawn once, in grey)."""
+    ax.plot([], [], "v", mfc="none", ms=7, color="0.4", label=ZERO_COUNT_LABEL)
+
+
 def plot_small_n(small: dict, out: Path) -> str:
     rows = small["rows"]
     ns = [r["n"] for r in rows]
+    pixels = [r["pixels"] for r in rows]
     fig, (ax0, ax1, ax2) = plt.subplots(1, 3, figsize=(15, 4.5))
-    ax0.semilogy(ns, [max(r["p_empty"], 1e-6) for r in rows], "o", label="measured P(N = 0)")
-    ax0.semilogy(ns, [max(r["p_empty_poisson"], 1e-7) for r in rows], "-", label="exp(-n)")
+    draw_fractions(
+        ax0, ns, [r["p_empty"] for r in rows], pixels, "measured P(N = 0)", "o", zero_size=13
+    )
+    ax0.plot(ns, [r["p_empty_poisson"] for r in rows], "-", label="exp(-n)")
     for k in (1, 2, 3):
-        ax0.semilogy(ns, [max(r[f"p_N{k}"], 1e-6) for r in rows], ".--", label=f"P(N = {k})")
+        fractions = [r[f"p_N{k}"] for r in rows]
+        draw_fractions(ax0, ns, fractions, pixels, f"P(N = {k})", ".--", zero_size=13 - 3 * k)
+    zero_count_legend_entry(ax0)
+    # Below one pixel in the largest sample nothing is measurable; exp(-n) runs on below it
     ax0.set(
         xscale="log",
-        ylim=(5e-7, 1.5),
+        yscale="log",
+        ylim=(0.2 / max(pixels), 1.5),
         xlabel="n",
-        ylabel="fraction of pixels (0 drawn at 1e-6)",
-        title="Poisson count of the SPPP draws",
+        ylabel="fraction of pixels",
+        title=f"Poisson count of the SPPP draws ({', '.join(map(str, sorted(set(pixels))))} "
+        "pixels per n)",
     )
     for name in ROW_NAMES:
         bias = np.array([r["estimators"][name]["bias"] for r in rows])
@@ -785,7 +817,7 @@ def plot_small_n(small: dict, out: Path) -> str:
     ax1.axhline(0, color="k", lw=0.8)
     ax1.set(xscale="log", xlabel="n", ylabel="bias +- 2 SE", title="smooth pixel: bias")
     ax2.axhline(1, color="k", lw=0.8, ls="--")
-    ax2.set(xlabel="n", ylabel="RMSE / RMSE(mc uniform)", title="smooth pixel: RMSE ratio")
+    ax2.set(xlabel="n", ylabel=f"RMSE / RMSE({BASELINE})", title="smooth pixel: RMSE ratio")
     for ax in (ax0, ax1, ax2):
         ax.legend(fontsize=7)
     return save(fig, out, "small_n.png")
@@ -797,36 +829,53 @@ def plot_rejection(rows: list[dict], out: Path) -> str:
     cmap = plt.get_cmap("viridis")
     for i, n in enumerate(ns):
         sel = [r for r in rows if r["n"] == n]
-        ax0.loglog(
+        draw_fractions(
+            ax0,
             [r["bound"] for r in sel],
-            [max(r["frequency"], 1e-6) for r in sel],
+            [r["frequency"] for r in sel],
+            [r["pixels"] for r in sel],
+            f"n = {n}",
             "o-",
+            zero_size=11 - 6 * i / max(1, len(ns) - 1),
             ms=3,
             color=cmap(i / max(1, len(ns) - 1)),
-            label=f"n = {n}",
         )
     ax0.loglog([1e-3, 1], [1e-3, 1], "k--", lw=0.8, label="frequency = bound")
+    zero_count_legend_entry(ax0)
     ax0.set(
         xlabel="paper's bound 4 pi n^2 eps^2 exp(-pi n eps^2)",
-        ylabel="measured rejection frequency (0 drawn at 1e-6)",
+        ylabel="measured rejection frequency",
         title="Rejection frequency against the bound",
     )
     ax0.legend(fontsize=6, ncol=2)
-    sel = [r for r in rows if r["alpha"] == min(REJECTION_BOUNDS)]
-    ax1.semilogy(
-        [r["n"] for r in sel],
-        [max(r["frequency"], 1e-6) for r in sel],
-        "o",
-        label="measured (0 drawn at 1e-6)",
-    )
-    ax1.semilogy([r["n"] for r in sel], [r["upper_95"] for r in sel], "v", label="95 % upper bound")
-    ax1.axhline(min(REJECTION_BOUNDS), color="k", ls="--", lw=0.8, label="bound = alpha")
+    alpha = min(REJECTION_BOUNDS)
+    sel = [r for r in rows if r["alpha"] == alpha]
+    measured = [r for r in sel if r["rejected"] > 0]
+    if measured:
+        ax1.plot(
+            [r["n"] for r in measured], [r["frequency"] for r in measured], "o", label="measured"
+        )
+    ax1.plot([r["n"] for r in sel], [r["upper_95"] for r in sel], "v", label="95 % upper bound")
+    for r in sel:
+        if r["rejected"] == 0:
+            ax1.annotate(
+                f"0 of {r['pixels']}",
+                (r["n"], r["upper_95"]),
+                xytext=(0, -14),
+                textcoords="offset points",
+                ha="center",
+                fontsize=7,
+            )
+    ax1.axhline(alpha, color="k", ls="--", lw=0.8, label="bound = alpha")
     ax1.set(
         xscale="log",
+        yscale="log",
         xlabel="n",
-        ylabel="rejection frequency",
-        title=f"At the default eps (bound {min(REJECTION_BOUNDS):g})",
+        ylabel="rejection frequency (no dot: 0 rejected)",
+        title=f"At the default eps (bound {alpha:g})",
     )
+    ax1.margins(x=0.1, y=0.15)
+    plain_log_labels(ax1.yaxis)
     ax1.legend(fontsize=7)
     return save(fig, out, "rejection.png")
 
@@ -887,6 +936,21 @@ def plot_discontinuity(disc: dict, all_runs: dict[int, Runs], out: Path) -> str:
     return save(fig, out, "discontinuity.png")
 
 
+class PlainLogFormatter(LogFormatter):
+    """LogFormatter's choice of the ticks to label, each labelled as a plain number (2, 0.01)
+    rather than 2x10^0."""
+
+    def __call__(self, value, pos=None):
+        return f"{value:g}" if super().__call__(value, pos) else ""
+
+
+def plain_log_labels(axis) -> None:
+    """Plain tick labels on a log axis; ticks between decades labelled only where the axis
+    spans too few decades for its own (matplotlib's rule)."""
+    axis.set_major_formatter(PlainLogFormatter())
+    axis.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False))
+
+
 def plot_fireflies(fire: dict, out: Path) -> str:
     ns = list(fire["by_n"])
     fig, axes = plt.subplots(1, len(ns) + 1, figsize=(5 * (len(ns) + 1), 4.5))
@@ -901,36 +965,52 @@ def plot_fireflies(fire: dict, out: Path) -> str:
             ylabel=f"RMSE / RMSE({BASELINE})",
             title=f"smooth pixel, one firefly, n = {n}",
         )
+        plain_log_labels(ax.yaxis)
         ax.legend(fontsize=7)
     n = ns[-1]
     names = list(fire["by_n"][n])
-    axes[-1].bar(names, [fire["by_n"][n][m]["n_weight_rms"] for m in names], label="rms")
+    labels = displayed(names)
+    axes[-1].bar(labels, [fire["by_n"][n][m]["n_weight_rms"] for m in names], label="rms")
     axes[-1].plot(
-        names, [fire["by_n"][n][m]["n_weight_max"] for m in names], "v", color="C3", label="max"
+        labels, [fire["by_n"][n][m]["n_weight_max"] for m in names], "v", color="C3", label="max"
     )
     axes[-1].set(
         yscale="log",
         ylabel="n x weight of the firefly sample (rms, max)",
         title=f"firefly weight, n = {n}",
     )
-    axes[-1].tick_params(axis="x", labelsize=7)
+    plain_log_labels(axes[-1].yaxis)
+    axes[-1].tick_params(axis="x", labelsize=7, labelrotation=30)
+    plt.setp(axes[-1].get_xticklabels(), ha="right", rotation_mode="anchor")
     axes[-1].legend(fontsize=7)
     return save(fig, out, "fireflies.png")
 
 
 def plot_flat(flat: list[dict], out: Path) -> str:
-    ns = [r["n"] for r in flat]
-    fig, ax = plt.subplots(figsize=(6.5, 4.5))
-    for name in ROW_NAMES + ["baseline"]:
-        std = [max(r["estimators"][name]["std"], 1e-17) for r in flat]
-        ax.loglog(ns, std, marker="o", ms=3, label=display(name))
-    ax.loglog(ns, [n**-0.5 for n in ns], "k--", lw=0.8, label="1 / sqrt(n)")
-    ax.set(
-        xlabel="n",
-        ylabel="std on f == 1 (0 drawn at 1e-17)",
-        title="Flat pixel: noise added by the estimator",
+    ns = np.array([r["n"] for r in flat])
+    # The log axis above; below it a strip of the stds that are exactly 0 (off any log axis)
+    fig, (ax, zero_ax) = plt.subplots(
+        2, 1, figsize=(6.5, 5.2), sharex=True, gridspec_kw={"height_ratios": (5, 1.3)}
     )
+    exact = []  # display names of the series with an std of exactly 0 at some n
+    for name in ROW_NAMES + ["baseline"]:
+        std = np.array([r["estimators"][name]["std"] for r in flat])
+        (line,) = ax.plot(ns, np.where(std > 0, std, np.nan), marker="o", ms=3, label=display(name))
+        if (std == 0).any():
+            zero_ax.plot(
+                ns[std == 0],
+                [len(exact)] * int((std == 0).sum()),
+                "o",
+                ms=4,
+                color=line.get_color(),
+            )
+            exact.append(display(name))
+    ax.plot(ns, [n**-0.5 for n in ns], "k--", lw=0.8, label="1 / sqrt(n)")
+    ax.set(yscale="log", ylabel="std on f == 1", title="Flat pixel: noise added by the estimator")
     ax.legend(fontsize=7)
+    zero_ax.set_yticks(range(len(exact)), exact, fontsize=6)
+    zero_ax.set(xscale="log", xlabel="n", ylim=(-0.7, max(len(exact), 1) - 0.3))
+    zero_ax.set_ylabel("std = 0", fontsize=8)
     return save(fig, out, "flat.png")
 
 
@@ -1442,8 +1522,15 @@ def make_config(quick: bool, seed: int) -> Config:
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke run (well under a minute)")
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "stability")
-    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).parent / "results" / "stability",
+        help="output folder (default bench/results/stability)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=2026, help="seed of every random stream (default 2026)"
+    )
     parser.add_argument(
         "--task-blocks",
         type=positive_int,
@@ -1586,6 +1673,7 @@ def main(argv=None) -> None:
     # The bootstrap's stream; the measurements have their own (see Blocks)
     rng = np.random.default_rng(args.seed)
     start = time.perf_counter()
+    machine_before = machine()
     with executor_from_args(args) as executor:
         measured, all_runs = measure(cfg, executor, args.task_blocks)
     results = analyse(cfg, measured, all_runs, rng)
@@ -1605,6 +1693,9 @@ def main(argv=None) -> None:
     }
     results["charts"] = plot_all(results, all_runs, args.out)
     results["seconds"] = time.perf_counter() - start
+    # The machine is shared: its load before and after the measurements
+    results["machine_before"] = machine_before
+    results["machine_after"] = machine()
     print_summary(results)
     write_outputs(results, all_runs, args.out, argv)
     print(

@@ -1,6 +1,6 @@
 """Speed of the Voronoi stage against Qhull's bare Delaunay triangulation.
 
-    python bench/voronoi_speed.py [--quick] [--repeats K] [--out FILE]
+    python bench/voronoi_speed.py [--quick] [--repeats K] [--no-device] [--out DIR]
 
 The stage is estimate("vor", ...): input checks, every cell area (layout, Qhull calls, exactness
 checks, recomputed pixels) and the per-pixel sums. It is compared with bare
@@ -12,8 +12,9 @@ scipy.spatial.Delaunay on the same points, with the same options (QHULL_OPTIONS)
 
 Times are CPU seconds of this process (time.process_time), so that other processes on a shared
 machine count less; each configuration is warmed up once, then the stage and both bare loops
-run in turn, K times, in alternating order (ABC, CBA, ...), and the medians of one run give
-the ratios. Rows: one 4096-sample pixel, n = 64 ... 4096 over ~0.2 M samples each, and a batch
+run in turn in alternating order (ABC, CBA, ...), K times (3K for the one-pixel row, whose
+calls are short), and the medians of one run give the ratios; each row records its count
+("repeats"). Rows: one 4096-sample pixel, n = 64 ... 4096 over ~0.2 M samples each, and a batch
 of 4096 pixels at n = 256. One thread (Qhull is single-threaded).
 
 Then the same one-pixel estimate with the cells from the OpenCL cell kernel
@@ -21,8 +22,11 @@ Then the same one-pixel estimate with the cells from the OpenCL cell kernel
 pinned to one CPU core (sched_setaffinity) run it with POCL_MAX_PTHREAD_COUNT=1 (PoCL's CPU
 device then has one worker thread), timing the whole call (float32 upload, grid and cell
 kernels, read-back, host fallbacks, the estimate) in wall and CPU seconds; the figure is the
-median over 5 processes of each one's median; areas are checked against Qhull's. Skipped with
---no-device.
+median over 5 processes of each one's median (of 3K calls); areas are checked against Qhull's.
+Skipped with --no-device.
+
+Writes DIR/results.json (default bench/results/voronoi_speed/): every row, the clock, and the
+machine's load before and after ("machine_before", "machine_after"; the machine is shared).
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from common import machine, positive_int, write_json  # noqa: E402
 from scipy.spatial import Delaunay  # noqa: E402
 
 from clrender.estimators import estimate  # noqa: E402
@@ -51,6 +56,8 @@ from clrender.sppp import draw_sppp  # noqa: E402
 
 TARGET_RATIO = 1.3
 TARGET_ONE_PIXEL_MS = 2.0
+ONE_PIXEL_REPEAT_FACTOR = 3  # the one-pixel rows (short calls) take this many times K repeats
+DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "voronoi_speed"
 
 
 def cpu_time(fn) -> float:
@@ -107,6 +114,7 @@ def measure(n: int, pixels: int, repeats: int, rng: np.random.Generator) -> dict
     return {
         "n": n,
         "pixels": pixels,
+        "repeats": repeats,
         "samples": samples_count,
         "points": points,
         "qhull_calls": len(arrays),
@@ -197,43 +205,61 @@ def device_one_pixel_on_one_core(repeats: int, processes: int = 5) -> dict | Non
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--repeats", type=int, default=None)
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="smoke run: 4 pixels per n, a batch of 256 pixels at n = 64, K = 3",
+    )
+    parser.add_argument(
+        "--repeats",
+        type=positive_int,
+        default=None,
+        metavar="K",
+        help="timed turns per row (default 7, --quick 3; the one-pixel rows take "
+        f"{ONE_PIXEL_REPEAT_FACTOR}K)",
+    )
     parser.add_argument(
         "--no-device", action="store_true", help="skip the one-pixel measurement with device cells"
     )
     parser.add_argument("--device-one-pixel-child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument(
-        "--out", type=Path, default=Path(__file__).parent / "results" / "voronoi_speed.json"
+        "--out",
+        type=Path,
+        default=DEFAULT_OUT,
+        metavar="DIR",
+        help="output folder, as the other bench studies take; results.json is written there "
+        "(default bench/results/voronoi_speed)",
     )
     args = parser.parse_args(argv)
     repeats = args.repeats or (3 if args.quick else 7)
     if args.device_one_pixel_child:
         pin_to_one_core()
-        print(json.dumps(device_one_pixel(repeats * 3, seed=11)))
+        print(json.dumps(device_one_pixel(ONE_PIXEL_REPEAT_FACTOR * repeats, seed=11)))
         return
+    machine_before = machine()
     rng = np.random.default_rng(7)
     rows = []
     # One 4096-sample pixel, then n = 64 ... 4096 over enough pixels for ~0.2 M samples.
-    rows.append(measure(4096, 1, repeats * 3, rng))
+    rows.append(measure(4096, 1, ONE_PIXEL_REPEAT_FACTOR * repeats, rng))
     for n in [64, 256, 1024, 4096]:
         pixels = 4 if args.quick else max(2, 200_000 // n)
         rows.append(measure(n, pixels, repeats, rng))
     # A batch of 4096 pixels (n = 64 in quick mode, 256 otherwise).
     rows.append(measure(64 if args.quick else 256, 256 if args.quick else 4096, repeats, rng))
     print(
-        f"CPU time (process_time), medians of {repeats} interleaved repeats; "
+        "CPU time (process_time), medians of the interleaved repeats of each row; "
         f"POINTS_PER_QHULL_CALL = {POINTS_PER_QHULL_CALL}"
     )
     print(
-        "| n | pixels | Qhull calls | recomputed | stage ms/pixel | bare (same calls) | "
+        "| n | pixels | repeats | Qhull calls | recomputed | stage ms/pixel | bare (same calls) | "
         "bare (per pixel) | stage/bare same | stage/bare per-pixel | us/sample | "
         "bare us/point |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(
-            f"| {r['n']} | {r['pixels']} | {r['qhull_calls']} | {r['recomputed_pixels']} | "
+            f"| {r['n']} | {r['pixels']} | {r['repeats']} | {r['qhull_calls']} | "
+            f"{r['recomputed_pixels']} | "
             f"{r['stage_ms_per_pixel']:.3f} | {r['bare_same_calls_ms_per_pixel']:.3f} | "
             f"{r['bare_per_pixel_ms_per_pixel']:.3f} | {r['ratio_same_calls']:.3f} | "
             f"{r['ratio_per_pixel']:.3f} | {r['us_per_sample']:.2f} | "
@@ -268,20 +294,16 @@ def main(argv=None) -> None:
         f"n = {worst['n']}, {worst['pixels']} pixel(s); target <= {TARGET_RATIO} "
         f"{'met' if met else 'NOT met'} on every row"
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(
-        json.dumps(
-            {
-                "repeats": repeats,
-                "clock": "process_time",
-                "points_per_qhull_call": POINTS_PER_QHULL_CALL,
-                "rows": rows,
-                "device_one_pixel": device,
-            },
-            indent=1,
-        )
-    )
-    print(f"wrote {args.out}")
+    results = {
+        "clock": "process_time",
+        "points_per_qhull_call": POINTS_PER_QHULL_CALL,
+        "rows": rows,
+        "device_one_pixel": device,
+        "machine_before": machine_before,
+        "machine_after": machine(),
+    }
+    write_json(args.out / "results.json", results)
+    print(f"wrote {args.out / 'results.json'}")
 
 
 if __name__ == "__main__":

@@ -363,6 +363,7 @@ def test_05_analytic_study(tmp_path):
     argv = ["--quick", "--runs", "16", "--sweep-runs", "8", "--n", "64", "--sweep-n", "32", "64"]
     analytic_study.main(argv + ["--out", str(tmp_path)])
     results = json.loads((tmp_path / "results.json").read_text())
+    assert results["timing"]["clock"] == "wall" and results["machine_after"]["cpus"] >= 1
     row = results["table2"]["holder_1"]["vor_sn"]
     assert row["std_ci"][0] <= row["std"] <= row["std_ci"][1]
     for summary in results["sweep"]["summaries"]:
