@@ -15,6 +15,7 @@ The command line (`python -m clrender render`) goes through the same functions.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import warnings
 from collections.abc import Sequence
@@ -153,7 +154,8 @@ def render(
     try:
         if executor is None:
             result = pipeline.render(runtime, source, settings, progress or None)
-        else:
+            result.stats.setup_compile_seconds = setup_compile
+        else:  # its workers' source builds (clrender.cluster), not this process's
             from clrender.cluster import RenderJob, render_on
 
             path_depth = 0 if isinstance(scene, str) else max_depth
@@ -162,7 +164,6 @@ def render(
     finally:
         if bar is not None:
             bar.close()
-    result.stats.setup_compile_seconds = setup_compile
     result.labels = render_labels(
         analytic_image(scene, 1, 1).name if isinstance(scene, str) else scene.name,
         None if isinstance(scene, str) else scene,
@@ -171,6 +172,8 @@ def render(
         result.russian_roulette,
         cluster=executor is not None,
     )
+    # the device(s) that rendered it: a cluster's workers', not this process's
+    result.labels = dataclasses.replace(result.labels, device=result.device)
     return result
 
 

@@ -14,6 +14,7 @@ the exit status, as does one for a poor estimator/sampler pair (mc over SPPP sam
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import signal
 import sys
@@ -492,13 +493,14 @@ def command_render(args: argparse.Namespace) -> int:
     try:
         if not cluster:
             result = render(runtime, source, settings, progress)
-        else:
+            result.stats.setup_compile_seconds = setup_compile
+        else:  # its workers' devices and source builds (clrender.cluster), not this process's
             result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
     finally:
         progress.close()
+    labels = dataclasses.replace(labels, device=result.device)  # a cluster's: its workers'
     # From here a signal is held until the finished pixels are written (or found to be none)
     with interrupts.signals_held() as held:
-        result.stats.setup_compile_seconds = setup_compile
         rendered = max(film.rendered_count for film in result.films.values())
         if result.stats.interrupted and rendered == 0:
             # Nothing to save: an all-black partial image would replace the previous one

@@ -62,6 +62,7 @@ from clrender.pipeline import (
     pixels_per_tile,
     plan_tiles,
 )
+from clrender.runtime import thread_build_seconds
 from clrender.sampling import SamplerConfig
 from clrender.scene import Scene
 from clrender.trace import DEFAULT_MAX_DEPTH
@@ -345,8 +346,8 @@ class RenderJob:
 
 @dataclass
 class PixelRangeResult:
-    """A task's pixels (global indices) and what the films and layers hold for them, and the
-    task's stats (its tiles, stage times, samples)."""
+    """A task's pixels (global indices) and what the films and layers hold for them, the
+    task's stats (its tiles, stage times, samples), and where and after what set-up it ran."""
 
     pixels: np.ndarray
     values: dict[str, np.ndarray]  # estimator -> (P, 3) float32, as on its film
@@ -356,6 +357,11 @@ class PixelRangeResult:
     variance: np.ndarray
     first_draw: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     stats: RenderStats
+    device: str  # the OpenCL device that rendered it (Runtime.describe)
+    worker: str  # the worker process that ran it (worker_name)
+    # what kept it from its tiles: the set-up before its first tile (the job's radiance source
+    # unless the worker kept it, the tile pipeline) and the program builds on its render thread
+    setup_seconds: float
 
 
 # The radiance source of the last job a worker process ran: (token, source)
@@ -378,15 +384,20 @@ def _source_for(job: RenderJob):
 def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeResult:
     """Render pixels [first, end) of a job, in tiles of its sample budget; their estimates are
     those of a local render of the whole image."""
+    set_up = time.perf_counter()
     from clrender.api import runtime_for
 
     first, end = pixel_range
+    built = thread_build_seconds()
     source = _source_for(job)
-    settings = job.settings()
-    pipeline = TilePipeline(runtime_for(job.device), source, settings)
+    source_builds = thread_build_seconds() - built
+    runtime = runtime_for(job.device)
+    pipeline = TilePipeline(runtime, source, job.settings())
     start = time.perf_counter()
     pipeline.run(range(first, end, pixels_per_tile(pipeline.settings)), None, end)
     pipeline.stats.wall_seconds = time.perf_counter() - start
+    pipeline.stats.setup_compile_seconds = source_builds
+    setup_seconds = start - set_up + pipeline.stats.main_compile_seconds
     pixels = np.arange(first, end, dtype=np.int64)
     layers = pipeline.layers
     first = pipeline.first_draw_layers
@@ -401,6 +412,9 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
         if first is None
         else (first.samples[pixels], first.redraws[pixels], first.variance[pixels]),
         pipeline.stats,
+        runtime.describe(),
+        worker_name(),
+        setup_seconds,
     )
 
 
@@ -412,10 +426,11 @@ def split_pixels(pixel_count: int, tasks: int) -> list[tuple[int, int]]:
 
 
 def add_stats(total: RenderStats, part: RenderStats) -> None:
-    """Sum a task's stats into the render's (its wall time aside: the render's is the client's)."""
+    """Sum a task's stats into the render's, but for its wall time (the render's is the
+    client's) and its render thread's builds (in its set-up: `worker_setup_seconds`)."""
     for item in dataclasses.fields(RenderStats):
         name = item.name
-        if name in ("wall_seconds", "interrupted"):
+        if name in ("wall_seconds", "main_compile_seconds", "worker_setup_seconds", "interrupted"):
             continue
         value = getattr(part, name)
         if isinstance(value, dict):
@@ -444,6 +459,8 @@ def render_on(
     rejecting = any(entry.needs_aux for entry in settings.estimators)
     first_draw = PixelLayers(job.width, job.height) if image_level and rejecting else None
     stats = RenderStats()
+    devices: set[str] = set()
+    setup_by_worker: dict[str, float] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
     start = time.perf_counter()
     try:
@@ -454,12 +471,18 @@ def render_on(
             if first_draw is not None and part.first_draw is not None:
                 first_draw.record(part.pixels, *part.first_draw)
             add_stats(stats, part.stats)
+            devices.add(part.device)
+            setup_by_worker[part.worker] = (
+                setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
+            )
             if progress is not None:
                 first = films[job.estimators[0]]
                 progress(first.rendered_count, first.pixel_count)
     except KeyboardInterrupt:
         stats.interrupted = True
     stats.wall_seconds = time.perf_counter() - start
+    # The workers set up at once, each before its first tile: the render waits for the longest
+    stats.worker_setup_seconds = max(setup_by_worker.values(), default=0.0)
     first_name = job.estimators[0]
     paths = not isinstance(job.scene, str)  # (an analytic image has none)
     return RenderResult(
@@ -471,4 +494,5 @@ def render_on(
         first_draw,
         max_depth=job.max_depth if paths else None,
         russian_roulette=job.russian_roulette if paths else None,
+        device="; ".join(sorted(devices)) or None,
     )

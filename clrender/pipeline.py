@@ -277,6 +277,9 @@ class RenderStats:
     compile_seconds: float = 0.0
     main_compile_seconds: float = 0.0  # the part met on the main thread
     setup_compile_seconds: float = 0.0
+    # a cluster render's wait for its workers' set-up (clrender.cluster.render_on): in
+    # wall_seconds, out of run_seconds
+    worker_setup_seconds: float = 0.0
     # main-thread seconds per device stage (DEVICE_STAGES): drawing sample sets, tracing,
     # device Voronoi cells and sums (with the host's settling of undecided pixels), read-back
     stage_seconds: dict[str, float] = field(
@@ -296,8 +299,9 @@ class RenderStats:
     @property
     def run_seconds(self) -> float:
         """Wall time without the program builds met on the render's main thread (rates use
-        it; the estimator thread's builds may overlap tracing, so they stay in)."""
-        return max(self.wall_seconds - self.main_compile_seconds, 0.0)
+        it; the estimator thread's builds may overlap tracing, so they stay in), nor a cluster
+        render's wait for its workers' set-up."""
+        return max(self.wall_seconds - self.main_compile_seconds - self.worker_setup_seconds, 0.0)
 
 
 @dataclass
@@ -319,6 +323,9 @@ class RenderResult:
     # What the pipeline does not know (clrender.report.RenderLabels: scene, device,
     # provenance), recorded by clrender.render for save()
     labels: object | None = None
+    # The OpenCL device that rendered it (Runtime.describe); a cluster render's devices in
+    # sorted order joined by "; ", None when none of its tasks finished
+    device: str | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film
@@ -963,4 +970,5 @@ def render(
         pipeline.first_draw_layers,
         max_depth=None if tracer is None else tracer.max_depth,
         russian_roulette=None if tracer is None else tracer.russian_roulette,
+        device=runtime.describe(),
     )

@@ -19,7 +19,7 @@ class RenderLabels:
     """Descriptions the pipeline itself does not know."""
 
     scene: str
-    device: str
+    device: str | None  # RenderResult.device: None for a cluster render no task of which finished
     max_depth: int | None  # None for sources without paths (analytic images)
     russian_roulette: bool | None = None  # likewise None without paths
     # Provenance (clrender.provenance), None where not known: the scene file and the scene as
@@ -58,6 +58,7 @@ def render_metadata(
         "host_time_s": stats.host_seconds,
         "compile_time_s": stats.compile_seconds,
         "setup_compile_time_s": stats.setup_compile_seconds,
+        "worker_setup_time_s": stats.worker_setup_seconds,
         **{f"{stage}_time_s": stats.stage_seconds[stage] for stage in DEVICE_STAGES},
         "partial": int(not film.complete),
         "rendered_pixels": film.rendered_count,
@@ -160,6 +161,14 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
     estimators = ", ".join(
         f"{group} {format_seconds(seconds)}" for group, seconds in stats.estimator_seconds.items()
     )
+    setup = stats.worker_setup_seconds  # a cluster render's (0 for a local one)
+    builds = format_seconds(stats.setup_compile_seconds)
+    before = (
+        f"{builds} for the radiance sources; waited {format_seconds(setup)} for the workers' set-up"
+        if setup
+        else f"{builds} before the render"
+    )
+    excluded = "kernel builds and the workers' set-up" if setup else "kernel builds"
     return [
         f"{labels.scene}: {settings.width}x{settings.height}, {sampler.n} spp, "
         f"{sampler.name}{' (toroidal shift)' if sampler.toroidal_shift else ''} + "
@@ -167,11 +176,10 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
         f"{status}: {film.rendered_count}/{film.pixel_count} pixels in "
         f"{format_seconds(stats.wall_seconds)} (device {format_seconds(stats.device_seconds)}, "
         f"host estimators {format_seconds(stats.host_seconds)}, {tiles}, "
-        f"overlap {overlap}; kernel builds {format_seconds(stats.compile_seconds)}, and "
-        f"{format_seconds(stats.setup_compile_seconds)} before the render)",
+        f"overlap {overlap}; kernel builds {format_seconds(stats.compile_seconds)}, and {before})",
         f"device stages: {stages}; host: {estimators or 'none'}",
         f"paths {stats.traced_samples:,} ({rate(stats.traced_samples, stats.run_seconds)}), "
-        f"rays {stats.rays:,} ({rate(stats.rays, stats.run_seconds)}), without kernel builds",
+        f"rays {stats.rays:,} ({rate(stats.rays, stats.run_seconds)}), without {excluded}",
         f"rejections: {stats.redrawn_pixels} pixel redraws, {stats.unresolved_pixels} pixels "
         f"unresolved (mc fallback); non-finite samples: {stats.nonfinite_samples}, "
         f"flagged pixels: {film.flagged_count}",
@@ -194,6 +202,7 @@ def summary_json(
         "run_s": stats.run_seconds,
         "compile_s": stats.compile_seconds,
         "setup_compile_s": stats.setup_compile_seconds,
+        "worker_setup_s": stats.worker_setup_seconds,
         "device_s": stats.device_seconds,
         **{f"{stage}_s": stats.stage_seconds[stage] for stage in DEVICE_STAGES},
         "host_s": stats.host_seconds,

@@ -1,9 +1,11 @@
 """Renders on a Dask LocalCluster (clrender.cluster): bit-identical to the local render, whatever
 the split into tasks, a worker killed mid-render, an interrupt; errors in one line."""
 
+import json
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +131,79 @@ def worker_logs_mentioning(cluster, text: str) -> int:
     return sum(text in message for records in logs.values() for _, message in records)
 
 
+def test_the_recorded_device_is_the_tasks_devices_not_this_process(tmp_path, monkeypatch, capsys):
+    # Tasks that ran on two devices other than this process's (a local executor runs them
+    # here; the device each reports is faked): the JSON and EXR name those two, sorted, once
+    from clrender import cluster
+    from clrender.imageio import read_exr
+
+    original = cluster.render_pixels
+
+    def render_on_another_device(pixel_range, job):
+        part = original(pixel_range, job)
+        part.device = "device B [worker 2]" if pixel_range[0] == 0 else "device A [worker 1]"
+        return part
+
+    monkeypatch.setattr(cluster, "render_pixels", render_on_another_device)
+    monkeypatch.setattr(cluster, "make_executor", lambda workers, scheduler: LocalExecutor())
+    out = tmp_path / "cluster.exr"
+    command = ["render", "analytic:mix", "--res", "16x8", "--spp", "8", "-o", str(out)]
+    assert main([*command, "--workers", "1", "--json"]) == 0  # 4 tasks on the one "worker"
+    both = "device A [worker 1]; device B [worker 2]"
+    assert json.loads(capsys.readouterr().out)["device"] == both
+    assert read_exr(out)[1]["device"] == both
+
+
+def test_cluster_timings_keep_the_workers_set_up_apart(monkeypatch):
+    # Two "workers" (tasks alternate between two names), each slowed by 0.2 s of set-up in
+    # its first task: the render waits for the longest worker's set-up, not their sum, and
+    # paths/s leaves it out
+    from clrender import cluster
+    from clrender.report import RenderLabels, summary_json
+
+    original_source_for = cluster._source_for
+    names = iter(["w1", "w2"] * 4)
+    current = []
+    set_up = set()
+
+    def worker_name():
+        return current[-1]
+
+    def slow_source_for(job):
+        current.append(next(names))
+        if current[-1] not in set_up:
+            set_up.add(current[-1])
+            time.sleep(0.2)
+        return original_source_for(job)
+
+    parts = []
+    original = cluster.render_pixels
+
+    def recorded(pixel_range, job):
+        parts.append(original(pixel_range, job))
+        return parts[-1]
+
+    monkeypatch.setattr(cluster, "worker_name", worker_name)
+    monkeypatch.setattr(cluster, "_source_for", slow_source_for)
+    monkeypatch.setattr(cluster, "render_pixels", recorded)
+    settings = RenderSettings(16, 8, make_sampler("sppp", 8), ["mc"], 1)
+    job = RenderJob("analytic:mix", 16, 8, settings.sampler, ("mc",), 1)
+    result = render_on(LocalExecutor(), job, tasks=8)
+    stats = result.stats
+    by_worker = {
+        name: sum(part.setup_seconds for part in parts if part.worker == name)
+        for name in ("w1", "w2")
+    }
+    assert min(by_worker.values()) >= 0.2
+    assert stats.worker_setup_seconds == max(by_worker.values())
+    assert stats.main_compile_seconds == 0.0  # the tasks' builds are in their set-up
+    assert stats.run_seconds == stats.wall_seconds - stats.worker_setup_seconds
+    assert stats.run_seconds <= stats.wall_seconds - 0.2
+    summary = summary_json(result, RenderLabels("analytic:mix", result.device, None), {}, {}, None)
+    assert summary["timings"]["worker_setup_s"] == stats.worker_setup_seconds
+    assert summary["paths_per_second"] == stats.traced_samples / stats.run_seconds
+
+
 def test_pixels_split_into_consecutive_ranges():
     assert split_pixels(100, 3) == [(0, 33), (33, 66), (66, 100)]
     assert split_pixels(2, 5) == [(0, 1), (1, 2)]
@@ -188,4 +263,5 @@ def test_the_python_api_renders_on_an_executor(cluster):
     distributed = clrender.render("cornell-box", executor=cluster, **kwargs)
     assert_same_render(local, distributed)
     assert (distributed.max_depth, distributed.russian_roulette) == (local.max_depth, False)
+    assert distributed.device == local.device  # the workers' device (same PYOPENCL_CTX here)
     assert local.max_depth == DEFAULT_MAX_DEPTH
