@@ -666,6 +666,7 @@ def small_block_kernels(tmp_path_factory) -> Path:
         tmp_path_factory.getbasetemp().parent / f"clrender-kernels-block8-{digest.hexdigest()[:16]}"
     )
     if folder.is_dir():
+        assert "#define VORONOI_BLOCK_CAPACITY 8\n" in (folder / "voronoi_cells.cl").read_text()
         return folder
     draft = tmp_path_factory.mktemp("kernels")
     shutil.copytree(kernels_dir(), draft, dirs_exist_ok=True)
