@@ -166,14 +166,13 @@ class Runtime:
 
     def build(self, source_file: str, defines: dict[str, object] | None = None) -> cl.Program:
         """Build kernels/<source_file> with -D defines; cached per (context, file, defines)."""
-        items = tuple(sorted((defines or {}).items()))
-        return _build_cached(self.context, source_file, items)
+        return _build_cached(self.context, source_file, define_key(defines))
 
     def kernel(
         self, source_file: str, name: str, defines: dict[str, object] | None = None
     ) -> cl.Kernel:
         """One kernel of a built program, retrieved once per process (retrieval is costly)."""
-        items = tuple(sorted((defines or {}).items()))
+        items = define_key(defines)
         kernel = _kernel_cached(self.context, source_file, items, name)
         if source_file in WARM_UP_FILES:
             self.warm_up(kernel, source_file, items, name)
@@ -257,6 +256,18 @@ def default_runtime() -> Runtime:
 # Defines per OpenCL implementation (platform name): code shapes measured faster there and
 # known to compile correctly (kernels/geometry.h BVH_FUNCTION)
 PLATFORM_DEFINES = {"Portable Computing Language": ("CLRENDER_BVH_CALLED",)}
+
+
+def define_key(defines: dict[str, object] | None) -> tuple[tuple[str, object], ...]:
+    """Defines as the program caches key them: sorted by name, each value as its option spells
+    it (True: a bare -DNAME), so that values giving the same options (8 and "8", 0.5 and
+    np.float32(0.5)) share one program instead of building it twice."""
+    return tuple(
+        sorted(
+            (name, value if value is True else _c_literal(value))
+            for name, value in (defines or {}).items()
+        )
+    )
 
 
 def build_options(defines: tuple[tuple[str, object], ...], platform_name: str = "") -> list[str]:

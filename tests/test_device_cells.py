@@ -11,6 +11,12 @@ identical in every precision.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
+import shutil
+import sys
+from pathlib import Path
+
 import numpy as np
 import pyopencl as cl
 import pytest
@@ -25,7 +31,7 @@ from clrender.estimators.device_cells import (
 )
 from clrender.estimators.pixel import cell_sums
 from clrender.estimators.qhull_cells import sppp_cells
-from clrender.runtime import has_fp64, launch_global_size
+from clrender.runtime import has_fp64, kernels_dir, launch_global_size
 from clrender.samples import SampleSets
 from clrender.sampling import generate_sample_sets, make_sampler
 from clrender.sppp import draw_sppp
@@ -647,31 +653,46 @@ def test_duplicated_nuclei_share_their_cells_as_on_the_host(runtime, area_rtol, 
     np.testing.assert_array_equal(device.areas[0::2], device.areas[1::2])
 
 
-# 16. bench/device_voronoi_speed.py --variants times build options of the cell kernel against
-# each other in one process and tells which give the first variant's cells bit for bit: the
-# default spelled out does; a block too small for any walk (the clipping search, the same cells
-# within rounding) does not, nor a 1 x 1 grid (GRID_SIDE: the whole set one block, over the
-# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS)
-def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path):
-    import shutil
-    import sys
-    from pathlib import Path
-
-    from clrender.runtime import kernels_dir
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-    import device_voronoi_speed
-
-    assert device_voronoi_speed.parse_defines("-") == {}
-    assert device_voronoi_speed.parse_defines("A,B=2") == {"A": True, "B": "2"}
-    small_block = tmp_path / "kernels"
-    shutil.copytree(kernels_dir(), small_block)
-    source = small_block / "voronoi_cells.cl"
+def small_block_kernels(tmp_path_factory) -> Path:
+    """A copy of the kernels folder whose block holds 8 nuclei, at a path named after the
+    folder's contents beside pytest's numbered temporary folders: the same path in every
+    session, so the device's compiler cache (keyed by paths and sources) builds it once, not
+    in every session. Made in a session's folder and renamed into place (atomic: sessions at
+    once each get a whole copy)."""
+    digest = hashlib.sha256()
+    for path in sorted(kernels_dir().iterdir()):
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    folder = (
+        tmp_path_factory.getbasetemp().parent / f"clrender-kernels-block8-{digest.hexdigest()[:16]}"
+    )
+    if folder.is_dir():
+        assert "#define VORONOI_BLOCK_CAPACITY 8\n" in (folder / "voronoi_cells.cl").read_text()
+        return folder
+    draft = tmp_path_factory.mktemp("kernels")
+    shutil.copytree(kernels_dir(), draft, dirs_exist_ok=True)
+    source = draft / "voronoi_cells.cl"
     text = source.read_text()
     assert "#define VORONOI_BLOCK_CAPACITY 64\n" in text
     source.write_text(
         text.replace("#define VORONOI_BLOCK_CAPACITY 64\n", "#define VORONOI_BLOCK_CAPACITY 8\n")
     )
+    with contextlib.suppress(OSError):  # another session renamed its copy there first
+        draft.rename(folder)
+    return folder
+
+
+# 16. bench/device_voronoi_speed.py --variants times build options of the cell kernel against
+# each other in one process and tells which give the first variant's cells bit for bit: the
+# default spelled out does; a block too small for any walk (the clipping search, the same cells
+# within rounding) does not, nor a 1 x 1 grid (GRID_SIDE: the whole set one block, over the
+# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS)
+def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import device_voronoi_speed
+
+    assert device_voronoi_speed.parse_defines("-") == {}
+    assert device_voronoi_speed.parse_defines("A,B=2") == {"A": True, "B": "2"}
+    small_block = small_block_kernels(tmp_path_factory)
     variants = [
         "-",
         "VORONOI_BLOCK_CAPACITY=64",
@@ -721,9 +742,6 @@ def test_spread_plain_sums_cover_every_pixel(runtime, pixels):
 # 18. bench/device_voronoi_speed.py --stages: each stage's CPU per tile and its busiest thread's
 # share of it (the stage's least wall time on an idle machine), never more than the whole
 def test_stage_accounting_reports_the_busiest_thread(runtime, monkeypatch):
-    import sys
-    from pathlib import Path
-
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     import device_voronoi_speed
 

@@ -101,6 +101,24 @@ def test_programs_are_built_once_per_process(runtime):
     )
 
 
+def test_defines_spelled_alike_share_one_program(runtime, tmp_path, monkeypatch):
+    """Values that give the same build options (8 and "8", 0.5 and float32 0.5) are one program,
+    built once (bench/device_voronoi_speed.py passes "8" where the tests pass 8); values that
+    do not (a flag and 1) are two."""
+    (tmp_path / "spelled.cl").write_text(
+        "__kernel void spelled(__global float *out) { out[0] = SCALE * (float)COUNT; }\n"
+    )
+    monkeypatch.setattr(rt, "kernels_dir", lambda: tmp_path)
+    program = runtime.build("spelled.cl", {"COUNT": 8, "SCALE": 0.5})
+    assert runtime.build("spelled.cl", {"COUNT": "8", "SCALE": np.float32(0.5)}) is program
+    assert runtime.build("spelled.cl", {"SCALE": 0.5, "COUNT": np.int64(8)}) is program
+    assert runtime.build("spelled.cl", {"COUNT": 9, "SCALE": 0.5}) is not program
+    flag = runtime.build("spelled.cl", {"COUNT": True, "SCALE": 0.5})
+    assert flag is not runtime.build("spelled.cl", {"COUNT": 1, "SCALE": 0.5})
+    kernel = runtime.kernel("spelled.cl", "spelled", {"COUNT": "8", "SCALE": 0.5})
+    assert kernel is runtime.kernel("spelled.cl", "spelled", {"COUNT": 8, "SCALE": "0.5f"})
+
+
 # Build options the kernels need (the single-precision ones: any device has them)
 DEFINES_OF = {name: _defines("single") for name in ("voronoi_cells.cl", "voronoi_sums.cl")}
 WARMED_KERNELS = [
@@ -129,7 +147,7 @@ def test_warm_up_is_counted_as_build_time_once(runtime):
     defines = {"CLRENDER_WARM_UP_TEST": 1}  # a program of its own, built for this test only
     before = rt.thread_build_seconds()
     runtime.kernel("voronoi_sums.cl", "pixel_moments", defines)
-    key = (runtime.context.int_ptr, "voronoi_sums.cl", (("CLRENDER_WARM_UP_TEST", 1),))
+    key = (runtime.context.int_ptr, "voronoi_sums.cl", (("CLRENDER_WARM_UP_TEST", "1"),))
     assert any(entry[:3] == key for entry in rt._WARMED)
     first = rt.thread_build_seconds() - before
     assert first > 0
