@@ -164,7 +164,7 @@ def render(
     finally:
         if bar is not None:
             bar.close()
-    result.labels = render_labels(
+    labels = render_labels(
         analytic_image(scene, 1, 1).name if isinstance(scene, str) else scene.name,
         None if isinstance(scene, str) else scene,
         runtime,
@@ -173,7 +173,7 @@ def render(
         cluster=executor is not None,
     )
     # the device(s) that rendered it: a cluster's workers', not this process's
-    result.labels = dataclasses.replace(result.labels, device=result.device)
+    result.labels = dataclasses.replace(labels, device=result.device)
     return result
 
 
