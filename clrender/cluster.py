@@ -358,6 +358,7 @@ class PixelRangeResult:
     first_draw: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     stats: RenderStats
     device: str  # the OpenCL device that rendered it (Runtime.describe)
+    precision: str  # of that device's Voronoi cells and sums: "mixed" or "single"
     worker: str  # the worker process that ran it (worker_name)
     # what kept it from its tiles: the set-up before its first tile (the job's radiance source
     # unless the worker kept it, the tile pipeline) and the program builds on its render thread
@@ -386,6 +387,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
     those of a local render of the whole image."""
     set_up = time.perf_counter()
     from clrender.api import runtime_for
+    from clrender.estimators.device_cells import resolve_precision
 
     first, end = pixel_range
     built = thread_build_seconds()
@@ -413,6 +415,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
         else (first.samples[pixels], first.redraws[pixels], first.variance[pixels]),
         pipeline.stats,
         runtime.describe(),
+        resolve_precision(runtime, "auto"),
         worker_name(),
         setup_seconds,
     )
@@ -460,6 +463,7 @@ def render_on(
     first_draw = PixelLayers(job.width, job.height) if image_level and rejecting else None
     stats = RenderStats()
     devices: set[str] = set()
+    precisions: set[str] = set()
     setup_by_worker: dict[str, float] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
     start = time.perf_counter()
@@ -472,6 +476,7 @@ def render_on(
                 first_draw.record(part.pixels, *part.first_draw)
             add_stats(stats, part.stats)
             devices.add(part.device)
+            precisions.add(part.precision)
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
             )
@@ -495,4 +500,5 @@ def render_on(
         max_depth=job.max_depth if paths else None,
         russian_roulette=job.russian_roulette if paths else None,
         device="; ".join(sorted(devices)) or None,
+        device_precision="; ".join(sorted(precisions)) or None,
     )
