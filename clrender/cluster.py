@@ -114,6 +114,10 @@ class DaskExecutor(ClosingExecutor):
     """Tasks on a Dask cluster: a LocalCluster of `workers` processes, or the scheduler at
     `scheduler` (an address such as tcp://host:8786)."""
 
+    # Tasks taking a shared value dealt out to the workers in turn (`task_placement`); False
+    # leaves their placement to the scheduler, as bench/cluster_scaling.py compares
+    spread_shared = True
+
     def __init__(self, workers: int | None = None, scheduler: str | None = None):
         try:
             from distributed import Client, LocalCluster
@@ -153,14 +157,24 @@ class DaskExecutor(ClosingExecutor):
 
     def map(self, function: Callable, items: Sequence, *common: Any) -> Iterator[tuple[int, Any]]:
         """(index, result) of function(item, *common) on the cluster, as tasks finish. A
-        KeyboardInterrupt cancels the tasks not yet finished."""
-        from distributed import as_completed
+        KeyboardInterrupt cancels the tasks not yet finished. Tasks that take a shared value
+        (`share`) are dealt out to the workers in turn (`task_placement`)."""
+        from distributed import Future, as_completed
 
         task = shipped(function)
         token = uuid.uuid4().hex[:12]
+        shares = self.spread_shared and any(isinstance(value, Future) for value in common)
+        places = task_placement(self.client.nthreads(), len(items)) if shares else None
         futures = [
             self.client.submit(
-                _run_task, task, item, *common, key=f"clrender-{token}-{index}", pure=False
+                _run_task,
+                task,
+                item,
+                *common,
+                key=f"clrender-{token}-{index}",
+                pure=False,
+                **({} if places is None else {"workers": [places[index]]}),
+                allow_other_workers=places is not None,
             )
             for index, item in enumerate(items)
         ]
@@ -180,6 +194,19 @@ class DaskExecutor(ClosingExecutor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def task_placement(nthreads: dict[str, int], tasks: int) -> list[str] | None:
+    """The worker each of `tasks` tasks is first offered to: the workers' threads in turn (by
+    address). Dask sends a task to a worker that holds its inputs, so tasks sharing one value
+    held by one worker would all start there (6 of 8 on a fresh cluster of 2), leaving the
+    others to work stealing. A loose restriction (workers=[address], allow_other_workers=True)
+    spreads them from the start, yet lets the scheduler run a task elsewhere when its worker
+    is gone and steal it for an idle one. None with no worker."""
+    threads = [address for address in sorted(nthreads) for _ in range(max(nthreads[address], 1))]
+    if not threads:
+        return None
+    return [threads[index % len(threads)] for index in range(tasks)]
 
 
 def shipped(function: Callable) -> Callable | bytes:
@@ -465,6 +492,7 @@ def render_on(
     devices: set[str] = set()
     precisions: set[str] = set()
     setup_by_worker: dict[str, float] = {}
+    tasks_by_worker: dict[str, int] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
     start = time.perf_counter()
     try:
@@ -480,6 +508,7 @@ def render_on(
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
             )
+            tasks_by_worker[part.worker] = tasks_by_worker.get(part.worker, 0) + 1
             if progress is not None:
                 first = films[job.estimators[0]]
                 progress(first.rendered_count, first.pixel_count)
@@ -501,4 +530,5 @@ def render_on(
         russian_roulette=job.russian_roulette if paths else None,
         device="; ".join(sorted(devices)) or None,
         device_precision="; ".join(sorted(precisions)) or None,
+        tasks_by_worker=dict(sorted(tasks_by_worker.items())),
     )

@@ -328,6 +328,8 @@ class RenderResult:
     # tasks reported them, each in sorted order joined by "; ", None when no task finished
     device: str | None = None
     device_precision: str | None = None
+    # A cluster render's finished tasks per worker (address: count, by address); None locally
+    tasks_by_worker: dict[str, int] | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film

@@ -327,7 +327,42 @@ def test_a_command_line_client_without_opencl_drives_the_cluster(
     distributed, metadata = read_exr(tmp_path / "cluster.exr")
     assert np.array_equal(local, distributed)
     assert summary["device"] == metadata["device"] == runtime.describe()
+    assert sum(summary["tasks_by_worker"].values()) == 8  # 4 a worker
     assert metadata["device_precision"] == resolve_precision(runtime, "auto")
     # the analytic image's exact pixel integrals, computed here without a device
     assert summary["images"]["vor_sn"]["errors"]["reference"] == "exact pixel integrals"
     assert summary["images"]["vor_sn"]["errors"]["mse"] > 0
+
+
+def test_tasks_are_dealt_out_to_the_workers_threads_in_turn():
+    from clrender.cluster import task_placement
+
+    a, b = "tcp://a", "tcp://b"
+    assert task_placement({b: 1, a: 1}, 5) == [a, b, a, b, a]
+    assert task_placement({a: 2, b: 1}, 4) == [a, a, b, a]
+    assert task_placement({}, 3) is None
+
+
+def test_render_tasks_start_spread_over_the_workers_and_record_where_they_ran(cluster, monkeypatch):
+    # The shared job is held by one worker, where Dask would start every task: each task is
+    # offered to the workers in turn instead (a loose restriction: another worker may take it)
+    settings = RenderSettings(16, 16, make_sampler("stratified", 4), ["mc"], 1)
+    job = RenderJob.of(load_scene("cornell-box"), settings, MAX_DEPTH)
+    submitted = []
+    submit = cluster.client.submit
+
+    def recorded_submit(*args, **kwargs):
+        submitted.append(kwargs)
+        return submit(*args, **kwargs)
+
+    monkeypatch.setattr(cluster.client, "submit", recorded_submit)
+    result = render_on(cluster, job, tasks=8)
+    workers = sorted(cluster.client.nthreads())
+    tasks = [kwargs for kwargs in submitted if kwargs.get("key", "").startswith("clrender-")]
+    assert [kwargs["workers"] for kwargs in tasks] == [[workers[k % 2]] for k in range(8)]
+    assert all(kwargs["allow_other_workers"] for kwargs in tasks)
+    # Each worker ran some of the 8 tasks (a worker starts its first task at once: work
+    # stealing may move a queued one, never that), and the result says how many
+    assert sorted(result.tasks_by_worker) == workers
+    assert min(result.tasks_by_worker.values()) >= 1
+    assert sum(result.tasks_by_worker.values()) == 8
