@@ -229,7 +229,8 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="ADDRESS",
         help="render on the existing Dask cluster whose scheduler is at ADDRESS (e.g. "
-        "tcp://host:8786); each worker uses --device, else its own PYOPENCL_CTX",
+        "tcp://host:8786); each worker uses --device, else its own PYOPENCL_CTX; this machine "
+        "needs no OpenCL device",
     )
     add(
         "--strict",
@@ -542,7 +543,7 @@ def command_render(args: argparse.Namespace) -> int:
 def render_on_cluster(args: argparse.Namespace, scene, settings, max_depth, roulette, progress):
     """The render on the Dask cluster of --workers / --scheduler (clrender.cluster): the same
     image as a local render. Its workers choose the device (--device, else their own
-    PYOPENCL_CTX) and report one that is not there; this process needs no OpenCL device."""
+    PYOPENCL_CTX) and report one they lack; this process needs no OpenCL device."""
     from clrender.cluster import RenderJob, make_executor, render_on
 
     with interrupts.signals_blocked():

@@ -27,7 +27,13 @@ its lifetime (clrender.api.runtime_for) and the radiance source of the job it la
 
 The device of a worker: the job's ``device`` (``--device``) if given, else the worker's own
 PYOPENCL_CTX, else its first device. A LocalCluster's workers inherit this process's
-environment; on another machine, set PYOPENCL_CTX where the worker starts.
+environment; on another machine, set PYOPENCL_CTX where the worker starts. The client opens no
+device (it may have none): a task reports the device it rendered on and its precision, and a
+device its worker lacks fails the task, reported as below.
+
+Placement: tasks that take the shared job would all start on the worker holding it (Dask
+places a task beside its inputs); they are dealt out to the workers in turn instead, with
+loose restrictions (`task_placement`).
 
 Faults: a worker that dies mid-task has its tasks rerun elsewhere by the scheduler (a pure
 function of the job and the tiles, so the image does not change). A task that raises is
