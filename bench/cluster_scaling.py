@@ -1,6 +1,6 @@
 """Speed of work on a Dask LocalCluster (clrender.cluster) against the same work in this process.
 
-    python bench/cluster_scaling.py [--quick] [--repeats K] [--out FILE]
+    python bench/cluster_scaling.py [--quick] [--repeats K] [--out FILE] [--cases NAME...]
 
 Measured in one run, medians of K repeats after a warm-up (the cluster's workers build their
 OpenCL programs and radiance sources once, as they would for a long study):
@@ -10,7 +10,11 @@ OpenCL programs and radiance sources once, as they would for a long study):
             process (the device uses both cores), then on 1 and 2 workers (each worker's device
             uses both cores too);
   overhead: per task, the round trip of trivial tasks through the scheduler (submit to
-            result), and of a render split into many small tasks against few.
+            result), and of a render split into many small tasks against few;
+  placement: the render on a fresh cluster of 2 workers, its tasks placed by the scheduler
+            (which starts every task where the shared job is) against dealt out to the workers
+            in turn (DaskExecutor.spread_shared), alternated: wall time of the first render
+            (workers setting up) and of the next (set up), and the tasks each worker ran.
 Every cluster result is checked equal to the local one (bit for bit). Wall and process CPU time
 (this process only: workers are other processes) are reported; the machine is shared, so the
 load average is recorded beside. JSON goes to bench/results/cluster_scaling.json (git-ignored).
@@ -40,6 +44,7 @@ from clrender.sampling import make_sampler  # noqa: E402
 from clrender.scene import load_scene  # noqa: E402
 
 DEFAULT_OUT = Path(__file__).resolve().parent / "results" / "cluster_scaling.json"
+CASES = ("analytic", "render", "overhead", "placement")
 
 
 def timed(fn, repeats: int):
@@ -138,11 +143,47 @@ def overhead_case(executor: DaskExecutor, repeats: int, size: int, spp: int) -> 
     }
 
 
+def placement_case(repeats: int, size: int, spp: int) -> dict:
+    """The render on a fresh 2-worker cluster per run, placed by the scheduler or spread, in
+    alternated rounds: median wall seconds of the first render and of the second, and each
+    run's tasks per worker (largest first)."""
+    scene = load_scene("mitsuba-cbox")
+    settings = RenderSettings(size, size, make_sampler("independent", spp), ["mc"], 1)
+    runs: dict = {"scheduler": [], "spread": []}
+    for _ in range(repeats):
+        for name, row in runs.items():
+            job = RenderJob.of(scene, settings, 8)
+            with DaskExecutor(workers=2) as executor:
+                executor.spread_shared = name == "spread"
+                walls, placements = [], []
+                for _ in range(2):  # the first render sets the workers up, the second does not
+                    start = time.perf_counter()
+                    result = render_on(executor, job)
+                    walls.append(time.perf_counter() - start)
+                    placements.append(sorted(result.tasks_by_worker.values(), reverse=True))
+            row.append({"wall_s": walls, "tasks_by_worker": placements})
+    summary = {}
+    for name, row in runs.items():
+        summary[name] = {
+            "first_render_s": statistics.median(run["wall_s"][0] for run in row),
+            "second_render_s": statistics.median(run["wall_s"][1] for run in row),
+            "runs": row,
+        }
+    return {"size": size, "spp": spp, "tasks": 8, "rows": summary}
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="small sizes, one repeat")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    parser.add_argument(
+        "--cases",
+        nargs="+",
+        choices=CASES,
+        default=list(CASES),
+        help="which measurements to run (default: all)",
+    )
     args = parser.parse_args(argv)
     repeats = 1 if args.quick else args.repeats
     n, runs = (64, 64) if args.quick else (1024, 1200)
@@ -150,14 +191,21 @@ def main(argv=None) -> None:
     results = {"command": " ".join(["python bench/cluster_scaling.py", *(argv or sys.argv[1:])])}
     results["machine_before"] = machine()
     cpu0 = time.process_time()
-    with DaskExecutor(workers=1) as one, DaskExecutor(workers=2) as two:
-        executors = {"1 worker": one, "2 workers": two}
-        results["analytic"] = analytic_case(executors, repeats, n, runs)
-        print(json.dumps(results["analytic"], indent=1), flush=True)
-        results["render"] = render_case(executors, repeats, size, spp)
-        print(json.dumps(results["render"], indent=1), flush=True)
-        results["overhead"] = overhead_case(two, repeats, size // 2, spp // 4 or 1)
-        print(json.dumps(results["overhead"], indent=1), flush=True)
+    if {"analytic", "render", "overhead"} & set(args.cases):
+        with DaskExecutor(workers=1) as one, DaskExecutor(workers=2) as two:
+            executors = {"1 worker": one, "2 workers": two}
+            if "analytic" in args.cases:
+                results["analytic"] = analytic_case(executors, repeats, n, runs)
+                print(json.dumps(results["analytic"], indent=1), flush=True)
+            if "render" in args.cases:
+                results["render"] = render_case(executors, repeats, size, spp)
+                print(json.dumps(results["render"], indent=1), flush=True)
+            if "overhead" in args.cases:
+                results["overhead"] = overhead_case(two, repeats, size // 2, spp // 4 or 1)
+                print(json.dumps(results["overhead"], indent=1), flush=True)
+    if "placement" in args.cases:
+        results["placement"] = placement_case(max(repeats, 2), size, spp)
+        print(json.dumps(results["placement"], indent=1), flush=True)
     results["this_process_cpu_s"] = time.process_time() - cpu0
     results["machine_after"] = machine()
     results["cpu_count"] = os.cpu_count()

@@ -15,7 +15,6 @@ The command line (`python -m clrender render`) goes through the same functions.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import warnings
 from collections.abc import Sequence
@@ -44,7 +43,8 @@ from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
 from clrender.scene import Scene
 from clrender.scene import load_scene as load_scene_file
-from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer
+from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer, check_max_depth
+from clrender.trace import image_size as scene_image_size
 
 
 def default_estimator(sampler: str) -> str:
@@ -131,13 +131,19 @@ def render(
             f"{type(scene).__name__} {scene!r}"
         )
     check_russian_roulette(russian_roulette, scene)
-    runtime = runtime_for(device)
-    built = thread_build_seconds()
-    source = radiance_source(runtime, scene, resolution, max_depth, russian_roulette)
-    setup_compile = thread_build_seconds() - built
+    if executor is None:
+        runtime = runtime_for(device)
+        built = thread_build_seconds()
+        source = radiance_source(runtime, scene, resolution, max_depth, russian_roulette)
+        setup_compile = thread_build_seconds() - built
+        width, height = source.width, source.height
+    else:  # the workers choose the device and build the source: none is needed here
+        if not isinstance(scene, str):
+            check_max_depth(max_depth)
+        width, height = image_size(scene, resolution)
     settings = RenderSettings(
-        source.width,
-        source.height,
+        width,
+        height,
         config,
         entries,
         seed,
@@ -164,16 +170,14 @@ def render(
     finally:
         if bar is not None:
             bar.close()
-    labels = render_labels(
+    # the device(s) and precision that rendered it: a cluster's workers', not this process's
+    result.labels = render_labels(
         analytic_image(scene, 1, 1).name if isinstance(scene, str) else scene.name,
         None if isinstance(scene, str) else scene,
-        runtime,
         result.max_depth,
         result.russian_roulette,
-        cluster=executor is not None,
+        result,
     )
-    # the device(s) that rendered it: a cluster's workers', not this process's
-    result.labels = dataclasses.replace(labels, device=result.device)
     return result
 
 
@@ -245,14 +249,22 @@ def radiance_source(
     """The path tracer of a scene (or the analytic image of an `analytic[:KIND]` name) at the
     requested resolution; russian_roulette (paths only) as clrender.trace.PathTracer's."""
     check_russian_roulette(russian_roulette, scene)
+    width, height = image_size(scene, resolution)
+    if isinstance(scene, str):
+        return AnalyticSource.for_scene(scene, runtime.queue, width, height)
+    tracer = PathTracer(runtime, scene, max_depth=max_depth, russian_roulette=russian_roulette)
+    return PathTracerSource(tracer, width, height)
+
+
+def image_size(scene: Scene | str, resolution: Resolution) -> tuple[int, int]:
+    """(width, height) of the image radiance_source renders for the scene (or `analytic[:KIND]`
+    name) at the requested resolution, without a device: what a client of a cluster needs."""
     width, height = _resolution(resolution)
     if isinstance(scene, str):
         if width is None:
-            width, height = DEFAULT_RESOLUTION
-        height = width if height is None else height
-        return AnalyticSource.for_scene(scene, runtime.queue, width, height)
-    tracer = PathTracer(runtime, scene, max_depth=max_depth, russian_roulette=russian_roulette)
-    return PathTracerSource(tracer, *tracer.image_size(width, height))
+            return DEFAULT_RESOLUTION
+        return width, width if height is None else height
+    return scene_image_size(scene, width, height)
 
 
 def _resolution(resolution: Resolution) -> tuple[int | None, int | None]:

@@ -229,7 +229,8 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="ADDRESS",
         help="render on the existing Dask cluster whose scheduler is at ADDRESS (e.g. "
-        "tcp://host:8786); each worker uses --device, else its own PYOPENCL_CTX",
+        "tcp://host:8786); each worker uses --device, else its own PYOPENCL_CTX; this machine "
+        "needs no OpenCL device",
     )
     add(
         "--strict",
@@ -373,18 +374,14 @@ def load_scene_arg(args: argparse.Namespace):
 
 
 def make_source(args: argparse.Namespace, runtime, scene):
-    """(radiance source, max depth, Russian roulette) for the scene at the requested size;
-    for the analytic image named by the argument (scene None) the last two are None: it has
-    no paths."""
+    """The radiance source of the scene (of the analytic image named by the argument when scene
+    is None) at the requested size."""
     from clrender.api import radiance_source
 
     size = parse_resolution(args.res)
-    source = radiance_source(
+    return radiance_source(
         runtime, scene or args.scene, size, path_depth(args), args.russian_roulette
     )
-    if scene is None:
-        return source, None, None
-    return source, path_depth(args), args.russian_roulette
 
 
 def path_depth(args: argparse.Namespace) -> int:
@@ -402,10 +399,11 @@ class Reference:
     noise: float | None
 
 
-def load_reference(args: argparse.Namespace, source, settings, labels) -> Reference | None:
+def load_reference(args: argparse.Namespace, settings, labels) -> Reference | None:
     """--reference (checked against the render's size before it starts; what makes its errors
-    untrustworthy printed as warnings), else the exact pixel integrals of an analytic image,
-    else None."""
+    untrustworthy printed as warnings), else the exact pixel integrals of an analytic image
+    (computed here, without a device), else None."""
+    from clrender.analytic import analytic_image, is_analytic_scene
     from clrender.compare import noise_from_metadata, read_image, reference_warnings
 
     if args.reference:
@@ -418,8 +416,10 @@ def load_reference(args: argparse.Namespace, source, settings, labels) -> Refere
         for warning in reference_warnings(rendered, metadata, args.reference):
             print(f"clrender: warning: {warning}", file=sys.stderr)
         return Reference(args.reference, pixels, noise)
-    if hasattr(source, "pixel_integrals"):
-        return Reference("exact pixel integrals", source.pixel_integrals(), 0.0)
+    if is_analytic_scene(args.scene):
+        width, height = settings.width, settings.height
+        integrals = analytic_image(args.scene, width, height).pixel_integrals(width, height)
+        return Reference("exact pixel integrals", integrals, 0.0)
     return None
 
 
@@ -479,14 +479,23 @@ def command_render(args: argparse.Namespace) -> int:
             advice = pairing_advice(name, args.sampler, args.spp)
             if advice:
                 print(f"clrender: warning: {advice}", file=sys.stderr)
-        runtime = create_runtime(args.device)
-        built = thread_build_seconds()
-        source, max_depth, roulette = make_source(args, runtime, scene)
-        setup_compile = thread_build_seconds() - built
-        settings = settings_from_args(args, source.width, source.height)
         cluster = args.workers is not None or args.scheduler is not None
-        labels = render_labels(label, scene, runtime, max_depth, roulette, cluster)
-        reference = load_reference(args, source, settings, labels)
+        if cluster:  # the workers choose the device and build the source: none is needed here
+            from clrender.api import image_size
+
+            size = image_size(scene or args.scene, parse_resolution(args.res))
+        else:
+            runtime = create_runtime(args.device)
+            built = thread_build_seconds()
+            source = make_source(args, runtime, scene)
+            setup_compile = thread_build_seconds() - built
+            size = source.width, source.height
+        max_depth, roulette = (
+            (None, None) if scene is None else (path_depth(args), args.russian_roulette)
+        )
+        settings = settings_from_args(args, *size)
+        labels = render_labels(label, scene, max_depth, roulette)
+        reference = load_reference(args, settings, labels)
     progress = ProgressBar(
         f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
     )
@@ -498,7 +507,10 @@ def command_render(args: argparse.Namespace) -> int:
             result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
     finally:
         progress.close()
-    labels = dataclasses.replace(labels, device=result.device)  # a cluster's: its workers'
+    # the device and precision that rendered it: a cluster's, its workers'
+    labels = dataclasses.replace(
+        labels, device=result.device, device_precision=result.device_precision
+    )
     # From here a signal is held until the finished pixels are written (or found to be none)
     with interrupts.signals_held() as held:
         rendered = max(film.rendered_count for film in result.films.values())
@@ -530,7 +542,8 @@ def command_render(args: argparse.Namespace) -> int:
 
 def render_on_cluster(args: argparse.Namespace, scene, settings, max_depth, roulette, progress):
     """The render on the Dask cluster of --workers / --scheduler (clrender.cluster): the same
-    image as a local render."""
+    image as a local render. Its workers choose the device (--device, else their own
+    PYOPENCL_CTX) and report one they lack; this process needs no OpenCL device."""
     from clrender.cluster import RenderJob, make_executor, render_on
 
     with interrupts.signals_blocked():

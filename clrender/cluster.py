@@ -27,7 +27,13 @@ its lifetime (clrender.api.runtime_for) and the radiance source of the job it la
 
 The device of a worker: the job's ``device`` (``--device``) if given, else the worker's own
 PYOPENCL_CTX, else its first device. A LocalCluster's workers inherit this process's
-environment; on another machine, set PYOPENCL_CTX where the worker starts.
+environment; on another machine, set PYOPENCL_CTX where the worker starts. The client opens no
+device (it may have none): a task reports the device it rendered on and its precision, and a
+device its worker lacks fails the task, reported as below.
+
+Placement: tasks that take the shared job would all start on the worker holding it (Dask
+places a task beside its inputs); they are dealt out to the workers in turn instead, with
+loose restrictions (`task_placement`).
 
 Faults: a worker that dies mid-task has its tasks rerun elsewhere by the scheduler (a pure
 function of the job and the tiles, so the image does not change). A task that raises is
@@ -114,6 +120,10 @@ class DaskExecutor(ClosingExecutor):
     """Tasks on a Dask cluster: a LocalCluster of `workers` processes, or the scheduler at
     `scheduler` (an address such as tcp://host:8786)."""
 
+    # Tasks taking a shared value dealt out to the workers in turn (`task_placement`); False
+    # leaves their placement to the scheduler, as bench/cluster_scaling.py compares
+    spread_shared = True
+
     def __init__(self, workers: int | None = None, scheduler: str | None = None):
         try:
             from distributed import Client, LocalCluster
@@ -153,14 +163,24 @@ class DaskExecutor(ClosingExecutor):
 
     def map(self, function: Callable, items: Sequence, *common: Any) -> Iterator[tuple[int, Any]]:
         """(index, result) of function(item, *common) on the cluster, as tasks finish. A
-        KeyboardInterrupt cancels the tasks not yet finished."""
-        from distributed import as_completed
+        KeyboardInterrupt cancels the tasks not yet finished. Tasks that take a shared value
+        (`share`) are dealt out to the workers in turn (`task_placement`)."""
+        from distributed import Future, as_completed
 
         task = shipped(function)
         token = uuid.uuid4().hex[:12]
+        shares = self.spread_shared and any(isinstance(value, Future) for value in common)
+        places = task_placement(self.client.nthreads(), len(items)) if shares else None
         futures = [
             self.client.submit(
-                _run_task, task, item, *common, key=f"clrender-{token}-{index}", pure=False
+                _run_task,
+                task,
+                item,
+                *common,
+                key=f"clrender-{token}-{index}",
+                pure=False,
+                **({} if places is None else {"workers": [places[index]]}),
+                allow_other_workers=places is not None,
             )
             for index, item in enumerate(items)
         ]
@@ -180,6 +200,19 @@ class DaskExecutor(ClosingExecutor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def task_placement(nthreads: dict[str, int], tasks: int) -> list[str] | None:
+    """The worker each of `tasks` tasks is first offered to: the workers' threads in turn (by
+    address). Dask sends a task to a worker that holds its inputs, so tasks sharing one value
+    held by one worker would all start there (6 of 8 on a fresh cluster of 2), leaving the
+    others to work stealing. A loose restriction (workers=[address], allow_other_workers=True)
+    spreads them from the start, yet lets the scheduler run a task elsewhere when its worker
+    is gone and steal it for an idle one. None with no worker."""
+    threads = [address for address in sorted(nthreads) for _ in range(max(nthreads[address], 1))]
+    if not threads:
+        return None
+    return [threads[index % len(threads)] for index in range(tasks)]
 
 
 def shipped(function: Callable) -> Callable | bytes:
@@ -358,6 +391,7 @@ class PixelRangeResult:
     first_draw: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     stats: RenderStats
     device: str  # the OpenCL device that rendered it (Runtime.describe)
+    precision: str  # of that device's Voronoi cells and sums: "mixed" or "single"
     worker: str  # the worker process that ran it (worker_name)
     # what kept it from its tiles: the set-up before its first tile (the job's radiance source
     # unless the worker kept it, the tile pipeline) and the program builds on its render thread
@@ -386,6 +420,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
     those of a local render of the whole image."""
     set_up = time.perf_counter()
     from clrender.api import runtime_for
+    from clrender.estimators.device_cells import resolve_precision
 
     first, end = pixel_range
     built = thread_build_seconds()
@@ -413,6 +448,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
         else (first.samples[pixels], first.redraws[pixels], first.variance[pixels]),
         pipeline.stats,
         runtime.describe(),
+        resolve_precision(runtime, "auto"),
         worker_name(),
         setup_seconds,
     )
@@ -460,7 +496,9 @@ def render_on(
     first_draw = PixelLayers(job.width, job.height) if image_level and rejecting else None
     stats = RenderStats()
     devices: set[str] = set()
+    precisions: set[str] = set()
     setup_by_worker: dict[str, float] = {}
+    tasks_by_worker: dict[str, int] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
     start = time.perf_counter()
     try:
@@ -472,9 +510,11 @@ def render_on(
                 first_draw.record(part.pixels, *part.first_draw)
             add_stats(stats, part.stats)
             devices.add(part.device)
+            precisions.add(part.precision)
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
             )
+            tasks_by_worker[part.worker] = tasks_by_worker.get(part.worker, 0) + 1
             if progress is not None:
                 first = films[job.estimators[0]]
                 progress(first.rendered_count, first.pixel_count)
@@ -495,4 +535,6 @@ def render_on(
         max_depth=job.max_depth if paths else None,
         russian_roulette=job.russian_roulette if paths else None,
         device="; ".join(sorted(devices)) or None,
+        device_precision="; ".join(sorted(precisions)) or None,
+        tasks_by_worker=dict(sorted(tasks_by_worker.items())),
     )

@@ -69,22 +69,22 @@ def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -
     write_all_atomically(jobs)
 
 
-def render_labels(label: str, scene, runtime, max_depth, roulette, cluster: bool):
-    """The render's RenderLabels: what the pipeline does not know, provenance included (a
-    cluster's workers pick their own devices: their precision is not known here)."""
-    from clrender.estimators.device_cells import resolve_precision
+def render_labels(label: str, scene, max_depth, roulette, result=None):
+    """The render's RenderLabels: what the pipeline does not know, provenance included; the
+    device and its precision are the result's (RenderResult.device, .device_precision: for a
+    cluster render its workers', reported by its tasks), None before the render."""
     from clrender.provenance import kernels_fingerprint, scene_fingerprint
     from clrender.report import RenderLabels
 
     return RenderLabels(
         label,
-        runtime.describe(),
+        None if result is None else result.device,
         max_depth,
         roulette,
         scene_file=None if scene is None else str(Path(scene.path).resolve()),
         scene_sha256=None if scene is None else scene_fingerprint(scene),
         kernels_sha256=kernels_fingerprint(),
-        device_precision=None if cluster else resolve_precision(runtime, "auto"),
+        device_precision=None if result is None else result.device_precision,
     )
 
 

@@ -323,9 +323,13 @@ class RenderResult:
     # What the pipeline does not know (clrender.report.RenderLabels: scene, device,
     # provenance), recorded by clrender.render for save()
     labels: object | None = None
-    # The OpenCL device that rendered it (Runtime.describe); a cluster render's devices in
-    # sorted order joined by "; ", None when none of its tasks finished
+    # The OpenCL device that rendered it (Runtime.describe) and the precision of its Voronoi
+    # cells and sums ("mixed" with cl_khr_fp64, else "single"); a cluster render's, as its
+    # tasks reported them, each in sorted order joined by "; ", None when no task finished
     device: str | None = None
+    device_precision: str | None = None
+    # A cluster render's finished tasks per worker (address: count, by address); None locally
+    tasks_by_worker: dict[str, int] | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film
@@ -971,4 +975,5 @@ def render(
         max_depth=None if tracer is None else tracer.max_depth,
         russian_roulette=None if tracer is None else tracer.russian_roulette,
         device=runtime.describe(),
+        device_precision=resolve_precision(runtime, "auto"),
     )

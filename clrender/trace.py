@@ -87,6 +87,34 @@ def device_triangles(triangles: np.ndarray, has_bvh: bool) -> np.ndarray:
     return triangles
 
 
+def check_max_depth(max_depth: object) -> None:
+    """ParameterError unless max_depth is an integer in [0, MAX_DEPTH_LIMIT]."""
+    if (
+        isinstance(max_depth, bool)
+        or not isinstance(max_depth, int | np.integer)
+        or not 0 <= max_depth <= MAX_DEPTH_LIMIT
+    ):
+        raise ParameterError(
+            f"max_depth must be an integer in [0, {MAX_DEPTH_LIMIT}], got {max_depth!r}"
+        )
+
+
+def image_size(scene: Scene, width: int | None, height: int | None) -> tuple[int, int]:
+    """(width, height) of a scene's image, known without a device: the scene's resolution by
+    default; a width alone keeps the scene's aspect ratio."""
+    scene_w, scene_h = scene.resolution
+    if width is None:
+        width, height = (scene_w, scene_h) if height is None else (None, height)
+    if width is None:
+        width = max(1, round(height * scene_w / scene_h))
+    if height is None:
+        height = max(1, round(width * scene_h / scene_w))
+    for name, value in (("image_width", width), ("image_height", height)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
+            raise ParameterError(f"{name} must be a positive integer, got {value!r}")
+    return int(width), int(height)
+
+
 class PathTracer:
     """A scene uploaded once to the device, and the path-tracing kernel for it."""
 
@@ -100,14 +128,7 @@ class PathTracer:
         profile_defines: dict[str, object] | None = None,
         brute_force_limit: int = BRUTE_FORCE_LIMIT,
     ):
-        if (
-            isinstance(max_depth, bool)
-            or not isinstance(max_depth, int | np.integer)
-            or not 0 <= max_depth <= MAX_DEPTH_LIMIT
-        ):
-            raise ParameterError(
-                f"max_depth must be an integer in [0, {MAX_DEPTH_LIMIT}], got {max_depth!r}"
-            )
+        check_max_depth(max_depth)
         self.runtime = runtime
         self.scene = scene
         self.max_depth = int(max_depth)
@@ -163,19 +184,8 @@ class PathTracer:
         return self._cameras[key]
 
     def image_size(self, width: int | None, height: int | None) -> tuple[int, int]:
-        """(width, height): the scene's resolution by default; a width alone keeps the
-        scene's aspect ratio."""
-        scene_w, scene_h = self.scene.resolution
-        if width is None:
-            width, height = (scene_w, scene_h) if height is None else (None, height)
-        if width is None:
-            width = max(1, round(height * scene_w / scene_h))
-        if height is None:
-            height = max(1, round(width * scene_h / scene_w))
-        for name, value in (("image_width", width), ("image_height", height)):
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value <= 0:
-                raise ParameterError(f"{name} must be a positive integer, got {value!r}")
-        return int(width), int(height)
+        """(width, height) of the scene's image at the requested size (see `image_size`)."""
+        return image_size(self.scene, width, height)
 
     def check_launch(
         self,

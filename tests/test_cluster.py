@@ -22,7 +22,7 @@ from clrender.cluster import (
     render_on,
     split_pixels,
 )
-from clrender.errors import ParameterError
+from clrender.errors import ClrenderError, ParameterError
 from clrender.pipeline import RenderSettings, render
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
@@ -265,3 +265,104 @@ def test_the_python_api_renders_on_an_executor(cluster):
     assert (distributed.max_depth, distributed.russian_roulette) == (local.max_depth, False)
     assert distributed.device == local.device  # the workers' device (same PYOPENCL_CTX here)
     assert local.max_depth == DEFAULT_MAX_DEPTH
+
+
+def without_local_opencl(patch) -> None:
+    """This process as a client with no OpenCL device (a laptop driving a GPU cluster): no
+    platform to list, and the runtimes its earlier tests cached out of reach."""
+    import pyopencl
+
+    from clrender import api, runtime
+    from clrender.errors import DeviceError
+
+    def no_opencl(*args, **kwargs):
+        raise DeviceError(runtime.INSTALL_HINT)
+
+    patch.setattr(pyopencl, "get_platforms", no_opencl)
+    patch.setattr(runtime, "list_devices", no_opencl)
+    patch.setattr(api, "runtime_for", no_opencl)
+
+
+def test_a_client_without_opencl_renders_on_the_workers_devices(runtime, cluster, monkeypatch):
+    import clrender
+    from clrender.estimators.device_cells import resolve_precision
+
+    kwargs = dict(spp=8, estimators=["vor_sn", "mc_n"], resolution=12, seed=2)
+    local = clrender.render("cornell-box", **kwargs)
+    with monkeypatch.context() as patch:
+        without_local_opencl(patch)
+        with pytest.raises(ClrenderError, match="no OpenCL platform"):
+            clrender.render("cornell-box", **kwargs)  # (the patch holds: nothing local renders)
+        distributed = clrender.render("cornell-box", executor=cluster, **kwargs)
+    assert (distributed.settings.width, distributed.settings.height) == (12, 12)
+    assert_same_render(local, distributed)
+    # the device and precision recorded are those the workers rendered with
+    precision = resolve_precision(runtime, "auto")
+    assert distributed.device == runtime.describe()
+    assert distributed.device_precision == precision == local.device_precision
+    assert distributed.labels.device == runtime.describe()
+    assert distributed.labels.device_precision == precision
+
+
+def test_a_command_line_client_without_opencl_drives_the_cluster(
+    runtime, cluster, monkeypatch, tmp_path, capsys
+):
+    from clrender.estimators.device_cells import resolve_precision
+    from clrender.imageio import read_exr
+
+    common = ["render", "analytic:mix", "--res", "16x8", "--spp", "8", "-o"]
+    assert main([*common, str(tmp_path / "local.exr"), "--quiet"]) == 0
+    address = ["--scheduler", cluster.client.scheduler.address]
+    with monkeypatch.context() as patch:
+        without_local_opencl(patch)
+        assert main([*common, str(tmp_path / "cluster.exr"), *address, "--json"]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        # a device the workers lack is reported by them, in one line
+        bad_device = [*common, str(tmp_path / "bad.exr"), *address, "--device", "no-such-gpu"]
+        assert main(bad_device) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "task failed on worker tcp://" in error, error
+    assert "'no-such-gpu' matches nothing" in error
+    local, _ = read_exr(tmp_path / "local.exr")
+    distributed, metadata = read_exr(tmp_path / "cluster.exr")
+    assert np.array_equal(local, distributed)
+    assert summary["device"] == metadata["device"] == runtime.describe()
+    assert sum(summary["tasks_by_worker"].values()) == 8  # 4 a worker
+    assert metadata["device_precision"] == resolve_precision(runtime, "auto")
+    # the analytic image's exact pixel integrals, computed here without a device
+    assert summary["images"]["vor_sn"]["errors"]["reference"] == "exact pixel integrals"
+    assert summary["images"]["vor_sn"]["errors"]["mse"] > 0
+
+
+def test_tasks_are_dealt_out_to_the_workers_threads_in_turn():
+    from clrender.cluster import task_placement
+
+    a, b = "tcp://a", "tcp://b"
+    assert task_placement({b: 1, a: 1}, 5) == [a, b, a, b, a]
+    assert task_placement({a: 2, b: 1}, 4) == [a, a, b, a]
+    assert task_placement({}, 3) is None
+
+
+def test_render_tasks_start_spread_over_the_workers_and_record_where_they_ran(cluster, monkeypatch):
+    # The shared job is held by one worker, where Dask would start every task: each task is
+    # offered to the workers in turn instead (a loose restriction: another worker may take it)
+    settings = RenderSettings(16, 16, make_sampler("stratified", 4), ["mc"], 1)
+    job = RenderJob.of(load_scene("cornell-box"), settings, MAX_DEPTH)
+    submitted = []
+    submit = cluster.client.submit
+
+    def recorded_submit(*args, **kwargs):
+        submitted.append(kwargs)
+        return submit(*args, **kwargs)
+
+    monkeypatch.setattr(cluster.client, "submit", recorded_submit)
+    result = render_on(cluster, job, tasks=8)
+    workers = sorted(cluster.client.nthreads())
+    tasks = [kwargs for kwargs in submitted if kwargs.get("key", "").startswith("clrender-")]
+    assert [kwargs["workers"] for kwargs in tasks] == [[workers[k % 2]] for k in range(8)]
+    assert all(kwargs["allow_other_workers"] for kwargs in tasks)
+    # Each worker ran some of the 8 tasks (a worker starts its first task at once: work
+    # stealing may move a queued one, never that), and the result says how many
+    assert sorted(result.tasks_by_worker) == workers
+    assert min(result.tasks_by_worker.values()) >= 1
+    assert sum(result.tasks_by_worker.values()) == 8
