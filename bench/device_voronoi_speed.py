@@ -49,6 +49,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from common import machine
 
 from clrender.estimators import device_cells
 from clrender.estimators.device_cells import device_sppp_cells, resolve_precision
@@ -320,6 +321,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--n", type=int, default=256, help="SPPP n of --variants")
     args = parser.parse_args(argv)
     runtime = create_runtime()
+    before = machine()
     repeats = 3 if args.quick else args.repeats
     if args.variants:
         report = compare_variants(runtime, args.n, args.variants, repeats)
@@ -339,6 +341,7 @@ def main(argv: list[str] | None = None) -> None:
             )
         out = args.out.with_name("device_voronoi_variants.json")
         out.parent.mkdir(parents=True, exist_ok=True)
+        report.update(machine_before=before, machine_after=machine())
         out.write_text(json.dumps(report, indent=2) + "\n")
         print(f"wrote {out}")
         return
@@ -358,6 +361,7 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"  extra: {name:35s} {value:6.2f} CPU-s per 256 x 256 image")
         out = args.out.with_name("device_voronoi_stages.json")
         out.parent.mkdir(parents=True, exist_ok=True)
+        report.update(machine_before=before, machine_after=machine())
         out.write_text(json.dumps(report, indent=2) + "\n")
         print(f"wrote {out}")
         return
@@ -383,6 +387,7 @@ def main(argv: list[str] | None = None) -> None:
         "cases": rows,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    report.update(machine_before=before, machine_after=machine())
     args.out.write_text(json.dumps(report, indent=2) + "\n")
     print(f"wrote {args.out}")
 

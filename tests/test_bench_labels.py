@@ -222,3 +222,25 @@ def test_voronoi_speed_writes_results_into_a_folder_with_each_rows_repeats(tmp_p
     assert "repeats" not in results and results["clock"] == "process_time"
     assert_machine(results["machine_before"])
     assert_machine(results["machine_after"])
+
+
+def test_throughput_scripts_record_the_machine(tmp_path, monkeypatch):
+    """primitive_scaling.py, sample_throughput.py (and bvh_scaling.py: tests/test_bvh.py) write
+    the load before and after their timings beside them."""
+    import primitive_scaling
+    import sample_throughput
+
+    primitive_scaling.main(
+        ["--counts", "18", "--size", "8", "--spp", "2", "--repeats", "1"]
+        + ["--output", str(tmp_path / "primitives.json")]
+    )
+    arguments = ["--res", "8", "--n", "4", "--samplers", "independent", "--repeats", "1"]
+    monkeypatch.setattr(
+        sys, "argv", ["sample_throughput", *arguments, "--out", str(tmp_path / "s")]
+    )
+    sample_throughput.main()
+    for name in ("primitives.json", "s"):
+        results = json.loads((tmp_path / name).read_text())
+        assert results["results"] and "device" in results
+        assert_machine(results["machine_before"])
+        assert_machine(results["machine_after"])
