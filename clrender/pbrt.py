@@ -13,7 +13,9 @@ Camera "perspective" "float fov"        [camera]; pbrt's fov spans the shorter i
                                         vertical fov is converted when the image is taller than
                                         wide); pbrt's left-handed camera space (x right, y up,
                                         z forward) gives ``handedness = "left"``, a mirroring
-                                        camera transform gives "right"
+                                        camera transform gives "right"; the transform rigid
+                                        up to uniform scale within SIMILARITY_TOLERANCE, its
+                                        nearest similarity used
 Film "rgb" x/yresolution                [camera] resolution (pbrt's default 1280 x 720)
 LookAt, Transform, ConcatTransform,     the current transform (Transform's 16 numbers are
 Translate, Scale, Rotate, Identity      column-major, as pbrt writes them)
@@ -31,7 +33,7 @@ Shape "trianglemesh"                    quads when every triangle pair (2k, 2k+1
 Shape "bilinearmesh"                    quads (every patch must be a parallelogram)
 Shape "plymesh"                         a mesh (its file, or its positions under a transform)
 Shape "sphere"                          a sphere (the transform a similarity: rotation, uniform
-                                        scale, translation)
+                                        scale, translation, within SIMILARITY_TOLERANCE)
 Include                                 the file, relative to the including file
 Integrator, Sampler, PixelFilter,       ignored with one warning each: clrender chooses these
 ColorSpace, Option, Accelerator,        on its command line
@@ -113,8 +115,13 @@ PARAMETER_TYPES = (
 )
 # Cosine below which a vertex normal N is not the flat face normal (quads carry no normals).
 FLAT_NORMAL_COSINE = 1.0 - 1e-6
-# Relative tolerance of the similarity check of a sphere's and the camera's transform.
-SIMILARITY_TOLERANCE = 1e-6
+# Relative tolerance of the similarity check of a sphere's and the camera's transform: its
+# linear part L must satisfy |L^T L - s^2 I| <= this times s^2. Exporters print matrices to 6
+# significant digits (or compute them in float32), which leaves L^T L off s^2 I by up to ~2e-5
+# (Bitterli's teapot camera: 1.7e-5); a real shear or non-uniform scale is far larger. 1e-4
+# moves a camera ray by at most ~5e-5 radians, a tenth of a pixel of a 1280-pixel, 40-degree
+# image.
+SIMILARITY_TOLERANCE = 1e-4
 MAX_INCLUDE_DEPTH = 32
 TOKEN_PATTERN = re.compile(r'"(?:[^"\\\n]|\\.)*"|\[|\]|#[^\n]*|[^\s"\[\]#]+|"')
 ESCAPES = {"n": "\n", "t": "\t", "r": "\r", "b": "\b", "f": "\f", '"': '"', "\\": "\\", "'": "'"}
@@ -439,10 +446,23 @@ def similarity_scale(linear: np.ndarray, mirrored: bool = False) -> float | None
 # --------------------------------------------------------------------------- camera
 
 
+def nearest_similarity(linear: np.ndarray) -> np.ndarray:
+    """The similarity (s times a rotation, or times a rotation and a mirroring) nearest to a
+    3x3 matrix: its polar decomposition's orthogonal factor U V^T (the orthogonal matrix
+    nearest in the Frobenius norm, of the same determinant sign for a matrix near one) times
+    s = |det|^(1/3). It removes the rounding of a matrix printed to a few digits symmetrically,
+    leaving no axis favoured."""
+    u, _, vt = np.linalg.svd(linear)
+    return abs(float(np.linalg.det(linear))) ** (1.0 / 3.0) * (u @ vt)
+
+
 def camera_table(world_to_camera: np.ndarray, fov: float, resolution: tuple[int, int]) -> dict:
     """clrender's [camera] table of a pbrt perspective camera whose CTM is world_to_camera (a
-    rigid transform up to uniform scale): look_from = the camera origin, look_at one unit
+    rigid transform up to uniform scale, within SIMILARITY_TOLERANCE: its linear part is
+    replaced by the nearest similarity first): look_from = the camera origin, look_at one unit
     along camera +z, up = camera +y; "left" when camera +x = cross(up, forward) in world."""
+    world_to_camera = world_to_camera.copy()
+    world_to_camera[:3, :3] = nearest_similarity(world_to_camera[:3, :3])
     camera_to_world = np.linalg.inv(world_to_camera)
     linear = camera_to_world[:3, :3]
     origin = camera_to_world[:3, 3]

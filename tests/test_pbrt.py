@@ -208,6 +208,73 @@ def test_08_lookat_and_the_same_camera_by_transform_agree(tmp_path):
         np.testing.assert_allclose(basis[key], other[key], atol=1e-6)
 
 
+def printed(matrix: np.ndarray, form: str = "%g") -> str:
+    """A pbrt Transform of the matrix, its 16 numbers column-major printed with `form`."""
+    return "Transform [ " + " ".join(form % v for v in matrix.T.ravel()) + " ]"
+
+
+def transform_matrix(line: str) -> np.ndarray:
+    """The matrix of a pbrt `Transform [ ... ]` line (column-major numbers)."""
+    return np.array(line.split("[")[1].split("]")[0].split(), float).reshape(4, 4).T
+
+
+def similarity_error(matrix: np.ndarray) -> float:
+    linear = matrix[:3, :3]
+    s2 = abs(np.linalg.det(linear)) ** (2 / 3)
+    return float(np.abs(linear.T @ linear - s2 * np.eye(3)).max() / s2)
+
+
+# Bitterli's teapot (pbrt-v4 export) as written: a camera rotation computed in float32 and
+# printed to 6 digits, off orthonormal by 1.7e-5
+TEAPOT_CAMERA = (
+    "Transform [ 0.00552692 -0.342144 -0.939631 -0 -0 0.939646 -0.342149 -0 -0.999985 "
+    "-0.0018952 -0.00517328 -0 -0.0919892 -2.36787 26.2919 1 ]"
+)
+
+
+def test_08b_transforms_printed_to_6_digits_are_rigid_and_shears_are_not(tmp_path):
+    # A camera rotation printed with %g (6 significant digits) renders as the exact matrix
+    # does, to the rounding of its digits; so does a sphere under it
+    exact = np.eye(4)
+    exact[:3, :3] = Rotation.random(random_state=5).as_matrix()
+    exact[:3, 3] = [0.3, -1.2, 7.5]
+    assert similarity_error(transform_matrix(printed(exact))) > 1e-6  # refused before
+    by_exact = camera_scene(tmp_path, printed(exact, "%.17g"), 32, 24, name="exact.pbrt")
+    by_print = camera_scene(tmp_path, printed(exact), 32, 24, name="printed.pbrt")
+    assert by_print.camera.handedness == by_exact.camera.handedness == "left"
+    for key in ("look_from", "look_at", "up"):
+        np.testing.assert_allclose(
+            getattr(by_print.camera, key), getattr(by_exact.camera, key), atol=2e-5
+        )
+    points = np.random.default_rng(5).uniform(-1.0, 1.5, (50, 3))
+    np.testing.assert_allclose(
+        probes.project(by_print, 32, 24, points),
+        probes.project(by_exact, 32, 24, points),
+        atol=1e-3,
+    )
+    # the camera's frame is orthonormal (the nearest rotation), not the printed columns
+    basis = by_print.camera.basis(32, 24)
+    assert abs(float(np.dot(basis["forward"], basis["up"]))) < 1e-6
+    (sphere,) = world_shapes(tmp_path, printed(exact) + '\nShape "sphere" "float radius" 0.5\n')
+    np.testing.assert_allclose(sphere["center"], [0.3, -1.2, 7.5])
+    assert sphere["radius"] == pytest.approx(0.5, rel=1e-6)
+    # a real exporter's matrix, further off orthonormal (float32 arithmetic), is a rigid camera
+    teapot = camera_scene(tmp_path, TEAPOT_CAMERA, 32, 24, name="teapot.pbrt").camera
+    matrix = transform_matrix(TEAPOT_CAMERA)
+    assert similarity_error(matrix) > 1e-5
+    rows = matrix[:3, :3]  # camera x, y, z in world
+    np.testing.assert_allclose(teapot.look_from, -rows.T @ matrix[:3, 3], atol=1e-3)
+    np.testing.assert_allclose(np.subtract(teapot.look_at, teapot.look_from), rows[2], atol=3e-5)
+    # a clear shear and a non-uniform scale are still refused, each in one line
+    shear = np.eye(4)
+    shear[0, 1] = 0.01
+    for transform in (printed(shear), "Scale 1 1.001 1"):
+        with pytest.raises(SceneError, match=r"Camera: the camera transform must be rigid"):
+            camera_scene(tmp_path, transform, 32, 24, name="shear.pbrt")
+        with pytest.raises(SceneError, match=r"Shape: a sphere's transform must be"):
+            world_shapes(tmp_path, transform + '\nShape "sphere"\n')
+
+
 def test_09_fov_is_the_shorter_axis_and_resolution_defaults(tmp_path):
     tall = camera_scene(tmp_path, "LookAt 0 1 5 0 1 0 0 1 0", 20, 40, fov=30.0).camera
     half = math.tan(math.radians(30.0) / 2) * 2
