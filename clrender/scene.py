@@ -787,6 +787,10 @@ class SceneBuilder:
             return None
         what = "integers" if kind is int else "finite numbers"
         expected = f"expected a list of [a, b, c] rows of 3 {what}"
+        if isinstance(value, np.ndarray):  # a pbrt plymesh's arrays (clrender.pbrt), not TOML
+            if value.ndim != 2 or value.shape[1] != 3 or not len(value):
+                table.fail(key, f"{expected}, got an array of shape {value.shape}")
+            return value.astype(np.int64 if kind is int else np.float64, copy=False)
         allowed = (int,) if kind is int else (int, float)
         if (
             not isinstance(value, list)

@@ -352,7 +352,7 @@ def test_13_bilinear_patch_is_a_quad_and_a_curved_one_is_refused(tmp_path):
         world_shapes(tmp_path, curved)
 
 
-def test_14_plymesh_is_the_file_or_its_transformed_positions(tmp_path):
+def test_14_plymesh_is_the_files_triangles_transformed(tmp_path):
     ply = (
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
         "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
@@ -360,18 +360,15 @@ def test_14_plymesh_is_the_file_or_its_transformed_positions(tmp_path):
     )
     write(tmp_path, ply, "meshes/tri.ply")
     (mesh,) = world_shapes(tmp_path, 'Shape "plymesh" "string filename" "meshes/tri.ply"\n')
-    assert mesh == {
-        "type": "mesh",
-        "file": str((tmp_path / "meshes" / "tri.ply").resolve()),
-        "name": "scene.pbrt:5 plymesh",
-        "material": "pbrt default diffuse",
-    }
+    assert mesh["name"] == "scene.pbrt:5 plymesh" and mesh["material"] == "pbrt default diffuse"
+    np.testing.assert_array_equal(mesh["positions"], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh["indices"], [[0, 1, 2]])
+    assert "normals" not in mesh and "file" not in mesh
     (moved,) = world_shapes(
         tmp_path, 'Translate 0 0 2\nShape "plymesh" "string filename" "meshes/tri.ply"\n'
     )
-    assert moved["positions"] == [[0, 0, 2], [1, 0, 2], [0, 1, 2]] and moved["indices"] == [
-        [0, 1, 2]
-    ]
+    np.testing.assert_array_equal(moved["positions"], [[0, 0, 2], [1, 0, 2], [0, 1, 2]])
+    np.testing.assert_array_equal(moved["indices"], [[0, 1, 2]])
 
 
 # --------------------------------------------------------------------------- materials and lights
@@ -776,3 +773,44 @@ def test_27_mesh_emitters_light_the_side_pbrt_emits_to(
         assert floor > 0.01, case
     else:
         assert floor == 0.0, case
+
+
+def lamp_ply(y: float) -> str:
+    """An ASCII PLY square at height y, wound counter-clockwise seen from above (winding's
+    front +y) with vertex normals N pointing down (-y): pbrt-v4 emits down, toward N."""
+    return (
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+        "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        f"-1 {y} -1 0 -1 0\n-1 {y} 1 0 -1 0\n1 {y} 1 0 -1 0\n1 {y} -1 0 -1 0\n4 0 1 2 3\n"
+    )
+
+
+def ply_lamp_scene(tmp_path, transform: str, y: float):
+    write(tmp_path, lamp_ply(y), f"lamp{y:g}.ply")
+    lamp = (
+        'AttributeBegin\n  AreaLightSource "diffuse" "rgb L" [ 4 4 4 ]\n'
+        f'  Material "diffuse" "rgb reflectance" [ 0 0 0 ]\n  {transform}\n'
+        f'  Shape "plymesh" "string filename" "lamp{y:g}.ply"\nAttributeEnd\n'
+    )
+    return load_scene(write(tmp_path, HEADER + FLOOR + lamp, f"lamp{y:g}.pbrt"))
+
+
+def test_28_a_plymesh_faces_its_normals_with_or_without_a_transform(tmp_path):
+    # The same emitting square, once from a file at y = 1.5 with no transform, once from a file
+    # at y = 0.5 moved up by 1: both face the file's normals (down), as pbrt-v4 turns them
+    placed = ply_lamp_scene(tmp_path, "", 1.5)
+    moved = ply_lamp_scene(tmp_path, "Translate 0 1 0", 0.5)
+    for scene in (placed, moved):
+        p0, p1, p2 = (scene.triangles[k].astype(np.float64) for k in ("p0", "p1", "p2"))
+        assert (np.cross(p1 - p0, p2 - p0)[:, 1] < 0).all()
+    for key in ("p0", "p1", "p2"):
+        np.testing.assert_array_equal(placed.triangles[key], moved.triangles[key])
+
+
+@pytest.mark.device
+def test_29_a_plymesh_without_a_transform_lights_what_pbrt_lights(tmp_path):
+    placed = clrender.render(ply_lamp_scene(tmp_path, "", 1.5), spp=8, seed=3).image
+    moved = clrender.render(ply_lamp_scene(tmp_path, "Translate 0 1 0", 0.5), spp=8, seed=3).image
+    assert placed[4:].mean() > 0.01
+    np.testing.assert_array_equal(placed, moved)
