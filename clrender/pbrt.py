@@ -36,7 +36,9 @@ Shape "plymesh"                         a mesh of the file's triangles (under th
                                         front sides toward its normals N, as for trianglemesh)
 Shape "sphere"                          a sphere (the transform a similarity: rotation, uniform
                                         scale, translation, within SIMILARITY_TOLERANCE)
-Include                                 the file, relative to the including file
+Include                                 the file; a relative name (here and in plymesh) from
+                                        the top-level file's folder (pbrt-v4's rule), else
+                                        from the including file's
 Integrator, Sampler, PixelFilter,       ignored with one warning each: clrender chooses these
 ColorSpace, Option, Accelerator,        on its command line
 Film "string filename"
@@ -758,14 +760,32 @@ class PbrtReader:
 
     def directive_Include(self, cursor, where):
         name = cursor.string(where, "a file name in quotes")
-        path = where.path.parent / name
+        path = self.find_file(name, where, where.fail)
         if path.resolve() in self.includes:
             where.fail(f"{name!r} includes itself (directly or through other files)")
         if len(self.includes) >= MAX_INCLUDE_DEPTH:
             where.fail(f"Includes nest deeper than {MAX_INCLUDE_DEPTH}")
-        if not path.is_file():
-            where.fail(f"no file {str(path)!r} (a name relative to {where.path.name}'s folder)")
         self.read_file(path, where)
+
+    def find_file(self, name: str, where: Location, fail) -> Path:
+        """The file a name in `where`'s file refers to: pbrt-v4's ResolveFilename, a relative
+        name taken from the top-level file's folder (in every included file: pbrt-v4-scenes rely
+        on it), then, when no file is there, from the including file's folder (a scene written
+        for clrender's earlier rule). pbrt-v4's last resort, the working directory, is not
+        tried: a scene does not depend on where it is rendered from. `fail` reports a missing
+        file, naming the folders tried."""
+        path = Path(name)
+        if path.is_absolute():
+            tried = [path]
+        else:
+            tried = list(dict.fromkeys([self.path.parent / name, where.path.parent / name]))
+        for candidate in tried:
+            if candidate.is_file():
+                return candidate
+        fail(
+            f"no file {name!r} (relative names are taken from the top-level file's folder, as "
+            f"pbrt-v4 does, then from the including file's; tried {', '.join(map(str, tried))})"
+        )
 
     # -- transforms
     def concatenate(self, matrix: np.ndarray) -> None:
@@ -1060,9 +1080,7 @@ class PbrtReader:
         if filename is None:
             where.fail('needs "string filename"')
         params.refuse_unused('"string filename"')
-        path = (where.path.parent / filename).resolve()
-        if not path.is_file():
-            params.fail("filename", f"no file {str(path)!r}")
+        path = self.find_file(filename, where, lambda message: params.fail("filename", message))
         # Read here, with or without a transform: the front side is pbrt-v4's (toward the
         # file's normals N where it has them), which the scene's `mesh.file` does not apply
         positions, triangles, normals = load_ply(where, path)

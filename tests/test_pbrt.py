@@ -427,7 +427,7 @@ def test_17_attribute_sets_default_parameters(tmp_path):
     assert [s["radius"] for s in world_shapes(tmp_path, body)] == [0.25, 2.0, 1.0]
 
 
-def test_18_include_is_relative_to_the_including_file(tmp_path):
+def test_18_include_falls_back_to_the_including_files_folder(tmp_path):
     write(tmp_path, 'Include "parts/lamp.pbrt"\n', "scenes/world.pbrt")
     write(tmp_path, LAMP + 'Include "floor.pbrt"\n', "scenes/parts/lamp.pbrt")
     write(tmp_path, FLOOR, "scenes/parts/floor.pbrt")
@@ -440,6 +440,38 @@ def test_18_include_is_relative_to_the_including_file(tmp_path):
         SceneError, match=r"world\.pbrt:1: Include: '\.\./main\.pbrt' includes itself"
     ):
         read_pbrt(path)
+
+
+def test_18b_names_in_included_files_are_taken_from_the_top_level_folder(tmp_path):
+    # As pbrt-v4-scenes write them (sanmiguel/geometry/sanmiguel-geom.pbrt): an included file's
+    # Include and plymesh names relative to the main file's folder, as pbrt-v4 resolves them
+    ply = (
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
+    write(tmp_path, ply, "geometry/tri.ply")
+    write(
+        tmp_path,
+        'Include "geometry/floor.pbrt"\nShape "plymesh" "string filename" "geometry/tri.ply"\n',
+        "geometry/all.pbrt",
+    )
+    write(tmp_path, FLOOR, "geometry/floor.pbrt")
+    path = write(tmp_path, HEADER + 'Include "geometry/all.pbrt"\n', "main.pbrt")
+    floor, mesh = read_pbrt(path)[0]["shapes"]
+    assert floor["name"] == "floor.pbrt:2 trianglemesh"
+    np.testing.assert_array_equal(mesh["positions"], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    # the top-level folder's file comes first when both folders have one
+    write(tmp_path, 'Shape "sphere" "float radius" 0.5\n', "geometry/geometry/floor.pbrt")
+    assert read_pbrt(path)[0]["shapes"][0]["type"] == "quad"
+    # and a name found in neither says where it looked, in one line
+    write(tmp_path, 'Include "parts/none.pbrt"\n', "geometry/all.pbrt")
+    with pytest.raises(SceneError) as caught:
+        read_pbrt(path)
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'geometry' / 'all.pbrt'}:1: Include: no file")
+    assert str(tmp_path / "parts" / "none.pbrt") in message
+    assert str(tmp_path / "geometry" / "parts" / "none.pbrt") in message
 
 
 # --------------------------------------------------------------------------- refusals
