@@ -25,7 +25,8 @@ AttributeBegin/End, Attribute           graphics state push/pop; Attribute "shap
 MakeNamedMaterial, NamedMaterial,       diffuse ("rgb reflectance") -> diffuse; conductor
 Material                                ("rgb eta", "rgb k", roughness or uroughness =
                                         vroughness, remaproughness: alpha = sqrt(roughness))
-                                        -> roughconductor; dielectric ("float eta") -> dielectric
+                                        -> roughconductor; dielectric ("float eta") -> dielectric;
+                                        names resolved when the file ends (pbrt-v4's order)
 AreaLightSource "diffuse"               emission = "rgb L" x "float scale" on the shapes that
                                         follow; with a diffuse material of reflectance 0 the
                                         shape only emits
@@ -602,6 +603,7 @@ class GraphicsState:
 
     transform: np.ndarray = field(default_factory=lambda: np.eye(4))
     material: str | None = None  # a document material name
+    material_where: Location | None = None  # the NamedMaterial that chose it, for messages
     area_light: list[float] | None = None  # emission RGB
     attributes: dict[str, dict[str, Parameter]] = field(default_factory=dict)
 
@@ -620,6 +622,10 @@ class PbrtReader:
         self.named: set[str] = set()
         self.anonymous: dict[str, dict] = {}  # Material directives: in the document once used
         self.shapes: list[dict] = []
+        # Shapes whose NamedMaterial's MakeNamedMaterial had not come yet: (shape, material
+        # name, emission, the NamedMaterial), resolved when the file ends, as pbrt-v4 resolves
+        # names when it builds the scene
+        self.unresolved: list[tuple[dict, str, list[float] | None, Location]] = []
         self.notes: list[str] = []
         self.warned: set[str] = set()
         self.includes: list[Path] = []
@@ -632,6 +638,11 @@ class PbrtReader:
         if self.stack:
             where = self.stack[-1][1]
             where.fail("no AttributeEnd closes it")
+        for shape, name, emission, where in self.unresolved:
+            if name not in self.named:
+                defined = ", ".join(map(repr, self.named)) or "none"
+                where.fail(f"no MakeNamedMaterial {name!r} in the scene; defined: {defined}")
+            self.attach_material(shape, name, emission)
         if self.camera is None:
             camera = camera_table(np.eye(4), DEFAULT_FOV, self.resolution)
         else:
@@ -857,10 +868,8 @@ class PbrtReader:
     def directive_NamedMaterial(self, cursor, where):
         self.require_world(where, True)
         name = cursor.string(where, "a material name in quotes")
-        if name not in self.named:
-            defined = ", ".join(map(repr, self.named)) or "none"
-            where.fail(f"no MakeNamedMaterial {name!r} before this line; defined: {defined}")
-        self.state.material = name
+        self.state.material = name  # its MakeNamedMaterial may follow (see self.unresolved)
+        self.state.material_where = where
 
     def directive_Material(self, cursor, where):
         self.require_world(where, True)
@@ -869,6 +878,7 @@ class PbrtReader:
         name = f"Material at {where.path.name}:{where.line}"
         self.anonymous[name] = self.material(kind, params, where)
         self.state.material = name
+        self.state.material_where = None
 
     def material(self, kind: str, params: Parameters, where: Location) -> dict:
         """The document material of a pbrt material."""
@@ -966,10 +976,18 @@ class PbrtReader:
     def add_shape(self, shape: dict) -> None:
         """The shape with the current material and area light."""
         material = self.state.material
+        emission = self.state.area_light
+        self.shapes.append(shape)
         if material is None:
             material = "pbrt default diffuse"
             self.materials.setdefault(material, {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]})
-        emission = self.state.area_light
+        elif material not in self.named and material not in self.anonymous:
+            self.unresolved.append((shape, material, emission, self.state.material_where))
+            return
+        self.attach_material(shape, material, emission)
+
+    def attach_material(self, shape: dict, material: str, emission: list[float] | None) -> None:
+        """The shape's material (a document name) and emission."""
         record = self.materials.get(material) or self.anonymous[material]
         if emission is not None:
             shape["emission"] = emission
@@ -978,7 +996,6 @@ class PbrtReader:
         if material is not None:
             self.materials.setdefault(material, record)
             shape["material"] = material
-        self.shapes.append(shape)
 
     def sphere(self, params: Parameters, where: Location, matrix: np.ndarray) -> dict:
         radius = params.number("radius", 1.0)

@@ -402,6 +402,29 @@ Shape "sphere"
     assert [s["material"] for s in doc["shapes"]] == ["glass", anonymous]
 
 
+def test_15b_a_named_material_may_be_made_after_its_use(tmp_path):
+    # pbrt-v4 resolves material names when it builds the scene, not at NamedMaterial
+    body = """NamedMaterial "late"
+Shape "sphere"
+AttributeBegin
+  AreaLightSource "diffuse" "rgb L" [ 1 1 1 ]
+  NamedMaterial "black"
+  Shape "sphere" "float radius" 0.5
+AttributeEnd
+MakeNamedMaterial "late" "string type" "diffuse" "rgb reflectance" [ 0.1 0.2 0.3 ]
+MakeNamedMaterial "black" "string type" "diffuse" "rgb reflectance" [ 0 0 0 ]
+Material "diffuse"
+Shape "sphere" "float radius" 2
+"""
+    doc = document(tmp_path, HEADER + body)
+    late, lamp, plain = doc["shapes"]
+    assert late["material"] == "late" and late["radius"] == 1.0
+    assert doc["materials"]["late"] == {"type": "diffuse", "albedo": [0.1, 0.2, 0.3]}
+    # a black named material made later still makes its emitter a pure emitter
+    assert lamp["emission"] == [1.0, 1.0, 1.0] and "material" not in lamp
+    assert plain["material"] == "Material at scene.pbrt:14"
+
+
 def test_16_area_lights_emit_scaled_and_a_black_material_only_emits(tmp_path):
     body = (
         LAMP
@@ -545,7 +568,11 @@ REFUSALS = [
         5,
         'Shape "integer indices": an index outside 0..2',
     ),
-    ('NamedMaterial "gold"', 5, "NamedMaterial: no MakeNamedMaterial 'gold' before this line"),
+    (
+        'NamedMaterial "gold"\nShape "sphere"\nMakeNamedMaterial "gilt" "string type" "diffuse"',
+        5,
+        "NamedMaterial: no MakeNamedMaterial 'gold' in the scene; defined: 'gilt'",
+    ),
     ('Attribute "texture" "float scale" 2', 5, "Attribute: target 'texture' not supported"),
     ('Camera "perspective"', 5, "Camera: must come before WorldBegin"),
     ("AttributeEnd", 5, "AttributeEnd: no AttributeBegin to end"),
