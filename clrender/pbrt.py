@@ -495,8 +495,9 @@ def camera_table(world_to_camera: np.ndarray, fov: float, resolution: tuple[int,
 def orient_triangles(
     positions: np.ndarray, triangles: np.ndarray, normals: np.ndarray | None, mirrored: bool
 ) -> np.ndarray:
-    """pbrt's front side of each triangle: toward its vertex normals N when given, else the
-    winding's (reversed by a mirroring transform); triangles reordered so the winding says it."""
+    """pbrt's front side of each triangle: toward its vertex normals N when given (their sum,
+    the interpolated normal at its centre), else (or where that sum is zero) the winding's,
+    reversed by a mirroring transform; triangles reordered so the winding says it."""
     if normals is None:
         return triangles[:, [0, 2, 1]] if mirrored else triangles
     # dot(cross(b - a, c - a), N_a + N_b + N_c), component by component (1 M triangles: 0.1 s)
@@ -507,7 +508,8 @@ def orient_triangles(
     dot = (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) * n[:, 0]
     dot += (b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]) * n[:, 1]
     dot += (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]) * n[:, 2]
-    flip = dot < 0.0
+    # Where N sums to zero pbrt-v4 keeps the winding's normal, reversed by a mirroring
+    flip = (dot < 0.0) | ((dot == 0.0) & mirrored)
     if not flip.any():
         return triangles
     oriented = triangles.copy()
@@ -561,10 +563,12 @@ def pair_quads(
     if not np.all((area > 1e-9 * sides) & (area > 0.0)):
         return None
     if normals is not None:
-        unit_normals = normals[quads]
-        unit_normals = unit_normals / np.linalg.norm(unit_normals, axis=2, keepdims=True)
-        cosines = np.einsum("qj,qvj->qv", face / area[:, None], unit_normals)
-        if np.any(cosines < FLAT_NORMAL_COSINE):
+        # Every corner's normal along the face (a zero normal, which adds nothing to pbrt's
+        # interpolation, is no obstacle)
+        corner_normals = normals[quads]
+        lengths = np.linalg.norm(corner_normals, axis=2)
+        cosines = np.einsum("qj,qvj->qv", face / area[:, None], corner_normals)
+        if np.any((cosines < FLAT_NORMAL_COSINE * lengths) & (lengths > 0.0)):
             return None
     return quads.tolist()
 
@@ -579,7 +583,8 @@ def transform_normals(matrix: np.ndarray, normals: np.ndarray) -> np.ndarray:
     if np.array_equal(matrix, np.eye(4)):
         return normals
     transformed = normals @ np.linalg.inv(matrix[:3, :3])
-    return transformed / np.linalg.norm(transformed, axis=1, keepdims=True)
+    length = np.linalg.norm(transformed, axis=1, keepdims=True)
+    return np.divide(transformed, length, out=np.zeros_like(transformed), where=length > 0.0)
 
 
 def load_ply(where: Location, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -1024,13 +1029,10 @@ class PbrtReader:
         if faces.size and (faces.min() < 0 or faces.max() >= len(positions)):
             params.fail("indices", f"an index outside 0..{len(positions) - 1}")
         normals = params.array("N", "normal3", 3)
-        if normals is not None:
-            if len(normals) != len(positions):
-                params.fail(
-                    "N", f"expected one normal per vertex ({len(positions)}), got {len(normals)}"
-                )
-            if np.any(np.linalg.norm(normals, axis=1) == 0.0):
-                params.fail("N", "a zero normal")
+        if normals is not None and len(normals) != len(positions):
+            params.fail(
+                "N", f"expected one normal per vertex ({len(positions)}), got {len(normals)}"
+            )
         params.typed("uv", ("point2",), None)  # texture coordinates: nothing here uses them
         return positions, faces, normals
 

@@ -74,7 +74,10 @@ mesh.indices        T x [i,j,k]  (b)        triangles, 0-based vertex indices; t
                                             cross(p[j] - p[i], p[k] - p[i]) (pbrt's)
 mesh.normals        V x [x,y,z]  none       per-vertex shading normals (interpolated, turned
                                             to the front side; the geometric normal still
-                                            decides sidedness and ray offsets)
+                                            decides sidedness and ray offsets); a zero normal
+                                            adds nothing to the interpolation, and where the
+                                            interpolated normal is zero the geometric normal
+                                            shades (pbrt-v4's rule)
 mesh.file           path         (b)        alternative: a PLY or OBJ file (relative to the
                                             scene file; clrender/mesh_files.py), normals
                                             from the file when it has them
@@ -737,9 +740,6 @@ class SceneBuilder:
                     where or "normals",
                     f"expected one normal per position ({len(positions)}), got {len(normals)}",
                 )
-            zero = np.flatnonzero(np.linalg.norm(normals, axis=1) == 0.0)
-            if len(zero):
-                table.fail(where or "normals", f"normal {zero[0]} is zero")
         bad = np.flatnonzero((indices < 0) | (indices >= len(positions)))
         if len(bad):
             i = bad[0] if indices.ndim == 1 else np.unravel_index(bad[0], indices.shape)[0]

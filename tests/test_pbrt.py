@@ -340,6 +340,23 @@ def test_12_normals_and_mirroring_decide_the_front_side(tmp_path):
     assert v.tolist() == [[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]]
 
 
+def test_12b_zero_normals_are_pbrts_no_normal_there(tmp_path):
+    # One zero N among flat ones: still a flat quad facing the others; all zero under a
+    # mirroring: pbrt-v4 keeps the winding's normal, reversed by the mirroring
+    mesh = f'Shape "trianglemesh" "point3 P" {P4} "integer indices" [ 0 1 2 0 2 3 ] '
+    (quad,) = world_shapes(tmp_path, mesh + '"normal N" [ 0 0 -1 0 0 0 0 0 -1 0 0 -1 ]\n')
+    v = np.array(quad["vertices"])
+    assert np.cross(v[1] - v[0], v[3] - v[0])[2] < 0
+    zeros = '"normal N" [ 0 0 0 0 0 0 0 0 0 0 0 0 ]\n'
+    (quad,) = world_shapes(tmp_path, "Scale 1 1 -1\n" + mesh + zeros)
+    v = np.array(quad["vertices"])
+    assert np.cross(v[1] - v[0], v[3] - v[0])[2] < 0
+    # a fan (no quads) keeps its zero normals as zero, unit ones unit, through a transform
+    fan = f'Translate 0 0 1\nShape "trianglemesh" {FAN_P}\n    {FAN_DOWN} '
+    (mesh,) = world_shapes(tmp_path, fan + '"normal N" [ 0 -2 0  0 0 0  0 -1 0  0 -1 0  0 -1 0 ]\n')
+    np.testing.assert_array_equal(mesh["normals"][:2], [[0, -1, 0], [0, 0, 0]])
+
+
 def test_13_bilinear_patch_is_a_quad_and_a_curved_one_is_refused(tmp_path):
     (quad,) = world_shapes(
         tmp_path, 'Shape "bilinearmesh" "point3 P" [ 0 0 0 2 0 0 0 1 0 2 1 0 ]\n'
