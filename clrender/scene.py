@@ -102,7 +102,8 @@ black), or the camera inside a solid shape. That check is cheap and deliberately
 before its rotation and translation). Quads are never solids, so a camera inside a room of
 quads (the Cornell box, the furnace) is not flagged. clrender.scene_checks adds the whole-scene
 checks against the device's float32: a scene spanning under 1e-15 is refused; a shape below
-float32 resolution at its distance and a camera on a surface are warned about.
+float32 resolution at its distance (a mesh by its triangles) and a camera on a surface (a mesh
+triangle too) are warned about.
 
 This module is the reading side of the scene: files, their validation, errors and warnings, and
 the loaded `Scene`. The byte layout the kernels read (the NumPy twins of kernels/scene_types.h
@@ -128,6 +129,7 @@ from clrender.errors import ClrenderError
 from clrender.mesh_files import MeshFileError, read_mesh_file
 from clrender.package_data import shipped_dir
 from clrender.scene_checks import (
+    MeshGeometry,
     ShapeGeometry,
     camera_on_surface,
     extent_error,
@@ -474,6 +476,7 @@ class SceneBuilder:
         self.meshes: list[dict] = []  # scene_device.pack_triangles' input
         self.mesh_names: list[str] = []
         self.mesh_bounds: list[ShapeGeometry] = []  # a sphere around each mesh (extent only)
+        self.mesh_geometry: list[MeshGeometry] = []  # each mesh's triangles, for scene_checks
         self.notes: list[str] = []  # warnings raised while reading shapes
 
     def build(self, document: dict) -> Scene:
@@ -779,6 +782,7 @@ class SceneBuilder:
         self.mesh_bounds.append(
             ShapeGeometry(label, center=0.5 * (low + high), radius=0.5 * np.linalg.norm(high - low))
         )
+        self.mesh_geometry.append(MeshGeometry(label, positions, indices))
 
     def read_array(self, table: _Table, key: str, kind: type, required: bool) -> np.ndarray | None:
         """An inline mesh array of rows of 3 numbers (kind float) or integers (kind int)."""
@@ -839,9 +843,9 @@ class SceneBuilder:
                 where = f"[camera] look_from {list(camera.look_from)} is inside {label}"
                 notes.append(f"{self.path}: {where}: the image shows that shape from the inside")
                 warnings.warn(notes[-1], SceneWarning, stacklevel=3)
-        on_surface = camera_on_surface(self.geometry, origin)
+        on_surface = camera_on_surface(self.geometry, origin, self.mesh_geometry)
         for note in ([on_surface] if on_surface else []) + unresolved_shape_notes(
-            self.geometry, origin
+            self.geometry, origin, self.mesh_geometry
         ):
             notes.append(f"{self.path}: {note}")
             warnings.warn(notes[-1], SceneWarning, stacklevel=3)
