@@ -668,6 +668,7 @@ class PbrtReader:
             raise SceneError(f"{path}: cannot read: {err.strerror}") from None
         except UnicodeDecodeError as err:
             raise SceneError(f"{path}: not UTF-8 text (offset {err.start})") from None
+        text = text.removeprefix("\ufeff")  # a byte-order mark some editors write
         self.includes.append(path.resolve())
         cursor = Cursor(path, tokenize(path, text))
         while not cursor.done():

@@ -272,7 +272,7 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
             return path
         what = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a FIFO or device)"
         raise SceneError(f"scene file {text!r} is {what}: give a .toml file or a scene name")
-    if "/" not in text and "\\" not in text and not text.endswith(".pbrt"):
+    if "/" not in text and "\\" not in text and not text.lower().endswith(".pbrt"):
         shipped = scenes_dir() / (text if text.endswith(".toml") else f"{text}.toml")
         if shipped.is_file():
             return shipped
@@ -289,7 +289,7 @@ def load_scene(path_or_name: str | Path) -> Scene:
     """Read and validate a scene file (or a shipped scene by name); a .pbrt file is read by
     clrender.pbrt (pbrt-v4's format, a subset)."""
     path = resolve_scene_path(path_or_name)
-    if path.suffix == ".pbrt":
+    if path.suffix.lower() == ".pbrt":  # scene.PBRT too, as pbrt-v4's HasExtension compares
         from clrender.pbrt import load_pbrt_scene
 
         return load_pbrt_scene(path)
@@ -434,10 +434,19 @@ _REQUIRED = object()
 def _describe(value: object) -> str:
     kind = {bool: "a boolean", str: "a string", int: "an integer", float: "a number"}
     if isinstance(value, list):
-        return f"a list of {len(value)} ({value!r})" if len(value) < 8 else "a long list"
+        return f"a list of {len(value)} ({_toml_text(value)})" if len(value) < 8 else "a long list"
     if isinstance(value, dict):
         return "a table"
-    return f"{kind.get(type(value), type(value).__name__)} ({value!r})"
+    return f"{kind.get(type(value), type(value).__name__)} ({_toml_text(value)})"
+
+
+def _toml_text(value: object) -> str:
+    """A value as the scene file spells it: true, not Python's True."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list):
+        return "[" + ", ".join(map(_toml_text, value)) + "]"
+    return repr(value)
 
 
 SHAPE_FIELDS = {
@@ -796,13 +805,14 @@ class SceneBuilder:
                 table.fail(key, f"{expected}, got an array of shape {value.shape}")
             return value.astype(np.int64 if kind is int else np.float64, copy=False)
         allowed = (int,) if kind is int else (int, float)
-        if (
-            not isinstance(value, list)
-            or not value
-            or not all(isinstance(row, list) and len(row) == 3 for row in value)
-            or not all(type(x) in allowed for row in value for x in row)
-        ):
+        if not isinstance(value, list) or not value:
             table.fail(key, f"{expected}, got {_describe(value)}")
+        for i, row in enumerate(value):
+            if not (isinstance(row, list) and len(row) == 3):
+                table.fail(key, f"{expected}, got row {i}: {_describe(row)}")
+            for x in row:
+                if type(x) not in allowed:
+                    table.fail(key, f"{expected}, got {_describe(x)} in row {i}")
         return np.array(value, np.int64 if kind is int else np.float64)
 
     def check_mesh_numbers(self, table: _Table, key: str, values: np.ndarray) -> None:

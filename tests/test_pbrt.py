@@ -71,6 +71,17 @@ def test_01_tokens_strings_brackets_comments_and_lines(tmp_path):
     ]
 
 
+def test_01b_a_byte_order_mark_and_an_upper_case_suffix(tmp_path):
+    # Before: "\ufeffFilm: unknown directive", and scene.PBRT read as TOML
+    path = tmp_path / "bom.pbrt"
+    path.write_text("\ufeff" + SCENE, encoding="utf-8")
+    assert len(load_scene(path).quads) == 2
+    upper = write(tmp_path, SCENE, "scene.PBRT")
+    assert len(load_scene(upper).quads) == 2
+    with pytest.raises(SceneError, match=r"^scene file 'missing\.PBRT' does not exist$"):
+        load_scene("missing.PBRT")  # a file's name, not a shipped scene's
+
+
 def test_02_unterminated_string_names_file_and_line(tmp_path):
     with pytest.raises(SceneError, match=r"scene\.pbrt:5: a string opened"):
         document(tmp_path, HEADER + 'Shape "sphere\n')
