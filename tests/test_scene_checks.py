@@ -4,7 +4,6 @@ about; a scene scaled by a power of two renders the same image bit for bit (the 
 absolute length anywhere)."""
 
 import re
-import time
 import warnings
 from pathlib import Path
 
@@ -218,9 +217,10 @@ def test_a_mesh_below_float32_resolution_is_warned_about_and_a_few_slivers_are_n
     load_quietly(with_extra(tmp_path, "cornell-box", mesh_toml("fine", positions, indices)))
 
 
-def test_mesh_checks_of_a_million_triangles_take_a_fraction_of_a_second():
+def test_mesh_checks_read_every_one_of_a_million_triangles():
     # A grid of 1 M triangles under a camera 1 unit above it, off every surface: both checks
-    # read every triangle (measured: 0.09 s and 0.18 s of CPU time on the shared Xeon)
+    # read every triangle, in chunks (measured: 0.09 s and 0.18 s of CPU time on the shared
+    # Xeon; no time limit here, the suite has none)
     n = 708
     u, v = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0))
     positions = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
@@ -231,9 +231,7 @@ def test_mesh_checks_of_a_million_triangles_take_a_fraction_of_a_second():
     assert len(indices) > 1_000_000
     mesh = MeshGeometry("grid", positions, indices)
     look_from = np.array([300.5, 300.25, 1.0])
-    start = time.process_time()
     assert camera_on_surface([], look_from, [mesh]) is None
     assert unresolved_shape_notes([], look_from, [mesh]) == []
-    assert time.process_time() - start < 2.0
     on = np.array([300.5, 300.25, 0.0])
     assert "its triangle" in camera_on_surface([], on, [mesh])
