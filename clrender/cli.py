@@ -295,7 +295,7 @@ def scene_label(scene: str) -> str:
 
     if is_analytic_scene(scene):
         return analytic_image(scene, 1, 1).name
-    return Path(scene).stem if scene.endswith((".toml", ".pbrt")) else scene
+    return Path(scene).stem if scene.lower().endswith((".toml", ".pbrt")) else scene
 
 
 def settings_from_args(args: argparse.Namespace, width: int, height: int):
@@ -365,7 +365,7 @@ def load_scene_arg(args: argparse.Namespace):
             warnings.simplefilter("ignore", SceneWarning)
             scene = load_scene(args.scene)
     except SceneError as err:
-        if "/" in args.scene or args.scene.endswith((".toml", ".pbrt")):  # a file, not a name
+        if "/" in args.scene or args.scene.lower().endswith((".toml", ".pbrt")):  # a file
             raise
         raise ParameterError(f"{err}; or analytic[:{'|'.join(ANALYTIC_KINDS)}]") from None
     for note in scene.warnings:

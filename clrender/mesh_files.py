@@ -9,9 +9,10 @@ both formats, but without processing it does not say whether the normals came fr
 were computed, and it is a much larger package. OBJ is a simple text format: the reader below
 takes ``v`` positions, ``vn`` normals and ``f`` faces (``i``, ``i/t``, ``i//n``, ``i/t/n``;
 negative indices count back from the end), polygons split into triangle fans, and ignores
-everything else (texture coordinates, groups, materials, smoothing). A vertex whose corners have
-different normals becomes one vertex per (position, normal) pair. Faces with normals on some
-corners and not on others are refused.
+everything else (texture coordinates, groups, materials, smoothing); a line ending in a
+backslash continues on the next. A vertex whose corners have different normals becomes one
+vertex per (position, normal) pair. Faces with normals on some corners and not on others are
+refused, and so is a vertex position or normal that is not finite (naming the vertex).
 
 Large files without Python work per line: a binary PLY file whose faces are all triangles is
 memory-mapped as arrays (plyfile's known_list_len); an ASCII PLY file of vertices then faces
@@ -130,7 +131,22 @@ def _ply_mesh(path: Path, vertex: np.ndarray, names: list[str], corners, sizes) 
     if all(name in fields for name in ("nx", "ny", "nz")):
         normals = np.stack([vertex[name] for name in ("nx", "ny", "nz")], axis=1)
         normals = normals.astype(np.float64)
+    check_finite(path, positions, normals)
     return MeshData(positions, _fans(corners, sizes, path), normals)
+
+
+def check_finite(path: Path, positions: np.ndarray, normals: np.ndarray | None) -> None:
+    """MeshFileError naming the first vertex (its 0-based number in the file) whose position
+    or normal has a NaN or infinity."""
+    for values, what in ((positions, "position"), (normals, "normal")):
+        if values is None:
+            continue
+        bad = ~np.isfinite(values).all(axis=1)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise MeshFileError(
+                f"{path}: vertex {row} has a non-finite {what}: {values[row].tolist()}"
+            )
 
 
 ASCII_PLY_START = b"ply\nformat ascii 1.0\n"
@@ -261,6 +277,7 @@ def read_obj(path: Path, data: bytes) -> MeshData:
     except UnicodeDecodeError as err:
         raise MeshFileError(f"{path}: not UTF-8 text (offset {err.start})") from None
     statements = regular_obj_statements(data) or obj_statements_by_line(path, text)
+    check_finite(path, statements.positions, statements.normals)
     if len(statements.sizes) == 0:
         raise MeshFileError(f"{path}: the file has no triangles (no 'f' statements)")
     pairs = statements.corners
@@ -399,7 +416,7 @@ def obj_statements_by_line(path: Path, text: str) -> ObjStatements:
     normals: list[list[float]] = []
     corners: list[tuple[int, int]] = []  # (position, normal or -1) of each polygon corner
     polygon_sizes: list[int] = []
-    for number, line in enumerate(text.splitlines(), 1):
+    for number, line in obj_lines(text):
         words = line.split("#", 1)[0].split()
         if not words:
             continue
@@ -429,6 +446,23 @@ def obj_statements_by_line(path: Path, text: str) -> ObjStatements:
         np.array(corners, np.int64).reshape(-1, 2),
         np.array(polygon_sizes, np.int64),
     )
+
+
+def obj_lines(text: str):
+    """(number of its first line, statement) of each OBJ statement: a line ending in a
+    backslash continues on the next (the OBJ specification's line continuation)."""
+    pending, first = "", 0
+    for number, line in enumerate(text.splitlines(), 1):
+        if not pending:
+            first = number
+        stripped = line.rstrip()
+        if stripped.endswith("\\") and "#" not in stripped:
+            pending += stripped[:-1] + " "
+            continue
+        yield first, pending + line
+        pending = ""
+    if pending:
+        yield first, pending
 
 
 def _obj_index(word: str, count: int) -> int:

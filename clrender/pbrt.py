@@ -2,7 +2,8 @@
 
 `load_pbrt_scene(path)` reads a ``.pbrt`` file (``clrender.load_scene`` dispatches on the
 suffix) and writes the same document dict a TOML scene file parses into, so
-``SceneBuilder.build`` validates both alike. Only what clrender can render exactly is read;
+``SceneBuilder.build`` validates both alike (a plymesh's arrays are NumPy arrays there, which
+the builder takes as it takes TOML's lists). Only what clrender can render exactly is read;
 everything else is refused with one line naming the file, the line, the directive (and the
 parameter) and what is supported.
 
@@ -13,7 +14,9 @@ Camera "perspective" "float fov"        [camera]; pbrt's fov spans the shorter i
                                         vertical fov is converted when the image is taller than
                                         wide); pbrt's left-handed camera space (x right, y up,
                                         z forward) gives ``handedness = "left"``, a mirroring
-                                        camera transform gives "right"
+                                        camera transform gives "right"; the transform rigid
+                                        up to uniform scale within SIMILARITY_TOLERANCE, its
+                                        nearest similarity used
 Film "rgb" x/yresolution                [camera] resolution (pbrt's default 1280 x 720)
 LookAt, Transform, ConcatTransform,     the current transform (Transform's 16 numbers are
 Translate, Scale, Rotate, Identity      column-major, as pbrt writes them)
@@ -22,17 +25,21 @@ AttributeBegin/End, Attribute           graphics state push/pop; Attribute "shap
 MakeNamedMaterial, NamedMaterial,       diffuse ("rgb reflectance") -> diffuse; conductor
 Material                                ("rgb eta", "rgb k", roughness or uroughness =
                                         vroughness, remaproughness: alpha = sqrt(roughness))
-                                        -> roughconductor; dielectric ("float eta") -> dielectric
+                                        -> roughconductor; dielectric ("float eta") -> dielectric;
+                                        names resolved when the file ends (pbrt-v4's order)
 AreaLightSource "diffuse"               emission = "rgb L" x "float scale" on the shapes that
                                         follow; with a diffuse material of reflectance 0 the
                                         shape only emits
 Shape "trianglemesh"                    quads when every triangle pair (2k, 2k+1) is a
                                         parallelogram with flat normals, else a mesh
 Shape "bilinearmesh"                    quads (every patch must be a parallelogram)
-Shape "plymesh"                         a mesh (its file, or its positions under a transform)
+Shape "plymesh"                         a mesh of the file's triangles (under the transform;
+                                        front sides toward its normals N, as for trianglemesh)
 Shape "sphere"                          a sphere (the transform a similarity: rotation, uniform
-                                        scale, translation)
-Include                                 the file, relative to the including file
+                                        scale, translation, within SIMILARITY_TOLERANCE)
+Include                                 the file; a relative name (here and in plymesh) from
+                                        the top-level file's folder (pbrt-v4's rule), else
+                                        from the including file's
 Integrator, Sampler, PixelFilter,       ignored with one warning each: clrender chooses these
 ColorSpace, Option, Accelerator,        on its command line
 Film "string filename"
@@ -113,8 +120,13 @@ PARAMETER_TYPES = (
 )
 # Cosine below which a vertex normal N is not the flat face normal (quads carry no normals).
 FLAT_NORMAL_COSINE = 1.0 - 1e-6
-# Relative tolerance of the similarity check of a sphere's and the camera's transform.
-SIMILARITY_TOLERANCE = 1e-6
+# Relative tolerance of the similarity check of a sphere's and the camera's transform: its
+# linear part L must satisfy |L^T L - s^2 I| <= this times s^2. Exporters print matrices to 6
+# significant digits (or compute them in float32), which leaves L^T L off s^2 I by up to ~2e-5
+# (Bitterli's teapot camera: 1.7e-5); a real shear or non-uniform scale is far larger. 1e-4
+# moves a camera ray by at most ~5e-5 radians, a tenth of a pixel of a 1280-pixel, 40-degree
+# image.
+SIMILARITY_TOLERANCE = 1e-4
 MAX_INCLUDE_DEPTH = 32
 TOKEN_PATTERN = re.compile(r'"(?:[^"\\\n]|\\.)*"|\[|\]|#[^\n]*|[^\s"\[\]#]+|"')
 ESCAPES = {"n": "\n", "t": "\t", "r": "\r", "b": "\b", "f": "\f", '"': '"', "\\": "\\", "'": "'"}
@@ -439,10 +451,23 @@ def similarity_scale(linear: np.ndarray, mirrored: bool = False) -> float | None
 # --------------------------------------------------------------------------- camera
 
 
+def nearest_similarity(linear: np.ndarray) -> np.ndarray:
+    """The similarity (s times a rotation, or times a rotation and a mirroring) nearest to a
+    3x3 matrix: its polar decomposition's orthogonal factor U V^T (the orthogonal matrix
+    nearest in the Frobenius norm, of the same determinant sign for a matrix near one) times
+    s = |det|^(1/3). It removes the rounding of a matrix printed to a few digits symmetrically,
+    leaving no axis favoured."""
+    u, _, vt = np.linalg.svd(linear)
+    return abs(float(np.linalg.det(linear))) ** (1.0 / 3.0) * (u @ vt)
+
+
 def camera_table(world_to_camera: np.ndarray, fov: float, resolution: tuple[int, int]) -> dict:
     """clrender's [camera] table of a pbrt perspective camera whose CTM is world_to_camera (a
-    rigid transform up to uniform scale): look_from = the camera origin, look_at one unit
+    rigid transform up to uniform scale, within SIMILARITY_TOLERANCE: its linear part is
+    replaced by the nearest similarity first): look_from = the camera origin, look_at one unit
     along camera +z, up = camera +y; "left" when camera +x = cross(up, forward) in world."""
+    world_to_camera = world_to_camera.copy()
+    world_to_camera[:3, :3] = nearest_similarity(world_to_camera[:3, :3])
     camera_to_world = np.linalg.inv(world_to_camera)
     linear = camera_to_world[:3, :3]
     origin = camera_to_world[:3, 3]
@@ -470,14 +495,23 @@ def camera_table(world_to_camera: np.ndarray, fov: float, resolution: tuple[int,
 def orient_triangles(
     positions: np.ndarray, triangles: np.ndarray, normals: np.ndarray | None, mirrored: bool
 ) -> np.ndarray:
-    """pbrt's front side of each triangle: toward its vertex normals N when given, else the
-    winding's (reversed by a mirroring transform); triangles reordered so the winding says it."""
+    """pbrt's front side of each triangle: toward its vertex normals N when given (their sum,
+    the interpolated normal at its centre), else (or where that sum is zero) the winding's,
+    reversed by a mirroring transform; triangles reordered so the winding says it."""
+    if normals is None:
+        return triangles[:, [0, 2, 1]] if mirrored else triangles
+    # dot(cross(b - a, c - a), N_a + N_b + N_c), component by component (1 M triangles: 0.1 s)
     a, b, c = (positions[triangles[:, i]] for i in range(3))
-    face = np.cross(b - a, c - a)
-    if normals is not None:
-        flip = np.einsum("ij,ij->i", face, normals[triangles].sum(axis=1)) < 0.0
-    else:
-        flip = np.full(len(triangles), mirrored)
+    b -= a
+    c -= a
+    n = normals[triangles[:, 0]] + normals[triangles[:, 1]] + normals[triangles[:, 2]]
+    dot = (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1]) * n[:, 0]
+    dot += (b[:, 2] * c[:, 0] - b[:, 0] * c[:, 2]) * n[:, 1]
+    dot += (b[:, 0] * c[:, 1] - b[:, 1] * c[:, 0]) * n[:, 2]
+    # Where N sums to zero pbrt-v4 keeps the winding's normal, reversed by a mirroring
+    flip = (dot < 0.0) | ((dot == 0.0) & mirrored)
+    if not flip.any():
+        return triangles
     oriented = triangles.copy()
     oriented[flip] = triangles[flip][:, [0, 2, 1]]
     return oriented
@@ -529,10 +563,12 @@ def pair_quads(
     if not np.all((area > 1e-9 * sides) & (area > 0.0)):
         return None
     if normals is not None:
-        unit_normals = normals[quads]
-        unit_normals = unit_normals / np.linalg.norm(unit_normals, axis=2, keepdims=True)
-        cosines = np.einsum("qj,qvj->qv", face / area[:, None], unit_normals)
-        if np.any(cosines < FLAT_NORMAL_COSINE):
+        # Every corner's normal along the face (a zero normal, which adds nothing to pbrt's
+        # interpolation, is no obstacle)
+        corner_normals = normals[quads]
+        lengths = np.linalg.norm(corner_normals, axis=2)
+        cosines = np.einsum("qj,qvj->qv", face / area[:, None], corner_normals)
+        if np.any((cosines < FLAT_NORMAL_COSINE * lengths) & (lengths > 0.0)):
             return None
     return quads.tolist()
 
@@ -547,7 +583,8 @@ def transform_normals(matrix: np.ndarray, normals: np.ndarray) -> np.ndarray:
     if np.array_equal(matrix, np.eye(4)):
         return normals
     transformed = normals @ np.linalg.inv(matrix[:3, :3])
-    return transformed / np.linalg.norm(transformed, axis=1, keepdims=True)
+    length = np.linalg.norm(transformed, axis=1, keepdims=True)
+    return np.divide(transformed, length, out=np.zeros_like(transformed), where=length > 0.0)
 
 
 def load_ply(where: Location, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -571,6 +608,7 @@ class GraphicsState:
 
     transform: np.ndarray = field(default_factory=lambda: np.eye(4))
     material: str | None = None  # a document material name
+    material_where: Location | None = None  # the NamedMaterial that chose it, for messages
     area_light: list[float] | None = None  # emission RGB
     attributes: dict[str, dict[str, Parameter]] = field(default_factory=dict)
 
@@ -589,6 +627,10 @@ class PbrtReader:
         self.named: set[str] = set()
         self.anonymous: dict[str, dict] = {}  # Material directives: in the document once used
         self.shapes: list[dict] = []
+        # Shapes whose NamedMaterial's MakeNamedMaterial had not come yet: (shape, material
+        # name, emission, the NamedMaterial), resolved when the file ends, as pbrt-v4 resolves
+        # names when it builds the scene
+        self.unresolved: list[tuple[dict, str, list[float] | None, Location]] = []
         self.notes: list[str] = []
         self.warned: set[str] = set()
         self.includes: list[Path] = []
@@ -601,6 +643,11 @@ class PbrtReader:
         if self.stack:
             where = self.stack[-1][1]
             where.fail("no AttributeEnd closes it")
+        for shape, name, emission, where in self.unresolved:
+            if name not in self.named:
+                defined = ", ".join(map(repr, self.named)) or "none"
+                where.fail(f"no MakeNamedMaterial {name!r} in the scene; defined: {defined}")
+            self.attach_material(shape, name, emission)
         if self.camera is None:
             camera = camera_table(np.eye(4), DEFAULT_FOV, self.resolution)
         else:
@@ -621,6 +668,7 @@ class PbrtReader:
             raise SceneError(f"{path}: cannot read: {err.strerror}") from None
         except UnicodeDecodeError as err:
             raise SceneError(f"{path}: not UTF-8 text (offset {err.start})") from None
+        text = text.removeprefix("\ufeff")  # a byte-order mark some editors write
         self.includes.append(path.resolve())
         cursor = Cursor(path, tokenize(path, text))
         while not cursor.done():
@@ -729,14 +777,32 @@ class PbrtReader:
 
     def directive_Include(self, cursor, where):
         name = cursor.string(where, "a file name in quotes")
-        path = where.path.parent / name
+        path = self.find_file(name, where, where.fail)
         if path.resolve() in self.includes:
             where.fail(f"{name!r} includes itself (directly or through other files)")
         if len(self.includes) >= MAX_INCLUDE_DEPTH:
             where.fail(f"Includes nest deeper than {MAX_INCLUDE_DEPTH}")
-        if not path.is_file():
-            where.fail(f"no file {str(path)!r} (a name relative to {where.path.name}'s folder)")
         self.read_file(path, where)
+
+    def find_file(self, name: str, where: Location, fail) -> Path:
+        """The file a name in `where`'s file refers to: pbrt-v4's ResolveFilename, a relative
+        name taken from the top-level file's folder (in every included file: pbrt-v4-scenes rely
+        on it), then, when no file is there, from the including file's folder (a scene written
+        for clrender's earlier rule). pbrt-v4's last resort, the working directory, is not
+        tried: a scene does not depend on where it is rendered from. `fail` reports a missing
+        file, naming the folders tried."""
+        path = Path(name)
+        if path.is_absolute():
+            tried = [path]
+        else:
+            tried = list(dict.fromkeys([self.path.parent / name, where.path.parent / name]))
+        for candidate in tried:
+            if candidate.is_file():
+                return candidate
+        fail(
+            f"no file {name!r} (relative names are taken from the top-level file's folder, as "
+            f"pbrt-v4 does, then from the including file's; tried {', '.join(map(str, tried))})"
+        )
 
     # -- transforms
     def concatenate(self, matrix: np.ndarray) -> None:
@@ -808,10 +874,8 @@ class PbrtReader:
     def directive_NamedMaterial(self, cursor, where):
         self.require_world(where, True)
         name = cursor.string(where, "a material name in quotes")
-        if name not in self.named:
-            defined = ", ".join(map(repr, self.named)) or "none"
-            where.fail(f"no MakeNamedMaterial {name!r} before this line; defined: {defined}")
-        self.state.material = name
+        self.state.material = name  # its MakeNamedMaterial may follow (see self.unresolved)
+        self.state.material_where = where
 
     def directive_Material(self, cursor, where):
         self.require_world(where, True)
@@ -820,6 +884,7 @@ class PbrtReader:
         name = f"Material at {where.path.name}:{where.line}"
         self.anonymous[name] = self.material(kind, params, where)
         self.state.material = name
+        self.state.material_where = None
 
     def material(self, kind: str, params: Parameters, where: Location) -> dict:
         """The document material of a pbrt material."""
@@ -917,10 +982,18 @@ class PbrtReader:
     def add_shape(self, shape: dict) -> None:
         """The shape with the current material and area light."""
         material = self.state.material
+        emission = self.state.area_light
+        self.shapes.append(shape)
         if material is None:
             material = "pbrt default diffuse"
             self.materials.setdefault(material, {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]})
-        emission = self.state.area_light
+        elif material not in self.named and material not in self.anonymous:
+            self.unresolved.append((shape, material, emission, self.state.material_where))
+            return
+        self.attach_material(shape, material, emission)
+
+    def attach_material(self, shape: dict, material: str, emission: list[float] | None) -> None:
+        """The shape's material (a document name) and emission."""
         record = self.materials.get(material) or self.anonymous[material]
         if emission is not None:
             shape["emission"] = emission
@@ -929,7 +1002,6 @@ class PbrtReader:
         if material is not None:
             self.materials.setdefault(material, record)
             shape["material"] = material
-        self.shapes.append(shape)
 
     def sphere(self, params: Parameters, where: Location, matrix: np.ndarray) -> dict:
         radius = params.number("radius", 1.0)
@@ -958,13 +1030,10 @@ class PbrtReader:
         if faces.size and (faces.min() < 0 or faces.max() >= len(positions)):
             params.fail("indices", f"an index outside 0..{len(positions) - 1}")
         normals = params.array("N", "normal3", 3)
-        if normals is not None:
-            if len(normals) != len(positions):
-                params.fail(
-                    "N", f"expected one normal per vertex ({len(positions)}), got {len(normals)}"
-                )
-            if np.any(np.linalg.norm(normals, axis=1) == 0.0):
-                params.fail("N", "a zero normal")
+        if normals is not None and len(normals) != len(positions):
+            params.fail(
+                "N", f"expected one normal per vertex ({len(positions)}), got {len(normals)}"
+            )
         params.typed("uv", ("point2",), None)  # texture coordinates: nothing here uses them
         return positions, faces, normals
 
@@ -975,7 +1044,12 @@ class PbrtReader:
         params.refuse_unused('"point3 P", "integer indices", "normal N", "point2 uv"')
         return self.triangles(positions, triangles, normals, matrix, allow_quads=True)
 
-    def triangles(self, positions, triangles, normals, matrix, allow_quads: bool) -> list[dict]:
+    def triangles(
+        self, positions, triangles, normals, matrix, allow_quads: bool, arrays: bool = False
+    ) -> list[dict]:
+        """The quads or the mesh of triangles under the transform, front sides as pbrt-v4
+        turns them; a mesh's arrays as lists (as TOML writes them), or, with `arrays`, as the
+        NumPy arrays (a PLY file's, kept fast: SceneBuilder takes both)."""
         world = transform_points(matrix, positions)
         world_normals = None if normals is None else transform_normals(matrix, normals)
         mirrored = bool(np.linalg.det(matrix[:3, :3]) < 0.0)
@@ -986,13 +1060,10 @@ class PbrtReader:
                 {"type": "quad", "vertices": [[float(v) for v in world[i]] for i in quad]}
                 for quad in quads
             ]
-        shape = {
-            "type": "mesh",
-            "positions": world.tolist(),
-            "indices": triangles.tolist(),
-        }
+        listed = (lambda array: array) if arrays else (lambda array: array.tolist())
+        shape = {"type": "mesh", "positions": listed(world), "indices": listed(triangles)}
         if world_normals is not None:
-            shape["normals"] = world_normals.tolist()
+            shape["normals"] = listed(world_normals)
         return [shape]
 
     def bilinear_mesh(self, params, where, matrix, name) -> list[dict]:
@@ -1029,15 +1100,13 @@ class PbrtReader:
         if filename is None:
             where.fail('needs "string filename"')
         params.refuse_unused('"string filename"')
-        path = (where.path.parent / filename).resolve()
-        if not path.is_file():
-            params.fail("filename", f"no file {str(path)!r}")
-        if np.array_equal(matrix, np.eye(4)):
-            return {"type": "mesh", "file": str(path)}
+        path = self.find_file(filename, where, lambda message: params.fail("filename", message))
+        # Read here, with or without a transform: the front side is pbrt-v4's (toward the
+        # file's normals N where it has them), which the scene's `mesh.file` does not apply
         positions, triangles, normals = load_ply(where, path)
         if triangles.size and (triangles.min() < 0 or triangles.max() >= len(positions)):
             where.fail(f"{path.name}: a face index outside its {len(positions)} vertices")
-        return self.triangles(positions, triangles, normals, matrix, allow_quads=False)[0]
+        return self.triangles(positions, triangles, normals, matrix, False, arrays=True)[0]
 
 
 SUPPORTED_SUMMARY = (

@@ -74,7 +74,10 @@ mesh.indices        T x [i,j,k]  (b)        triangles, 0-based vertex indices; t
                                             cross(p[j] - p[i], p[k] - p[i]) (pbrt's)
 mesh.normals        V x [x,y,z]  none       per-vertex shading normals (interpolated, turned
                                             to the front side; the geometric normal still
-                                            decides sidedness and ray offsets)
+                                            decides sidedness and ray offsets); a zero normal
+                                            adds nothing to the interpolation, and where the
+                                            interpolated normal is zero the geometric normal
+                                            shades (pbrt-v4's rule)
 mesh.file           path         (b)        alternative: a PLY or OBJ file (relative to the
                                             scene file; clrender/mesh_files.py), normals
                                             from the file when it has them
@@ -99,7 +102,8 @@ black), or the camera inside a solid shape. That check is cheap and deliberately
 before its rotation and translation). Quads are never solids, so a camera inside a room of
 quads (the Cornell box, the furnace) is not flagged. clrender.scene_checks adds the whole-scene
 checks against the device's float32: a scene spanning under 1e-15 is refused; a shape below
-float32 resolution at its distance and a camera on a surface are warned about.
+float32 resolution at its distance (a mesh by its triangles) and a camera on a surface (a mesh
+triangle too) are warned about.
 
 This module is the reading side of the scene: files, their validation, errors and warnings, and
 the loaded `Scene`. The byte layout the kernels read (the NumPy twins of kernels/scene_types.h
@@ -125,6 +129,7 @@ from clrender.errors import ClrenderError
 from clrender.mesh_files import MeshFileError, read_mesh_file
 from clrender.package_data import shipped_dir
 from clrender.scene_checks import (
+    MeshGeometry,
     ShapeGeometry,
     camera_on_surface,
     extent_error,
@@ -267,7 +272,7 @@ def resolve_scene_path(path_or_name: str | Path) -> Path:
             return path
         what = "a directory" if stat.S_ISDIR(mode) else "not a regular file (a FIFO or device)"
         raise SceneError(f"scene file {text!r} is {what}: give a .toml file or a scene name")
-    if "/" not in text and "\\" not in text and not text.endswith(".pbrt"):
+    if "/" not in text and "\\" not in text and not text.lower().endswith(".pbrt"):
         shipped = scenes_dir() / (text if text.endswith(".toml") else f"{text}.toml")
         if shipped.is_file():
             return shipped
@@ -284,7 +289,7 @@ def load_scene(path_or_name: str | Path) -> Scene:
     """Read and validate a scene file (or a shipped scene by name); a .pbrt file is read by
     clrender.pbrt (pbrt-v4's format, a subset)."""
     path = resolve_scene_path(path_or_name)
-    if path.suffix == ".pbrt":
+    if path.suffix.lower() == ".pbrt":  # scene.PBRT too, as pbrt-v4's HasExtension compares
         from clrender.pbrt import load_pbrt_scene
 
         return load_pbrt_scene(path)
@@ -429,10 +434,19 @@ _REQUIRED = object()
 def _describe(value: object) -> str:
     kind = {bool: "a boolean", str: "a string", int: "an integer", float: "a number"}
     if isinstance(value, list):
-        return f"a list of {len(value)} ({value!r})" if len(value) < 8 else "a long list"
+        return f"a list of {len(value)} ({_toml_text(value)})" if len(value) < 8 else "a long list"
     if isinstance(value, dict):
         return "a table"
-    return f"{kind.get(type(value), type(value).__name__)} ({value!r})"
+    return f"{kind.get(type(value), type(value).__name__)} ({_toml_text(value)})"
+
+
+def _toml_text(value: object) -> str:
+    """A value as the scene file spells it: true, not Python's True."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, list):
+        return "[" + ", ".join(map(_toml_text, value)) + "]"
+    return repr(value)
 
 
 SHAPE_FIELDS = {
@@ -471,6 +485,7 @@ class SceneBuilder:
         self.meshes: list[dict] = []  # scene_device.pack_triangles' input
         self.mesh_names: list[str] = []
         self.mesh_bounds: list[ShapeGeometry] = []  # a sphere around each mesh (extent only)
+        self.mesh_geometry: list[MeshGeometry] = []  # each mesh's triangles, for scene_checks
         self.notes: list[str] = []  # warnings raised while reading shapes
 
     def build(self, document: dict) -> Scene:
@@ -737,9 +752,6 @@ class SceneBuilder:
                     where or "normals",
                     f"expected one normal per position ({len(positions)}), got {len(normals)}",
                 )
-            zero = np.flatnonzero(np.linalg.norm(normals, axis=1) == 0.0)
-            if len(zero):
-                table.fail(where or "normals", f"normal {zero[0]} is zero")
         bad = np.flatnonzero((indices < 0) | (indices >= len(positions)))
         if len(bad):
             i = bad[0] if indices.ndim == 1 else np.unravel_index(bad[0], indices.shape)[0]
@@ -779,6 +791,7 @@ class SceneBuilder:
         self.mesh_bounds.append(
             ShapeGeometry(label, center=0.5 * (low + high), radius=0.5 * np.linalg.norm(high - low))
         )
+        self.mesh_geometry.append(MeshGeometry(label, positions, indices))
 
     def read_array(self, table: _Table, key: str, kind: type, required: bool) -> np.ndarray | None:
         """An inline mesh array of rows of 3 numbers (kind float) or integers (kind int)."""
@@ -787,14 +800,19 @@ class SceneBuilder:
             return None
         what = "integers" if kind is int else "finite numbers"
         expected = f"expected a list of [a, b, c] rows of 3 {what}"
+        if isinstance(value, np.ndarray):  # a pbrt plymesh's arrays (clrender.pbrt), not TOML
+            if value.ndim != 2 or value.shape[1] != 3 or not len(value):
+                table.fail(key, f"{expected}, got an array of shape {value.shape}")
+            return value.astype(np.int64 if kind is int else np.float64, copy=False)
         allowed = (int,) if kind is int else (int, float)
-        if (
-            not isinstance(value, list)
-            or not value
-            or not all(isinstance(row, list) and len(row) == 3 for row in value)
-            or not all(type(x) in allowed for row in value for x in row)
-        ):
+        if not isinstance(value, list) or not value:
             table.fail(key, f"{expected}, got {_describe(value)}")
+        for i, row in enumerate(value):
+            if not (isinstance(row, list) and len(row) == 3):
+                table.fail(key, f"{expected}, got row {i}: {_describe(row)}")
+            for x in row:
+                if type(x) not in allowed:
+                    table.fail(key, f"{expected}, got {_describe(x)} in row {i}")
         return np.array(value, np.int64 if kind is int else np.float64)
 
     def check_mesh_numbers(self, table: _Table, key: str, values: np.ndarray) -> None:
@@ -835,9 +853,9 @@ class SceneBuilder:
                 where = f"[camera] look_from {list(camera.look_from)} is inside {label}"
                 notes.append(f"{self.path}: {where}: the image shows that shape from the inside")
                 warnings.warn(notes[-1], SceneWarning, stacklevel=3)
-        on_surface = camera_on_surface(self.geometry, origin)
+        on_surface = camera_on_surface(self.geometry, origin, self.mesh_geometry)
         for note in ([on_surface] if on_surface else []) + unresolved_shape_notes(
-            self.geometry, origin
+            self.geometry, origin, self.mesh_geometry
         ):
             notes.append(f"{self.path}: {note}")
             warnings.warn(notes[-1], SceneWarning, stacklevel=3)

@@ -308,7 +308,12 @@ def pack_triangles(meshes: list[dict]) -> tuple[np.ndarray, np.ndarray]:
         packed["emitter"] = -1
         if mesh.get("normals") is not None:
             vertex_normals = np.asarray(mesh["normals"], np.float64)
-            vertex_normals = vertex_normals / np.linalg.norm(vertex_normals, axis=1)[:, None]
+            # Unit normals; a zero one stays zero (the kernel interpolates the corners' normals
+            # and shades with the geometric normal where that sum is zero, as pbrt-v4 does)
+            length = np.linalg.norm(vertex_normals, axis=1)[:, None]
+            vertex_normals = np.divide(
+                vertex_normals, length, out=np.zeros_like(vertex_normals), where=length > 0.0
+            )
             records = np.zeros(len(indices), NORMALS_DTYPE)
             records["n"] = vertex_normals[indices]
             packed["normals"] = count + np.arange(len(indices))

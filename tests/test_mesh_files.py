@@ -115,6 +115,15 @@ def test_obj_files_read_the_same_through_either_reader(tmp_path):
             np.testing.assert_array_equal(mesh.normals, slow.normals)
 
 
+def test_obj_lines_ending_in_a_backslash_continue(tmp_path):
+    # The OBJ specification's line continuation; before: "invalid literal for int()"
+    path = tmp_path / "continued.obj"
+    path.write_text("v -0.5 1 -0.5\nv 0.5 1 -0.5\nv 0.5 1 \\\n 0.5\nv -0.5 1 0.5\nf 1 2 \\\n 3 4\n")
+    mesh = read_mesh_file(path)
+    np.testing.assert_array_equal(mesh.positions[2], [0.5, 1, 0.5])
+    np.testing.assert_array_equal(mesh.indices, [[0, 1, 2], [0, 2, 3]])
+
+
 def write_ply(path, positions, faces: list, text=False) -> None:
     vertex = np.zeros(len(positions), [("x", "f4"), ("y", "f4"), ("z", "f4")])
     vertex["x"], vertex["y"], vertex["z"] = np.asarray(positions).T

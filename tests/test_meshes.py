@@ -52,6 +52,20 @@ def test_inline_normals_are_normalised_per_triangle_corner(tmp_path):
     np.testing.assert_allclose(n[1], [[0, 0, 1], [0, 0.70710677, 0.70710677], [0, 0, 1]])
 
 
+def test_zero_normals_add_nothing_and_leave_the_geometric_normal(tmp_path):
+    # pbrt-v4's rule: a zero vertex normal adds nothing to the interpolated normal (stored as
+    # zero), where the sum is zero the kernel shades with the geometric normal; an unused
+    # vertex's zero normal is no concern at all
+    body = SQUARE.replace("]]\nindices", "], [5.0, 5.0, 5.0]]\nindices") + (
+        "normals = [[0, 0, 1], [0, 0, 0], [0, 0, 0], [0, 0, 0], [0, 0, 0]]\n"
+    )
+    scene = load_scene(write(tmp_path, body))
+    n = scene.triangle_normals["n"][scene.triangles["normals"]]
+    np.testing.assert_array_equal(n[0], [[0, 0, 1], [0, 0, 0], [0, 0, 0]])
+    np.testing.assert_array_equal(n[1], [[0, 0, 1], [0, 0, 0], [0, 0, 0]])
+    assert np.isfinite(scene.triangle_normals["n"]).all()
+
+
 def write_ply_binary(path, positions, faces, normals=None):
     props = "property float x\nproperty float y\nproperty float z\n"
     if normals is not None:
@@ -129,12 +143,16 @@ BAD_INPUT = [
     (SQUARE.replace("[0, 2, 3]]", "[0, 2, -1]]"), "index -1 outside"),
     (SQUARE.replace("[0, 2, 3]]", "[0, 2]]"), "'indices': expected a list of [a, b, c] rows"),
     (SQUARE.replace("[0, 2, 3]]", "[0, 2, 3.0]]"), "rows of 3 integers"),
+    (
+        SQUARE.replace("[0, 2, 3]]", "[0, 2, true]]"),
+        "rows of 3 integers, got a boolean (true) in row 1",
+    ),
+    (SQUARE.replace("[0, 2, 3]]", "[0, 2, [3]]]"), "got a list of 1 ([3]) in row 1"),
     (SQUARE.replace("[0.0, 1.0, 0.0]]", '[0.0, 1.0, "x"]]'), "'positions': expected a list"),
     (SQUARE.replace("[0.0, 1.0, 0.0]]", "[0.0, 1.0, nan]]"), "row 3 has a non-finite number"),
     (SQUARE.replace("[0.0, 1.0, 0.0]]", "[0.0, 1.0, 1e30]]"), "too large"),
     (SQUARE.replace("[[0, 1, 2], [0, 2, 3]]", "[[0, 0, 1]]"), "every triangle is degenerate"),
     (SQUARE + "normals = [[0, 0, 1]]\n", "expected one normal per position (4), got 1"),
-    (SQUARE + "normals = [[0, 0, 1], [0, 0, 1], [0, 0, 0], [0, 0, 1]]\n", "normal 2 is zero"),
     ("indices = [[0, 1, 2]]\n", "'positions': missing (required)"),
     (SQUARE + 'file = "m.ply"\n', "give either file or positions/indices/normals"),
     ('file = "missing.ply"\n', "missing.ply: cannot read"),
@@ -158,7 +176,16 @@ BAD_FILES = [
     ("empty.obj", b"v 0 0 0\nv 1 0 0\n", "empty.obj: the file has no triangles"),
     ("far.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", "line 4: index 4 refers to none"),
     ("short.obj", b"v 0 0 0\nv 1 0 0\nf 1 2\n", "line 3: a face needs at least 3 vertices"),
-    ("nan.obj", b"v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "row 0 has a non-finite number"),
+    ("nan.obj", b"v 0 0 0\nv 0 0 nan\nv 1 0 0\nv 0 1 0\nf 2 3 4\n", "nan.obj: vertex 1 has a non"),
+    (
+        "nan.ply",
+        b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        b"property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+        b"element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        b"0 0 0 0 0 1\n1 0 0 0 0 1\n0 1 0 0 inf 1\n3 0 1 2\n",
+        "nan.ply: vertex 2 has a non-finite normal: [0.0, inf, 1.0]",
+    ),
+    ("cont.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n x\n", "line 4: invalid literal"),
     ("mixed.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2 3\n", "some face corners"),
     ("latin.obj", b"# caf\xe9\nv 0 0 0\n", "latin.obj: not UTF-8 text"),
     (

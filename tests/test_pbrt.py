@@ -71,6 +71,17 @@ def test_01_tokens_strings_brackets_comments_and_lines(tmp_path):
     ]
 
 
+def test_01b_a_byte_order_mark_and_an_upper_case_suffix(tmp_path):
+    # Before: "\ufeffFilm: unknown directive", and scene.PBRT read as TOML
+    path = tmp_path / "bom.pbrt"
+    path.write_text("\ufeff" + SCENE, encoding="utf-8")
+    assert len(load_scene(path).quads) == 2
+    upper = write(tmp_path, SCENE, "scene.PBRT")
+    assert len(load_scene(upper).quads) == 2
+    with pytest.raises(SceneError, match=r"^scene file 'missing\.PBRT' does not exist$"):
+        load_scene("missing.PBRT")  # a file's name, not a shipped scene's
+
+
 def test_02_unterminated_string_names_file_and_line(tmp_path):
     with pytest.raises(SceneError, match=r"scene\.pbrt:5: a string opened"):
         document(tmp_path, HEADER + 'Shape "sphere\n')
@@ -208,6 +219,73 @@ def test_08_lookat_and_the_same_camera_by_transform_agree(tmp_path):
         np.testing.assert_allclose(basis[key], other[key], atol=1e-6)
 
 
+def printed(matrix: np.ndarray, form: str = "%g") -> str:
+    """A pbrt Transform of the matrix, its 16 numbers column-major printed with `form`."""
+    return "Transform [ " + " ".join(form % v for v in matrix.T.ravel()) + " ]"
+
+
+def transform_matrix(line: str) -> np.ndarray:
+    """The matrix of a pbrt `Transform [ ... ]` line (column-major numbers)."""
+    return np.array(line.split("[")[1].split("]")[0].split(), float).reshape(4, 4).T
+
+
+def similarity_error(matrix: np.ndarray) -> float:
+    linear = matrix[:3, :3]
+    s2 = abs(np.linalg.det(linear)) ** (2 / 3)
+    return float(np.abs(linear.T @ linear - s2 * np.eye(3)).max() / s2)
+
+
+# Bitterli's teapot (pbrt-v4 export) as written: a camera rotation computed in float32 and
+# printed to 6 digits, off orthonormal by 1.7e-5
+TEAPOT_CAMERA = (
+    "Transform [ 0.00552692 -0.342144 -0.939631 -0 -0 0.939646 -0.342149 -0 -0.999985 "
+    "-0.0018952 -0.00517328 -0 -0.0919892 -2.36787 26.2919 1 ]"
+)
+
+
+def test_08b_transforms_printed_to_6_digits_are_rigid_and_shears_are_not(tmp_path):
+    # A camera rotation printed with %g (6 significant digits) renders as the exact matrix
+    # does, to the rounding of its digits; so does a sphere under it
+    exact = np.eye(4)
+    exact[:3, :3] = Rotation.random(random_state=5).as_matrix()
+    exact[:3, 3] = [0.3, -1.2, 7.5]
+    assert similarity_error(transform_matrix(printed(exact))) > 1e-6  # refused before
+    by_exact = camera_scene(tmp_path, printed(exact, "%.17g"), 32, 24, name="exact.pbrt")
+    by_print = camera_scene(tmp_path, printed(exact), 32, 24, name="printed.pbrt")
+    assert by_print.camera.handedness == by_exact.camera.handedness == "left"
+    for key in ("look_from", "look_at", "up"):
+        np.testing.assert_allclose(
+            getattr(by_print.camera, key), getattr(by_exact.camera, key), atol=2e-5
+        )
+    points = np.random.default_rng(5).uniform(-1.0, 1.5, (50, 3))
+    np.testing.assert_allclose(
+        probes.project(by_print, 32, 24, points),
+        probes.project(by_exact, 32, 24, points),
+        atol=1e-3,
+    )
+    # the camera's frame is orthonormal (the nearest rotation), not the printed columns
+    basis = by_print.camera.basis(32, 24)
+    assert abs(float(np.dot(basis["forward"], basis["up"]))) < 1e-6
+    (sphere,) = world_shapes(tmp_path, printed(exact) + '\nShape "sphere" "float radius" 0.5\n')
+    np.testing.assert_allclose(sphere["center"], [0.3, -1.2, 7.5])
+    assert sphere["radius"] == pytest.approx(0.5, rel=1e-6)
+    # a real exporter's matrix, further off orthonormal (float32 arithmetic), is a rigid camera
+    teapot = camera_scene(tmp_path, TEAPOT_CAMERA, 32, 24, name="teapot.pbrt").camera
+    matrix = transform_matrix(TEAPOT_CAMERA)
+    assert similarity_error(matrix) > 1e-5
+    rows = matrix[:3, :3]  # camera x, y, z in world
+    np.testing.assert_allclose(teapot.look_from, -rows.T @ matrix[:3, 3], atol=1e-3)
+    np.testing.assert_allclose(np.subtract(teapot.look_at, teapot.look_from), rows[2], atol=3e-5)
+    # a clear shear and a non-uniform scale are still refused, each in one line
+    shear = np.eye(4)
+    shear[0, 1] = 0.01
+    for transform in (printed(shear), "Scale 1 1.001 1"):
+        with pytest.raises(SceneError, match=r"Camera: the camera transform must be rigid"):
+            camera_scene(tmp_path, transform, 32, 24, name="shear.pbrt")
+        with pytest.raises(SceneError, match=r"Shape: a sphere's transform must be"):
+            world_shapes(tmp_path, transform + '\nShape "sphere"\n')
+
+
 def test_09_fov_is_the_shorter_axis_and_resolution_defaults(tmp_path):
     tall = camera_scene(tmp_path, "LookAt 0 1 5 0 1 0 0 1 0", 20, 40, fov=30.0).camera
     half = math.tan(math.radians(30.0) / 2) * 2
@@ -273,6 +351,23 @@ def test_12_normals_and_mirroring_decide_the_front_side(tmp_path):
     assert v.tolist() == [[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]]
 
 
+def test_12b_zero_normals_are_pbrts_no_normal_there(tmp_path):
+    # One zero N among flat ones: still a flat quad facing the others; all zero under a
+    # mirroring: pbrt-v4 keeps the winding's normal, reversed by the mirroring
+    mesh = f'Shape "trianglemesh" "point3 P" {P4} "integer indices" [ 0 1 2 0 2 3 ] '
+    (quad,) = world_shapes(tmp_path, mesh + '"normal N" [ 0 0 -1 0 0 0 0 0 -1 0 0 -1 ]\n')
+    v = np.array(quad["vertices"])
+    assert np.cross(v[1] - v[0], v[3] - v[0])[2] < 0
+    zeros = '"normal N" [ 0 0 0 0 0 0 0 0 0 0 0 0 ]\n'
+    (quad,) = world_shapes(tmp_path, "Scale 1 1 -1\n" + mesh + zeros)
+    v = np.array(quad["vertices"])
+    assert np.cross(v[1] - v[0], v[3] - v[0])[2] < 0
+    # a fan (no quads) keeps its zero normals as zero, unit ones unit, through a transform
+    fan = f'Translate 0 0 1\nShape "trianglemesh" {FAN_P}\n    {FAN_DOWN} '
+    (mesh,) = world_shapes(tmp_path, fan + '"normal N" [ 0 -2 0  0 0 0  0 -1 0  0 -1 0  0 -1 0 ]\n')
+    np.testing.assert_array_equal(mesh["normals"][:2], [[0, -1, 0], [0, 0, 0]])
+
+
 def test_13_bilinear_patch_is_a_quad_and_a_curved_one_is_refused(tmp_path):
     (quad,) = world_shapes(
         tmp_path, 'Shape "bilinearmesh" "point3 P" [ 0 0 0 2 0 0 0 1 0 2 1 0 ]\n'
@@ -285,7 +380,7 @@ def test_13_bilinear_patch_is_a_quad_and_a_curved_one_is_refused(tmp_path):
         world_shapes(tmp_path, curved)
 
 
-def test_14_plymesh_is_the_file_or_its_transformed_positions(tmp_path):
+def test_14_plymesh_is_the_files_triangles_transformed(tmp_path):
     ply = (
         "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
         "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
@@ -293,18 +388,15 @@ def test_14_plymesh_is_the_file_or_its_transformed_positions(tmp_path):
     )
     write(tmp_path, ply, "meshes/tri.ply")
     (mesh,) = world_shapes(tmp_path, 'Shape "plymesh" "string filename" "meshes/tri.ply"\n')
-    assert mesh == {
-        "type": "mesh",
-        "file": str((tmp_path / "meshes" / "tri.ply").resolve()),
-        "name": "scene.pbrt:5 plymesh",
-        "material": "pbrt default diffuse",
-    }
+    assert mesh["name"] == "scene.pbrt:5 plymesh" and mesh["material"] == "pbrt default diffuse"
+    np.testing.assert_array_equal(mesh["positions"], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    np.testing.assert_array_equal(mesh["indices"], [[0, 1, 2]])
+    assert "normals" not in mesh and "file" not in mesh
     (moved,) = world_shapes(
         tmp_path, 'Translate 0 0 2\nShape "plymesh" "string filename" "meshes/tri.ply"\n'
     )
-    assert moved["positions"] == [[0, 0, 2], [1, 0, 2], [0, 1, 2]] and moved["indices"] == [
-        [0, 1, 2]
-    ]
+    np.testing.assert_array_equal(moved["positions"], [[0, 0, 2], [1, 0, 2], [0, 1, 2]])
+    np.testing.assert_array_equal(moved["indices"], [[0, 1, 2]])
 
 
 # --------------------------------------------------------------------------- materials and lights
@@ -338,6 +430,29 @@ Shape "sphere"
     assert [s["material"] for s in doc["shapes"]] == ["glass", anonymous]
 
 
+def test_15b_a_named_material_may_be_made_after_its_use(tmp_path):
+    # pbrt-v4 resolves material names when it builds the scene, not at NamedMaterial
+    body = """NamedMaterial "late"
+Shape "sphere"
+AttributeBegin
+  AreaLightSource "diffuse" "rgb L" [ 1 1 1 ]
+  NamedMaterial "black"
+  Shape "sphere" "float radius" 0.5
+AttributeEnd
+MakeNamedMaterial "late" "string type" "diffuse" "rgb reflectance" [ 0.1 0.2 0.3 ]
+MakeNamedMaterial "black" "string type" "diffuse" "rgb reflectance" [ 0 0 0 ]
+Material "diffuse"
+Shape "sphere" "float radius" 2
+"""
+    doc = document(tmp_path, HEADER + body)
+    late, lamp, plain = doc["shapes"]
+    assert late["material"] == "late" and late["radius"] == 1.0
+    assert doc["materials"]["late"] == {"type": "diffuse", "albedo": [0.1, 0.2, 0.3]}
+    # a black named material made later still makes its emitter a pure emitter
+    assert lamp["emission"] == [1.0, 1.0, 1.0] and "material" not in lamp
+    assert plain["material"] == "Material at scene.pbrt:14"
+
+
 def test_16_area_lights_emit_scaled_and_a_black_material_only_emits(tmp_path):
     body = (
         LAMP
@@ -363,7 +478,7 @@ def test_17_attribute_sets_default_parameters(tmp_path):
     assert [s["radius"] for s in world_shapes(tmp_path, body)] == [0.25, 2.0, 1.0]
 
 
-def test_18_include_is_relative_to_the_including_file(tmp_path):
+def test_18_include_falls_back_to_the_including_files_folder(tmp_path):
     write(tmp_path, 'Include "parts/lamp.pbrt"\n', "scenes/world.pbrt")
     write(tmp_path, LAMP + 'Include "floor.pbrt"\n', "scenes/parts/lamp.pbrt")
     write(tmp_path, FLOOR, "scenes/parts/floor.pbrt")
@@ -376,6 +491,38 @@ def test_18_include_is_relative_to_the_including_file(tmp_path):
         SceneError, match=r"world\.pbrt:1: Include: '\.\./main\.pbrt' includes itself"
     ):
         read_pbrt(path)
+
+
+def test_18b_names_in_included_files_are_taken_from_the_top_level_folder(tmp_path):
+    # As pbrt-v4-scenes write them (sanmiguel/geometry/sanmiguel-geom.pbrt): an included file's
+    # Include and plymesh names relative to the main file's folder, as pbrt-v4 resolves them
+    ply = (
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
+    write(tmp_path, ply, "geometry/tri.ply")
+    write(
+        tmp_path,
+        'Include "geometry/floor.pbrt"\nShape "plymesh" "string filename" "geometry/tri.ply"\n',
+        "geometry/all.pbrt",
+    )
+    write(tmp_path, FLOOR, "geometry/floor.pbrt")
+    path = write(tmp_path, HEADER + 'Include "geometry/all.pbrt"\n', "main.pbrt")
+    floor, mesh = read_pbrt(path)[0]["shapes"]
+    assert floor["name"] == "floor.pbrt:2 trianglemesh"
+    np.testing.assert_array_equal(mesh["positions"], [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    # the top-level folder's file comes first when both folders have one
+    write(tmp_path, 'Shape "sphere" "float radius" 0.5\n', "geometry/geometry/floor.pbrt")
+    assert read_pbrt(path)[0]["shapes"][0]["type"] == "quad"
+    # and a name found in neither says where it looked, in one line
+    write(tmp_path, 'Include "parts/none.pbrt"\n', "geometry/all.pbrt")
+    with pytest.raises(SceneError) as caught:
+        read_pbrt(path)
+    message = str(caught.value)
+    assert message.startswith(f"{tmp_path / 'geometry' / 'all.pbrt'}:1: Include: no file")
+    assert str(tmp_path / "parts" / "none.pbrt") in message
+    assert str(tmp_path / "geometry" / "parts" / "none.pbrt") in message
 
 
 # --------------------------------------------------------------------------- refusals
@@ -449,7 +596,11 @@ REFUSALS = [
         5,
         'Shape "integer indices": an index outside 0..2',
     ),
-    ('NamedMaterial "gold"', 5, "NamedMaterial: no MakeNamedMaterial 'gold' before this line"),
+    (
+        'NamedMaterial "gold"\nShape "sphere"\nMakeNamedMaterial "gilt" "string type" "diffuse"',
+        5,
+        "NamedMaterial: no MakeNamedMaterial 'gold' in the scene; defined: 'gilt'",
+    ),
     ('Attribute "texture" "float scale" 2', 5, "Attribute: target 'texture' not supported"),
     ('Camera "perspective"', 5, "Camera: must come before WorldBegin"),
     ("AttributeEnd", 5, "AttributeEnd: no AttributeBegin to end"),
@@ -709,3 +860,44 @@ def test_27_mesh_emitters_light_the_side_pbrt_emits_to(
         assert floor > 0.01, case
     else:
         assert floor == 0.0, case
+
+
+def lamp_ply(y: float) -> str:
+    """An ASCII PLY square at height y, wound counter-clockwise seen from above (winding's
+    front +y) with vertex normals N pointing down (-y): pbrt-v4 emits down, toward N."""
+    return (
+        "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+        "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+        "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        f"-1 {y} -1 0 -1 0\n-1 {y} 1 0 -1 0\n1 {y} 1 0 -1 0\n1 {y} -1 0 -1 0\n4 0 1 2 3\n"
+    )
+
+
+def ply_lamp_scene(tmp_path, transform: str, y: float):
+    write(tmp_path, lamp_ply(y), f"lamp{y:g}.ply")
+    lamp = (
+        'AttributeBegin\n  AreaLightSource "diffuse" "rgb L" [ 4 4 4 ]\n'
+        f'  Material "diffuse" "rgb reflectance" [ 0 0 0 ]\n  {transform}\n'
+        f'  Shape "plymesh" "string filename" "lamp{y:g}.ply"\nAttributeEnd\n'
+    )
+    return load_scene(write(tmp_path, HEADER + FLOOR + lamp, f"lamp{y:g}.pbrt"))
+
+
+def test_28_a_plymesh_faces_its_normals_with_or_without_a_transform(tmp_path):
+    # The same emitting square, once from a file at y = 1.5 with no transform, once from a file
+    # at y = 0.5 moved up by 1: both face the file's normals (down), as pbrt-v4 turns them
+    placed = ply_lamp_scene(tmp_path, "", 1.5)
+    moved = ply_lamp_scene(tmp_path, "Translate 0 1 0", 0.5)
+    for scene in (placed, moved):
+        p0, p1, p2 = (scene.triangles[k].astype(np.float64) for k in ("p0", "p1", "p2"))
+        assert (np.cross(p1 - p0, p2 - p0)[:, 1] < 0).all()
+    for key in ("p0", "p1", "p2"):
+        np.testing.assert_array_equal(placed.triangles[key], moved.triangles[key])
+
+
+@pytest.mark.device
+def test_29_a_plymesh_without_a_transform_lights_what_pbrt_lights(tmp_path):
+    placed = clrender.render(ply_lamp_scene(tmp_path, "", 1.5), spp=8, seed=3).image
+    moved = clrender.render(ply_lamp_scene(tmp_path, "Translate 0 1 0", 0.5), spp=8, seed=3).image
+    assert placed[4:].mean() > 0.01
+    np.testing.assert_array_equal(placed, moved)

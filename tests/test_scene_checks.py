@@ -14,6 +14,7 @@ from clrender.pipeline import RenderSettings, render
 from clrender.radiance import PathTracerSource
 from clrender.sampling import make_sampler
 from clrender.scene import SceneError, SceneWarning, load_scene, scenes_dir
+from clrender.scene_checks import MeshGeometry, camera_on_surface, unresolved_shape_notes
 from clrender.trace import PathTracer
 
 SIZE = 16
@@ -163,3 +164,74 @@ def test_a_huge_quad_below_the_camera_is_no_surface_it_is_on(tmp_path):
         'edge1 = [2e9, 0.0, 0.0]\nedge2 = [0.0, 0.0, -2e9]\nmaterial = "white"\n'
     )
     load_quietly(with_extra(tmp_path, "cornell-box", ground))
+
+
+def mesh_toml(name: str, positions, indices) -> str:
+    rows = ", ".join(str([float(x) for x in row]) for row in np.asarray(positions, float))
+    faces = ", ".join(f"[{a}, {b}, {c}]" for a, b, c in indices)
+    return (
+        f'\n[[shapes]]\nname = "{name}"\ntype = "mesh"\nmaterial = "white"\n'
+        f"positions = [{rows}]\nindices = [{faces}]\n"
+    )
+
+
+# The Cornell box's camera is at (278, 278, -800): a triangle in the plane z = -800 around it,
+# and the same triangle moved aside so that its plane holds the camera but its edges do not
+COVER = [[200.0, 200.0, -800.0], [400.0, 200.0, -800.0], [278.0, 400.0, -800.0]]
+ASIDE = [[500.0, 200.0, -800.0], [700.0, 200.0, -800.0], [578.0, 400.0, -800.0]]
+
+
+def test_a_camera_on_a_mesh_triangle_is_warned_about(tmp_path):
+    # Before: no warning (only quads and spheres were looked at) and a wrong image
+    extra = mesh_toml("aside", ASIDE, [[0, 1, 2]]) + mesh_toml(
+        "cover", [[0.0, 0.0, 0.0]] + COVER, [[0, 1, 2], [1, 2, 3]]
+    )
+    with pytest.warns(SceneWarning, match=r"lies on shapes\[\d+\] \('cover'\) \(its triangle 1\)"):
+        load_scene(with_extra(tmp_path, "cornell-box", extra))
+    load_quietly(with_extra(tmp_path, "cornell-box", mesh_toml("aside", ASIDE, [[0, 1, 2]])))
+    tilted = [[200.0, 200.0, -800.0], [400.0, 200.0, -799.0], [278.0, 400.0, -800.0]]
+    load_quietly(with_extra(tmp_path, "cornell-box", mesh_toml("tilted", tilted, [[0, 1, 2]])))
+
+
+def fan(count: int, centre, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """A disc of `count` triangles in a plane z = const around centre."""
+    angle = np.linspace(0.0, 2.0 * np.pi, count, endpoint=False)
+    rim = np.c_[np.cos(angle), np.sin(angle), np.zeros(count)] * radius + centre
+    positions = np.vstack([centre, rim])
+    k = np.arange(count)
+    return positions, np.c_[np.zeros(count, int), 1 + k, 1 + (k + 1) % count]
+
+
+def test_a_mesh_below_float32_resolution_is_warned_about_and_a_few_slivers_are_not(tmp_path):
+    # A whole mesh too small for its place: named, with its count and share of area
+    positions, indices = fan(6, [278.0, 1e8, 278.0], 1.0)
+    with pytest.warns(SceneWarning, match="float32 steps"):
+        scene = load_scene(
+            with_extra(tmp_path, "cornell-box", mesh_toml("speck", positions, indices))
+        )
+    (note,) = [n for n in scene.warnings if "float32 steps" in n]
+    assert "'speck'" in note and "6 of its 6 triangles (100 % of its area)" in note
+    # A fine mesh where a few slivers (a short rim edge) are below resolution: no warning
+    positions, indices = fan(64, [278.0, 278.0, 278.0], 100.0)
+    positions[2] = positions[1] + [0.0, 1e-6, 0.0]
+    load_quietly(with_extra(tmp_path, "cornell-box", mesh_toml("fine", positions, indices)))
+
+
+def test_mesh_checks_read_every_one_of_a_million_triangles():
+    # A grid of 1 M triangles under a camera 1 unit above it, off every surface: both checks
+    # read every triangle, in chunks (measured: 0.09 s and 0.18 s of CPU time on the shared
+    # Xeon; no time limit here, the suite has none)
+    n = 708
+    u, v = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0))
+    positions = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
+    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)).ravel()
+    indices = np.vstack(
+        [np.c_[corner, corner + 1, corner + n + 2], np.c_[corner, corner + n + 2, corner + n + 1]]
+    )
+    assert len(indices) > 1_000_000
+    mesh = MeshGeometry("grid", positions, indices)
+    look_from = np.array([300.5, 300.25, 1.0])
+    assert camera_on_surface([], look_from, [mesh]) is None
+    assert unresolved_shape_notes([], look_from, [mesh]) == []
+    on = np.array([300.5, 300.25, 0.0])
+    assert "its triangle" in camera_on_surface([], on, [mesh])
