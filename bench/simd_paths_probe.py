@@ -43,9 +43,23 @@ def parse_args(argv=None):
     parser.add_argument("--size", type=int, default=256, help="image width = height")
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--max-depth", type=int, default=8)
-    parser.add_argument("--widths", type=int, nargs="+", default=[16, 8])
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        default=["16", "8", "16r", "8r"],
+        help="lanes per work-item; a trailing r: with path regeneration (simd_paths_regen)",
+    )
+    parser.add_argument(
+        "--chunk", type=int, default=8, help="regeneration: lanes' worth of samples a work-item"
+    )
     parser.add_argument("--local-size", type=int, default=16, help="prototype work-group size")
     parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument(
+        "--define",
+        action="append",
+        default=[],
+        help="a -D for the prototype's build (experiments: SIMD_NO_MIN_VECTOR_WIDTH, ...)",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--device", default=None)
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
@@ -66,19 +80,27 @@ def check_scene(scene) -> None:
 
 
 class Prototype:
-    """kernels/simd_paths.cl at one width, on the tracer's scene buffers."""
+    """kernels/simd_paths.cl at one width (variant "16", or "16r" with path regeneration), on
+    the tracer's scene buffers."""
 
-    def __init__(self, runtime, tracer: PathTracer, width: int, local_size: int):
+    def __init__(self, runtime, tracer, variant: str, local_size: int, chunk: int, defines):
         self.runtime = runtime
         self.tracer = tracer
-        self.width = width
+        self.regenerate = variant.endswith("r")
+        self.width = int(variant.rstrip("r"))
         self.local_size = local_size
-        self.kernel = runtime.kernel("simd_paths.cl", "simd_paths", {"SIMD_WIDTH": width})
+        # samples per work-item
+        self.per_item = self.width * (chunk if self.regenerate else 1)
+        build = {"SIMD_WIDTH": self.width} | dict.fromkeys(defines, True)
+        if self.regenerate:
+            build["SIMD_CHUNK"] = chunk
+        name = "simd_paths_regen" if self.regenerate else "simd_paths"
+        self.kernel = runtime.kernel("simd_paths.cl", name, build)
 
     def trace(self, sets, seed, size):
         runtime, tracer = self.runtime, self.tracer
         count = sets.traced_total
-        items = -(-count // self.width)
+        items = -(-count // self.per_item)
         global_size = launch_global_size(items, self.local_size)
         radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(len(COUNTERS), np.uint32))
@@ -167,7 +189,10 @@ def main(argv=None):
         runtime, make_sampler("independent", args.spp), args.seed, pixels, None, (args.size,) * 2
     )
     paths = sets.traced_total
-    protos = {w: Prototype(runtime, tracer, w, args.local_size) for w in args.widths}
+    protos = {
+        v: Prototype(runtime, tracer, v, args.local_size, args.chunk, args.define)
+        for v in args.variants
+    }
 
     # Correctness (and warm-up: the first launch at a local size compiles a work-group function)
     mega = tracer.trace(sets, args.seed, args.size, args.size)
@@ -179,8 +204,10 @@ def main(argv=None):
         out, stats = proto.read(radiance, counters, count)
         agreement = compare(reference, out)
         lanes = {
-            "bounce_lane_utilisation": stats["bounce_lanes"] / (w * stats["bounce_steps"]),
-            "shadow_lane_utilisation": stats["shadow_lanes"] / (w * max(stats["shadow_steps"], 1)),
+            "bounce_lane_utilisation": stats["bounce_lanes"]
+            / (proto.width * stats["bounce_steps"]),
+            "shadow_lane_utilisation": stats["shadow_lanes"]
+            / (proto.width * max(stats["shadow_steps"], 1)),
             "rays_megakernel": mega.rays,
             "rays_prototype": stats["rays"],
             "nonfinite_megakernel": mega.nonfinite,
@@ -188,7 +215,7 @@ def main(argv=None):
         }
         report_widths[w] = {"agreement": agreement, "counters": stats, "lanes": lanes}
         print(
-            f"width {w}: {agreement['fraction_bit_equal'] * 100:.4f} % of samples bit-equal, "
+            f"simd{w}: {agreement['fraction_bit_equal'] * 100:.4f} % of samples bit-equal, "
             f"max rel diff {agreement['max_relative_difference']:.3g} "
             f"({agreement['samples_rel_diff_above_1e-6']} samples above 1e-6), means "
             f"{np.round(agreement['mean_megakernel'], 5)} vs "
@@ -251,8 +278,10 @@ def main(argv=None):
         "paths": paths,
         "rounds": args.rounds,
         "local_size": args.local_size,
+        "chunk": args.chunk,
+        "defines": args.define,
         "loadavg_per_round": loads,
-        "widths": report_widths,
+        "variants": report_widths,
         "timing": summary,
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)
