@@ -50,7 +50,7 @@ def parse_args(argv=None):
         help="lanes per work-item; a trailing r: with path regeneration (simd_paths_regen)",
     )
     parser.add_argument(
-        "--chunk", type=int, default=8, help="regeneration: lanes' worth of samples a work-item"
+        "--chunk", type=int, default=32, help="regeneration: lanes' worth of samples a work-item"
     )
     parser.add_argument("--local-size", type=int, default=16, help="prototype work-group size")
     parser.add_argument("--rounds", type=int, default=7)

@@ -630,7 +630,7 @@ __kernel SIMD_ATTR void simd_paths(SIMD_PATHS_ARGUMENTS)
 
 // Samples per work-item of simd_paths_regen: SIMD_CHUNK lanes' worth.
 #ifndef SIMD_CHUNK
-#define SIMD_CHUNK 8
+#define SIMD_CHUNK 32
 #endif
 
 // Path regeneration: one work-item per SIMD_CHUNK * SIMD_WIDTH consecutive traced samples; a
