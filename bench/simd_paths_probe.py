@@ -1,0 +1,293 @@
+"""Research probe: would tracing SIMD_WIDTH paths per work-item (kernels/simd_paths.cl, one path
+a vector lane) beat the megakernel (kernels/integrator.cl, one path a work-item)?
+
+    PYOPENCL_CTX=0 python bench/simd_paths_probe.py                  # 64 spp, 7 rounds
+    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --widths 16 8 --rounds 9
+
+On mitsuba-cbox (the only scene the prototype supports: quads, diffuse materials, one quad
+emitter) with the independent sampler, max depth 8, NEE, no Russian roulette: draws one set
+of samples, traces it with PathTracer and with the prototype at each width, and compares the
+per-sample radiance (exactly equal samples, max relative difference, image means). Then, after
+a warm-up launch of each, times them alternating (megakernel, then each width, round after
+round) and reports medians of paths per CPU-second (process time: PoCL's threads run in this
+process; cpu/wall below the compute units means the shared machine took cores) and the
+prototype / megakernel ratio per round. Lane utilisation: the prototype's running lanes per
+bounce-loop iteration over the width, and the lanes tracing a shadow ray per NEE step.
+Output: JSON (default bench/results/simd_paths_probe.json).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+
+from clrender.runtime import create_runtime, launch_global_size
+from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
+from clrender.scene import load_scene
+from clrender.trace import PathTracer
+
+DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "simd_paths_probe.json"
+COUNTERS = ("nonfinite", "rays", "bounce_steps", "bounce_lanes", "shadow_steps", "shadow_lanes")
+
+
+def parse_args(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--scene", default="mitsuba-cbox")
+    parser.add_argument("--size", type=int, default=256, help="image width = height")
+    parser.add_argument("--spp", type=int, default=64)
+    parser.add_argument("--max-depth", type=int, default=8)
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        default=["16", "8", "16r", "8r"],
+        help="lanes per work-item; a trailing r: with path regeneration (simd_paths_regen)",
+    )
+    parser.add_argument(
+        "--chunk", type=int, default=32, help="regeneration: lanes' worth of samples a work-item"
+    )
+    parser.add_argument("--local-size", type=int, default=16, help="prototype work-group size")
+    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument(
+        "--define",
+        action="append",
+        default=[],
+        help="a -D for the prototype's build (experiments: SIMD_NO_MIN_VECTOR_WIDTH, ...)",
+    )
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
+    return parser.parse_args(argv)
+
+
+def check_scene(scene) -> None:
+    """ValueError naming what the prototype cannot trace in the scene."""
+    problems = []
+    if len(scene.spheres) or len(scene.triangles):
+        problems.append("spheres or triangles (quads only)")
+    if len(scene.emitters) != 1 or int(scene.emitters["shape"][0]) != 0:
+        problems.append("emitters: exactly one quad")
+    if (scene.materials["type"] != 0).any():
+        problems.append("materials: diffuse only")
+    if problems:
+        raise ValueError(f"simd_paths prototype cannot trace this scene: {'; '.join(problems)}")
+
+
+class Prototype:
+    """kernels/simd_paths.cl at one width (variant "16", or "16r" with path regeneration), on
+    the tracer's scene buffers."""
+
+    def __init__(self, runtime, tracer, variant: str, local_size: int, chunk: int, defines):
+        self.runtime = runtime
+        self.tracer = tracer
+        self.regenerate = variant.endswith("r")
+        self.width = int(variant.rstrip("r"))
+        self.local_size = local_size
+        # samples per work-item
+        self.per_item = self.width * (chunk if self.regenerate else 1)
+        build = {"SIMD_WIDTH": self.width} | dict.fromkeys(defines, True)
+        if self.regenerate:
+            build["SIMD_CHUNK"] = chunk
+        name = "simd_paths_regen" if self.regenerate else "simd_paths"
+        self.kernel = runtime.kernel("simd_paths.cl", name, build)
+
+    def trace(self, sets, seed, size):
+        runtime, tracer = self.runtime, self.tracer
+        count = sets.traced_total
+        items = -(-count // self.per_item)
+        global_size = launch_global_size(items, self.local_size)
+        radiance = runtime.allocate(12 * count)
+        counters = runtime.upload(np.zeros(len(COUNTERS), np.uint32))
+        args = tracer.scene_arguments()
+        quads, quad_blocks, block_count, materials, emitters = (
+            args[0],
+            args[1],
+            args[3],
+            args[6],
+            args[7],
+        )
+        event = self.kernel(
+            runtime.queue,
+            (global_size,),
+            (self.local_size,),
+            np.uint32(count),
+            np.uint32(sets.pixel_count),
+            np.uint32(seed),
+            np.uint32(size),
+            np.uint32(size),
+            np.int32(tracer.max_depth),
+            sets.positions,
+            sets.offsets_buffer,
+            sets.pixels_buffer,
+            sets.redraws_buffer,
+            tracer.camera_buffer(size, size),
+            quads,
+            quad_blocks,
+            block_count,
+            materials,
+            emitters,
+            radiance,
+            counters,
+        )
+        return event, radiance, counters, count
+
+    def read(self, radiance, counters, count):
+        out = np.empty((count, 3), np.float32)
+        cl.enqueue_copy(self.runtime.queue, out, radiance)
+        c = np.empty(len(COUNTERS), np.uint32)
+        cl.enqueue_copy(self.runtime.queue, c, counters)
+        return out, dict(zip(COUNTERS, c.astype(np.int64).tolist(), strict=True))
+
+
+def compare(reference: np.ndarray, other: np.ndarray) -> dict:
+    """Per-sample agreement of two radiance arrays (T, 3)."""
+    diff = np.abs(reference.astype(np.float64) - other.astype(np.float64))
+    scale = np.maximum(np.abs(reference), np.abs(other)).astype(np.float64)
+    rel = np.where(scale > 0, diff / np.where(scale > 0, scale, 1.0), 0.0)
+    worst = int(np.argmax(rel.max(axis=1)))
+    samples_equal = np.all(reference == other, axis=1)
+    ref_mean = reference.astype(np.float64).mean(axis=0)
+    other_mean = other.astype(np.float64).mean(axis=0)
+    stderr = reference.astype(np.float64).std(axis=0) / np.sqrt(len(reference))
+    return {
+        "samples": len(reference),
+        "samples_bit_equal": int(samples_equal.sum()),
+        "fraction_bit_equal": float(samples_equal.mean()),
+        "max_relative_difference": float(rel.max()),
+        "max_absolute_difference": float(diff.max()),
+        "worst_sample": worst,
+        "worst_values": [reference[worst].tolist(), other[worst].tolist()],
+        "samples_rel_diff_above_1e-6": int((rel.max(axis=1) > 1e-6).sum()),
+        "mean_megakernel": ref_mean.tolist(),
+        "mean_prototype": other_mean.tolist(),
+        "mean_difference_in_stderr": ((other_mean - ref_mean) / stderr).tolist(),
+    }
+
+
+def timed(launch):
+    """(wall s, cpu s) of one launch, run to completion."""
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    event = launch()
+    event.wait()
+    return time.perf_counter() - wall0, time.process_time() - cpu0
+
+
+def main(argv=None):
+    args = parse_args(argv)
+    runtime = create_runtime(args.device)
+    scene = load_scene(args.scene)
+    check_scene(scene)
+    tracer = PathTracer(runtime, scene, max_depth=args.max_depth)
+    pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
+    sets = generate_sample_sets(
+        runtime, make_sampler("independent", args.spp), args.seed, pixels, None, (args.size,) * 2
+    )
+    paths = sets.traced_total
+    protos = {
+        v: Prototype(runtime, tracer, v, args.local_size, args.chunk, args.define)
+        for v in args.variants
+    }
+
+    # Correctness (and warm-up: the first launch at a local size compiles a work-group function)
+    mega = tracer.trace(sets, args.seed, args.size, args.size)
+    reference = mega.to_host()
+    report_widths = {}
+    for w, proto in protos.items():
+        event, radiance, counters, count = proto.trace(sets, args.seed, args.size)
+        event.wait()
+        out, stats = proto.read(radiance, counters, count)
+        agreement = compare(reference, out)
+        lanes = {
+            "bounce_lane_utilisation": stats["bounce_lanes"]
+            / (proto.width * stats["bounce_steps"]),
+            "shadow_lane_utilisation": stats["shadow_lanes"]
+            / (proto.width * max(stats["shadow_steps"], 1)),
+            "rays_megakernel": mega.rays,
+            "rays_prototype": stats["rays"],
+            "nonfinite_megakernel": mega.nonfinite,
+            "nonfinite_prototype": stats["nonfinite"],
+        }
+        report_widths[w] = {"agreement": agreement, "counters": stats, "lanes": lanes}
+        print(
+            f"simd{w}: {agreement['fraction_bit_equal'] * 100:.4f} % of samples bit-equal, "
+            f"max rel diff {agreement['max_relative_difference']:.3g} "
+            f"({agreement['samples_rel_diff_above_1e-6']} samples above 1e-6), means "
+            f"{np.round(agreement['mean_megakernel'], 5)} vs "
+            f"{np.round(agreement['mean_prototype'], 5)}; rays {mega.rays} vs {stats['rays']}; "
+            f"lanes running per bounce {lanes['bounce_lane_utilisation'] * 100:.1f} %, per "
+            f"shadow step {lanes['shadow_lane_utilisation'] * 100:.1f} %",
+            flush=True,
+        )
+
+    # Timing: alternate, round after round
+    times = {"megakernel": []} | {f"simd{w}": [] for w in protos}
+    loads = []
+    for _ in range(args.rounds):
+        loads.append(os.getloadavg()[0])
+        times["megakernel"].append(
+            timed(lambda: tracer.trace(sets, args.seed, args.size, args.size).event)
+        )
+        for w, proto in protos.items():
+            times[f"simd{w}"].append(timed(lambda p=proto: p.trace(sets, args.seed, args.size)[0]))
+    summary = {}
+    for name, runs in times.items():
+        cpu = [c for _, c in runs]
+        wall = [t for t, _ in runs]
+        summary[name] = {
+            "median_cpu_s": statistics.median(cpu),
+            "median_wall_s": statistics.median(wall),
+            "paths_per_cpu_s": paths / statistics.median(cpu),
+            "paths_per_wall_s": paths / statistics.median(wall),
+            "cpu_over_wall": statistics.median(c / t for t, c in runs),
+            "cpu_s_all": cpu,
+            "wall_s_all": wall,
+        }
+    mega_cpu = [c for _, c in times["megakernel"]]
+    for w in protos:
+        name = f"simd{w}"
+        ratios = [m / c for m, (_, c) in zip(mega_cpu, times[name], strict=True)]
+        summary[name]["ratio_per_round"] = ratios
+        summary[name]["median_ratio_to_megakernel"] = statistics.median(ratios)
+    for name, row in summary.items():
+        extra = ""
+        if "median_ratio_to_megakernel" in row:
+            r = row["ratio_per_round"]
+            extra = (
+                f" | x{row['median_ratio_to_megakernel']:.2f} of the megakernel "
+                f"(rounds {min(r):.2f}-{max(r):.2f})"
+            )
+        print(
+            f"{name:11s} {row['paths_per_cpu_s'] / 1e6:6.3f} M paths/CPU-s "
+            f"{row['paths_per_wall_s'] / 1e6:6.3f} M paths/s wall, cpu/wall "
+            f"{row['cpu_over_wall']:.2f}{extra}",
+            flush=True,
+        )
+    report = {
+        "device": runtime.describe(),
+        "platform": runtime.device.platform.version,
+        "scene": args.scene,
+        "size": args.size,
+        "spp": args.spp,
+        "max_depth": args.max_depth,
+        "paths": paths,
+        "rounds": args.rounds,
+        "local_size": args.local_size,
+        "chunk": args.chunk,
+        "defines": args.define,
+        "loadavg_per_round": loads,
+        "variants": report_widths,
+        "timing": summary,
+    }
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(report, indent=1))
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()
