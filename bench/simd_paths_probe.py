@@ -2,7 +2,7 @@
 a vector lane) beat the megakernel (kernels/integrator.cl, one path a work-item)?
 
     PYOPENCL_CTX=0 python bench/simd_paths_probe.py                  # 64 spp, 7 rounds
-    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --widths 16 8 --rounds 9
+    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 8 --rounds 9
 
 On mitsuba-cbox (the only scene the prototype supports: quads, diffuse materials, one quad
 emitter) with the independent sampler, max depth 8, NEE, no Russian roulette: draws one set
