@@ -244,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--child", choices=FAMILIES, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
+        oclgrind_safe_fills()
         CHILDREN[args.child]()
         return 0
     if args.list:
@@ -270,6 +271,35 @@ def main(argv: list[str] | None = None) -> int:
 
 # ------------------------------------------------------------------------------ the children
 # Each runs in a child process on the Oclgrind device (PYOPENCL_CTX=Oclgrind).
+# NO_OVERLAP: renders run with overlap=False, every OpenCL call on the main thread. Oclgrind
+# 26.03 runs a queue's commands on the thread that waits for them, and its uninitialised-value
+# plugin keeps its shadow values' memory pool per thread, made only on the thread that created
+# the context and on its own kernel threads: a host write, fill or copy executed on another
+# thread (the render's estimator thread, which fills the Voronoi status buffer) dereferences a
+# null pool (Uninitialized::hostMemoryStore -> ShadowContext::getCleanValue -> MemoryPool::alloc,
+# a segmentation fault).
+
+
+def oclgrind_safe_fills() -> None:
+    """Host fills as writes of the same bytes. Oclgrind 26.03's uninitialised-value plugin
+    (Uninitialized::hostMemoryStore) replaces a buffer's shadow by one as long as each host
+    store: clEnqueueFillBuffer stores its pattern one copy at a time, which leaves a shadow of
+    one pattern, so every later read past the buffer's first pattern counts as uninitialised,
+    even of bytes a kernel wrote since (its shadow stores past that length are dropped). One
+    write from the buffer's start leaves a shadow as long as the written range."""
+    import numpy as np
+    import pyopencl as cl
+
+    fill = cl.enqueue_fill_buffer
+
+    def write_instead(queue, mem, pattern, offset, size, wait_for=None):
+        pattern = np.asarray(pattern)
+        if offset != 0 or size % pattern.nbytes:
+            return fill(queue, mem, pattern, offset, size, wait_for)
+        data = np.resize(pattern.reshape(-1), size // pattern.itemsize)
+        return cl.enqueue_copy(queue, mem, data, is_blocking=True, wait_for=wait_for)
+
+    cl.enqueue_fill_buffer = write_instead
 
 
 def tiny_launches() -> None:
@@ -296,8 +326,9 @@ def child_integrator() -> None:
     from clrender.trace import PathTracer
 
     runtime = default_runtime()
-    # an ordinary render first, with the render's own launch sizes and warm-up launches
-    render("cornell-box", spp=SPP, sampler="independent", resolution=(SIZE, SIZE))
+    # an ordinary render first, with the render's own launch sizes and warm-up launches (on
+    # one thread: see NO_OVERLAP)
+    render("cornell-box", spp=SPP, sampler="independent", resolution=(SIZE, SIZE), overlap=False)
     tiny_launches()
     for scene_name in SCENES:
         tracer = PathTracer(runtime, load_scene(scene_name))
@@ -349,6 +380,7 @@ def child_voronoi() -> None:
             estimators=names,
             resolution=(SIZE, SIZE),
             voronoi_backend="device",
+            overlap=False,  # every command on this thread: see NO_OVERLAP
         )
         print(f"voronoi: {precision} {names}", file=sys.stderr, flush=True)
 
