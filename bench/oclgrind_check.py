@@ -19,7 +19,9 @@ Families (each in its own child process, with its own Oclgrind log):
   wavefront    the wavefront stages (kernels/wavefront.cl) on every shipped scene
   sampling     count_samples and the fill kernels (kernels/sampling.cl) for every sampler
   voronoi      the device Voronoi cells and sums (kernels/voronoi_cells.cl, voronoi_sums.cl):
-               one render with every estimator, in double and in single precision
+               one render with every estimator, then the cells of edge cases (ties, k-gons,
+               near-hull and degenerate pixels, vertex overflow, torus and mirror copies), in
+               double and in single precision
   test-kernels the tests' kernels (kernels/*_test.cl) through the tests' own launch code
   selfcheck    kernels/selfcheck.cl (the Philox known answers)
 
@@ -29,7 +31,11 @@ in the usual places (Debian's oclgrind package: /usr/lib/oclgrind/), for which i
 ICD folder (a one-line .icd file) and runs the children with OCL_ICD_VENDORS set to it. Needs
 Oclgrind 26.03 or later: Debian 12's oclgrind 21.10 stops at LLVM intrinsics its interpreter
 lacks (llvm.experimental.noalias.scope.decl, which clang 14 emits on inlining) before any kernel
-runs (README: "Oclgrind check" says how to build it). The kernels are built without
+runs (README: "Oclgrind check" says how to build it), built with bench/oclgrind-26.03.patch:
+26.03.1's uninitialised-value plugin calls every byte of a buffer past its last host store's
+length uninitialised (a fill left all but its first pattern so, even once a kernel wrote them)
+and crashes on a host store executed on a second thread. A probe (a child, first) checks both
+and refuses an Oclgrind that has them (exit status 2). The kernels are built without
 optimisation (OCLGRIND_BUILD_OPTIONS=-cl-opt-disable): LLVM's optimiser turns bit tricks into
 intrinsics Oclgrind cannot run either (llvm.bitreverse, llvm.ctpop), and unoptimised code keeps
 every access the source makes.
@@ -39,7 +45,8 @@ kernel (and per API function), with the first lines of each distinct error. One 
 not counted: clGetDeviceInfo with CL_INVALID_VALUE at each kernel's creation is pyopencl asking
 for NVIDIA's CL_DEVICE_COMPUTE_CAPABILITY_MAJOR_NV (0x4000; it expects the refusal), listed as
 "ignored". Exit status 0 when no family reported an error and every one ran to its end, 1
-otherwise, 2 when Oclgrind is not installed (one line on stderr) or for bad arguments.
+otherwise, 2 when Oclgrind is not installed or fails the probe (one line on stderr) or for bad
+arguments.
 """
 
 from __future__ import annotations
@@ -78,6 +85,7 @@ CHECKS = {
 }
 # pyopencl's query of CL_DEVICE_COMPUTE_CAPABILITY_MAJOR_NV at each kernel's creation
 IGNORED_API = ("clGetDeviceInfo", "CL_INVALID_VALUE")
+PATCH = "bench/oclgrind-26.03.patch"
 
 
 def fail(message: str) -> None:
@@ -241,10 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="folder for the Oclgrind logs (default: temp)")
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds per family")
     parser.add_argument("--list", action="store_true", help="print the families and exit")
-    parser.add_argument("--child", choices=FAMILIES, help=argparse.SUPPRESS)
+    parser.add_argument("--child", choices=(*FAMILIES, "probe"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
-        oclgrind_safe_fills()
         CHILDREN[args.child]()
         return 0
     if args.list:
@@ -253,6 +260,13 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or Path(tempfile.mkdtemp(prefix="oclgrind_check_"))
     out.mkdir(parents=True, exist_ok=True)
     env = oclgrind_environment(args.oclgrind_lib, out / "icd")
+    probe = run_family("probe", env, out, 600.0)
+    if probe["errors"] or probe["exit_status"] != 0:
+        fail(
+            f"this Oclgrind's uninitialised-value check is unreliable (a filled buffer read as "
+            f"uninitialised, or a crash on a host store from a second thread; {probe['log']}): "
+            f"build it with {PATCH} (README: Oclgrind check)"
+        )
     families = []
     for family in args.families:
         result = run_family(family, env, out, args.timeout)
@@ -271,35 +285,6 @@ def main(argv: list[str] | None = None) -> int:
 
 # ------------------------------------------------------------------------------ the children
 # Each runs in a child process on the Oclgrind device (PYOPENCL_CTX=Oclgrind).
-# NO_OVERLAP: renders run with overlap=False, every OpenCL call on the main thread. Oclgrind
-# 26.03 runs a queue's commands on the thread that waits for them, and its uninitialised-value
-# plugin keeps its shadow values' memory pool per thread, made only on the thread that created
-# the context and on its own kernel threads: a host write, fill or copy executed on another
-# thread (the render's estimator thread, which fills the Voronoi status buffer) dereferences a
-# null pool (Uninitialized::hostMemoryStore -> ShadowContext::getCleanValue -> MemoryPool::alloc,
-# a segmentation fault).
-
-
-def oclgrind_safe_fills() -> None:
-    """Host fills as writes of the same bytes. Oclgrind 26.03's uninitialised-value plugin
-    (Uninitialized::hostMemoryStore) replaces a buffer's shadow by one as long as each host
-    store: clEnqueueFillBuffer stores its pattern one copy at a time, which leaves a shadow of
-    one pattern, so every later read past the buffer's first pattern counts as uninitialised,
-    even of bytes a kernel wrote since (its shadow stores past that length are dropped). One
-    write from the buffer's start leaves a shadow as long as the written range."""
-    import numpy as np
-    import pyopencl as cl
-
-    fill = cl.enqueue_fill_buffer
-
-    def write_instead(queue, mem, pattern, offset, size, wait_for=None):
-        pattern = np.asarray(pattern)
-        if offset != 0 or size % pattern.nbytes:
-            return fill(queue, mem, pattern, offset, size, wait_for)
-        data = np.resize(pattern.reshape(-1), size // pattern.itemsize)
-        return cl.enqueue_copy(queue, mem, data, is_blocking=True, wait_for=wait_for)
-
-    cl.enqueue_fill_buffer = write_instead
 
 
 def tiny_launches() -> None:
@@ -318,6 +303,61 @@ def sample_sets(runtime, sampler: str, size: int = SIZE, spp: int = SPP, seed: i
     return generate_sample_sets(runtime, config, seed, pixels, None, (size, size))
 
 
+PROBE_SOURCE = """
+__kernel void write_all(__global uchar *bytes, __global uchar *scratch)
+{
+    bytes[get_global_id(0)] = 9;
+    scratch[get_global_id(0)] = 1;
+}
+__kernel void branch_on(__global const uchar *bytes, __global uint *out)
+{
+    uint i = get_global_id(0);
+    out[i] = 0;
+    if (bytes[i] & 1)
+        out[i] = 1;
+}
+"""
+
+
+def child_probe() -> None:
+    """Oclgrind's own faults, which the PATCH fixes (its uninitialised-value plugin, 26.03.1):
+    a host store (write, fill, copy) replaced the buffer's shadow by one as long as the store,
+    so after a fill of byte patterns every byte but the first read as uninitialised, even once
+    a kernel wrote it; and a host store executed on a thread other than the context's (the
+    thread that waits for the queue: the render's estimator thread), and a kernel launched
+    there, crashed on a null per-thread memory pool. Here: a fill and a kernel that writes
+    every byte from a second thread, then one that branches on every byte. Unpatched: a crash,
+    or 7 errors."""
+    import threading
+
+    import numpy as np
+    import pyopencl as cl
+
+    from clrender.runtime import default_runtime
+
+    runtime = default_runtime()
+    count = 8
+    data = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, count)
+    out = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, 4 * count)
+    scratch = cl.Buffer(runtime.context, cl.mem_flags.READ_WRITE, count)
+    program = cl.Program(runtime.context, PROBE_SOURCE).build()
+
+    def fill_and_write() -> None:
+        cl.enqueue_fill_buffer(runtime.queue, data, np.uint8(4), 0, count)
+        # scratch: a buffer the host never wrote (its shadow is made at the launch)
+        program.write_all(runtime.queue, (count,), None, data, scratch)
+        runtime.queue.finish()
+
+    thread = threading.Thread(target=fill_and_write)
+    thread.start()
+    thread.join()
+    program.branch_on(runtime.queue, (count,), None, data, out)
+    result = np.empty(count, np.uint32)
+    cl.enqueue_copy(runtime.queue, result, out)
+    if not (result == 1).all():
+        raise SystemExit(f"probe: read {result.tolist()}, expected every byte odd")
+
+
 def child_integrator() -> None:
     from clrender.api import render
     from clrender.runtime import default_runtime
@@ -326,9 +366,8 @@ def child_integrator() -> None:
     from clrender.trace import PathTracer
 
     runtime = default_runtime()
-    # an ordinary render first, with the render's own launch sizes and warm-up launches (on
-    # one thread: see NO_OVERLAP)
-    render("cornell-box", spp=SPP, sampler="independent", resolution=(SIZE, SIZE), overlap=False)
+    # an ordinary render first, with the render's own launch sizes and warm-up launches
+    render("cornell-box", spp=SPP, sampler="independent", resolution=(SIZE, SIZE))
     tiny_launches()
     for scene_name in SCENES:
         tracer = PathTracer(runtime, load_scene(scene_name))
@@ -380,9 +419,62 @@ def child_voronoi() -> None:
             estimators=names,
             resolution=(SIZE, SIZE),
             voronoi_backend="device",
-            overlap=False,  # every command on this thread: see NO_OVERLAP
         )
         print(f"voronoi: {precision} {names}", file=sys.stderr, flush=True)
+        voronoi_cell_cases()
+        print(f"voronoi: {precision} cell cases", file=sys.stderr, flush=True)
+
+
+def voronoi_cell_cases() -> None:
+    """The cell kernels on the cases a render rarely reaches (tests/test_device_cells.py's):
+    lattice ties (the one-way walk), regular k-gons (more than 8 edges), near-hull cells (the
+    clipping search), degenerate pixels, vertex overflow (host fallback), torus and mirror
+    copies."""
+    import numpy as np
+    import test_device_cells as cases
+
+    from clrender.estimators import device_cells
+    from clrender.runtime import default_runtime
+
+    runtime = default_runtime()
+
+    def cells(traced, offsets, aux, aux_offsets, box):
+        rounded = cases.rounded
+        device_cells.device_sppp_cells_from_arrays(
+            runtime, rounded(traced), offsets, rounded(aux), aux_offsets, box
+        )
+
+    for n, pixels, eps in ((4, 8, None), (64, 2, None), (16, 4, 0.003)):
+        batch, box = cases.sppp_batch(n, pixels, seed=n, eps=eps)
+        cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
+    cells(*cases.degenerate_pixels(), 0.55)
+    side = 8
+    centres = (np.arange(side) + 0.5) / side - 0.5
+    lattice = np.array([(x, y) for y in centres for x in centres])
+    ring = (np.arange(-1, side + 1) + 0.5) / side - 0.5
+    frame = np.array([(x, y) for y in ring for x in ring if max(abs(x), abs(y)) > 0.5])
+    offsets = cases.offsets_of
+    cells(lattice, offsets([len(lattice)]), frame, offsets([len(frame)]), 0.5 + 1 / side)
+    gons = [2 * np.pi * np.arange(k) / k + 0.1 for k in (3, 8, 9, 12)]
+    rings = [0.2 * np.column_stack([np.cos(a), np.sin(a)]) for a in gons]
+    cells(
+        np.zeros((len(rings), 2)),
+        offsets([1] * len(rings)),
+        np.concatenate(rings),
+        offsets([len(r) for r in rings]),
+        None,
+    )
+    batch, _ = cases.sppp_batch(16, 3, seed=4)
+    inside = np.clip(batch.traced, -0.49, 0.49)
+    device_cells.device_periodic_cells_from_arrays(runtime, inside, batch.offsets)
+    device_cells.device_clipped_cells_from_arrays(runtime, inside, batch.offsets)
+    limit = device_cells.MAX_VERTICES
+    device_cells.MAX_VERTICES = 5  # overflow: the host recomputes those pixels
+    try:
+        batch, box = cases.sppp_batch(16, 4, seed=5)
+        cells(batch.traced, batch.offsets, batch.aux, batch.aux_offsets, box)
+    finally:
+        device_cells.MAX_VERTICES = limit
 
 
 def child_test_kernels() -> None:
@@ -491,6 +583,7 @@ def child_selfcheck() -> None:
 
 
 CHILDREN = {
+    "probe": child_probe,
     "integrator": child_integrator,
     "wavefront": child_wavefront,
     "sampling": child_sampling,
