@@ -254,8 +254,11 @@ def default_runtime() -> Runtime:
 
 
 # Defines per OpenCL implementation (platform name): code shapes measured faster there and
-# known to compile correctly (kernels/geometry.h BVH_FUNCTION)
-PLATFORM_DEFINES = {"Portable Computing Language": ("CLRENDER_BVH_CALLED",)}
+# known to compile correctly (kernels/geometry.h BVH_FUNCTION; kernels/vecmath.h Sqrt, Floor,
+# Ctz and others: the clang builtins, which other OpenCL C compilers need not have)
+PLATFORM_DEFINES = {
+    "Portable Computing Language": ("CLRENDER_BVH_CALLED", "CLRENDER_CLANG_BUILTINS"),
+}
 
 
 def define_key(defines: dict[str, object] | None) -> tuple[tuple[str, object], ...]:

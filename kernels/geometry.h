@@ -118,7 +118,7 @@ CL_INLINE float QuadBlock_Intersect(__global const QuadBlock *block, float3 o, f
     int8 hit = QuadBlock_Hits(block, o, d, tmax, &t);
     float8 t_hit = hit ? t : (float8)(INFINITY);
     float t_min = Lanes_Min(t_hit);
-    *lane = __builtin_ctz(Lanes_Bits(t_hit == t_min) | (1u << QUAD_BLOCK_WIDTH));
+    *lane = Ctz(Lanes_Bits(t_hit == t_min) | (1u << QUAD_BLOCK_WIDTH));
     return t_min < tmax ? t_min : tmax;
 }
 
@@ -311,7 +311,7 @@ CL_INLINE float TriangleBlock_Intersect(__global const TriangleBlock *block, con
     float t_min = Lanes_Min(t_hit);
     if (!(t_min < tmax))
         return tmax;
-    *id = hit_base + (int)__builtin_ctz(Lanes_Bits(t_hit == t_min));
+    *id = hit_base + (int)Ctz(Lanes_Bits(t_hit == t_min));
     return t_min;
 }
 
@@ -431,12 +431,12 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 
         }
         float8 leaf_enter = (reached & (count > 0)) ? enter.v : (float8)(INFINITY);
         while (leaves != 0u) {
-            int j = __builtin_ctz(leaves);
+            int j = Ctz(leaves);
             if (!any_hit && (leaves & (leaves - 1u)) != 0u) {
                 float leaf_nearest = Lanes_Min(leaf_enter);
                 if (!(leaf_nearest <= t))
                     break;
-                j = __builtin_ctz(Lanes_Bits(leaf_enter == leaf_nearest));
+                j = Ctz(Lanes_Bits(leaf_enter == leaf_nearest));
             } else if (!(enter.s[j] <= t)) {
                 break;
             }
@@ -456,15 +456,15 @@ CL_INLINE float BVH_Traverse(const SceneData *scene, float3 o, float3 d, float3 
         int8 inner = reached & (count == 0) & (enter.v <= t);
         uint others = Lanes_Bits(inner);
         if (others != 0u) {
-            int j_near = __builtin_ctz(others);
+            int j_near = Ctz(others);
             if (!any_hit && (others & (others - 1u)) != 0u) {
                 float8 inner_enter = inner ? enter.v : (float8)(INFINITY);
-                j_near = __builtin_ctz(Lanes_Bits(inner_enter == Lanes_Min(inner_enter)));
+                j_near = Ctz(Lanes_Bits(inner_enter == Lanes_Min(inner_enter)));
             }
             others &= ~(1u << j_near);
             int first = top;
             while (others != 0u) {
-                int j = __builtin_ctz(others);
+                int j = Ctz(others);
                 others &= others - 1u;
                 // Closest hit: kept farthest first, so the nearest is taken next (insertion
                 // sort); any hit: in lane order

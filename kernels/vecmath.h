@@ -33,6 +33,13 @@ CL_INLINE float3 Load3(__global const float *p)
     return (float3)(p[0], p[1], p[2]);
 }
 
+// sqrt, fabs, copysign, floor, rint and the count of trailing zero bits. On PoCL
+// (CLRENDER_CLANG_BUILTINS, set by clrender/runtime.py build_options) the clang builtins, which
+// become LLVM instructions that need no call; elsewhere the OpenCL C builtins: every OpenCL C
+// compiler has those, not every one the clang builtins (Oclgrind has no code for the LLVM
+// intrinsics they become: bench/oclgrind_check.py). The same bits either way, but sqrt where a
+// device's OpenCL sqrt is not correctly rounded (OpenCL allows 3 ulp).
+#ifdef CLRENDER_CLANG_BUILTINS
 CL_INLINE float Sqrt(float x)
 {
     return __builtin_sqrtf(x);
@@ -47,6 +54,54 @@ CL_INLINE float Copysign(float x, float y)
 {
     return __builtin_copysignf(x, y);
 }
+
+CL_INLINE float Floor(float x)
+{
+    return __builtin_floorf(x);
+}
+
+CL_INLINE float Rint(float x)
+{
+    return __builtin_rintf(x);
+}
+
+// Index of the lowest set bit of x != 0.
+CL_INLINE int Ctz(uint x)
+{
+    return __builtin_ctz(x);
+}
+#else
+CL_INLINE float Sqrt(float x)
+{
+    return sqrt(x);
+}
+
+CL_INLINE float Fabs(float x)
+{
+    return fabs(x);
+}
+
+CL_INLINE float Copysign(float x, float y)
+{
+    return copysign(x, y);
+}
+
+CL_INLINE float Floor(float x)
+{
+    return floor(x);
+}
+
+CL_INLINE float Rint(float x)
+{
+    return rint(x);
+}
+
+// Index of the lowest set bit of x != 0 (OpenCL C 1.2 has clz, not ctz).
+CL_INLINE int Ctz(uint x)
+{
+    return 31 - (int)clz(x & (0u - x));
+}
+#endif
 
 // fmax/fmin as PoCL defines them: a NaN y gives x.
 CL_INLINE float Fmax(float x, float y)
@@ -127,7 +182,7 @@ CL_INLINE float Lanes_Min(float8 v)
 CL_INLINE float SinCos2Pi(float u, float *cos_out)
 {
     float v = 4.0f * u;
-    float k = __builtin_rintf(v);
+    float k = Rint(v);
     int quadrant = (int)k & 3;
     float x = (v - k) * M_PI_2_F;
     float z = x * x;

@@ -122,7 +122,7 @@ __kernel void voronoi_mirror_copies(uint traced_total, __global const float2 *po
 // keeps the ring search's distance bound valid (they lie beyond those cells).
 CL_INLINE int VoronoiGrid_Index(float x, float half_extent, float inv_cell, int grid_side)
 {
-    int c = (int)__builtin_floorf((x + half_extent) * inv_cell);
+    int c = (int)Floor((x + half_extent) * inv_cell);
     return VORONOI_MIN(VORONOI_MAX(c, 0), grid_side - 1);
 }
 

@@ -32,7 +32,7 @@ typedef float2 real2;
 
 // pip's PoCL cannot inline its builtins into these kernels (its builtin library targets another
 // CPU, see kernels/vecmath.h): min, max and abs (of ints, floats or doubles) are these macros,
-// floor and sqrt the compiler builtins (__builtin_floorf, vecmath.h's Sqrt), and the helpers
+// floor and sqrt vecmath.h's Floor and Sqrt (the compiler builtins on PoCL), and the helpers
 // are forced inline (CL_INLINE).
 #define VORONOI_MIN(a, b) ((a) < (b) ? (a) : (b))
 #define VORONOI_MAX(a, b) ((a) > (b) ? (a) : (b))
@@ -162,7 +162,7 @@ __attribute__((noinline)) bool VoronoiPolygon_Clip(VoronoiPolygon *poly, real2 v
     uint starts = out_mask & ~prev_out, ends = out_mask & ~next_out;
     if (out_mask == full || (starts & (starts - 1u)) != 0u)
         return VoronoiPolygon_ClipGeneral(poly, v, neighbour);
-    int s = __builtin_ctz(starts), e = __builtin_ctz(ends);
+    int s = Ctz(starts), e = Ctz(ends);
     int a = s == 0 ? m - 1 : s - 1, b = e + 1 == m ? 0 : e + 1;
     int outside = e >= s ? e - s + 1 : e + m - s + 1;
     int inside = m - outside;

@@ -256,3 +256,60 @@ def test_platform_defines_choose_the_bvh_call_on_pocl_only(runtime):
     platform = runtime.device.platform.name.strip()
     expected = platform == "Portable Computing Language"
     assert ("-DCLRENDER_BVH_CALLED" in build_options((), platform)) == expected
+
+
+def test_portable_math_gives_the_clang_builtins_bits(runtime, tmp_path, monkeypatch):
+    """kernels/vecmath.h's Sqrt, Fabs, Copysign, Floor, Rint and Ctz: the clang builtins on PoCL
+    (CLRENDER_CLANG_BUILTINS), the OpenCL C builtins elsewhere (Oclgrind has no code for the
+    LLVM intrinsics the clang builtins become: bench/oclgrind_check.py). Both forms, built
+    here, give the same bits."""
+    import shutil
+
+    shutil.copy(rt.kernels_dir() / "vecmath.h", tmp_path / "vecmath.h")
+    (tmp_path / "portable_math.cl").write_text(
+        "#ifdef PORTABLE\n#undef CLRENDER_CLANG_BUILTINS\n#endif\n"
+        '#include "vecmath.h"\n'
+        "__kernel void portable_math(__global const float *x, __global float *out)\n"
+        "{\n"
+        "    uint i = get_global_id(0);\n"
+        "    float v = x[i];\n"
+        "    out[6 * i] = Sqrt(Fabs(v));\n"
+        "    out[6 * i + 1] = Fabs(v);\n"
+        "    out[6 * i + 2] = Copysign(1.5f, v);\n"
+        "    out[6 * i + 3] = Floor(v);\n"
+        "    out[6 * i + 4] = Rint(v);\n"
+        "    out[6 * i + 5] = (float)Ctz(as_uint(v) | 0x80000000u);\n"
+        "}\n"
+    )
+    monkeypatch.setattr(rt, "kernels_dir", lambda: tmp_path)
+    gen = np.random.default_rng(4)
+    x = np.concatenate(
+        [
+            [0.0, -0.0, 0.5, 1.5, 2.5, -2.5, -0.5, 1e-40, -1e-40, 3.0e38, np.inf, -np.inf],
+            gen.uniform(-100.0, 100.0, 52),
+        ]
+    ).astype(np.float32)
+    x_buf = runtime.upload(x)
+    results = []
+    for defines in ({}, {"PORTABLE": True}):
+        out = np.empty(6 * len(x), np.float32)
+        out_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, size=out.nbytes)
+        kernel = runtime.kernel("portable_math.cl", "portable_math", defines)
+        kernel(runtime.queue, (len(x),), None, x_buf, out_buf)
+        cl.enqueue_copy(runtime.queue, out, out_buf)
+        results.append(out.reshape(-1, 6))
+    np.testing.assert_array_equal(results[0].view(np.uint32), results[1].view(np.uint32))
+    # and the values are the functions' (Ctz: the lowest set bit of the float's bits)
+    np.testing.assert_array_equal(results[1][:, 3], np.floor(x))
+    np.testing.assert_array_equal(results[1][:, 4], np.rint(x))
+    bits = x.view(np.uint32) | np.uint32(0x80000000)
+    lowest = np.array([(int(b) & -int(b)).bit_length() - 1 for b in bits], np.float32)
+    np.testing.assert_array_equal(results[1][:, 5], lowest)
+
+
+def test_platform_defines_give_the_clang_builtins_to_pocl_only():
+    from clrender.runtime import build_options
+
+    assert "-DCLRENDER_CLANG_BUILTINS" in build_options((), "Portable Computing Language")
+    assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Oclgrind")
+    assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Intel(R) OpenCL")
