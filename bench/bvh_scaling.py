@@ -3,6 +3,13 @@ Cornell boxes and the quad scenes of primitive_scaling.py traced with and withou
 
     python bench/bvh_scaling.py [--triangles 20 1000 10000 100000 1000000] [--size 64]
                                 [--spp 16] [--repeats 3] [--skip-render]
+    python bench/bvh_scaling.py --paired-rounds 20 --triangles 100000 --size 128 --skip-render
+
+--paired-rounds N traces, round after round, mitsuba-cbox and cornell-box (brute force) and the
+sphere mesh of each --triangles count in the same process, and reports the median and range
+over rounds of each mesh's rate against each box's in the same round (issue 15's target: 100 000
+triangles at no less than half the rays/s of the 18-quad mitsuba-cbox, the base of
+primitive_scaling.py): a ratio from one stretch of machine load, not two.
 
 Triangles: a sphere of radius 0.5 tessellated in latitude/longitude (two triangles per cell,
 none at the poles' degenerate corners) at the centre of Mitsuba's Cornell box, traced at depth 8
@@ -33,6 +40,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import machine
 from primitive_scaling import scene_with_extra_quads
 
 from clrender.bvh import build_bvh, collapse_bvh, sah_cost, wide_sah_cost
@@ -177,6 +185,42 @@ def compare(runtime, scene, sets, size, repeats, label):
     return row
 
 
+def paired_ratios(runtime, sets, size, rounds, triangle_counts):
+    """Rays/s of each sphere mesh against mitsuba-cbox's and cornell-box's, traced in turn round
+    after round: per mesh and box, the median, lowest and highest ratio within a round."""
+    scenes = {name: load_scene(name) for name in ("mitsuba-cbox", "cornell-box")}
+    meshes = {count: scene_with_sphere_mesh(count) for count in triangle_counts}
+    tracers = {name: PathTracer(runtime, scene, max_depth=8) for name, scene in scenes.items()}
+    for count, mesh in meshes.items():
+        tracers[count] = PathTracer(runtime, mesh, max_depth=8)
+    rates = {key: [] for key in tracers}
+    for tracer in tracers.values():  # warm: kernels built, buffers touched
+        rays_per_second(runtime, tracer, sets, size, 1)
+    for _ in range(rounds):
+        for key, tracer in tracers.items():
+            rates[key].append(rays_per_second(runtime, tracer, sets, size, 1)["rays_per_s"])
+    rows = []
+    for count, mesh in meshes.items():
+        row = {"triangles": len(mesh.triangles), "rounds": rounds}
+        row["rays_per_s"] = statistics.median(rates[count])
+        for name in scenes:
+            ratios = sorted(a / b for a, b in zip(rates[count], rates[name], strict=True))
+            row[f"{name}_rays_per_s"] = statistics.median(rates[name])
+            row[f"against_{name}"] = statistics.median(ratios)
+            row[f"against_{name}_range"] = [ratios[0], ratios[-1]]
+        rows.append(row)
+        print(
+            f"{row['triangles']:8d} triangles against mitsuba-cbox: median "
+            f"{row['against_mitsuba-cbox']:.3f}x (range {row['against_mitsuba-cbox_range'][0]:.3f}-"
+            f"{row['against_mitsuba-cbox_range'][1]:.3f}, "
+            f"{rounds} rounds) -- against cornell-box: median {row['against_cornell-box']:.3f}x "
+            f"(range {row['against_cornell-box_range'][0]:.3f}-"
+            f"{row['against_cornell-box_range'][1]:.3f})",
+            flush=True,
+        )
+    return rows
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument(
@@ -193,7 +237,15 @@ def main(argv=None):
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--spp", type=int, default=16)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--skip-render", action="store_true", help="build times only")
+    parser.add_argument(
+        "--skip-render", action="store_true", help="no traces but those of --paired-rounds"
+    )
+    parser.add_argument(
+        "--paired-rounds",
+        type=int,
+        default=0,
+        help="rounds of the meshes traced in turn with the Cornell boxes (rate ratios per round)",
+    )
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
     args = parser.parse_args(argv)
     runtime = create_runtime()
@@ -204,7 +256,9 @@ def main(argv=None):
         "brute_force_limit": BRUTE_FORCE_LIMIT,
         "size": args.size,
         "spp": args.spp,
+        "machine_before": machine(),
         "triangles": [],
+        "paired": [],
         "meshes": [],
         "cornell": [],
         "quads": [],
@@ -241,6 +295,9 @@ def main(argv=None):
                 out["quads"].append(
                     compare(runtime, scene, sets, args.size, args.repeats, f"{count} quads")
                 )
+    if args.paired_rounds > 0:
+        out["paired"] = paired_ratios(runtime, sets, args.size, args.paired_rounds, args.triangles)
+    out["machine_after"] = machine()
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(out, indent=1))
     print(json.dumps(out))

@@ -145,13 +145,18 @@ def overhead_case(executor: DaskExecutor, repeats: int, size: int, spp: int) -> 
 
 def placement_case(repeats: int, size: int, spp: int) -> dict:
     """The render on a fresh 2-worker cluster per run, placed by the scheduler or spread, in
-    alternated rounds: median wall seconds of the first render and of the second, and each
-    run's tasks per worker (largest first)."""
+    alternated rounds (the order reversed every other round): median wall seconds of the first
+    render and of the second, the median over rounds of spread / scheduler for each, each run's
+    tasks per worker (largest first), and whether every image equals the local render's."""
+    runtime = runtime_for(None)
     scene = load_scene("mitsuba-cbox")
     settings = RenderSettings(size, size, make_sampler("independent", spp), ["mc"], 1)
+    local = render(runtime, radiance_source(runtime, scene, (size, size), 8), settings).image
     runs: dict = {"scheduler": [], "spread": []}
-    for _ in range(repeats):
-        for name, row in runs.items():
+    identical = True
+    for round_index in range(repeats):
+        names = list(runs) if round_index % 2 == 0 else list(reversed(runs))
+        for name in names:
             job = RenderJob.of(scene, settings, 8)
             with DaskExecutor(workers=2) as executor:
                 executor.spread_shared = name == "spread"
@@ -161,7 +166,8 @@ def placement_case(repeats: int, size: int, spp: int) -> dict:
                     result = render_on(executor, job)
                     walls.append(time.perf_counter() - start)
                     placements.append(sorted(result.tasks_by_worker.values(), reverse=True))
-            row.append({"wall_s": walls, "tasks_by_worker": placements})
+                    identical = identical and bool(np.array_equal(result.image, local))
+            runs[name].append({"wall_s": walls, "tasks_by_worker": placements})
     summary = {}
     for name, row in runs.items():
         summary[name] = {
@@ -169,7 +175,14 @@ def placement_case(repeats: int, size: int, spp: int) -> dict:
             "second_render_s": statistics.median(run["wall_s"][1] for run in row),
             "runs": row,
         }
-    return {"size": size, "spp": spp, "tasks": 8, "rows": summary}
+    for k, key in enumerate(
+        ("first_render_spread_over_scheduler", "second_render_spread_over_scheduler")
+    ):
+        summary[key] = statistics.median(
+            spread["wall_s"][k] / scheduler["wall_s"][k]
+            for spread, scheduler in zip(runs["spread"], runs["scheduler"], strict=True)
+        )
+    return {"size": size, "spp": spp, "tasks": 8, "identical": identical, "rows": summary}
 
 
 def main(argv=None) -> None:

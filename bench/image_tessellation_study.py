@@ -51,6 +51,7 @@ from common import (  # noqa: E402
     add_executor_options,
     executor_from_args,
     executor_label,
+    machine,
     positive_int,
 )
 
@@ -290,6 +291,7 @@ def main(argv: list[str] | None = None) -> None:
     size = args.size or (8 if args.quick else 16)
     runs = args.runs or (4 if args.quick else 24)
     start = time.perf_counter()
+    before = machine()
     with executor_from_args(args) as executor:
         by_n = study_ns(size, runs, args.seed, executor, args.runs_per_task)
     results = {
@@ -300,6 +302,8 @@ def main(argv: list[str] | None = None) -> None:
         "runs_per_task": args.runs_per_task,
         "executor": executor_label(args),
         "by_n": by_n,
+        "machine_before": before,
+        "machine_after": machine(),
     }
     print(f"{len(NS)} n x {runs} runs: {time.perf_counter() - start:.1f} s", flush=True)
     args.out.mkdir(parents=True, exist_ok=True)

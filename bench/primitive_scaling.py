@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import machine
 
 from clrender.runtime import create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
@@ -54,6 +55,7 @@ def main(argv=None):
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
     args = parser.parse_args(argv)
     runtime = create_runtime()
+    before = machine()
     units = runtime.device.max_compute_units
     pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
     sets = generate_sample_sets(runtime, make_sampler("independent", args.spp), 1, pixels)
@@ -87,7 +89,17 @@ def main(argv=None):
                 flush=True,
             )
     args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps({"device": runtime.describe(), "results": rows}, indent=1))
+    args.output.write_text(
+        json.dumps(
+            {
+                "device": runtime.describe(),
+                "machine_before": before,
+                "machine_after": machine(),
+                "results": rows,
+            },
+            indent=1,
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ import statistics
 import time
 from pathlib import Path
 
+from common import machine
+
 from clrender.runtime import create_runtime
 from clrender.sampling import SAMPLERS, generate_sample_sets, make_sampler, rectangle_pixels
 
@@ -85,6 +87,7 @@ def format_row(row: dict) -> str:
 def main() -> None:
     args = parse_args()
     runtime = create_runtime(args.device)
+    before = machine()
     results = []
     for sampler in args.samplers:
         draw_image(runtime, make_sampler(sampler, 16), 16, 16, seed=0)  # warm-up (16: any sampler)
@@ -92,7 +95,13 @@ def main() -> None:
             row = measure(runtime, sampler, n, args)
             results.append(row)
             print(format_row(row))
-    report = {"device": runtime.describe(), "repeats": args.repeats, "results": results}
+    report = {
+        "device": runtime.describe(),
+        "machine_before": before,
+        "machine_after": machine(),
+        "repeats": args.repeats,
+        "results": results,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=2))
     print(json.dumps(report))

@@ -1,8 +1,8 @@
-"""Research probe: would tracing SIMD_WIDTH paths per work-item (kernels/simd_paths.cl, one path
+"""Research probe: would tracing SIMD_WIDTH paths per work-item (kernels/simd_paths_probe.cl, one path
 a vector lane) beat the megakernel (kernels/integrator.cl, one path a work-item)?
 
     PYOPENCL_CTX=0 python bench/simd_paths_probe.py                  # 64 spp, 7 rounds
-    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --widths 16 8 --rounds 9
+    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 8 --rounds 9
 
 On mitsuba-cbox (the only scene the prototype supports: quads, diffuse materials, one quad
 emitter) with the independent sampler, max depth 8, NEE, no Russian roulette: draws one set
@@ -80,7 +80,7 @@ def check_scene(scene) -> None:
 
 
 class Prototype:
-    """kernels/simd_paths.cl at one width (variant "16", or "16r" with path regeneration), on
+    """kernels/simd_paths_probe.cl at one width (variant "16", or "16r" with path regeneration), on
     the tracer's scene buffers."""
 
     def __init__(self, runtime, tracer, variant: str, local_size: int, chunk: int, defines):
@@ -95,7 +95,7 @@ class Prototype:
         if self.regenerate:
             build["SIMD_CHUNK"] = chunk
         name = "simd_paths_regen" if self.regenerate else "simd_paths"
-        self.kernel = runtime.kernel("simd_paths.cl", name, build)
+        self.kernel = runtime.kernel("simd_paths_probe.cl", name, build)
 
     def trace(self, sets, seed, size):
         runtime, tracer = self.runtime, self.tracer

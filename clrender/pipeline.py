@@ -328,7 +328,8 @@ class RenderResult:
     # tasks reported them, each in sorted order joined by "; ", None when no task finished
     device: str | None = None
     device_precision: str | None = None
-    # A cluster render's finished tasks per worker (address: count, by address); None locally
+    # Finished tasks per worker (address: count, by address) of a render through an executor
+    # (render_on: {"this process": n} on a LocalExecutor); None for a plain local render
     tasks_by_worker: dict[str, int] | None = None
 
     def __post_init__(self) -> None:

@@ -30,9 +30,10 @@ def scene_fingerprint(scene: Scene) -> str:
 
 def kernels_fingerprint() -> str:
     """SHA-256 of the OpenCL sources renders build (kernels_dir(): $CLRENDER_KERNELS_DIR or the
-    packaged ones; the test-only kernels left out), by file name and content."""
+    packaged ones; the test kernels (*_test.cl) and research probes (*_probe.cl, built by bench/
+    scripts only) left out), by file name and content."""
     digest = hashlib.sha256()
     for source in sorted(kernels_dir().iterdir()):
-        if source.suffix in (".cl", ".h") and not source.stem.endswith("_test"):
+        if source.suffix in (".cl", ".h") and not source.stem.endswith(("_test", "_probe")):
             digest.update(source.name.encode() + b"\0" + source.read_bytes())
     return digest.hexdigest()[:FINGERPRINT_DIGITS]

@@ -231,7 +231,7 @@ def summary_json(
         "estimators": [entry.name for entry in settings.estimators],
         "seed": settings.seed,
         "device": labels.device,
-        "tasks_by_worker": result.tasks_by_worker,  # a cluster render's; None locally
+        "tasks_by_worker": result.tasks_by_worker,  # through an executor; None otherwise
         "paths_per_second": stats.traced_samples / stats.run_seconds if stats.run_seconds else 0,
         "timings": timings,
         "reference": reference,

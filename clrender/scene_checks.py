@@ -17,7 +17,7 @@ the camera's placement: what no single field's check can see.
   camera: a warning.
 
 The mesh checks are NumPy over every triangle, MESH_CHUNK at a time: 1 M triangles take about
-0.1 s (tests/test_scene_checks.py measures it).
+0.1-0.2 s of CPU (README, "Scene file format").
 
 The tolerances follow the device's error bound for a hit point (kernels/geometry.h,
 SURFACE_ERROR_SCALE = 32 float32 epsilons of the magnitudes involved).

@@ -222,3 +222,55 @@ def test_voronoi_speed_writes_results_into_a_folder_with_each_rows_repeats(tmp_p
     assert "repeats" not in results and results["clock"] == "process_time"
     assert_machine(results["machine_before"])
     assert_machine(results["machine_after"])
+
+
+def test_throughput_scripts_record_the_machine(tmp_path, monkeypatch):
+    """primitive_scaling.py, sample_throughput.py (and bvh_scaling.py: tests/test_bvh.py) write
+    the load before and after their timings beside them."""
+    import primitive_scaling
+    import sample_throughput
+
+    primitive_scaling.main(
+        ["--counts", "18", "--size", "8", "--spp", "2", "--repeats", "1"]
+        + ["--output", str(tmp_path / "primitives.json")]
+    )
+    arguments = ["--res", "8", "--n", "4", "--samplers", "independent", "--repeats", "1"]
+    monkeypatch.setattr(
+        sys, "argv", ["sample_throughput", *arguments, "--out", str(tmp_path / "s")]
+    )
+    sample_throughput.main()
+    for name in ("primitives.json", "s"):
+        results = json.loads((tmp_path / name).read_text())
+        assert results["results"] and "device" in results
+        assert_machine(results["machine_before"])
+        assert_machine(results["machine_after"])
+
+
+def test_placement_rounds_alternate_their_order_and_check_every_image(monkeypatch, runtime):
+    """cluster_scaling.py --cases placement: the two placements take turns going first (a fixed
+    order would charge the first one whatever the machine does first), every render is checked
+    against the local image, and the paired ratios are reported."""
+    pytest.importorskip("distributed")
+    import cluster_scaling
+
+    from clrender.cluster import LocalExecutor
+
+    order = []
+
+    class RecordingExecutor(LocalExecutor):
+        def __init__(self, workers=None):
+            pass
+
+        def __setattr__(self, name, value):
+            if name == "spread_shared":
+                order.append("spread" if value else "scheduler")
+            object.__setattr__(self, name, value)
+
+    monkeypatch.setattr(cluster_scaling, "DaskExecutor", RecordingExecutor)
+    result = cluster_scaling.placement_case(4, 8, 2)
+    assert order == ["scheduler", "spread", "spread", "scheduler"] * 2
+    assert result["identical"] is True
+    rows = result["rows"]
+    assert len(rows["spread"]["runs"]) == len(rows["scheduler"]["runs"]) == 4
+    assert rows["first_render_spread_over_scheduler"] > 0
+    assert rows["second_render_spread_over_scheduler"] > 0

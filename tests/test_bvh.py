@@ -736,9 +736,18 @@ def test_bvh_scaling_bench_runs_and_reports_every_figure(runtime, tmp_path, monk
     bvh_scaling.main(
         ["--triangles", "20", "2000", "--quads", "66", "--compare-triangles", "20"]
         + ["--size", "8", "--spp", "2"]
-        + ["--repeats", "1", "--output", str(output)]
+        + ["--repeats", "1", "--paired-rounds", "2", "--output", str(output)]
     )
     data = json.loads(output.read_text())
+    # Paired rounds: each mesh against each box within a round, median inside its range
+    assert [row["triangles"] for row in data["paired"]] == [
+        row["triangles"] for row in data["triangles"]
+    ]
+    for row in data["paired"]:
+        for box in ("mitsuba-cbox", "cornell-box"):
+            low, high = row[f"against_{box}_range"]
+            assert 0 < low <= row[f"against_{box}"] <= high and row[f"{box}_rays_per_s"] > 0
+    assert data["machine_before"]["cpus"] > 0 and "load_1_5_15" in data["machine_after"]
     counts = [row["triangles"] for row in data["triangles"]]
     assert counts[0] == 20 and abs(counts[1] - 2000) < 50
     assert all(row["rays_per_s"] > 0 and row["build_wall_s"] > 0 for row in data["triangles"])

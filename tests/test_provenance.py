@@ -51,6 +51,9 @@ def test_the_kernels_fingerprint_follows_their_sources(tmp_path, monkeypatch):
     assert kernels_fingerprint() == shipped
     (copy / "geometry_test.cl").write_text("// test kernels are not rendered with\n")
     assert kernels_fingerprint() == shipped
+    probe = copy / "simd_paths_probe.cl"  # a research probe: bench scripts build it, not renders
+    probe.write_text(probe.read_text() + "// edited\n")
+    assert kernels_fingerprint() == shipped
     header = copy / "geometry.h"
     header.write_text(header.read_text() + "\n")
     assert kernels_fingerprint() != shipped

@@ -14,7 +14,12 @@ from clrender.pipeline import RenderSettings, render
 from clrender.radiance import PathTracerSource
 from clrender.sampling import make_sampler
 from clrender.scene import SceneError, SceneWarning, load_scene, scenes_dir
-from clrender.scene_checks import MeshGeometry, camera_on_surface, unresolved_shape_notes
+from clrender.scene_checks import (
+    MESH_CHUNK,
+    MeshGeometry,
+    camera_on_surface,
+    unresolved_shape_notes,
+)
 from clrender.trace import PathTracer
 
 SIZE = 16
@@ -219,8 +224,9 @@ def test_a_mesh_below_float32_resolution_is_warned_about_and_a_few_slivers_are_n
 
 def test_mesh_checks_read_every_one_of_a_million_triangles():
     # A grid of 1 M triangles under a camera 1 unit above it, off every surface: both checks
-    # read every triangle, in chunks (measured: 0.09 s and 0.18 s of CPU time on the shared
-    # Xeon; no time limit here, the suite has none)
+    # read every triangle, MESH_CHUNK at a time (measured: 0.1 s and 0.16-0.18 s of CPU time on
+    # the shared Xeon; no time limit here, the suite has none), so what they find lies beyond
+    # the first chunk
     n = 708
     u, v = np.meshgrid(np.arange(n + 1.0), np.arange(n + 1.0))
     positions = np.c_[u.ravel(), v.ravel(), np.zeros(u.size)]
@@ -228,10 +234,20 @@ def test_mesh_checks_read_every_one_of_a_million_triangles():
     indices = np.vstack(
         [np.c_[corner, corner + 1, corner + n + 2], np.c_[corner, corner + n + 2, corner + n + 1]]
     )
-    assert len(indices) > 1_000_000
+    assert len(indices) > 3 * MESH_CHUNK
     mesh = MeshGeometry("grid", positions, indices)
     look_from = np.array([300.5, 300.25, 1.0])
     assert camera_on_surface([], look_from, [mesh]) is None
     assert unresolved_shape_notes([], look_from, [mesh]) == []
-    on = np.array([300.5, 300.25, 0.0])
-    assert "its triangle" in camera_on_surface([], on, [mesh])
+    # The camera on the grid's last chunk: the triangle under it, named by its index
+    on = np.array([700.25, 700.5, 0.0])
+    assert "(its triangle 997564)" in camera_on_surface([], on, [mesh])
+    # 12 000 unit triangles 1e7 away (under 2^RESOLVED_BITS float32 steps there) after the
+    # grid, 1.2 % of the mesh's area: counted, the first named
+    far = np.array([1e7, 0.0, 0.0]) + np.arange(12_000)[:, None] * [0.0, 3.0, 0.0]
+    tiny = np.stack([far, far + [1.0, 0.0, 0.0], far + [0.0, 1.0, 0.0]], axis=1).reshape(-1, 3)
+    more = np.arange(len(tiny)).reshape(-1, 3) + len(positions)
+    mesh = MeshGeometry("grid", np.vstack([positions, tiny]), np.vstack([indices, more]))
+    (note,) = unresolved_shape_notes([], look_from, [mesh])
+    assert f"12000 of its {len(indices) + 12_000} triangles" in note
+    assert f"the first, triangle {len(indices)}:" in note

@@ -1,4 +1,4 @@
-"""The SIMD-across-paths research prototype (kernels/simd_paths.cl, bench/simd_paths_probe.py)
+"""The SIMD-across-paths research prototype (kernels/simd_paths_probe.cl, bench/simd_paths_probe.py)
 traces the megakernel's paths: the same radiance to the bit, sample for sample."""
 
 import sys

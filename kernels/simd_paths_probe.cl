@@ -43,7 +43,7 @@ typedef ulong8 vulong;
 // Functions taking vectors are inlined, and keep their vectors whole (clang's
 // min-legal-vector-width: without it LLVM may split 512-bit vectors into 256-bit halves on
 // CPUs that prefer 256-bit vectors, Skylake-AVX512 and later among them).
-#ifdef SIMD_NO_MIN_VECTOR_WIDTH // (the experiment: bench/simd_paths_probe.py --no-min-width)
+#ifdef SIMD_NO_MIN_VECTOR_WIDTH // the experiment: --define SIMD_NO_MIN_VECTOR_WIDTH
 #define SIMD_ATTR
 #else
 #define SIMD_ATTR __attribute__((min_vector_width(SIMD_WIDTH * 32)))
