@@ -1,5 +1,5 @@
-"""Research probe: would tracing SIMD_WIDTH paths per work-item (kernels/simd_paths_probe.cl, one path
-a vector lane) beat the megakernel (kernels/integrator.cl, one path a work-item)?
+"""Research probe: would tracing SIMD_WIDTH paths per work-item (kernels/simd_paths_probe.cl,
+one path a vector lane) beat the megakernel (kernels/integrator.cl, one path a work-item)?
 
     PYOPENCL_CTX=0 python bench/simd_paths_probe.py                  # 64 spp, 7 rounds
     PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 8 --rounds 9
