@@ -87,10 +87,11 @@ class MeshGeometry:
     indices: np.ndarray
 
     def chunks(self):
-        """(first triangle, p0, p1, p2) of MESH_CHUNK triangles at a time."""
+        """(first triangle, vertex indices, p0, p1, p2) of MESH_CHUNK triangles at a time."""
         for first in range(0, len(self.indices), MESH_CHUNK):
             corners = self.indices[first : first + MESH_CHUNK]
-            yield first, *(np.take(self.positions, corners[:, k], axis=0) for k in range(3))
+            points = (np.take(self.positions, corners[:, k], axis=0) for k in range(3))
+            yield first, corners, *points
 
     def triangle_under(self, point: np.ndarray, tolerance: float) -> int | None:
         """The first triangle the point lies on, to within `tolerance` of its plane and
@@ -137,8 +138,7 @@ class MeshGeometry:
         )
         # The small triangles by squared lengths (no square roots, no areas unless some are)
         small, shortest, distance = [], [], []
-        for first, p0, p1, p2 in self.chunks():
-            corners = self.indices[first : first + MESH_CHUNK]
+        for first, corners, p0, p1, p2 in self.chunks():
             farthest = np.maximum(reach[corners[:, 0]], reach[corners[:, 1]])
             step = np.maximum(farthest, reach[corners[:, 2]]) * (
                 FLOAT32_EPSILON * 2.0**RESOLVED_BITS
@@ -155,7 +155,8 @@ class MeshGeometry:
             return None
         size, distance = (float(np.concatenate(values)[0]) for values in (shortest, distance))
         first_small = int(small[0])
-        total_area = sum(float(triangle_areas(p0, p1, p2).sum()) for _, p0, p1, p2 in self.chunks())
+        chunks = self.chunks()
+        total_area = sum(float(triangle_areas(p0, p1, p2).sum()) for *_, p0, p1, p2 in chunks)
         corners = self.indices[small]
         small_area = float(triangle_areas(*(self.positions[corners[:, k]] for k in range(3))).sum())
         if count == 0 or small_area < MESH_UNRESOLVED_AREA * total_area:
