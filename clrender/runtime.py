@@ -165,15 +165,16 @@ class Runtime:
         self.pool = cl_tools.MemoryPool(cl_tools.ImmediateAllocator(self.queue))
 
     def build(self, source_file: str, defines: dict[str, object] | None = None) -> cl.Program:
-        """Build kernels/<source_file> with -D defines; cached per (context, file, defines)."""
-        return _build_cached(self.context, source_file, define_key(defines))
+        """Build kernels/<source_file> with -D defines; cached per (context, kernels folder, file,
+        defines)."""
+        return _build_cached(self.context, kernels_dir(), source_file, define_key(defines))
 
     def kernel(
         self, source_file: str, name: str, defines: dict[str, object] | None = None
     ) -> cl.Kernel:
         """One kernel of a built program, retrieved once per process (retrieval is costly)."""
         items = define_key(defines)
-        kernel = _kernel_cached(self.context, source_file, items, name)
+        kernel = _kernel_cached(self.context, kernels_dir(), source_file, items, name)
         if source_file in WARM_UP_FILES:
             self.warm_up(kernel, source_file, items, name)
         return kernel
@@ -190,7 +191,7 @@ class Runtime:
         (launch_global_size), once per (context, kernel, its local size); the time counts as build
         time (thread_build_seconds)."""
         local = self.kernel_local_size(kernel)
-        key = (self.context.int_ptr, source_file, defines, name, local)
+        key = (self.context.int_ptr, source_file, defines, name, local, kernels_dir())
         if key in _WARMED:
             return
         start = time.perf_counter()
@@ -273,8 +274,11 @@ def define_key(defines: dict[str, object] | None) -> tuple[tuple[str, object], .
     )
 
 
-def build_options(defines: tuple[tuple[str, object], ...], platform_name: str = "") -> list[str]:
-    options = [f"-I{kernels_dir()}", "-cl-std=CL1.2"]
+def build_options(
+    defines: tuple[tuple[str, object], ...], platform_name: str = "", folder: Path | None = None
+) -> list[str]:
+    """The compiler options of a program of the kernels folder (default kernels_dir())."""
+    options = [f"-I{kernels_dir() if folder is None else folder}", "-cl-std=CL1.2"]
     options += [f"-D{name}" for name in PLATFORM_DEFINES.get(platform_name.strip(), ())]
     for name, value in defines:
         options.append(f"-D{name}" if value is True else f"-D{name}={_c_literal(value)}")
@@ -344,13 +348,15 @@ def _count_build_time(start: float) -> None:
 
 @functools.cache
 def _build_cached(
-    context: cl.Context, source_file: str, defines: tuple[tuple[str, object], ...]
+    context: cl.Context, folder: Path, source_file: str, defines: tuple[tuple[str, object], ...]
 ) -> cl.Program:
+    """The program of folder/source_file (folder: kernels_dir() when the build was asked for,
+    so that a changed CLRENDER_KERNELS_DIR builds the other folder's sources)."""
     start = time.perf_counter()
-    path = kernels_dir() / source_file
+    path = folder / source_file
     # Compile from an #include of the real file so the compiler log names it with its line.
     source = f'#include "{path.name}"\n'
-    options = build_options(defines, context.devices[0].platform.name)
+    options = build_options(defines, context.devices[0].platform.name, folder)
     try:
         # Signals blocked: a signal mid-build failed the compiler's calls. A successful build's
         # log is no warning: Intel's CPU runtime logs every build (its stages, vectorisation
@@ -371,9 +377,13 @@ def _build_cached(
 
 @functools.cache
 def _kernel_cached(
-    context: cl.Context, source_file: str, defines: tuple[tuple[str, object], ...], name: str
+    context: cl.Context,
+    folder: Path,
+    source_file: str,
+    defines: tuple[tuple[str, object], ...],
+    name: str,
 ) -> cl.Kernel:
-    program = _build_cached(context, source_file, defines)
+    program = _build_cached(context, folder, source_file, defines)
     start = time.perf_counter()
     try:
         return cl.Kernel(program, name)

@@ -313,3 +313,22 @@ def test_platform_defines_give_the_clang_builtins_to_pocl_only():
     assert "-DCLRENDER_CLANG_BUILTINS" in build_options((), "Portable Computing Language")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Oclgrind")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Intel(R) OpenCL")
+
+
+def test_programs_are_cached_per_kernels_folder(runtime, tmp_path, monkeypatch):
+    # The same file name in another CLRENDER_KERNELS_DIR is another program: a process that
+    # changes the folder (bench scripts comparing source trees) builds the new folder's source
+    values = {}
+    for value in (1, 2):
+        folder = tmp_path / f"tree{value}"
+        folder.mkdir()
+        (folder / "which_tree.cl").write_text(
+            f"__kernel void which_tree(__global int *out) {{ *out = {value}; }}\n"
+        )
+        monkeypatch.setenv(rt.KERNELS_DIR_VARIABLE, str(folder))
+        out = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, 4)
+        runtime.kernel("which_tree.cl", "which_tree")(runtime.queue, (1,), None, out)
+        host = np.zeros(1, np.int32)
+        cl.enqueue_copy(runtime.queue, host, out)
+        values[value] = int(host[0])
+    assert values == {1: 1, 2: 2}
