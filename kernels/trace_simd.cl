@@ -56,6 +56,14 @@ typedef ulong8 vulong;
 #define SIMD_ATTR __attribute__((min_vector_width(SIMD_WIDTH * 32)))
 #define SIMD_FN CL_INLINE SIMD_ATTR
 
+// Per-lane records of a vector: written lane by lane (.s[j]), read whole (.v). A vector's lane
+// written at a variable index would cost a store and a load of the whole vector.
+#define LANES(type, vtype)                                                                     \
+    union {                                                                                    \
+        vtype v;                                                                               \
+        type s[SIMD_WIDTH];                                                                    \
+    }
+
 #define AS_VFLOAT(x) __builtin_astype((x), vfloat)
 #define AS_VUINT(x) __builtin_astype((x), vuint)
 #define TO_VFLOAT(x) __builtin_convertvector((x), vfloat)
@@ -406,7 +414,8 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat t = (vfloat)(INFINITY);
     if (Scene_VectorGeometry(scene)) {
         t = V_Intersect(scene, running, &ray, &prim);
-    } else {
+    }
+    else {
         FOR_EACH_LANE(j, running_bits)
         {
             int prim_j;
@@ -419,53 +428,94 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     running &= prim >= 0;
     running_bits = V_Bits(running);
 
-    // The surfaces' records: quads' read lane by lane (the point and its error on lanes
-    // below), others' from Scene_Surface; and their materials
-    vfloat ng_x, ng_y, ng_z, ns_x, ns_y, ns_z, sp_x, sp_y, sp_z, s_error, corner_abs;
-    vfloat albedo_r, albedo_g, albedo_b;
-    vint material, emitter, two_sided, quad_hit, scalar_vertex;
-    ng_x = ng_y = ng_z = ns_x = ns_y = ns_z = sp_x = sp_y = sp_z = (vfloat)(0.0f);
-    s_error = corner_abs = albedo_r = albedo_g = albedo_b = (vfloat)(0.0f);
-    material = emitter = (vint)(-1);
-    two_sided = quad_hit = scalar_vertex = (vint)(0);
-    FOR_EACH_LANE(j, running_bits)
-    {
-        int p = prim[j];
-        if (p < (int)scene->quad_count) {
-            __global const Quad *q = &scene->quads[p];
-            ng_x[j] = ns_x[j] = q->normal[0];
-            ng_y[j] = ns_y[j] = q->normal[1];
-            ng_z[j] = ns_z[j] = q->normal[2];
-            corner_abs[j] = MaxAbs3(Load3(q->corner));
-            material[j] = q->material;
-            emitter[j] = q->emitter;
-            quad_hit[j] = -1;
-        } else {
+    // The surfaces' records: every lane's quad read (a lane that hit something else reads the
+    // first quad, replaced below), the point and its error on lanes; spheres' and triangles'
+    // lane by lane from Scene_Surface
+    LANES(float, vfloat) ng_x_l, ng_y_l, ng_z_l, corner_abs_l, albedo_r_l, albedo_g_l, albedo_b_l;
+    LANES(int, vint) prims_l, material_l, emitter_l, two_sided_l, scalar_vertex_l;
+    prims_l.v = prim;
+    if (scene->quad_count > 0u) {
+        for (int j = 0; j < SIMD_WIDTH; ++j) {
+            int p = prims_l.s[j];
+            __global const Quad *q = &scene->quads[p >= 0 && p < (int)scene->quad_count ? p : 0];
+            ng_x_l.s[j] = q->normal[0];
+            ng_y_l.s[j] = q->normal[1];
+            ng_z_l.s[j] = q->normal[2];
+            corner_abs_l.s[j] = MaxAbs3(Load3(q->corner));
+            material_l.s[j] = q->material;
+            emitter_l.s[j] = q->emitter;
+        }
+    } else {
+        ng_x_l.v = ng_y_l.v = ng_z_l.v = corner_abs_l.v = (vfloat)(0.0f);
+        material_l.v = emitter_l.v = (vint)(-1);
+    }
+    vfloat p_x = ray.ox + t * ray.dx;
+    vfloat p_y = ray.oy + t * ray.dy;
+    vfloat p_z = ray.oz + t * ray.dz;
+    vfloat magnitude = V_MaxAbs3(ray.ox, ray.oy, ray.oz) +
+                       t * V_MaxAbs3(ray.dx, ray.dy, ray.dz) + corner_abs_l.v;
+    vfloat error = SURFACE_ERROR_SCALE * magnitude;
+    vint other_hit = running & (prim >= (int)scene->quad_count);
+    uint other_bits = V_Bits(other_hit);
+    vfloat ns_x, ns_y, ns_z;
+    if (other_bits != 0u) {
+        LANES(float, vfloat) sn_x, sn_y, sn_z, sp_x, sp_y, sp_z, s_error;
+        FOR_EACH_LANE(j, other_bits)
+        {
             float3 o = (float3)(ray.ox[j], ray.oy[j], ray.oz[j]);
             float3 d = (float3)(ray.dx[j], ray.dy[j], ray.dz[j]);
-            Surface s = Scene_Surface(scene, o, d, t[j], p);
-            ng_x[j] = s.ng.x;
-            ng_y[j] = s.ng.y;
-            ng_z[j] = s.ng.z;
-            ns_x[j] = s.ns.x;
-            ns_y[j] = s.ns.y;
-            ns_z[j] = s.ns.z;
-            sp_x[j] = s.p.x;
-            sp_y[j] = s.p.y;
-            sp_z[j] = s.p.z;
-            s_error[j] = s.error;
-            material[j] = s.material;
-            emitter[j] = s.emitter;
+            Surface surface = Scene_Surface(scene, o, d, t[j], prims_l.s[j]);
+            ng_x_l.s[j] = surface.ng.x;
+            ng_y_l.s[j] = surface.ng.y;
+            ng_z_l.s[j] = surface.ng.z;
+            sn_x.s[j] = surface.ns.x;
+            sn_y.s[j] = surface.ns.y;
+            sn_z.s[j] = surface.ns.z;
+            sp_x.s[j] = surface.p.x;
+            sp_y.s[j] = surface.p.y;
+            sp_z.s[j] = surface.p.z;
+            s_error.s[j] = surface.error;
+            material_l.s[j] = surface.material;
+            emitter_l.s[j] = surface.emitter;
         }
-        if (material[j] >= 0) {
-            __global const Material *m = &scene->materials[material[j]];
-            albedo_r[j] = m->albedo[0];
-            albedo_g[j] = m->albedo[1];
-            albedo_b[j] = m->albedo[2];
-            two_sided[j] = m->two_sided;
-            scalar_vertex[j] = m->type != MATERIAL_DIFFUSE ? -1 : 0;
-        }
+        p_x = other_hit ? sp_x.v : p_x;
+        p_y = other_hit ? sp_y.v : p_y;
+        p_z = other_hit ? sp_z.v : p_z;
+        error = other_hit ? s_error.v : error;
+        ns_x = other_hit ? sn_x.v : ng_x_l.v;
+        ns_y = other_hit ? sn_y.v : ng_y_l.v;
+        ns_z = other_hit ? sn_z.v : ng_z_l.v;
+    } else {
+        ns_x = ng_x_l.v;
+        ns_y = ng_y_l.v;
+        ns_z = ng_z_l.v;
     }
+
+    // Their materials: diffuse ones on lanes, the others' vertices lane by lane below (a lane
+    // on a pure emitter reads a material it does not use: any lane's, if some lane has one)
+    vint has_material = material_l.v >= 0;
+    uint material_bits = V_Bits(has_material);
+    if (material_bits != 0u) {
+        int any_material = material_l.s[Ctz(material_bits)];
+        for (int j = 0; j < SIMD_WIDTH; ++j) {
+            int k = material_l.s[j];
+            __global const Material *m = &scene->materials[k >= 0 ? k : any_material];
+            albedo_r_l.s[j] = m->albedo[0];
+            albedo_g_l.s[j] = m->albedo[1];
+            albedo_b_l.s[j] = m->albedo[2];
+            two_sided_l.s[j] = m->two_sided;
+            scalar_vertex_l.s[j] = m->type != MATERIAL_DIFFUSE ? -1 : 0;
+        }
+        scalar_vertex_l.v &= has_material;
+    } else {
+        albedo_r_l.v = albedo_g_l.v = albedo_b_l.v = (vfloat)(0.0f);
+        two_sided_l.v = scalar_vertex_l.v = (vint)(0);
+    }
+
+    vfloat ng_x = ng_x_l.v, ng_y = ng_y_l.v, ng_z = ng_z_l.v;
+    vfloat albedo_r = albedo_r_l.v, albedo_g = albedo_g_l.v, albedo_b = albedo_b_l.v;
+    vint material = material_l.v, emitter = emitter_l.v, two_sided = two_sided_l.v;
+    vint scalar_vertex = scalar_vertex_l.v;
 
     // Vertices on other materials than diffuse: the megakernel's, lane by lane
     uint scalar_bits = V_Bits(scalar_vertex & running);
@@ -483,12 +533,6 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
         paths->running = scalar_on;
         return;
     }
-    vfloat p_x = quad_hit ? ray.ox + t * ray.dx : sp_x;
-    vfloat p_y = quad_hit ? ray.oy + t * ray.dy : sp_y;
-    vfloat p_z = quad_hit ? ray.oz + t * ray.dz : sp_z;
-    vfloat magnitude =
-        V_MaxAbs3(ray.ox, ray.oy, ray.oz) + t * V_MaxAbs3(ray.dx, ray.dy, ray.dz) + corner_abs;
-    vfloat error = quad_hit ? SURFACE_ERROR_SCALE * magnitude : s_error;
     vfloat wo_x = -ray.dx, wo_y = -ray.dy, wo_z = -ray.dz;
     vfloat cos_o = V_Dot3(ng_x, ng_y, ng_z, wo_x, wo_y, wo_z);
 
@@ -500,17 +544,36 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     uint emitted_bits = V_Bits(emitted);
     if (emitted_bits != 0u) {
         vfloat Le_r, Le_g, Le_b, pick_pdf, area;
-        Le_r = Le_g = Le_b = pick_pdf = area = (vfloat)(0.0f);
-        vint sphere_lanes = (vint)(0);
-        FOR_EACH_LANE(j, emitted_bits)
-        {
-            __global const Emitter *e = &scene->emitters[emitter[j]];
-            Le_r[j] = e->radiance[0];
-            Le_g[j] = e->radiance[1];
-            Le_b[j] = e->radiance[2];
-            pick_pdf[j] = e->pick_pdf;
-            area[j] = e->area;
-            sphere_lanes[j] = e->shape == EMITTER_SPHERE ? -1 : 0;
+        vint sphere_lanes;
+        if (scene->emitter_count == 1u) {
+            // One emitter: its record read once
+            __global const Emitter *e = &scene->emitters[0];
+            Le_r = (vfloat)(e->radiance[0]);
+            Le_g = (vfloat)(e->radiance[1]);
+            Le_b = (vfloat)(e->radiance[2]);
+            pick_pdf = (vfloat)(e->pick_pdf);
+            area = (vfloat)(e->area);
+            sphere_lanes = (vint)(e->shape == EMITTER_SPHERE ? -1 : 0);
+        } else {
+            LANES(float, vfloat) Le_r_l, Le_g_l, Le_b_l, pick_pdf_l, area_l;
+            LANES(int, vint) emitter_l, sphere_l;
+            emitter_l.v = emitter;
+            for (int j = 0; j < SIMD_WIDTH; ++j) {
+                int k = emitter_l.s[j];
+                __global const Emitter *e = &scene->emitters[k >= 0 ? k : 0];
+                Le_r_l.s[j] = e->radiance[0];
+                Le_g_l.s[j] = e->radiance[1];
+                Le_b_l.s[j] = e->radiance[2];
+                pick_pdf_l.s[j] = e->pick_pdf;
+                area_l.s[j] = e->area;
+                sphere_l.s[j] = e->shape == EMITTER_SPHERE ? -1 : 0;
+            }
+            Le_r = Le_r_l.v;
+            Le_g = Le_g_l.v;
+            Le_b = Le_b_l.v;
+            pick_pdf = pick_pdf_l.v;
+            area = area_l.v;
+            sphere_lanes = sphere_l.v;
         }
         vint full_weight = paths->specular | (vint)(depth == 0 || !lanes->nee ? -1 : 0);
         // Light_HitPdfW: a quad's or triangle's here, a sphere's lane by lane
@@ -812,35 +875,44 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     lanes.russian_roulette = russian_roulette;
     lanes.paths_kind = paths_kind;
     lanes.seed = seed;
-    lanes.pixel = lanes.sample = lanes.redraw = (vuint)(0u);
     Paths paths;
     paths.ox = (vfloat)(camera->origin[0]);
     paths.oy = (vfloat)(camera->origin[1]);
     paths.oz = (vfloat)(camera->origin[2]);
-    paths.dx = paths.dy = paths.dz = (vfloat)(0.0f);
     paths.L_r = paths.L_g = paths.L_b = (vfloat)(0.0f);
     paths.beta_r = paths.beta_g = paths.beta_b = (vfloat)(1.0f);
     paths.prev_pdfW = (vfloat)(0.0f);
     paths.eta_scale = (vfloat)(1.0f);
-    paths.specular = paths.running = (vint)(0);
-    for (uint j = 0; j < lane_count; ++j) {
+    paths.specular = (vint)(0);
+    LANES(uint, vuint) pixel_l, sample_l, redraw_l;
+    LANES(float, vfloat) dx_l, dy_l, dz_l;
+    LANES(int, vint) running_l;
+    for (int j = 0; j < SIMD_WIDTH; ++j) {
+        // (lanes past the launch's end repeat its last sample, and do not run)
+        uint i = (uint)j < lane_count ? first + (uint)j : traced_total - 1u;
         uint slot, sample;
         float2 image_pos = Integrator_SamplePosition(positions, traced_offsets, pixels,
-                                                     pixel_count, image_width, first + j,
-                                                     &slot, &sample);
+                                                     pixel_count, image_width, i, &slot, &sample);
         uint pixel = pixels[slot];
-        lanes.pixel[j] = pixel;
-        lanes.sample[j] = sample;
-        lanes.redraw[j] = redraws[slot];
+        pixel_l.s[j] = pixel;
+        sample_l.s[j] = sample;
+        redraw_l.s[j] = redraws[slot];
         lanes.sampler[j] = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot],
                                         fixed_count, strata, image_width, zsobol_log2_count,
                                         zsobol_bits);
         float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
-        paths.dx[j] = dir.x;
-        paths.dy[j] = dir.y;
-        paths.dz[j] = dir.z;
-        paths.running[j] = -1;
+        dx_l.s[j] = dir.x;
+        dy_l.s[j] = dir.y;
+        dz_l.s[j] = dir.z;
+        running_l.s[j] = (uint)j < lane_count ? -1 : 0;
     }
+    lanes.pixel = pixel_l.v;
+    lanes.sample = sample_l.v;
+    lanes.redraw = redraw_l.v;
+    paths.dx = dx_l.v;
+    paths.dy = dy_l.v;
+    paths.dz = dz_l.v;
+    paths.running = running_l.v;
 
     // Trace until every lane's path has ended
     uint rays = 0u;
