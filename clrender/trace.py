@@ -1,4 +1,5 @@
-"""Tracing: radiance of every traced sample of a launch (kernels/integrator.cl).
+"""Tracing: radiance of every traced sample of a launch (kernels/integrator.cl, or the same to
+the bit from kernels/trace_simd.cl: PathTracer(..., trace_kernel="simd")).
 
     tracer = PathTracer(runtime, load_scene("cornell-box"), max_depth=8)
     sets = generate_sample_sets(runtime, make_sampler("sppp", 64), seed, pixels)
@@ -32,6 +33,13 @@ from clrender.scene_device import BRUTE_FORCE_LIMIT, QUAD_BLOCK_WIDTH
 MAX_DEPTH_LIMIT = 1024
 # Scattering vertices per path unless asked otherwise (pbrt's maxdepth; Mitsuba's max_depth 9).
 DEFAULT_MAX_DEPTH = 8
+# The tracing kernels, the same radiance to the bit: "megakernel" one path a work-item
+# (integrator.cl trace_paths), "simd" SIMD_WIDTH paths a work-item, one a vector lane
+# (trace_simd.cl trace_paths_simd).
+TRACE_KERNELS = ("megakernel", "simd")
+# Paths per work-item of the simd kernel unless asked otherwise (trace_simd.cl: 16 or 8).
+SIMD_WIDTH = 16
+SIMD_WIDTHS = (8, 16)
 
 
 @dataclass
@@ -99,6 +107,14 @@ def check_max_depth(max_depth: object) -> None:
         )
 
 
+def check_trace_kernel(trace_kernel: object) -> None:
+    """ParameterError unless trace_kernel names one of TRACE_KERNELS."""
+    if not isinstance(trace_kernel, str) or trace_kernel not in TRACE_KERNELS:
+        raise ParameterError(
+            f"trace_kernel must be one of {', '.join(TRACE_KERNELS)}, got {trace_kernel!r}"
+        )
+
+
 def image_size(scene: Scene, width: int | None, height: int | None) -> tuple[int, int]:
     """(width, height) of a scene's image, known without a device: the scene's resolution by
     default; a width alone keeps the scene's aspect ratio."""
@@ -116,7 +132,10 @@ def image_size(scene: Scene, width: int | None, height: int | None) -> tuple[int
 
 
 class PathTracer:
-    """A scene uploaded once to the device, and the path-tracing kernel for it."""
+    """A scene uploaded once to the device, and the path-tracing kernel for it: trace_kernel
+    "megakernel" (one path a work-item) or "simd" (SIMD_WIDTH paths a work-item, one a vector
+    lane; simd_defines {"SIMD_WIDTH": 8} or {"SIMD_PORTABLE": True} build variants). Both give
+    every sample the same radiance to the bit, and count the same rays."""
 
     def __init__(
         self,
@@ -127,8 +146,11 @@ class PathTracer:
         next_event_estimation: bool = True,
         profile_defines: dict[str, object] | None = None,
         brute_force_limit: int = BRUTE_FORCE_LIMIT,
+        trace_kernel: str = "megakernel",
+        simd_defines: dict[str, object] | None = None,
     ):
         check_max_depth(max_depth)
+        check_trace_kernel(trace_kernel)
         self.runtime = runtime
         self.scene = scene
         self.max_depth = int(max_depth)
@@ -152,7 +174,22 @@ class PathTracer:
         self._cameras: dict[tuple[int, int], cl.Buffer] = {}
         # Profiling builds only (bench/trace_throughput.py --profile), e.g.
         # {"PROFILE_SKIP_SHADOW_RAYS": True}: shadow rays counted but not traced.
-        self._kernel = runtime.kernel("integrator.cl", "trace_paths", profile_defines)
+        # simd_defines: the simd kernel's build options (SIMD_WIDTH 8 or 16, SIMD_PORTABLE).
+        self.trace_kernel = trace_kernel
+        if trace_kernel == "simd":
+            defines = dict(profile_defines or {}) | dict(simd_defines or {})
+            width = defines.setdefault("SIMD_WIDTH", SIMD_WIDTH)
+            if isinstance(width, bool) or width not in SIMD_WIDTHS:
+                raise ParameterError(
+                    f"SIMD_WIDTH must be one of {', '.join(map(str, SIMD_WIDTHS))}, got {width!r}"
+                )
+            self.samples_per_item = int(width)
+            self._kernel = runtime.kernel("trace_simd.cl", "trace_paths_simd", defines)
+        else:
+            if simd_defines:
+                raise ParameterError("simd_defines need trace_kernel='simd'")
+            self.samples_per_item = 1
+            self._kernel = runtime.kernel("integrator.cl", "trace_paths", profile_defines)
 
     def scene_arguments(self) -> tuple:
         """The scene's kernel arguments, in the order trace_paths and every wavefront stage
@@ -225,7 +262,8 @@ class PathTracer:
         queue = runtime.queue
         count = sample_sets.traced_total
         local = runtime.kernel_local_size(self._kernel)
-        global_size = launch_global_size(count, local)
+        # simd: a work-item per samples_per_item samples (the last one partly)
+        global_size = launch_global_size(-(-count // self.samples_per_item), local)
         groups = global_size // local
         radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(1 + groups, np.uint32))
