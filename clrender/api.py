@@ -43,7 +43,7 @@ from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
 from clrender.scene import Scene
 from clrender.scene import load_scene as load_scene_file
-from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer, check_max_depth
+from clrender.trace import DEFAULT_MAX_DEPTH, PathTracer, check_max_depth, check_trace_kernel
 from clrender.trace import image_size as scene_image_size
 
 
@@ -83,6 +83,7 @@ def render(
     device: str | None = None,
     max_depth: int = DEFAULT_MAX_DEPTH,
     russian_roulette: bool = False,
+    trace_kernel: str = "auto",
     tile_samples: int = DEFAULT_TILE_SAMPLES,
     overlap: bool = True,
     voronoi_backend: str = "device",
@@ -99,7 +100,10 @@ def render(
     height); device: an index or name substring of an OpenCL device (default PYOPENCL_CTX,
     else the first device); max_depth: scattering vertices per path; russian_roulette: end
     paths at random from their second vertex on (pbrt-v4's rule, unbiased; off by default, as
-    in the paper; refused for analytic images, which have no paths); progress: a callable
+    in the paper; refused for analytic images, which have no paths); trace_kernel: "auto" (the
+    simd kernel on CPU devices, the megakernel on others), "megakernel" or "simd": the same
+    image to the bit, at different speeds (clrender.trace.PathTracer; `.trace_kernel` says which
+    ran); progress: a callable
     progress(done_pixels, total_pixels), called after each tile (each task on a cluster), or
     True for a progress bar (tqdm's: on a terminal or in Jupyter), None or False for none;
     overlap: True or False; executor: a
@@ -131,10 +135,13 @@ def render(
             f"{type(scene).__name__} {scene!r}"
         )
     check_russian_roulette(russian_roulette, scene)
+    check_trace_kernel(trace_kernel)
     if executor is None:
         runtime = runtime_for(device)
         built = thread_build_seconds()
-        source = radiance_source(runtime, scene, resolution, max_depth, russian_roulette)
+        source = radiance_source(
+            runtime, scene, resolution, max_depth, russian_roulette, trace_kernel
+        )
         setup_compile = thread_build_seconds() - built
         width, height = source.width, source.height
     else:  # the workers choose the device and build the source: none is needed here
@@ -165,7 +172,7 @@ def render(
             from clrender.cluster import RenderJob, render_on
 
             path_depth = 0 if isinstance(scene, str) else max_depth
-            job = RenderJob.of(scene, settings, path_depth, russian_roulette, device)
+            job = RenderJob.of(scene, settings, path_depth, russian_roulette, device, trace_kernel)
             result = render_on(executor, job, progress or None)
     finally:
         if bar is not None:
@@ -245,14 +252,23 @@ def radiance_source(
     resolution: Resolution,
     max_depth: int,
     russian_roulette: bool = False,
+    trace_kernel: str = "auto",
 ) -> RadianceSource:
     """The path tracer of a scene (or the analytic image of an `analytic[:KIND]` name) at the
-    requested resolution; russian_roulette (paths only) as clrender.trace.PathTracer's."""
+    requested resolution; russian_roulette and trace_kernel (paths only) as
+    clrender.trace.PathTracer's."""
     check_russian_roulette(russian_roulette, scene)
+    check_trace_kernel(trace_kernel)
     width, height = image_size(scene, resolution)
     if isinstance(scene, str):
         return AnalyticSource.for_scene(scene, runtime.queue, width, height)
-    tracer = PathTracer(runtime, scene, max_depth=max_depth, russian_roulette=russian_roulette)
+    tracer = PathTracer(
+        runtime,
+        scene,
+        max_depth=max_depth,
+        russian_roulette=russian_roulette,
+        trace_kernel=trace_kernel,
+    )
     return PathTracerSource(tracer, width, height)
 
 

@@ -197,6 +197,13 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         "the paper; not for analytic images)",
     )
     add(
+        "--trace-kernel",
+        choices=("auto", "megakernel", "simd"),
+        default="auto",
+        help="the path-tracing kernel: the same image to the bit, at different speeds; auto "
+        "(default): simd (paths in vector lanes) on CPU devices, megakernel elsewhere",
+    )
+    add(
         "--tile-samples",
         type=int,
         default=None,
@@ -380,7 +387,12 @@ def make_source(args: argparse.Namespace, runtime, scene):
 
     size = parse_resolution(args.res)
     return radiance_source(
-        runtime, scene or args.scene, size, path_depth(args), args.russian_roulette
+        runtime,
+        scene or args.scene,
+        size,
+        path_depth(args),
+        args.russian_roulette,
+        args.trace_kernel,
     )
 
 
@@ -550,7 +562,12 @@ def render_on_cluster(args: argparse.Namespace, scene, settings, max_depth, roul
         executor = make_executor(args.workers, args.scheduler)
     try:
         job = RenderJob.of(
-            scene or args.scene, settings, max_depth or 0, bool(roulette), args.device
+            scene or args.scene,
+            settings,
+            max_depth or 0,
+            bool(roulette),
+            args.device,
+            args.trace_kernel,
         )
         return render_on(executor, job, progress)
     finally:

@@ -338,6 +338,7 @@ class RenderJob:
     max_depth: int = DEFAULT_MAX_DEPTH
     russian_roulette: bool = False
     device: str | None = None
+    trace_kernel: str = "auto"  # as clrender.render's; each worker chooses for its device
     token: str = field(default_factory=lambda: uuid.uuid4().hex)
 
     @classmethod
@@ -348,6 +349,7 @@ class RenderJob:
         max_depth: int,
         russian_roulette: bool = False,
         device: str | None = None,
+        trace_kernel: str = "auto",
     ) -> RenderJob:
         return cls(
             scene,
@@ -362,6 +364,7 @@ class RenderJob:
             max_depth,
             russian_roulette,
             device,
+            trace_kernel,
         )
 
     def settings(self) -> RenderSettings:
@@ -392,6 +395,7 @@ class PixelRangeResult:
     stats: RenderStats
     device: str  # the OpenCL device that rendered it (Runtime.describe)
     precision: str  # of that device's Voronoi cells and sums: "mixed" or "single"
+    trace_kernel: str | None  # the kernel that traced its paths (None for an analytic image)
     worker: str  # the worker process that ran it (worker_name)
     # what kept it from its tiles: the set-up before its first tile (the job's radiance source
     # unless the worker kept it, the tile pipeline) and the program builds on its render thread
@@ -409,7 +413,12 @@ def _source_for(job: RenderJob):
         return _worker_source[0][1]
     runtime = runtime_for(job.device)
     source = radiance_source(
-        runtime, job.scene, (job.width, job.height), job.max_depth, job.russian_roulette
+        runtime,
+        job.scene,
+        (job.width, job.height),
+        job.max_depth,
+        job.russian_roulette,
+        job.trace_kernel,
     )
     _worker_source[:] = [(job.token, source)]
     return source
@@ -449,6 +458,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
         pipeline.stats,
         runtime.describe(),
         resolve_precision(runtime, "auto"),
+        getattr(getattr(source, "tracer", None), "trace_kernel", None),
         worker_name(),
         setup_seconds,
     )
@@ -497,6 +507,7 @@ def render_on(
     stats = RenderStats()
     devices: set[str] = set()
     precisions: set[str] = set()
+    trace_kernels: set[str] = set()
     setup_by_worker: dict[str, float] = {}
     tasks_by_worker: dict[str, int] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
@@ -511,6 +522,8 @@ def render_on(
             add_stats(stats, part.stats)
             devices.add(part.device)
             precisions.add(part.precision)
+            if part.trace_kernel is not None:
+                trace_kernels.add(part.trace_kernel)
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
             )
@@ -536,5 +549,6 @@ def render_on(
         russian_roulette=job.russian_roulette if paths else None,
         device="; ".join(sorted(devices)) or None,
         device_precision="; ".join(sorted(precisions)) or None,
+        trace_kernel="; ".join(sorted(trace_kernels)) or None,
         tasks_by_worker=dict(sorted(tasks_by_worker.items())),
     )

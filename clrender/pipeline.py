@@ -328,6 +328,10 @@ class RenderResult:
     # tasks reported them, each in sorted order joined by "; ", None when no task finished
     device: str | None = None
     device_precision: str | None = None
+    # The kernel that traced its paths (clrender.trace.TRACE_KERNELS, or "wavefront"); a
+    # cluster render's as its tasks reported them, sorted and joined by "; "; None without
+    # paths (an analytic image)
+    trace_kernel: str | None = None
     # Finished tasks per worker (address: count, by address) of a render through an executor
     # (render_on: {"this process": n} on a LocalExecutor); None for a plain local render
     tasks_by_worker: dict[str, int] | None = None
@@ -977,4 +981,5 @@ def render(
         russian_roulette=None if tracer is None else tracer.russian_roulette,
         device=runtime.describe(),
         device_precision=resolve_precision(runtime, "auto"),
+        trace_kernel=None if tracer is None else tracer.trace_kernel,
     )

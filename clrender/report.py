@@ -89,6 +89,8 @@ def render_metadata(
         value = getattr(labels, key)
         if value is not None:
             metadata[key] = value
+    if result.trace_kernel is not None:  # (the same image whichever kernel traced it)
+        metadata["trace_kernel"] = result.trace_kernel
     if labels.max_depth is not None:
         metadata["max_depth"] = labels.max_depth
     if labels.russian_roulette is not None:
@@ -178,7 +180,8 @@ def summary_lines(result: RenderResult, labels: RenderLabels) -> list[str]:
         f"host estimators {format_seconds(stats.host_seconds)}, {tiles}, "
         f"overlap {overlap}; kernel builds {format_seconds(stats.compile_seconds)}, and {before})",
         f"device stages: {stages}; host: {estimators or 'none'}",
-        f"paths {stats.traced_samples:,} ({rate(stats.traced_samples, stats.run_seconds)}), "
+        f"paths {stats.traced_samples:,} ({rate(stats.traced_samples, stats.run_seconds)}"
+        f"{'' if result.trace_kernel is None else ', ' + result.trace_kernel + ' kernel'}), "
         f"rays {stats.rays:,} ({rate(stats.rays, stats.run_seconds)}), without {excluded}",
         f"rejections: {stats.redrawn_pixels} pixel redraws, {stats.unresolved_pixels} pixels "
         f"unresolved (mc fallback); non-finite samples: {stats.nonfinite_samples}, "
@@ -231,6 +234,7 @@ def summary_json(
         "estimators": [entry.name for entry in settings.estimators],
         "seed": settings.seed,
         "device": labels.device,
+        "trace_kernel": result.trace_kernel,  # None for an analytic image
         "tasks_by_worker": result.tasks_by_worker,  # through an executor; None otherwise
         "paths_per_second": stats.traced_samples / stats.run_seconds if stats.run_seconds else 0,
         "timings": timings,

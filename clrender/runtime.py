@@ -44,7 +44,9 @@ LOCAL_SIZE = 64
 # work-item returns at once. Runtime.kernel launches each so once (a launch that does nothing),
 # so that a device that generates a kernel's code at its first launch (PoCL, for each local
 # size) does it then, and the time counts as compile time, not render time.
-WARM_UP_FILES = frozenset({"sampling.cl", "integrator.cl", "voronoi_cells.cl", "voronoi_sums.cl"})
+WARM_UP_FILES = frozenset(
+    {"sampling.cl", "integrator.cl", "trace_simd.cl", "voronoi_cells.cl", "voronoi_sums.cl"}
+)
 # The render launches at least this many work-items (the extra ones return at once: about
 # 0.15 ms per launch on PoCL): PoCL generates a second version of each kernel for grids of up to
 # 32 768 work-items ("smallgrid"), which would double a cold start's code generation.
@@ -310,7 +312,8 @@ def kernel_parameters(path: Path, name: str) -> tuple[str, ...]:
     else its scalar type (a key of SCALAR_TYPES). KernelBuildError if the kernel is not there or
     a parameter's type is not one of those."""
     text = path.read_text()
-    match = re.search(rf"__kernel\s+void\s+{name}\s*\(([^)]*)\)", text)
+    # (attribute macros may stand between __kernel and void, as in trace_simd.cl)
+    match = re.search(rf"__kernel\s+(?:\w+\s+)*?void\s+{name}\s*\(([^)]*)\)", text)
     if match is None:
         raise KernelBuildError(f"{path}: no __kernel void {name}(...) to warm up")
     kinds = []

@@ -37,6 +37,10 @@ DEFAULT_MAX_DEPTH = 8
 # (integrator.cl trace_paths), "simd" SIMD_WIDTH paths a work-item, one a vector lane
 # (trace_simd.cl trace_paths_simd).
 TRACE_KERNELS = ("megakernel", "simd")
+# What a render may ask for: a kernel, or "auto": the simd kernel on CPU devices (vector lanes
+# across paths, where a CPU compiler leaves the megakernel's work-items scalar: README,
+# "Render throughput"), the megakernel elsewhere (a GPU runs work-items in lanes itself).
+TRACE_KERNEL_CHOICES = ("auto", *TRACE_KERNELS)
 # Paths per work-item of the simd kernel unless asked otherwise (trace_simd.cl: 16 or 8).
 SIMD_WIDTH = 16
 SIMD_WIDTHS = (8, 16)
@@ -108,11 +112,20 @@ def check_max_depth(max_depth: object) -> None:
 
 
 def check_trace_kernel(trace_kernel: object) -> None:
-    """ParameterError unless trace_kernel names one of TRACE_KERNELS."""
-    if not isinstance(trace_kernel, str) or trace_kernel not in TRACE_KERNELS:
+    """ParameterError unless trace_kernel names one of TRACE_KERNEL_CHOICES."""
+    if not isinstance(trace_kernel, str) or trace_kernel not in TRACE_KERNEL_CHOICES:
         raise ParameterError(
-            f"trace_kernel must be one of {', '.join(TRACE_KERNELS)}, got {trace_kernel!r}"
+            f"trace_kernel must be one of {', '.join(TRACE_KERNEL_CHOICES)}, got {trace_kernel!r}"
         )
+
+
+def choose_trace_kernel(device: cl.Device, trace_kernel: str = "auto") -> str:
+    """The kernel of TRACE_KERNELS that traces on the device: trace_kernel itself, or for
+    "auto" "simd" on a CPU device and "megakernel" on any other."""
+    check_trace_kernel(trace_kernel)
+    if trace_kernel != "auto":
+        return trace_kernel
+    return "simd" if device.type & cl.device_type.CPU else "megakernel"
 
 
 def image_size(scene: Scene, width: int | None, height: int | None) -> tuple[int, int]:
@@ -133,8 +146,9 @@ def image_size(scene: Scene, width: int | None, height: int | None) -> tuple[int
 
 class PathTracer:
     """A scene uploaded once to the device, and the path-tracing kernel for it: trace_kernel
-    "megakernel" (one path a work-item) or "simd" (SIMD_WIDTH paths a work-item, one a vector
-    lane; simd_defines {"SIMD_WIDTH": 8} or {"SIMD_PORTABLE": True} build variants). Both give
+    "megakernel" (one path a work-item), "simd" (SIMD_WIDTH paths a work-item, one a vector
+    lane; simd_defines {"SIMD_WIDTH": 8} or {"SIMD_PORTABLE": True} build variants) or "auto"
+    (choose_trace_kernel: simd on CPU devices); `.trace_kernel` is the one chosen. Both give
     every sample the same radiance to the bit, and count the same rays."""
 
     def __init__(
@@ -146,11 +160,11 @@ class PathTracer:
         next_event_estimation: bool = True,
         profile_defines: dict[str, object] | None = None,
         brute_force_limit: int = BRUTE_FORCE_LIMIT,
-        trace_kernel: str = "megakernel",
+        trace_kernel: str = "auto",
         simd_defines: dict[str, object] | None = None,
     ):
         check_max_depth(max_depth)
-        check_trace_kernel(trace_kernel)
+        trace_kernel = choose_trace_kernel(runtime.device, trace_kernel)
         self.runtime = runtime
         self.scene = scene
         self.max_depth = int(max_depth)

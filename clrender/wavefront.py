@@ -147,7 +147,16 @@ class WavefrontPathTracer(PathTracer):
             raise ParameterError(
                 f"wave_paths must be an integer in [1, {MAX_WAVE_PATHS}], got {wave_paths!r}"
             )
-        super().__init__(runtime, scene, max_depth, russian_roulette, next_event_estimation)
+        # (its parent's kernel is the megakernel, which builds faster than the simd kernel)
+        super().__init__(
+            runtime,
+            scene,
+            max_depth,
+            russian_roulette,
+            next_event_estimation,
+            trace_kernel="megakernel",
+        )
+        self.trace_kernel = "wavefront"
         self.wave_paths = int(wave_paths)
         # A list to collect (stage name, event) of every launch in (for stage timings on a
         # profiling queue); None: nothing kept

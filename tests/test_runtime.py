@@ -162,8 +162,10 @@ def test_kernel_parameters_are_read_from_the_source(tmp_path):
         "__kernel void k(uint count, const float x, __global float *out,\n"
         "                __local uint *scratch)\n{}\n"
         "__kernel void bad(float3 v) {}\n"
+        "__kernel SOME_ATTRIBUTE void\nwith_attribute(uint n, __global uint *out) {}\n"
     )
     assert rt.kernel_parameters(source, "k") == ("uint", "float", "global", "local")
+    assert rt.kernel_parameters(source, "with_attribute") == ("uint", "global")
     with pytest.raises(KernelBuildError, match="float3 v"):
         rt.kernel_parameters(source, "bad")
     with pytest.raises(KernelBuildError, match="no __kernel void missing"):
