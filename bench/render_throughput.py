@@ -18,6 +18,11 @@ beside every render.
     python bench/render_throughput.py                         # 64 and 256 spp, 5 repeats
     python bench/render_throughput.py --spp 64 --repeats 3 --configs independent/mc sppp/vor_sn
 
+A configuration may name the trace kernel after an @ (clrender.render's trace_kernel: auto by
+default, megakernel or simd), to compare kernels in one run:
+
+    python bench/render_throughput.py --configs independent/mc@megakernel independent/mc@simd
+
 With --trees A B ..., compares source trees (worktrees or checkouts of clrender) in one run
 instead: each repeat renders every configuration once (after a warm-up render of each) in a
 new process per tree, with that tree's package and kernels (PYTHONPATH, CLRENDER_KERNELS_DIR),
@@ -48,6 +53,7 @@ from mitsuba_peer import MitsubaPeer  # noqa: E402
 
 import clrender  # noqa: E402
 from clrender.pipeline import DEVICE_STAGES as STAGES  # noqa: E402
+from clrender.trace import TRACE_KERNEL_CHOICES  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "throughput"
 DEFAULT_CONFIGS = ("independent/mc", "sobol/mc", "sppp/vor_sn")
@@ -58,29 +64,62 @@ def parse_args(argv=None):
     parser.add_argument("--scene", default="mitsuba-cbox")
     parser.add_argument("--size", type=int, default=256, help="image width = height")
     parser.add_argument("--spp", type=int, nargs="+", default=[64, 256])
-    parser.add_argument("--configs", nargs="+", default=list(DEFAULT_CONFIGS), metavar="S/E")
+    parser.add_argument(
+        "--configs",
+        nargs="+",
+        default=list(DEFAULT_CONFIGS),
+        metavar="S/E[@K]",
+        help="sampler/estimator, optionally @trace kernel (auto, megakernel, simd)",
+    )
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-mitsuba", action="store_true", help="clrender alone")
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT)
     parser.add_argument(
         "--trees", type=Path, nargs="+", metavar="DIR", help="compare these source trees"
     )
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    for config in args.configs:
+        try:
+            parse_config(config)
+        except ValueError as err:
+            parser.error(str(err))
+    return args
+
+
+def parse_config(config: str) -> tuple[str, str, str]:
+    """(sampler, estimator, trace kernel) of "sampler/estimator[@kernel]"; ValueError in one
+    line for another form."""
+    pair, _, kernel = config.partition("@")
+    sampler, slash, estimator = pair.partition("/")
+    kernel = kernel or "auto"
+    if not (sampler and slash and estimator) or kernel not in TRACE_KERNEL_CHOICES:
+        raise ValueError(
+            f"configuration {config!r}: expected sampler/estimator[@kernel] with kernel one "
+            f"of {', '.join(TRACE_KERNEL_CHOICES)}"
+        )
+    return sampler, estimator, kernel
 
 
 def clrender_render(scene, config: str, spp: int, size: int, seed: int) -> dict:
     """One timed clrender render: wall, CPU, paths and the stages."""
-    sampler, estimator = config.split("/")
+    sampler, estimator, kernel = parse_config(config)
     cpu = time.process_time()
     start = time.perf_counter()
     result = clrender.render(
-        scene, spp=spp, sampler=sampler, estimator=estimator, resolution=size, seed=seed
+        scene,
+        spp=spp,
+        sampler=sampler,
+        estimator=estimator,
+        resolution=size,
+        seed=seed,
+        trace_kernel=kernel,
     )
     call = time.perf_counter() - start
     stats = result.stats
     return {
         "renderer": "clrender",
         "config": config,
+        "trace_kernel": result.trace_kernel,  # the one auto chose, or the one asked for
         "spp": spp,
         "seed": seed,
         "call_s": call,

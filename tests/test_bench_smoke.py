@@ -467,6 +467,24 @@ def test_08_render_throughput_splits_the_render_and_compares_in_one_run(tmp_path
 
 
 @pytest.mark.device
+def test_08_render_throughput_compares_trace_kernels_in_one_run(tmp_path, capsys):
+    import render_throughput
+
+    configs = ["independent/mc@megakernel", "independent/mc@simd"]
+    render_throughput.main(
+        ["--size", "8", "--spp", "2", "--repeats", "1", "--no-mitsuba"]
+        + ["--output", str(tmp_path), "--configs", *configs]
+    )
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert sorted(data["summary"]["2"]) == sorted(configs)
+    ran = {row["config"]: row["trace_kernel"] for row in data["renders"]}
+    assert ran == {configs[0]: "megakernel", configs[1]: "simd"}
+    with pytest.raises(SystemExit):
+        render_throughput.parse_args(["--configs", "independent/mc@fastest"])
+    assert "expected sampler/estimator[@kernel]" in capsys.readouterr().err
+
+
+@pytest.mark.device
 def test_08_render_throughput_compares_trees_in_new_processes(tmp_path):
     import render_throughput
 
