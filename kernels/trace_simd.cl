@@ -515,10 +515,10 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat ng_x = ng_x_l.v, ng_y = ng_y_l.v, ng_z = ng_z_l.v;
     vfloat albedo_r = albedo_r_l.v, albedo_g = albedo_g_l.v, albedo_b = albedo_b_l.v;
     vint material = material_l.v, emitter = emitter_l.v, two_sided = two_sided_l.v;
-    vint scalar_vertex = scalar_vertex_l.v;
+    vint scalar_vertex = scalar_vertex_l.v & running;
 
     // Vertices on other materials than diffuse: the megakernel's, lane by lane
-    uint scalar_bits = V_Bits(scalar_vertex & running);
+    uint scalar_bits = V_Bits(scalar_vertex);
     FOR_EACH_LANE(j, scalar_bits)
     {
         PathState path = Paths_Lane(paths, j);
