@@ -17,10 +17,11 @@ from scene_texts import lit_room, mesh_text, random_shapes_text
 from clrender.errors import ParameterError
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene, scenes_dir
+from clrender.scene_device import BRUTE_FORCE_LIMIT
 from clrender.trace import PathTracer
 
-SIZE = 15  # 15 x 15 pixels at 3 spp: 675 samples, not a multiple of 16 or 8
-SPP = 3
+SIZE = 15  # 15 x 15 pixels at 4 spp: 900 samples, not a multiple of 16 or 8
+SPP = 4  # a square (stratified)
 
 
 def draw(runtime, sampler, seed, size=SIZE, spp=SPP):
@@ -129,11 +130,13 @@ def mesh_scenes(tmp_path_factory):
 def test_mesh_scenes_match(runtime, mesh_scenes, kind, sampler):
     scene = mesh_scenes[kind]
     sets = draw(runtime, sampler, 19)
-    tracer = PathTracer(runtime, scene)
+    # Brute force over the few triangles, a BVH over the many
+    options = {"brute_force_limit": {"triangles": 2**62, "bvh": -1}.get(kind, BRUTE_FORCE_LIMIT)}
+    tracer = PathTracer(runtime, scene, **options)
     assert (len(tracer.bvh_nodes) > 0) == (kind == "bvh")
     if kind == "mesh-light":
         assert (scene.emitters["shape"] == 2).sum() == 4 and len(scene.emitters) == 5
-    radiance, _ = assert_same_trace(runtime, scene, sets, 19)
+    radiance, _ = assert_same_trace(runtime, scene, sets, 19, **options)
     assert np.count_nonzero(radiance.sum(axis=1)) > 0
 
 
