@@ -16,6 +16,17 @@ otherwise idle machine. Output: JSON (default bench/results/trace_throughput.jso
 (camera rays only), depth 1, depth 8 without NEE, and depth 8 with shadow rays counted but not
 traced (a profiling build, PROFILE_SKIP_SHADOW_RAYS); it prints CPU ns per path for each and
 derived costs (per shadow ray traced, per bounce vertex, per camera ray).
+
+--trace-kernel megakernel simd compares the tracing kernels (clrender.trace TRACE_KERNELS, the
+same radiance to the bit) on the same sample sets: after a warm-up launch of each, round after
+round each kernel once in turn (at least 5 rounds: --repeats), medians of wall and CPU time
+(time.process_time: PoCL's threads run in this process) per kernel, and per round the ratio of
+each kernel's paths per CPU-second to the first kernel's; the table prints the median ratio and
+its range. A scene named mesh-sphere-N is mitsuba-cbox with a tessellated sphere of about N
+triangles (bench/bvh_scaling.py; a BVH from 64 triangles on).
+
+    python bench/trace_throughput.py --samplers independent --trace-kernel megakernel simd \
+        --scenes mitsuba-cbox cornell-box cornell-box-glossy veach-mis mesh-sphere-20000
 """
 
 from __future__ import annotations
@@ -32,7 +43,7 @@ import numpy as np
 from clrender.runtime import create_runtime
 from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
 from clrender.scene import load_scene
-from clrender.trace import PathTracer
+from clrender.trace import TRACE_KERNELS, PathTracer
 
 SCENES = ("cornell-box", "cornell-box-glossy", "mitsuba-cbox")
 SAMPLERS = ("independent", "stratified", "sobol", "zsobol", "sppp", "sppp-sobol")
@@ -53,6 +64,13 @@ def parse_args(argv=None):
         help="Russian roulette (ours starts after the second vertex, Mitsuba's at depth 5)",
     )
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--trace-kernel",
+        nargs="+",
+        default=["megakernel"],
+        choices=list(TRACE_KERNELS),
+        help="tracing kernel(s); several: compared in alternating rounds (see above)",
+    )
     parser.add_argument(
         "--profile", action="store_true", help="also time the profile variants (see above)"
     )
@@ -75,16 +93,34 @@ def time_traces(tracer, sets, seed, size, repeats):
     return runs
 
 
-def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defines=None):
-    scene = load_scene(scene_name)
-    tracer = PathTracer(
+MESH_SCENE_PREFIX = "mesh-sphere-"
+
+
+def bench_scene(scene_name):
+    """A shipped scene by name, or mesh-sphere-N: mitsuba-cbox with a sphere of about N
+    triangles (bench/bvh_scaling.py)."""
+    if scene_name.startswith(MESH_SCENE_PREFIX):
+        from bvh_scaling import scene_with_sphere_mesh
+
+        return scene_with_sphere_mesh(int(scene_name[len(MESH_SCENE_PREFIX) :]))
+    return load_scene(scene_name)
+
+
+def make_tracer(runtime, scene, args, max_depth=None, nee=None, defines=None, kernel=None):
+    return PathTracer(
         runtime,
         scene,
         max_depth=args.max_depth if max_depth is None else max_depth,
         russian_roulette=args.russian_roulette,
         next_event_estimation=(not args.no_nee) if nee is None else nee,
         profile_defines=defines,
+        trace_kernel=kernel or args.trace_kernel[0],
     )
+
+
+def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defines=None):
+    scene = bench_scene(scene_name)
+    tracer = make_tracer(runtime, scene, args, max_depth, nee, defines)
     pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
     size = (args.size, args.size)
     config = make_sampler(sampler, args.spp)
@@ -115,7 +151,80 @@ def bench_one(runtime, scene_name, sampler, args, max_depth=None, nee=None, defi
         "cpu_ns_per_path": cpu / paths * 1e9,
         "wall_s_all": [r[0] for r in runs],
         "cpu_s_all": [r[1] for r in runs],
+        "trace_kernel": tracer.trace_kernel,
     }
+
+
+def compare_kernels(runtime, scene_name, sampler, args):
+    """The tracing kernels of --trace-kernel on the same sample sets, one launch each in turn
+    round after round (after a warm-up launch each): medians, and per round each kernel's paths
+    per CPU-second over the first kernel's."""
+    scene = bench_scene(scene_name)
+    tracers = {
+        kernel: make_tracer(runtime, scene, args, kernel=kernel) for kernel in args.trace_kernel
+    }
+    pixels = rectangle_pixels(args.size, 0, 0, args.size, args.size)
+    size = (args.size, args.size)
+    sets = generate_sample_sets(
+        runtime, make_sampler(sampler, args.spp), args.seed, pixels, None, size
+    )
+    paths = sets.traced_total
+    first = {kernel: tracer.trace(sets, args.seed, *size) for kernel, tracer in tracers.items()}
+    reference = next(iter(first.values()))
+    radiance = reference.to_host()
+    bit_equal = {kernel: bool(np.array_equal(r.to_host(), radiance)) for kernel, r in first.items()}
+    runs = {kernel: [] for kernel in tracers}
+    loads = []
+    for _ in range(max(5, args.repeats)):
+        loads.append(os.getloadavg()[0])
+        for kernel, tracer in tracers.items():
+            cpu0, wall0 = time.process_time(), time.perf_counter()
+            tracer.trace(sets, args.seed, *size).wait()
+            runs[kernel].append((time.perf_counter() - wall0, time.process_time() - cpu0))
+    base = args.trace_kernel[0]
+    kernels = {}
+    for kernel, timings in runs.items():
+        wall = statistics.median(w for w, _ in timings)
+        cpu = statistics.median(c for _, c in timings)
+        ratios = [b[1] / c for (_, c), b in zip(timings, runs[base], strict=True)]
+        wall_ratios = [b[0] / w for (w, _), b in zip(timings, runs[base], strict=True)]
+        kernels[kernel] = {
+            "wall_s": wall,
+            "cpu_s": cpu,
+            "paths_per_s": paths / wall,
+            "paths_per_cpu_s": paths / cpu,
+            "cpu_over_wall": cpu / wall,
+            "bit_equal_to_first": bit_equal[kernel],
+            "rays": first[kernel].rays,
+            f"cpu_ratio_to_{base}_per_round": ratios,
+            f"median_cpu_ratio_to_{base}": statistics.median(ratios),
+            f"median_wall_ratio_to_{base}": statistics.median(wall_ratios),
+            "wall_s_all": [w for w, _ in timings],
+            "cpu_s_all": [c for _, c in timings],
+        }
+    return {
+        "scene": scene_name,
+        "sampler": sampler,
+        "paths": paths,
+        "rays_per_path": reference.rays / paths,
+        "loadavg_per_round": loads,
+        "kernels": kernels,
+    }
+
+
+def print_comparison(row, base):
+    for kernel, k in row["kernels"].items():
+        r = k[f"cpu_ratio_to_{base}_per_round"]
+        cpu_ratio = k[f"median_cpu_ratio_to_{base}"]
+        wall_ratio = k[f"median_wall_ratio_to_{base}"]
+        print(
+            f"{row['scene']:20s} {row['sampler']:12s} {kernel:10s} "
+            f"{k['paths_per_cpu_s'] / 1e6:6.3f} M paths/CPU-s {k['paths_per_s'] / 1e6:6.3f} M "
+            f"paths/s wall | cpu/wall {k['cpu_over_wall']:.2f} | x{cpu_ratio:.2f} per CPU-s "
+            f"(rounds {min(r):.2f}-{max(r):.2f}), x{wall_ratio:.2f} wall | "
+            f"bit-equal {k['bit_equal_to_first']}",
+            flush=True,
+        )
 
 
 def print_row(row, label):
@@ -174,17 +283,23 @@ def main(argv=None):
     load_before = os.getloadavg()
     rows = []
     profiles = {}
+    comparisons = []
     for scene_name in args.scenes:
         for sampler in args.samplers:
+            if len(args.trace_kernel) > 1:
+                comparisons.append(compare_kernels(runtime, scene_name, sampler, args))
+                print_comparison(comparisons[-1], args.trace_kernel[0])
+                continue
             row = bench_one(runtime, scene_name, sampler, args)
             rows.append(row)
             print_row(row, sampler)
-        if args.profile:
+        if args.profile and len(args.trace_kernel) == 1:
             profiles[scene_name] = profile_scene(
                 runtime, scene_name, args.samplers[0], args, rows[-len(args.samplers)]
             )
     report = {
         "device": runtime.describe(),
+        "platform": runtime.device.platform.version,
         "compute_units": runtime.device.max_compute_units,
         "size": args.size,
         "spp": args.spp,
@@ -196,7 +311,9 @@ def main(argv=None):
         "loadavg_after": os.getloadavg(),
         "pocl_env": {k: v for k, v in os.environ.items() if k.startswith(("POCL", "PYOPENCL"))},
         "numpy": np.__version__,
+        "trace_kernels": args.trace_kernel,
         "results": rows,
+        "kernel_comparisons": comparisons,
         "profile": profiles,
     }
     args.output.parent.mkdir(parents=True, exist_ok=True)

@@ -515,10 +515,10 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat ng_x = ng_x_l.v, ng_y = ng_y_l.v, ng_z = ng_z_l.v;
     vfloat albedo_r = albedo_r_l.v, albedo_g = albedo_g_l.v, albedo_b = albedo_b_l.v;
     vint material = material_l.v, emitter = emitter_l.v, two_sided = two_sided_l.v;
-    vint scalar_vertex = scalar_vertex_l.v;
+    vint scalar_vertex = scalar_vertex_l.v & running;
 
     // Vertices on other materials than diffuse: the megakernel's, lane by lane
-    uint scalar_bits = V_Bits(scalar_vertex & running);
+    uint scalar_bits = V_Bits(scalar_vertex);
     FOR_EACH_LANE(j, scalar_bits)
     {
         PathState path = Paths_Lane(paths, j);
@@ -751,6 +751,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
         vfloat f_b = (same_side ? albedo_b * M_1_PI_F : 0.0f) * cos_i;
         lit &= (f_r > 0.0f) | (f_g > 0.0f) | (f_b > 0.0f);
         uint lit_bits = V_Bits(lit);
+        vfloat direct_r = (vfloat)(0.0f), direct_g = (vfloat)(0.0f), direct_b = (vfloat)(0.0f);
         if (lit_bits != 0u) {
             // The shadow ray stops short of the emitter by both points' rounding bounds
             vfloat side = V_Dot3(wi_x, wi_y, wi_z, ng_x, ng_y, ng_z) > 0.0f ? error : -error;
@@ -789,10 +790,18 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
             vfloat d_r = f_r * Le_r * scale;
             vfloat d_g = f_g * Le_g * scale;
             vfloat d_b = f_b * Le_b * scale;
-            paths->L_r = lit ? paths->L_r + beta_r * d_r : paths->L_r;
-            paths->L_g = lit ? paths->L_g + beta_g * d_g : paths->L_g;
-            paths->L_b = lit ? paths->L_b + beta_b * d_b : paths->L_b;
+            direct_r = lit ? d_r : 0.0f;
+            direct_g = lit ? d_g : 0.0f;
+            direct_b = lit ? d_b : 0.0f;
         }
+        // Added at every vertex that sampled a light, lit or not (as the megakernel: an
+        // infinite throughput times a zero contribution is NaN there too)
+        vfloat L_r = paths->L_r + beta_r * direct_r;
+        vfloat L_g = paths->L_g + beta_g * direct_g;
+        vfloat L_b = paths->L_b + beta_b * direct_b;
+        paths->L_r = quad_light ? L_r : paths->L_r;
+        paths->L_g = quad_light ? L_g : paths->L_g;
+        paths->L_b = quad_light ? L_b : paths->L_b;
     }
 
     // Sample the BSDF to get the new path directions (Diffuse_Sample)
