@@ -26,7 +26,7 @@ from clrender.errors import ParameterError
 from clrender.runtime import Runtime, launch_global_size
 from clrender.sampling import PATHS_ZSOBOL, DeviceSampleSets, check_seed
 from clrender.scene import Scene
-from clrender.scene_device import BRUTE_FORCE_LIMIT, QUAD_BLOCK_WIDTH
+from clrender.scene_device import BRUTE_FORCE_LIMIT, EMITTER_SHAPES, QUAD_BLOCK_WIDTH
 
 # Dimensions 1 + 2d and 2 + 2d of a 32-bit counter: any sane depth fits; this keeps a typo
 # (max_depth=10**9) from running for ever.
@@ -37,9 +37,7 @@ DEFAULT_MAX_DEPTH = 8
 # (integrator.cl trace_paths), "simd" SIMD_WIDTH paths a work-item, one a vector lane
 # (trace_simd.cl trace_paths_simd).
 TRACE_KERNELS = ("megakernel", "simd")
-# What a render may ask for: a kernel, or "auto": the simd kernel on CPU devices (vector lanes
-# across paths, where a CPU compiler leaves the megakernel's work-items scalar: README,
-# "Render throughput"), the megakernel elsewhere (a GPU runs work-items in lanes itself).
+# What a render may ask for: a kernel, or "auto" (choose_trace_kernel).
 TRACE_KERNEL_CHOICES = ("auto", *TRACE_KERNELS)
 # Paths per work-item of the simd kernel unless asked otherwise (trace_simd.cl: 16 or 8).
 SIMD_WIDTH = 16
@@ -119,13 +117,28 @@ def check_trace_kernel(trace_kernel: object) -> None:
         )
 
 
-def choose_trace_kernel(device: cl.Device, trace_kernel: str = "auto") -> str:
-    """The kernel of TRACE_KERNELS that traces on the device: trace_kernel itself, or for
-    "auto" "simd" on a CPU device and "megakernel" on any other."""
+def choose_trace_kernel(
+    device: cl.Device, trace_kernel: str = "auto", scene: Scene | None = None
+) -> str:
+    """The kernel of TRACE_KERNELS that traces the scene on the device: trace_kernel itself,
+    or for "auto" the faster one as measured (README, "Benchmarks": bench/trace_throughput.py
+    --trace-kernel megakernel simd). That is "simd" on a CPU device, whose compiler leaves the
+    megakernel's work-items scalar, for a scene whose paths run in its vector lanes: no
+    triangles (their intersection, BVH or brute force, runs lane by lane) and only quad
+    emitters (a light sample on a sphere or triangle runs lane by lane). Otherwise the
+    megakernel: on a GPU, which runs work-items in lanes itself, and for the other scenes, which
+    the simd kernel traces more slowly on a CPU (veach-mis 0.8x, a 20 000-triangle mesh
+    0.95x)."""
     check_trace_kernel(trace_kernel)
     if trace_kernel != "auto":
         return trace_kernel
-    return "simd" if device.type & cl.device_type.CPU else "megakernel"
+    if not device.type & cl.device_type.CPU:
+        return "megakernel"
+    if scene is not None and (
+        len(scene.triangles) or np.any(scene.emitters["shape"] != EMITTER_SHAPES["quad"])
+    ):
+        return "megakernel"
+    return "simd"
 
 
 def image_size(scene: Scene, width: int | None, height: int | None) -> tuple[int, int]:
@@ -164,7 +177,7 @@ class PathTracer:
         simd_defines: dict[str, object] | None = None,
     ):
         check_max_depth(max_depth)
-        trace_kernel = choose_trace_kernel(runtime.device, trace_kernel)
+        trace_kernel = choose_trace_kernel(runtime.device, trace_kernel, scene)
         self.runtime = runtime
         self.scene = scene
         self.max_depth = int(max_depth)

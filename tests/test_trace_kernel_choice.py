@@ -3,11 +3,13 @@ devices by default, the megakernel elsewhere, either on request; the same image 
 the render says which ran (result, EXR metadata, summary, JSON; a cluster render's tasks')."""
 
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pyopencl as cl
 import pytest
+from scene_texts import mesh_text
 
 import clrender
 from clrender import cli
@@ -19,17 +21,49 @@ from clrender.sampling import make_sampler
 from clrender.scene import load_scene
 from clrender.trace import TRACE_KERNEL_CHOICES, PathTracer, choose_trace_kernel
 
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
 pytestmark = pytest.mark.device
 
 
+CPU = SimpleNamespace(type=cl.device_type.CPU)
+GPU = SimpleNamespace(type=cl.device_type.GPU)
+
+
 def test_auto_chooses_simd_on_a_cpu_and_the_megakernel_on_other_devices():
-    assert choose_trace_kernel(SimpleNamespace(type=cl.device_type.CPU)) == "simd"
-    assert choose_trace_kernel(SimpleNamespace(type=cl.device_type.GPU)) == "megakernel"
+    assert choose_trace_kernel(CPU) == "simd"
+    assert choose_trace_kernel(GPU) == "megakernel"
     accelerator = SimpleNamespace(type=cl.device_type.ACCELERATOR)
     assert choose_trace_kernel(accelerator) == "megakernel"
-    for asked in ("megakernel", "simd"):  # a request is kept on any device
-        assert choose_trace_kernel(SimpleNamespace(type=cl.device_type.GPU), asked) == asked
+    for asked in ("megakernel", "simd"):  # a request is kept on any device and scene
+        assert choose_trace_kernel(GPU, asked) == asked
+        assert choose_trace_kernel(CPU, asked, load_scene("veach-mis")) == asked
     assert TRACE_KERNEL_CHOICES == ("auto", "megakernel", "simd")
+
+
+@pytest.mark.parametrize(
+    "scene, kernel",
+    [
+        ("mitsuba-cbox", "simd"),  # quads, diffuse, a quad emitter
+        ("cornell-box", "simd"),  # and a sphere
+        ("cornell-box-glossy", "simd"),  # and rough conductors, a dielectric
+        ("furnace", "simd"),
+        ("veach-mis", "megakernel"),  # sphere emitters: light samples lane by lane
+    ],
+)
+def test_auto_on_a_cpu_takes_simd_where_the_paths_run_in_its_lanes(scene, kernel):
+    assert choose_trace_kernel(CPU, "auto", load_scene(scene)) == kernel
+    assert choose_trace_kernel(GPU, "auto", load_scene(scene)) == "megakernel"
+
+
+def test_auto_on_a_cpu_leaves_triangle_scenes_to_the_megakernel(tmp_path):
+    text = (SCENES / "mitsuba-cbox.toml").read_text()
+    triangle = mesh_text([[-0.5, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.5, 0.0]], [[0, 1, 2]])
+    scene_file = tmp_path / "box.toml"
+    scene_file.write_text(text + triangle)
+    scene = load_scene(scene_file)
+    assert len(scene.triangles) == 1
+    assert choose_trace_kernel(CPU, "auto", scene) == "megakernel"
 
 
 @pytest.mark.parametrize("bad", ["fast", "", None, 1, "SIMD"])

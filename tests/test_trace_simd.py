@@ -177,10 +177,16 @@ def test_empty_launch(runtime):
 @pytest.mark.parametrize(
     ("options", "words"),
     [
-        ({"trace_kernel": "vector"}, "trace_kernel must be one of megakernel, simd, got 'vector'"),
+        (
+            {"trace_kernel": "vector"},
+            "trace_kernel must be one of auto, megakernel, simd, got 'vector'",
+        ),
         ({"trace_kernel": None}, "trace_kernel must be one of"),
         ({"trace_kernel": "simd", "simd_defines": {"SIMD_WIDTH": 4}}, "SIMD_WIDTH must be one of"),
-        ({"simd_defines": {"SIMD_WIDTH": 8}}, "simd_defines need trace_kernel='simd'"),
+        (
+            {"trace_kernel": "megakernel", "simd_defines": {"SIMD_WIDTH": 8}},
+            "simd_defines need trace_kernel='simd'",
+        ),
     ],
 )
 def test_bad_trace_kernel_is_refused_in_one_line(runtime, options, words):
@@ -191,5 +197,5 @@ def test_bad_trace_kernel_is_refused_in_one_line(runtime, options, words):
 
 def test_trace_kernel_is_exposed(runtime):
     scene = load_scene("mitsuba-cbox")
-    assert PathTracer(runtime, scene).trace_kernel == "megakernel"
+    assert PathTracer(runtime, scene, trace_kernel="megakernel").trace_kernel == "megakernel"
     assert PathTracer(runtime, scene, trace_kernel="simd").trace_kernel == "simd"
