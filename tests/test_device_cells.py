@@ -740,7 +740,8 @@ def test_spread_plain_sums_cover_every_pixel(runtime, pixels):
 
 
 # 18. bench/device_voronoi_speed.py --stages: each stage's CPU per tile and its busiest thread's
-# share of it (the stage's least wall time on an idle machine), never more than the whole
+# share of it (the stage's least wall time on an idle machine), never more than the whole; and
+# the cell kernel's CPU per traced cell
 def test_stage_accounting_reports_the_busiest_thread(runtime, monkeypatch):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     import device_voronoi_speed
@@ -750,6 +751,12 @@ def test_stage_accounting_reports_the_busiest_thread(runtime, monkeypatch):
     for name, cpu in row["cpu_s_per_tile"].items():
         busiest = row["busiest_thread_s_per_tile"][name]
         assert 0 < busiest <= 1.01 * cpu + 1e-3, name
+    # The cell kernel's CPU per traced cell, from its CPU per image
+    tiles = device_voronoi_speed.IMAGE_PIXELS / device_voronoi_speed.STAGE_PIXELS
+    cell_kernel = row["extra_cpu_s_per_image"]["cell kernel"] / tiles
+    assert row["cell_kernel_cpu_ns_per_cell"] == pytest.approx(
+        1e9 * cell_kernel / row["traced_nuclei"]
+    )
 
 
 def paired_and_single_cells(runtime, traced, offsets, aux, aux_offsets, box):
