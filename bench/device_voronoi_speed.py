@@ -21,7 +21,8 @@ per-pixel Voronoi sums against the plain sums mc_n forms; medians of K runs (alt
 CPU seconds per tile and per 256 x 256 image (16 such tiles). Where Linux reports each thread's
 CPU time (/proc/self/task), each stage's busiest thread too: the stage's wall time on an
 otherwise idle machine is at least that, so busiest / CPU tells how well the stage spreads over
-the cores (1 / cores at best) whatever the load.
+the cores (1 / cores at best) whatever the load. Also the cell kernel's CPU-ns per traced cell
+(times the clock rate: cycles per cell).
 
     python bench/device_voronoi_speed.py --variants - VORONOI_NO_SIDE_TEST,X=2 [--n N]
 
@@ -36,7 +37,8 @@ the median and quartiles of its ratio to the first variant's time in the same ro
 its areas and status bytes are bit for bit the first variant's, and if not how many areas
 differ and by how much at most (relative). On a shared machine separate runs of one kernel
 differ by 10 % and more; ratios within a round resolve 1 to 2 % (at load 4 to 6, medians over
-40 to 60 rounds still moved by 2 to 3 % between runs).
+40 to 60 rounds still moved by 2 to 3 % between runs). `--variants VORONOI_NO_PAIRS -` gives
+what walking a grid cell's nuclei two at a time saves (kernels/voronoi_cells.cl).
 """
 
 from __future__ import annotations
@@ -304,6 +306,8 @@ def stage_accounting(runtime, n: int, repeats: int) -> dict:
         "pixels": STAGE_PIXELS,
         "traced_nuclei": traced,
         "aux_nuclei": total - traced,
+        # the cell kernel's CPU per traced cell: times the clock rate, cycles per cell
+        "cell_kernel_cpu_ns_per_cell": 1e9 * extra["cell kernel"] / max(traced, 1),
         "cpu_s_per_tile": cpu,
         "wall_s_per_tile": wall,
         "busiest_thread_s_per_tile": busiest,
@@ -364,6 +368,7 @@ def main(argv: list[str] | None = None) -> None:
                 )
             for name, value in row["extra_cpu_s_per_image"].items():
                 print(f"  extra: {name:35s} {value:6.2f} CPU-s per 256 x 256 image")
+            print(f"  cell kernel: {row['cell_kernel_cpu_ns_per_cell']:.0f} CPU-ns per traced cell")
         out = args.out.with_name("device_voronoi_stages.json")
         out.parent.mkdir(parents=True, exist_ok=True)
         report.update(machine_before=before, machine_after=machine())

@@ -740,7 +740,8 @@ def test_spread_plain_sums_cover_every_pixel(runtime, pixels):
 
 
 # 18. bench/device_voronoi_speed.py --stages: each stage's CPU per tile and its busiest thread's
-# share of it (the stage's least wall time on an idle machine), never more than the whole
+# share of it (the stage's least wall time on an idle machine), never more than the whole; and
+# the cell kernel's CPU per traced cell
 def test_stage_accounting_reports_the_busiest_thread(runtime, monkeypatch):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     import device_voronoi_speed
@@ -750,3 +751,66 @@ def test_stage_accounting_reports_the_busiest_thread(runtime, monkeypatch):
     for name, cpu in row["cpu_s_per_tile"].items():
         busiest = row["busiest_thread_s_per_tile"][name]
         assert 0 < busiest <= 1.01 * cpu + 1e-3, name
+    # The cell kernel's CPU per traced cell, from its CPU per image
+    tiles = device_voronoi_speed.IMAGE_PIXELS / device_voronoi_speed.STAGE_PIXELS
+    cell_kernel = row["extra_cpu_s_per_image"]["cell kernel"] / tiles
+    assert row["cell_kernel_cpu_ns_per_cell"] == pytest.approx(
+        1e9 * cell_kernel / row["traced_nuclei"]
+    )
+
+
+def paired_and_single_cells(runtime, traced, offsets, aux, aux_offsets, box):
+    """(areas, status) of the cell kernel as built (traced nuclei of a grid cell two at a time)
+    and with VORONOI_NO_PAIRS (one at a time), on one float32 batch."""
+    traced32, aux32 = rounded(traced).astype(np.float32), rounded(aux).astype(np.float32)
+    flat = np.concatenate([traced32, aux32])
+    layout = device_cells.CellLayout(
+        runtime.upload(flat),
+        np.asarray(offsets, np.int64),
+        np.asarray(aux_offsets, np.int64),
+        max(float(np.abs(flat).max()), 0.5),
+        device_cells.grid_side(len(flat), len(offsets) - 1),
+        float(np.abs(traced32).max()),
+    )
+    defines, real = device_cells.precision_setup(runtime, "auto")
+    return [
+        device_cells.launch_cell_kernels(runtime, layout, box, {**defines, **extra}, real)
+        for extra in ({}, {"VORONOI_NO_PAIRS": True})
+    ]
+
+
+# 19. The kernel walks the traced nuclei of a grid cell two at a time, their steps interleaved
+# (VoronoiCell_ComputePair): the areas and status bytes are bit for bit those of one nucleus at
+# a time, whatever the two walks do: random pixels (odd and even counts per grid cell), a
+# lattice (ties: one-way walks), every nucleus twice (coincident) and a pixel without
+# auxiliary nuclei (walks that fail: the clipping search, unbounded cells)
+def test_paired_walks_give_the_cells_of_single_walks(runtime):
+    batch = draw_sppp(np.random.default_rng(11), 64, 40)
+    k = 8
+    centres = (np.arange(k) + 0.5) / k - 0.5
+    lattice = np.array([(cx, cy) for cy in centres for cx in centres])
+    ring = (np.arange(-1, k + 1) + 0.5) / k - 0.5
+    lattice_aux = np.array([(x, y) for y in ring for x in ring if max(abs(x), abs(y)) > 0.5])
+    doubled = np.repeat(rounded(batch.traced[: batch.offsets[1]]), 2, 0)
+    doubled_aux = np.repeat(rounded(batch.aux[: batch.aux_offsets[1]]), 2, 0)
+    bare = np.random.default_rng(12).uniform(-0.5, 0.5, (50, 2))
+    traced = [rounded(batch.traced), lattice, doubled, bare]
+    aux = [rounded(batch.aux), lattice_aux, doubled_aux, np.zeros((0, 2))]
+    offsets = np.concatenate(
+        [batch.offsets[:-1], batch.offsets[-1] + offsets_of([len(t) for t in traced[1:]])]
+    )
+    aux_offsets = np.concatenate(
+        [batch.aux_offsets[:-1], batch.aux_offsets[-1] + offsets_of([len(a) for a in aux[1:]])]
+    )
+    box = float(np.float32(0.5 + batch.eps))
+    (areas, status), (single_areas, single_status) = paired_and_single_cells(
+        runtime, np.concatenate(traced), offsets, np.concatenate(aux), aux_offsets, box
+    )
+    np.testing.assert_array_equal(status, single_status)
+    np.testing.assert_array_equal(areas.view(np.uint8), single_areas.view(np.uint8))
+    # Every kind of walk met a partner: one-way walks, clipped cells, unbounded ones
+    walked = (status & device_cells.STATUS_WALKED) != 0
+    assert ((status & device_cells.STATUS_WALKED_ONE_WAY) != 0).any()
+    assert (~walked & ((status & device_cells.STATUS_BOUNDED) != 0)).any()
+    assert ((status & device_cells.STATUS_BOUNDED) == 0).any()
+    assert walked.mean() > 0.9
