@@ -286,15 +286,19 @@ SIMD_FN vfloat V_Intersect(const SceneData *scene, vint running, const Rays *r, 
         vint reached = running & V_BlockReached(block, r, t);
         if (V_Bits(reached) == 0u)
             continue;
+        // The lanes that do not reach the block test its quads against a tmax of 0, which no
+        // hit (t > 0) is below: no per-quad mask
+        vfloat t_block = reached ? t : 0.0f;
         for (int j = 0; j < QUAD_BLOCK_WIDTH; ++j) {
             int q = block->quad[j];
             if (q < 0)
                 continue;
             vfloat tq;
-            vint hit = reached & V_QuadHits(block, j, r, t, &tq);
-            t = hit ? tq : t;
+            vint hit = V_QuadHits(block, j, r, t_block, &tq);
+            t_block = hit ? tq : t_block;
             id = hit ? (vint)q : id;
         }
+        t = reached ? t_block : t;
     }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         vfloat ti = V_SphereIntersect(&scene->spheres[i], r, t);
@@ -320,11 +324,13 @@ SIMD_FN vint V_Occluded(const SceneData *scene, vint tested, const Rays *r, vflo
         vint reached = open & V_BlockReached(block, r, tmax);
         if (V_Bits(reached) == 0u)
             continue;
+        // (tmax 0 for the lanes that do not reach the block, as in V_Intersect)
+        vfloat tmax_block = reached ? tmax : 0.0f;
         for (int j = 0; j < QUAD_BLOCK_WIDTH; ++j) {
             if (block->quad[j] < 0)
                 continue;
             vfloat tq;
-            blocked |= reached & V_QuadHits(block, j, r, tmax, &tq);
+            blocked |= V_QuadHits(block, j, r, tmax_block, &tq);
         }
     }
     return blocked;
