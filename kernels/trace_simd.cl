@@ -934,10 +934,16 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     LANES(uint, vuint) pixel_l, sample_l, redraw_l;
     LANES(float, vfloat) pos_x_l, pos_y_l;
     LANES(int, vint) running_l;
+    uint slot = 0u, slot_end = 0u; // the last lane's slot, and where its samples end
     for (int j = 0; j < SIMD_WIDTH; ++j) {
         // (lanes past the launch's end repeat its last sample, and do not run)
         uint i = (uint)j < lane_count ? first + (uint)j : traced_total - 1u;
-        uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);
+        // Launch_OwnerPixel, searched only when the sample leaves the last lane's slot (the
+        // lanes' samples are consecutive: most share a pixel)
+        if (j == 0 || i >= slot_end) {
+            slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);
+            slot_end = slot + 1u < pixel_count ? traced_offsets[slot + 1u] : UINT_MAX;
+        }
         uint pixel = pixels[slot];
         uint sample = i - traced_offsets[slot];
         pixel_l.s[j] = pixel;
