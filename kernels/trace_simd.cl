@@ -21,8 +21,8 @@
 //                 and a gather per lane); sphere and triangle emitters: Integrator_SampleDirect
 //                 per lane; shadow rays: vector brute force as above, else Scene_Occluded;
 //   roulette      vector (Roulette_EndProbability on lanes).
-// Also per lane: the camera ray (Camera_Direction), the sampler's set-up and the tiny or huge
-// vectors where Length3 falls back to the builtin.
+// Also per lane: the sampler's set-up and the tiny or huge vectors where Length3 or Normalize3
+// fall back to the builtin.
 //
 // Work-item g traces traced samples [g SIMD_WIDTH, (g + 1) SIMD_WIDTH) (the last one partly);
 // all its lanes are at the same depth (a vertex of every running path per step). Arguments,
@@ -286,15 +286,19 @@ SIMD_FN vfloat V_Intersect(const SceneData *scene, vint running, const Rays *r, 
         vint reached = running & V_BlockReached(block, r, t);
         if (V_Bits(reached) == 0u)
             continue;
+        // The lanes that do not reach the block test its quads against a tmax of 0, which no
+        // hit (t > 0) is below: no per-quad mask
+        vfloat t_block = reached ? t : 0.0f;
         for (int j = 0; j < QUAD_BLOCK_WIDTH; ++j) {
             int q = block->quad[j];
             if (q < 0)
                 continue;
             vfloat tq;
-            vint hit = reached & V_QuadHits(block, j, r, t, &tq);
-            t = hit ? tq : t;
+            vint hit = V_QuadHits(block, j, r, t_block, &tq);
+            t_block = hit ? tq : t_block;
             id = hit ? (vint)q : id;
         }
+        t = reached ? t_block : t;
     }
     for (uint i = 0; i < scene->sphere_count; ++i) {
         vfloat ti = V_SphereIntersect(&scene->spheres[i], r, t);
@@ -320,14 +324,48 @@ SIMD_FN vint V_Occluded(const SceneData *scene, vint tested, const Rays *r, vflo
         vint reached = open & V_BlockReached(block, r, tmax);
         if (V_Bits(reached) == 0u)
             continue;
+        // (tmax 0 for the lanes that do not reach the block, as in V_Intersect)
+        vfloat tmax_block = reached ? tmax : 0.0f;
         for (int j = 0; j < QUAD_BLOCK_WIDTH; ++j) {
             if (block->quad[j] < 0)
                 continue;
             vfloat tq;
-            blocked |= reached & V_QuadHits(block, j, r, tmax, &tq);
+            blocked |= V_QuadHits(block, j, r, tmax_block, &tq);
         }
     }
     return blocked;
+}
+
+// Camera_Direction on lanes, through Integrator_SamplePosition's image positions (the pixel's
+// corner plus a half plus the position in it); Normalize3's builtin lane by lane for tiny or
+// huge vectors.
+SIMD_FN void V_CameraRays(__global const Camera *camera, uint image_width, uint image_height,
+                          vuint pixel, vfloat pos_x, vfloat pos_y, vfloat *dx, vfloat *dy,
+                          vfloat *dz)
+{
+    vfloat image_x = TO_VFLOAT(pixel % image_width) + 0.5f + pos_x;
+    vfloat image_y = TO_VFLOAT(pixel / image_width) + 0.5f + pos_y;
+    vfloat sx = 2.0f * image_x / (float)image_width - 1.0f;
+    vfloat sy = 1.0f - 2.0f * image_y / (float)image_height;
+    vfloat x = camera->forward[0] + sx * camera->right[0] + sy * camera->up[0];
+    vfloat y = camera->forward[1] + sx * camera->right[1] + sy * camera->up[1];
+    vfloat z = camera->forward[2] + sx * camera->right[2] + sy * camera->up[2];
+    vfloat s = V_Dot3(x, y, z, x, y, z);
+    vfloat inv = 1.0f / V_Sqrt(s);
+    vfloat nx = x * inv;
+    vfloat ny = y * inv;
+    vfloat nz = z * inv;
+    uint odd_bits = V_Bits(~((s >= 0x1p-126f) & (s < INFINITY)));
+    FOR_EACH_LANE(j, odd_bits)
+    {
+        float3 d = normalize((float3)(x[j], y[j], z[j]));
+        nx[j] = d.x;
+        ny[j] = d.y;
+        nz[j] = d.z;
+    }
+    *dx = nx;
+    *dy = ny;
+    *dz = nz;
 }
 
 // ----------------------------------------------------------------------------- paths on lanes
@@ -894,33 +932,36 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     paths.eta_scale = (vfloat)(1.0f);
     paths.specular = (vint)(0);
     LANES(uint, vuint) pixel_l, sample_l, redraw_l;
-    LANES(float, vfloat) dx_l, dy_l, dz_l;
+    LANES(float, vfloat) pos_x_l, pos_y_l;
     LANES(int, vint) running_l;
+    uint slot = 0u, slot_end = 0u; // the last lane's slot, and where its samples end
     for (int j = 0; j < SIMD_WIDTH; ++j) {
         // (lanes past the launch's end repeat its last sample, and do not run)
         uint i = (uint)j < lane_count ? first + (uint)j : traced_total - 1u;
-        uint slot, sample;
-        float2 image_pos = Integrator_SamplePosition(positions, traced_offsets, pixels,
-                                                     pixel_count, image_width, i, &slot, &sample);
+        // Launch_OwnerPixel, searched only when the sample leaves the last lane's slot (the
+        // lanes' samples are consecutive: most share a pixel)
+        if (j == 0 || i >= slot_end) {
+            slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);
+            slot_end = slot + 1u < pixel_count ? traced_offsets[slot + 1u] : UINT_MAX;
+        }
         uint pixel = pixels[slot];
+        uint sample = i - traced_offsets[slot];
         pixel_l.s[j] = pixel;
         sample_l.s[j] = sample;
         redraw_l.s[j] = redraws[slot];
+        float2 u_pixel = positions[i];
+        pos_x_l.s[j] = u_pixel.x;
+        pos_y_l.s[j] = u_pixel.y;
         lanes.sampler[j] = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot],
                                         fixed_count, strata, image_width, zsobol_log2_count,
                                         zsobol_bits);
-        float3 dir = Camera_Direction(camera, image_pos, image_width, image_height);
-        dx_l.s[j] = dir.x;
-        dy_l.s[j] = dir.y;
-        dz_l.s[j] = dir.z;
         running_l.s[j] = (uint)j < lane_count ? -1 : 0;
     }
     lanes.pixel = pixel_l.v;
     lanes.sample = sample_l.v;
     lanes.redraw = redraw_l.v;
-    paths.dx = dx_l.v;
-    paths.dy = dy_l.v;
-    paths.dz = dz_l.v;
+    V_CameraRays(camera, image_width, image_height, pixel_l.v, pos_x_l.v, pos_y_l.v, &paths.dx,
+                 &paths.dy, &paths.dz);
     paths.running = running_l.v;
 
     // Trace until every lane's path has ended
