@@ -3,6 +3,7 @@ one path a vector lane) beat the megakernel (kernels/integrator.cl, one path a w
 
     PYOPENCL_CTX=0 python bench/simd_paths_probe.py                  # 64 spp, 7 rounds
     PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 8 --rounds 9
+    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 16r/front 16r/spread 16r/c8
 
 On mitsuba-cbox (the only scene the prototype supports: quads, diffuse materials, one quad
 emitter) with the independent sampler, max depth 8, NEE, no Russian roulette: draws one set
@@ -11,8 +12,14 @@ per-sample radiance (exactly equal samples, max relative difference, image means
 a warm-up launch of each, times them alternating (megakernel, then each width, round after
 round) and reports medians of paths per CPU-second (process time: PoCL's threads run in this
 process; cpu/wall below the compute units means the shared machine took cores) and the
-prototype / megakernel ratio per round. Lane utilisation: the prototype's running lanes per
-bounce-loop iteration over the width, and the lanes tracing a shadow ray per NEE step.
+prototype / megakernel ratio per round, in CPU and in wall time, and the busiest thread's
+share of each launch's CPU (1 / threads when PoCL's threads share the work evenly, 1 when one
+thread ran it all). Lane utilisation: the prototype's running lanes per bounce-loop iteration
+over the width, and the lanes tracing a shadow ray per NEE step. With path regeneration ("16r")
+a work-item traces chunks of --chunk lanes' worth of samples, dealt to work-items by --layout
+(front: work-item g runs chunk g; spread: over the whole padded launch; queue: each work-item
+takes chunks from a counter), in work-groups of --local-size; a variant can name its own
+("16r/c8/l32/spread"). The last work-group that traced tells where the work sat in the launch.
 Output: JSON (default bench/results/simd_paths_probe.json).
 """
 
