@@ -166,6 +166,17 @@ class Prototype:
         chunk with regeneration (the spread layout needs a work-item per chunk at least)."""
         return launch_global_size(-(-count // self.per_item), self.local_size)
 
+    def working_groups(self, count: int) -> list[int] | None:
+        """The work-groups that trace samples (None when work-items take chunks from a
+        counter: then the threads' first work-items do)."""
+        items = -(-count // self.per_item)
+        if self.layout == "queue":
+            return None
+        if self.layout == "spread":
+            size = self.global_size(count)
+            return sorted({c * size // items // self.local_size for c in range(items)})
+        return list(range(-(-items // self.local_size)))
+
     def trace(self, sets, seed, size):
         runtime, tracer = self.runtime, self.tracer
         count = sets.traced_total
@@ -250,6 +261,26 @@ def thread_seconds() -> dict[str, float]:
     return seconds
 
 
+def pocl_deals(groups: int, threads: int = 2) -> list[int]:
+    """The runs of consecutive work-groups PoCL's pthread device deals, one at a time, to
+    whichever of its threads asks first (get_wg_index_range in pthread_scheduler.c, PoCL 3.0
+    and 3.1): 256 * threads groups a run while more than 256 * threads**2 remain, then
+    32 * threads, never more than an even share of what remains."""
+    runs = []
+    while groups > 0:
+        limit = 256 * threads if groups > 256 * threads**2 else 32 * threads
+        run = min(limit, -(-groups // threads))
+        runs.append(run)
+        groups -= run
+    return runs
+
+
+def deals_holding_work(groups: int, working_groups: list[int], threads: int = 2) -> int:
+    """How many of PoCL's runs (pocl_deals) hold at least one of the given groups."""
+    ends = np.cumsum(pocl_deals(groups, threads))
+    return len(set(np.searchsorted(ends, working_groups, side="right").tolist()))
+
+
 def timed(launch):
     """(wall s, cpu s, the busiest other thread's cpu s) of one launch, run to completion:
     PoCL's worker threads run the kernel, so busiest / cpu is 1 / threads when they share it
@@ -290,7 +321,13 @@ def main(argv=None):
         event.wait()
         out, stats = proto.read(radiance, counters, count)
         agreement = compare(reference, out)
+        groups = proto.global_size(paths) // proto.local_size
+        working = proto.working_groups(paths)
         lanes = {
+            "pocl_deals": len(pocl_deals(groups)),
+            "pocl_deals_holding_work": None
+            if working is None
+            else deals_holding_work(groups, working),
             "local_size": proto.local_size,
             "chunk": proto.chunk,
             "layout": proto.layout,
@@ -316,7 +353,8 @@ def main(argv=None):
             f"lanes running per bounce {lanes['bounce_lane_utilisation'] * 100:.1f} %, per "
             f"shadow step {lanes['shadow_lane_utilisation'] * 100:.1f} %; groups "
             f"{lanes['work_groups']} of {proto.local_size}, the last that traced: "
-            f"{stats['last_group']}",
+            f"{stats['last_group']}, PoCL's runs of groups holding work: "
+            f"{lanes['pocl_deals_holding_work']} of {lanes['pocl_deals']}",
             flush=True,
         )
 
@@ -341,6 +379,10 @@ def main(argv=None):
             "paths_per_wall_s": paths / statistics.median(wall),
             "cpu_over_wall": statistics.median(c / t for t, c, _ in runs),
             "busiest_thread_share": statistics.median(b / c for _, c, b in runs),
+            # the wall time of a launch on an otherwise idle machine is at least its busiest
+            # thread's CPU: this rate holds whatever the load took from the process
+            "paths_per_busiest_thread_s": paths / statistics.median(b for _, _, b in runs),
+            "busiest_thread_s_all": [b for _, _, b in runs],
             "cpu_s_all": cpu,
             "wall_s_all": wall,
         }
@@ -364,7 +406,8 @@ def main(argv=None):
             )
         print(
             f"{name:18s} {row['paths_per_cpu_s'] / 1e6:6.3f} M paths/CPU-s "
-            f"{row['paths_per_wall_s'] / 1e6:6.3f} M paths/s wall, cpu/wall "
+            f"{row['paths_per_wall_s'] / 1e6:6.3f} M paths/s wall "
+            f"{row['paths_per_busiest_thread_s'] / 1e6:6.3f} per busiest-thread s, cpu/wall "
             f"{row['cpu_over_wall']:.2f}, busiest thread {row['busiest_thread_share']:.2f} of "
             f"the CPU{extra}",
             flush=True,

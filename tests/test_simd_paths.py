@@ -13,7 +13,13 @@ from clrender.trace import PathTracer
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from simd_paths_probe import Prototype, check_scene, parse_variant  # noqa: E402
+from simd_paths_probe import (  # noqa: E402
+    Prototype,
+    check_scene,
+    deals_holding_work,
+    parse_variant,
+    pocl_deals,
+)
 
 SIZE = 24
 SPP = 3  # 24 * 24 * 3 samples: not a multiple of the work-items' 16 or 128 (padding lanes)
@@ -84,3 +90,15 @@ def test_the_probe_refuses_scenes_the_prototype_cannot_trace():
     with pytest.raises(ValueError, match="materials: diffuse only"):
         check_scene(load_scene("cornell-box-glossy"))
     check_scene(load_scene("mitsuba-cbox"))
+
+
+def test_the_model_of_pocls_deals_of_work_groups():
+    """pthread_scheduler.c (PoCL 3.0, 3.1) on 2 threads: runs of 512 groups while more than
+    1 024 remain, then 64, then halving; 8 192 regenerating work-items of 16 (512 groups) at the
+    front of a 65 536-item launch sit in one run: one thread."""
+    runs = pocl_deals(4096, 2)
+    assert runs[:7] == [512] * 6 + [64] and sum(runs) == 4096 and runs[-2:] == [1, 1]
+    assert pocl_deals(100, 4)[:3] == [25, 19, 14]  # an even share of what remains
+    assert deals_holding_work(4096, list(range(512))) == 1
+    assert deals_holding_work(4096, list(range(1024))) == 2
+    assert deals_holding_work(4096, [0, 4095]) == 2
