@@ -177,9 +177,10 @@ class Prototype:
             return sorted({c * size // items // self.local_size for c in range(items)})
         return list(range(-(-items // self.local_size)))
 
-    def trace(self, sets, seed, size):
+    def trace(self, sets, seed, size, count=None):
+        """Launch over the first count (default: all) traced samples of the sets."""
         runtime, tracer = self.runtime, self.tracer
-        count = sets.traced_total
+        count = sets.traced_total if count is None else count
         global_size = self.global_size(count)
         radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(len(COUNTERS), np.uint32))

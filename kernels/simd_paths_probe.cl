@@ -645,6 +645,9 @@ __kernel SIMD_ATTR void simd_paths(SIMD_PATHS_ARGUMENTS)
 #define SIMD_LAYOUT_FRONT 0  // work-item g runs chunk g: the work sits in the launch's first groups
 #define SIMD_LAYOUT_SPREAD 1 // chunk c runs on work-item floor(c G / C), G work-items, C chunks
 #define SIMD_LAYOUT_QUEUE 2  // each work-item takes chunk after chunk from a counter
+// Queued, the first work-item each thread runs takes chunks until none are left, so the threads
+// stay busy whatever the runs' sizes, and lanes refill across chunks; a sample's radiance does
+// not depend on the lane or work-item that traces it (the lane counters do).
 #ifndef SIMD_LAYOUT
 #define SIMD_LAYOUT SIMD_LAYOUT_QUEUE
 #endif
@@ -654,6 +657,8 @@ CL_INLINE bool Regen_FirstChunk(__global uint *counters, uint traced_total, uint
                                 uint *end)
 {
     uint chunks = (traced_total + (CHUNK_SAMPLES - 1u)) / CHUNK_SAMPLES;
+    if (chunks == 0u)
+        return false;
 #if SIMD_LAYOUT == SIMD_LAYOUT_FRONT
     ulong chunk = get_global_id(0);
 #elif SIMD_LAYOUT == SIMD_LAYOUT_SPREAD

@@ -72,6 +72,21 @@ def test_regeneration_deals_its_chunks_over_the_whole_launch(runtime):
             assert stats["next_chunk"] == chunks + launched
 
 
+@pytest.mark.parametrize("layout", ["front", "spread", "queue"])
+def test_regeneration_over_no_samples_traces_nothing(runtime, layout):
+    scene = load_scene("mitsuba-cbox")
+    tracer = PathTracer(runtime, scene, max_depth=8)
+    sets = generate_sample_sets(
+        runtime, make_sampler("independent", 1), 5, rectangle_pixels(4, 0, 0, 4, 4), None, None
+    )
+    proto = Prototype(runtime, tracer, f"16r/{layout}", local_size=4, chunk=CHUNK, defines=[])
+    event, radiance, counters, _ = proto.trace(sets, 5, 4, count=0)
+    event.wait()
+    _, stats = proto.read(radiance, counters, 0)
+    assert stats["rays"] == stats["last_group"] == 0
+    assert stats["next_chunk"] == 0  # not even a look at the queue
+
+
 def test_variant_options_are_checked():
     assert parse_variant("8r/c4/l64/spread", 16, 32, "queue") == {
         "width": 8,
