@@ -3,6 +3,7 @@ one path a vector lane) beat the megakernel (kernels/integrator.cl, one path a w
 
     PYOPENCL_CTX=0 python bench/simd_paths_probe.py                  # 64 spp, 7 rounds
     PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 8 --rounds 9
+    PYOPENCL_CTX=1 python bench/simd_paths_probe.py --variants 16 16r/front 16r/spread 16r/c8
 
 On mitsuba-cbox (the only scene the prototype supports: quads, diffuse materials, one quad
 emitter) with the independent sampler, max depth 8, NEE, no Russian roulette: draws one set
@@ -11,8 +12,14 @@ per-sample radiance (exactly equal samples, max relative difference, image means
 a warm-up launch of each, times them alternating (megakernel, then each width, round after
 round) and reports medians of paths per CPU-second (process time: PoCL's threads run in this
 process; cpu/wall below the compute units means the shared machine took cores) and the
-prototype / megakernel ratio per round. Lane utilisation: the prototype's running lanes per
-bounce-loop iteration over the width, and the lanes tracing a shadow ray per NEE step.
+prototype / megakernel ratio per round, in CPU and in wall time, and the busiest thread's
+share of each launch's CPU (1 / threads when PoCL's threads share the work evenly, 1 when one
+thread ran it all). Lane utilisation: the prototype's running lanes per bounce-loop iteration
+over the width, and the lanes tracing a shadow ray per NEE step. With path regeneration ("16r")
+a work-item traces chunks of --chunk lanes' worth of samples, dealt to work-items by --layout
+(front: work-item g runs chunk g; spread: over the whole padded launch; queue: each work-item
+takes chunks from a counter), in work-groups of --local-size; a variant can name its own
+("16r/c8/l32/spread"). The last work-group that traced tells where the work sat in the launch.
 Output: JSON (default bench/results/simd_paths_probe.json).
 """
 
@@ -22,6 +29,7 @@ import argparse
 import json
 import os
 import statistics
+import threading
 import time
 from pathlib import Path
 
@@ -34,7 +42,18 @@ from clrender.scene import load_scene
 from clrender.trace import PathTracer
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "simd_paths_probe.json"
-COUNTERS = ("nonfinite", "rays", "bounce_steps", "bounce_lanes", "shadow_steps", "shadow_lanes")
+COUNTERS = (
+    "nonfinite",
+    "rays",
+    "bounce_steps",
+    "bounce_lanes",
+    "shadow_steps",
+    "shadow_lanes",
+    "last_group",
+    "next_chunk",
+)
+# simd_paths_regen's ways to deal chunks to work-items (SIMD_LAYOUT in the kernel)
+LAYOUTS = {"front": 0, "spread": 1, "queue": 2}
 
 
 def parse_args(argv=None):
@@ -47,12 +66,20 @@ def parse_args(argv=None):
         "--variants",
         nargs="+",
         default=["16", "8", "16r", "8r"],
-        help="lanes per work-item; a trailing r: with path regeneration (simd_paths_regen)",
+        help="lanes per work-item; a trailing r: with path regeneration (simd_paths_regen); "
+        "then optionally /cCHUNK, /lLOCAL_SIZE, /front, /spread or /queue (16r/c8/l64/spread)",
     )
     parser.add_argument(
-        "--chunk", type=int, default=32, help="regeneration: lanes' worth of samples a work-item"
+        "--chunk", type=int, default=32, help="regeneration: lanes' worth of samples a chunk"
     )
     parser.add_argument("--local-size", type=int, default=16, help="prototype work-group size")
+    parser.add_argument(
+        "--layout",
+        choices=sorted(LAYOUTS),
+        default="queue",
+        help="regeneration: chunks dealt to work-items packed at the launch's front, spread "
+        "over the whole launch, or taken from a counter by each work-item in turn",
+    )
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument(
         "--define",
@@ -79,29 +106,82 @@ def check_scene(scene) -> None:
         raise ValueError(f"simd_paths prototype cannot trace this scene: {'; '.join(problems)}")
 
 
-class Prototype:
-    """kernels/simd_paths_probe.cl at one width (variant "16", or "16r" with path regeneration), on
-    the tracer's scene buffers."""
+def parse_variant(variant: str, local_size: int, chunk: int, layout: str) -> dict:
+    """A variant's settings: "16" or "8" lanes, a trailing "r" for path regeneration, then
+    optionally /cCHUNK, /lLOCAL_SIZE and a layout (/front, /spread, /queue) in place of the
+    defaults given."""
+    head, *options = variant.split("/")
+    regenerate = head.endswith("r")
+    settings = {
+        "width": head.rstrip("r"),
+        "regenerate": regenerate,
+        "local_size": local_size,
+        "chunk": chunk,
+        "layout": layout,
+    }
+    for option in options:
+        if option in LAYOUTS and regenerate:
+            settings["layout"] = option
+        elif option[:1] == "l" and option[1:].isdigit() and int(option[1:]) > 0:
+            settings["local_size"] = int(option[1:])
+        elif option[:1] == "c" and option[1:].isdigit() and int(option[1:]) > 0 and regenerate:
+            settings["chunk"] = int(option[1:])
+        else:
+            raise ValueError(
+                f"--variants {variant}: option {option!r} is not /cCHUNK (with r), /lLOCAL_SIZE "
+                f"or a layout ({', '.join(LAYOUTS)}, with r)"
+            )
+    if settings["width"] not in ("8", "16"):
+        raise ValueError(f"--variants {variant}: lanes must be 8 or 16, not {head!r}")
+    settings["width"] = int(settings["width"])
+    return settings
 
-    def __init__(self, runtime, tracer, variant: str, local_size: int, chunk: int, defines):
+
+class Prototype:
+    """kernels/simd_paths_probe.cl at one width (variant "16", or "16r" with path regeneration,
+    with launch options: parse_variant), on the tracer's scene buffers."""
+
+    def __init__(
+        self, runtime, tracer, variant: str, local_size: int, chunk: int, defines, layout="queue"
+    ):
         self.runtime = runtime
         self.tracer = tracer
-        self.regenerate = variant.endswith("r")
-        self.width = int(variant.rstrip("r"))
-        self.local_size = local_size
-        # samples per work-item
-        self.per_item = self.width * (chunk if self.regenerate else 1)
+        settings = parse_variant(variant, local_size, chunk, layout)
+        self.regenerate = settings["regenerate"]
+        self.width = settings["width"]
+        self.local_size = settings["local_size"]
+        self.chunk = settings["chunk"] if self.regenerate else None
+        self.layout = settings["layout"] if self.regenerate else None
+        # samples per work-item (regeneration: per chunk)
+        self.per_item = self.width * (self.chunk if self.regenerate else 1)
         build = {"SIMD_WIDTH": self.width} | dict.fromkeys(defines, True)
         if self.regenerate:
-            build["SIMD_CHUNK"] = chunk
+            build["SIMD_CHUNK"] = self.chunk
+            build["SIMD_LAYOUT"] = LAYOUTS[self.layout]
         name = "simd_paths_regen" if self.regenerate else "simd_paths"
         self.kernel = runtime.kernel("simd_paths_probe.cl", name, build)
 
-    def trace(self, sets, seed, size):
-        runtime, tracer = self.runtime, self.tracer
-        count = sets.traced_total
+    def global_size(self, count: int) -> int:
+        """Work-items launched for count traced samples: one per SIMD_WIDTH samples, or per
+        chunk with regeneration (the spread layout needs a work-item per chunk at least)."""
+        return launch_global_size(-(-count // self.per_item), self.local_size)
+
+    def working_groups(self, count: int) -> list[int] | None:
+        """The work-groups that trace samples (None when work-items take chunks from a
+        counter: then the threads' first work-items do)."""
         items = -(-count // self.per_item)
-        global_size = launch_global_size(items, self.local_size)
+        if self.layout == "queue":
+            return None
+        if self.layout == "spread":
+            size = self.global_size(count)
+            return sorted({c * size // items // self.local_size for c in range(items)})
+        return list(range(-(-items // self.local_size)))
+
+    def trace(self, sets, seed, size, count=None):
+        """Launch over the first count (default: all) traced samples of the sets."""
+        runtime, tracer = self.runtime, self.tracer
+        count = sets.traced_total if count is None else count
+        global_size = self.global_size(count)
         radiance = runtime.allocate(12 * count)
         counters = runtime.upload(np.zeros(len(COUNTERS), np.uint32))
         args = tracer.scene_arguments()
@@ -170,12 +250,51 @@ def compare(reference: np.ndarray, other: np.ndarray) -> dict:
     }
 
 
+def thread_seconds() -> dict[str, float]:
+    """CPU seconds each thread of this process has run (Linux; empty elsewhere)."""
+    seconds = {}
+    tasks = Path("/proc/self/task")
+    for task in tasks.iterdir() if tasks.is_dir() else ():
+        try:
+            seconds[task.name] = int((task / "schedstat").read_text().split()[0]) * 1e-9
+        except (OSError, ValueError, IndexError):
+            continue
+    return seconds
+
+
+def pocl_deals(groups: int, threads: int = 2) -> list[int]:
+    """The runs of consecutive work-groups PoCL's pthread device deals, one at a time, to
+    whichever of its threads asks first (get_wg_index_range in pthread_scheduler.c, PoCL 3.0
+    and 3.1): 256 * threads groups a run while more than 256 * threads**2 remain, then
+    32 * threads, never more than an even share of what remains."""
+    runs = []
+    while groups > 0:
+        limit = 256 * threads if groups > 256 * threads**2 else 32 * threads
+        run = min(limit, -(-groups // threads))
+        runs.append(run)
+        groups -= run
+    return runs
+
+
+def deals_holding_work(groups: int, working_groups: list[int], threads: int = 2) -> int:
+    """How many of PoCL's runs (pocl_deals) hold at least one of the given groups."""
+    ends = np.cumsum(pocl_deals(groups, threads))
+    return len(set(np.searchsorted(ends, working_groups, side="right").tolist()))
+
+
 def timed(launch):
-    """(wall s, cpu s) of one launch, run to completion."""
+    """(wall s, cpu s, the busiest other thread's cpu s) of one launch, run to completion:
+    PoCL's worker threads run the kernel, so busiest / cpu is 1 / threads when they share it
+    evenly, 1 when one of them ran it all."""
+    threads0 = thread_seconds()
     cpu0, wall0 = time.process_time(), time.perf_counter()
     event = launch()
     event.wait()
-    return time.perf_counter() - wall0, time.process_time() - cpu0
+    wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+    threads1 = thread_seconds()
+    threads1.pop(str(threading.get_native_id()), None)
+    busiest = max((s - threads0.get(t, 0.0) for t, s in threads1.items()), default=0.0)
+    return wall, cpu, busiest
 
 
 def main(argv=None):
@@ -190,7 +309,7 @@ def main(argv=None):
     )
     paths = sets.traced_total
     protos = {
-        v: Prototype(runtime, tracer, v, args.local_size, args.chunk, args.define)
+        v: Prototype(runtime, tracer, v, args.local_size, args.chunk, args.define, args.layout)
         for v in args.variants
     }
 
@@ -203,7 +322,19 @@ def main(argv=None):
         event.wait()
         out, stats = proto.read(radiance, counters, count)
         agreement = compare(reference, out)
+        groups = proto.global_size(paths) // proto.local_size
+        working = proto.working_groups(paths)
         lanes = {
+            "pocl_deals": len(pocl_deals(groups)),
+            "pocl_deals_holding_work": None
+            if working is None
+            else deals_holding_work(groups, working),
+            "local_size": proto.local_size,
+            "chunk": proto.chunk,
+            "layout": proto.layout,
+            "global_size": proto.global_size(paths),
+            "work_groups": proto.global_size(paths) // proto.local_size,
+            "work_groups_that_traced": stats["last_group"],
             "bounce_lane_utilisation": stats["bounce_lanes"]
             / (proto.width * stats["bounce_steps"]),
             "shadow_lane_utilisation": stats["shadow_lanes"]
@@ -221,7 +352,10 @@ def main(argv=None):
             f"{np.round(agreement['mean_megakernel'], 5)} vs "
             f"{np.round(agreement['mean_prototype'], 5)}; rays {mega.rays} vs {stats['rays']}; "
             f"lanes running per bounce {lanes['bounce_lane_utilisation'] * 100:.1f} %, per "
-            f"shadow step {lanes['shadow_lane_utilisation'] * 100:.1f} %",
+            f"shadow step {lanes['shadow_lane_utilisation'] * 100:.1f} %; groups "
+            f"{lanes['work_groups']} of {proto.local_size}, the last that traced: "
+            f"{stats['last_group']}, PoCL's runs of groups holding work: "
+            f"{lanes['pocl_deals_holding_work']} of {lanes['pocl_deals']}",
             flush=True,
         )
 
@@ -237,35 +371,46 @@ def main(argv=None):
             times[f"simd{w}"].append(timed(lambda p=proto: p.trace(sets, args.seed, args.size)[0]))
     summary = {}
     for name, runs in times.items():
-        cpu = [c for _, c in runs]
-        wall = [t for t, _ in runs]
+        cpu = [c for _, c, _ in runs]
+        wall = [t for t, _, _ in runs]
         summary[name] = {
             "median_cpu_s": statistics.median(cpu),
             "median_wall_s": statistics.median(wall),
             "paths_per_cpu_s": paths / statistics.median(cpu),
             "paths_per_wall_s": paths / statistics.median(wall),
-            "cpu_over_wall": statistics.median(c / t for t, c in runs),
+            "cpu_over_wall": statistics.median(c / t for t, c, _ in runs),
+            "busiest_thread_share": statistics.median(b / c for _, c, b in runs),
+            # the wall time of a launch on an otherwise idle machine is at least its busiest
+            # thread's CPU: this rate holds whatever the load took from the process
+            "paths_per_busiest_thread_s": paths / statistics.median(b for _, _, b in runs),
+            "busiest_thread_s_all": [b for _, _, b in runs],
             "cpu_s_all": cpu,
             "wall_s_all": wall,
         }
-    mega_cpu = [c for _, c in times["megakernel"]]
+    mega = times["megakernel"]
     for w in protos:
         name = f"simd{w}"
-        ratios = [m / c for m, (_, c) in zip(mega_cpu, times[name], strict=True)]
+        ratios = [m[1] / r[1] for m, r in zip(mega, times[name], strict=True)]
+        wall_ratios = [m[0] / r[0] for m, r in zip(mega, times[name], strict=True)]
         summary[name]["ratio_per_round"] = ratios
         summary[name]["median_ratio_to_megakernel"] = statistics.median(ratios)
+        summary[name]["wall_ratio_per_round"] = wall_ratios
+        summary[name]["median_wall_ratio_to_megakernel"] = statistics.median(wall_ratios)
     for name, row in summary.items():
         extra = ""
         if "median_ratio_to_megakernel" in row:
             r = row["ratio_per_round"]
             extra = (
-                f" | x{row['median_ratio_to_megakernel']:.2f} of the megakernel "
-                f"(rounds {min(r):.2f}-{max(r):.2f})"
+                f" | x{row['median_ratio_to_megakernel']:.2f} of the megakernel in CPU "
+                f"(rounds {min(r):.2f}-{max(r):.2f}), "
+                f"x{row['median_wall_ratio_to_megakernel']:.2f} in wall"
             )
         print(
-            f"{name:11s} {row['paths_per_cpu_s'] / 1e6:6.3f} M paths/CPU-s "
-            f"{row['paths_per_wall_s'] / 1e6:6.3f} M paths/s wall, cpu/wall "
-            f"{row['cpu_over_wall']:.2f}{extra}",
+            f"{name:18s} {row['paths_per_cpu_s'] / 1e6:6.3f} M paths/CPU-s "
+            f"{row['paths_per_wall_s'] / 1e6:6.3f} M paths/s wall "
+            f"{row['paths_per_busiest_thread_s'] / 1e6:6.3f} per busiest-thread s, cpu/wall "
+            f"{row['cpu_over_wall']:.2f}, busiest thread {row['busiest_thread_share']:.2f} of "
+            f"the CPU{extra}",
             flush=True,
         )
     report = {
@@ -279,6 +424,7 @@ def main(argv=None):
         "rounds": args.rounds,
         "local_size": args.local_size,
         "chunk": args.chunk,
+        "layout": args.layout,
         "defines": args.define,
         "loadavg_per_round": loads,
         "variants": report_widths,

@@ -66,7 +66,9 @@ typedef ulong8 vulong;
 #define COUNTER_BOUNCE_LANES 3  // running lanes at the start of each iteration, summed
 #define COUNTER_SHADOW_STEPS 4  // iterations that traced shadow rays
 #define COUNTER_SHADOW_LANES 5  // lanes tracing a shadow ray in those, summed
-#define COUNTER_COUNT 6
+#define COUNTER_LAST_GROUP 6    // 1 + the highest work-group id that traced a sample
+#define COUNTER_NEXT_CHUNK 7    // simd_paths_regen, SIMD_LAYOUT_QUEUE: the next chunk to take
+#define COUNTER_COUNT 8
 
 // ----------------------------------------------------------------------------- lane helpers
 
@@ -539,6 +541,7 @@ CL_INLINE uint Store_Radiance(__global float *radiance, uint i, float r, float g
 
 CL_INLINE void Store_Counters(__global uint *counters, uint nonfinite, const LaneStats *stats)
 {
+    atomic_max(&counters[COUNTER_LAST_GROUP], (uint)get_group_id(0) + 1u);
     if (nonfinite)
         atomic_add(&counters[COUNTER_NONFINITE], nonfinite);
     atomic_add(&counters[COUNTER_RAYS], stats->rays);
@@ -628,22 +631,74 @@ __kernel SIMD_ATTR void simd_paths(SIMD_PATHS_ARGUMENTS)
     Store_Counters(counters, nonfinite, &stats);
 }
 
-// Samples per work-item of simd_paths_regen: SIMD_CHUNK lanes' worth.
+// Samples per chunk of simd_paths_regen: SIMD_CHUNK lanes' worth.
 #ifndef SIMD_CHUNK
 #define SIMD_CHUNK 32
 #endif
+#define CHUNK_SAMPLES (SIMD_WIDTH * SIMD_CHUNK)
 
-// Path regeneration: one work-item per SIMD_CHUNK * SIMD_WIDTH consecutive traced samples; a
-// lane whose path ends stores its radiance and starts the work-item's next sample at the next
-// step, so lanes idle only at the end of the chunk.
+// How simd_paths_regen deals its chunks (CHUNK_SAMPLES consecutive traced samples each) to
+// work-items. PoCL's pthread device deals whole work-groups to its T threads in runs of
+// consecutive groups, each to the thread that asks first: 256 T groups a run while more than
+// 256 T^2 remain, then 32 T (pthread_scheduler.c, get_wg_index_range, PoCL 3.0 and 3.1). With
+// T = 2, work packed into the first 512 groups of a padded launch all goes to one thread.
+#define SIMD_LAYOUT_FRONT 0  // work-item g runs chunk g: the work sits in the launch's first groups
+#define SIMD_LAYOUT_SPREAD 1 // chunk c runs on work-item floor(c G / C), G work-items, C chunks
+#define SIMD_LAYOUT_QUEUE 2  // each work-item takes chunk after chunk from a counter
+// Queued, the first work-item each thread runs takes chunks until none are left, so the threads
+// stay busy whatever the runs' sizes, and lanes refill across chunks; a sample's radiance does
+// not depend on the lane or work-item that traces it (the lane counters do).
+#ifndef SIMD_LAYOUT
+#define SIMD_LAYOUT SIMD_LAYOUT_QUEUE
+#endif
+
+// The [*next, *end) samples of this work-item's first chunk; false if it has none.
+CL_INLINE bool Regen_FirstChunk(__global uint *counters, uint traced_total, uint *next,
+                                uint *end)
+{
+    uint chunks = (traced_total + (CHUNK_SAMPLES - 1u)) / CHUNK_SAMPLES;
+    if (chunks == 0u)
+        return false;
+#if SIMD_LAYOUT == SIMD_LAYOUT_FRONT
+    ulong chunk = get_global_id(0);
+#elif SIMD_LAYOUT == SIMD_LAYOUT_SPREAD
+    // The chunk c with floor(c G / C) == g, if any (C <= G: the host launches a work-item a
+    // chunk at least)
+    ulong g = get_global_id(0), size = get_global_size(0);
+    ulong chunk = (g * chunks + size - 1u) / size;
+    if (chunk * size / chunks != g)
+        return false;
+#else
+    ulong chunk = atomic_inc(&counters[COUNTER_NEXT_CHUNK]);
+#endif
+    if (chunk >= chunks)
+        return false;
+    *next = (uint)chunk * CHUNK_SAMPLES;
+    *end = traced_total - *next > CHUNK_SAMPLES ? *next + CHUNK_SAMPLES : traced_total;
+    return true;
+}
+
+// The work-item's next chunk once its current one is all started: with SIMD_LAYOUT_QUEUE
+// another from the counter (false when none are left), otherwise none.
+CL_INLINE bool Regen_NextChunk(__global uint *counters, uint traced_total, uint *next,
+                               uint *end)
+{
+#if SIMD_LAYOUT == SIMD_LAYOUT_QUEUE
+    return Regen_FirstChunk(counters, traced_total, next, end);
+#else
+    return false;
+#endif
+}
+
+// Path regeneration: a work-item traces chunks of CHUNK_SAMPLES consecutive traced samples
+// (SIMD_LAYOUT says which); a lane whose path ends stores its radiance and starts the next
+// sample at the next step, so lanes idle only at the end of the work-item's last chunk.
 __kernel SIMD_ATTR void simd_paths_regen(SIMD_PATHS_ARGUMENTS)
 {
-    uint begin = get_global_id(0) * (SIMD_WIDTH * SIMD_CHUNK);
-    if (begin >= traced_total)
+    uint next, end;
+    if (!Regen_FirstChunk(counters, traced_total, &next, &end))
         return;
-    uint end = traced_total - begin > SIMD_WIDTH * SIMD_CHUNK ? begin + SIMD_WIDTH * SIMD_CHUNK
-                                                               : traced_total;
-    uint next = begin;
+    bool more = true; // chunks may be left to take
     PathScene scene = PATH_SCENE_OF_ARGUMENTS;
 #if SIMD_WIDTH == 16
     const vuint lane_bit = (vuint)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u,
@@ -670,22 +725,26 @@ __kernel SIMD_ATTR void simd_paths_regen(SIMD_PATHS_ARGUMENTS)
     for (;;) {
         // Start the next samples in the free lanes
         uint free_bits = ~V_Bits(paths.running) & all_lanes;
-        if (free_bits != 0u && next < end) {
-            uint fresh_bits = 0u;
-            while (free_bits != 0u && next < end) {
-                int j = __builtin_ctz(free_bits);
-                free_bits &= free_bits - 1u;
-                uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, next);
-                pixel.s[j] = pixels[slot];
-                sample.s[j] = next - traced_offsets[slot];
-                redraw.s[j] = redraws[slot];
-                float2 u_pixel = positions[next];
-                pos_x.s[j] = u_pixel.x;
-                pos_y.s[j] = u_pixel.y;
-                index.s[j] = next;
-                fresh_bits |= 1u << j;
-                ++next;
+        uint fresh_bits = 0u;
+        while (free_bits != 0u && more) {
+            if (next >= end) {
+                more = Regen_NextChunk(counters, traced_total, &next, &end);
+                continue;
             }
+            int j = __builtin_ctz(free_bits);
+            free_bits &= free_bits - 1u;
+            uint slot = Launch_OwnerPixel(traced_offsets, pixel_count, next);
+            pixel.s[j] = pixels[slot];
+            sample.s[j] = next - traced_offsets[slot];
+            redraw.s[j] = redraws[slot];
+            float2 u_pixel = positions[next];
+            pos_x.s[j] = u_pixel.x;
+            pos_y.s[j] = u_pixel.y;
+            index.s[j] = next;
+            fresh_bits |= 1u << j;
+            ++next;
+        }
+        if (fresh_bits != 0u) {
             vint fresh = (lane_bit & fresh_bits) != 0u;
             vfloat dx, dy, dz;
             V_CameraRays(camera, image_width, image_height, pixel.v, pos_x.v, pos_y.v, &dx, &dy,
