@@ -133,12 +133,38 @@ def _match_one(spec: str, items: list, what: str):
     raise DeviceError(f"{what} {spec!r} matches nothing; accepted: {accepted}")
 
 
+def match_device(request: str, devices: list[cl.Device]) -> cl.Device:
+    """The device `--device REQUEST` names among `devices`: by index, by its whole name, or by
+    a part of its description (describe_device: name, platform, version) that no other device's
+    has. DeviceError in one line otherwise, listing the devices (several share "Intel(R) Xeon"
+    when PoCL and Intel's runtime drive the same CPU)."""
+    listed = "; ".join(f"{i}: {describe_device(device)}" for i, device in enumerate(devices))
+    what = "--device (device=)"
+    if request.isdigit():
+        if int(request) < len(devices):
+            return devices[int(request)]
+        raise DeviceError(f"{what} {request!r} matches nothing; accepted: {listed}")
+    wanted = request.lower()
+    whole = [device for device in devices if device.name.strip().lower() == wanted]
+    if len(whole) == 1:
+        return whole[0]
+    found = [i for i, device in enumerate(devices) if wanted in describe_device(device).lower()]
+    if len(found) == 1:
+        return devices[found[0]]
+    if found:
+        raise DeviceError(
+            f"{what} {request!r} matches {len(found)} devices ({', '.join(map(str, found))}): "
+            f"give an index or a part of one description only; accepted: {listed}"
+        )
+    raise DeviceError(f"{what} {request!r} matches nothing; accepted: {listed}")
+
+
 def select_device(request: str | None = None) -> cl.Device:
-    """The device for `--device REQUEST` (index or name substring), else PYOPENCL_CTX, else
-    the first available device."""
+    """The device for `--device REQUEST` (match_device: index, whole name or a part of one
+    device's description), else PYOPENCL_CTX, else the first available device."""
     devices = list_devices()
     if request is not None and request != "":
-        return _match_one(str(request), devices, "--device (device=)")
+        return match_device(str(request), devices)
     env = os.environ.get("PYOPENCL_CTX", "").strip()
     if env:
         return _pick_from_pyopencl_ctx(env, cl.get_platforms())

@@ -8,6 +8,7 @@ import sys
 import warnings
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pyopencl as cl
@@ -28,8 +29,41 @@ def test_first_device_by_default(monkeypatch):
 def test_device_by_index_and_by_name_substring():
     first = rt.list_devices()[0]
     assert rt.select_device("0") == first
-    fragment = first.name.strip().split()[-1][:4].lower()
-    assert rt.select_device(fragment) == first
+    assert rt.select_device(first.name.strip().upper()) == first  # a whole name
+    others = [rt.describe_device(device).lower() for device in rt.list_devices()[1:]]
+    description = rt.describe_device(first).lower()
+    unique = next(
+        description[i : i + 6]
+        for i in range(len(description) - 5)
+        if not any(description[i : i + 6] in other for other in others)
+    )
+    assert rt.select_device(unique) == first
+
+
+def fake_device(name, platform, version="OpenCL 3.0"):
+    return SimpleNamespace(name=name, platform=SimpleNamespace(name=platform), version=version)
+
+
+def test_a_device_name_part_that_several_devices_share_is_refused_not_guessed():
+    # PoCL and Intel's runtime on one Xeon: "Intel" is in all three names; the first used to
+    # win silently, so "--device Intel" rendered on PoCL
+    devices = [
+        fake_device("pthread-skylake-avx512-Intel(R) Xeon(R) Processor", "Portable Computing"),
+        fake_device("Intel(R) Xeon(R) Processor", "Intel(R) OpenCL"),
+        fake_device("pthread-Intel(R) Xeon(R) Processor", "Portable Computing", "PoCL rocketlake"),
+    ]
+    with pytest.raises(DeviceError) as err:
+        rt.match_device("Intel", devices)
+    message = str(err.value)
+    assert "\n" not in message
+    assert "'Intel' matches 3 devices (0, 1, 2)" in message and "2: pthread-Intel" in message
+    assert rt.match_device("intel(r) xeon(r) processor", devices) is devices[1]  # whole name
+    assert rt.match_device("Intel(R) OpenCL", devices) is devices[1]  # its platform
+    assert rt.match_device("rocketlake", devices) is devices[2]  # its version string
+    assert rt.match_device("skylake", devices) is devices[0]
+    assert rt.match_device("1", devices) is devices[1]
+    with pytest.raises(DeviceError, match="'3' matches nothing; accepted: 0: pthread-skylake"):
+        rt.match_device("3", devices)
 
 
 def test_unknown_device_lists_the_accepted_ones():
