@@ -310,7 +310,10 @@ def generate_sample_sets(
     image_size: tuple[int, int] | None = None,
 ) -> DeviceSampleSets:
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
-    image_size (width, height): needed by zsobol, whose sequence spans the image."""
+    image_size (width, height): needed by zsobol, whose sequence spans the image. Only SPPP
+    counts on the device (N ~ Poisson(n)); the fixed-count samplers' n needs no count pass and
+    no read-back. The uploads do not block: the queue runs them in order before the kernels,
+    and a copy's event, dropped at return, holds its host array until the copy is done."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
     path_arguments = config.path_arguments(image_size)
     image_width = 1 if image_size is None else int(image_size[0])
@@ -318,12 +321,16 @@ def generate_sample_sets(
         raise ParameterError(
             f"pixel index {int(pixels.max())} outside the {image_width} x {image_size[1]} image"
         )
-    pixels_buf, redraws_buf = runtime.upload(pixels), runtime.upload(redraws)
-    counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
+    pixels_buf, _pixels_copy = runtime.upload_async(pixels)
+    redraws_buf, _redraws_copy = runtime.upload_async(redraws)
+    if config.is_sppp:
+        counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
+    else:
+        counts = np.full(len(pixels), config.n, np.uint32)
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     if offsets[-1] >= 2**32:
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
-    offsets_buf = runtime.upload(offsets.astype(np.uint32))
+    offsets_buf, _offsets_copy = runtime.upload_async(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
     positions = runtime.allocate(8 * total)
     _launch_fill(

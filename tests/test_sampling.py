@@ -422,3 +422,26 @@ def test_traced_positions_stay_inside_their_pixels_range(runtime, sampler, n):
         cl.enqueue_copy(runtime.queue, out, positions)
         np.testing.assert_array_equal(out[2 * count :], guard, err_msg=f"pixel {pixel}")
         np.testing.assert_array_equal(out[: 2 * count].reshape(-1, 2), expected)
+
+
+# The fixed-count samplers draw their sets without the count pass (every pixel has n samples:
+# no count kernel, no read-back of counts); SPPP still counts on the device. Same sets either
+# way: the count kernel's n for a fixed-count sampler is what the host now writes.
+@pytest.mark.parametrize(
+    "sampler, counted",
+    [("independent", False), ("stratified-pixel", False), ("sobol", False), ("sppp", True)],
+)
+def test_only_sppp_launches_the_count_pass(runtime, monkeypatch, sampler, counted):
+    launched = []
+    launch = runtime.launch_1d
+
+    def recording(kernel, count, *args):
+        launched.append(kernel.function_name)
+        return launch(kernel, count, *args)
+
+    monkeypatch.setattr(runtime, "launch_1d", recording)
+    config = make_sampler(sampler, 16)
+    pixels = np.arange(40, 60, dtype=np.uint32)
+    sets = host_sets(runtime, config, 2, pixels)
+    assert ("count_samples" in launched) == counted
+    np.testing.assert_array_equal(sets.counts, count_samples(runtime, config, 2, pixels))
