@@ -113,8 +113,9 @@ def add_device_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--device",
         default=None,
-        help="OpenCL device: index in the list, or a name substring "
-        "(default: PYOPENCL_CTX, else the first device)",
+        help="OpenCL device: index in the list, its whole name, or a part of its description "
+        "(name, platform, version) no other device shares (default: PYOPENCL_CTX, else the "
+        "first device)",
     )
 
 
@@ -201,7 +202,8 @@ def add_render_options(parser: argparse.ArgumentParser) -> None:
         choices=("auto", "megakernel", "simd"),
         default="auto",
         help="the path-tracing kernel: the same image to the bit, at different speeds; auto "
-        "(default): simd (paths in vector lanes) on CPU devices, megakernel elsewhere",
+        "(default): simd (paths in vector lanes) on a CPU device for a scene without "
+        "triangles, BVH or emitters other than quads, megakernel otherwise",
     )
     add(
         "--tile-samples",

@@ -522,7 +522,8 @@ def render_on(
             add_stats(stats, part.stats)
             devices.add(part.device)
             precisions.add(part.precision)
-            if part.trace_kernel is not None:
+            # (None from an analytic image's task, or from a worker older than the field)
+            if getattr(part, "trace_kernel", None) is not None:
                 trace_kernels.add(part.trace_kernel)
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds

@@ -312,8 +312,9 @@ def generate_sample_sets(
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
     image_size (width, height): needed by zsobol, whose sequence spans the image. Only SPPP
     counts on the device (N ~ Poisson(n)); the fixed-count samplers' n needs no count pass and
-    no read-back. The uploads do not block: the queue runs them in order before the kernels,
-    and a copy's event, dropped at return, holds its host array until the copy is done."""
+    no read-back. The uploads are enqueued without a wait each: the queue runs them in order
+    before the kernels, and dropping a copy's event at return waits for that copy (its host
+    array must live until then)."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
     path_arguments = config.path_arguments(image_size)
     image_width = 1 if image_size is None else int(image_size[0])

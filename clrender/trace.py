@@ -118,21 +118,24 @@ def check_trace_kernel(trace_kernel: object) -> None:
 
 
 def choose_trace_kernel(
-    device: cl.Device, trace_kernel: str = "auto", scene: Scene | None = None
+    device: cl.Device,
+    trace_kernel: str = "auto",
+    scene: Scene | None = None,
+    has_bvh: bool = False,
 ) -> str:
     """The kernel of TRACE_KERNELS that traces the scene on the device: trace_kernel itself,
     or for "auto" the faster one as measured (README, "Benchmarks": bench/trace_throughput.py
     --trace-kernel megakernel simd). That is "simd" on a CPU device, whose compiler leaves the
     megakernel's work-items scalar, for a scene whose paths run in its vector lanes: no
-    triangles (their intersection, BVH or brute force, runs lane by lane) and only quad
-    emitters (a light sample on a sphere or triangle runs lane by lane). Otherwise the
-    megakernel: on a GPU, which runs work-items in lanes itself, and for the other scenes, which
-    the simd kernel traces more slowly on a CPU (veach-mis 0.8x, a 20 000-triangle mesh
-    0.95x)."""
+    triangles and no BVH (has_bvh: the tracer built one; intersection through either runs lane
+    by lane) and only quad emitters (a light sample on a sphere or triangle runs lane by lane).
+    Otherwise the megakernel: on a GPU, which runs work-items in lanes itself, and for the
+    other scenes, which the simd kernel traces more slowly on a CPU (veach-mis 0.8x, a 20 000
+    triangle mesh 0.95x, 151 quads or 120 spheres in a BVH about 0.9x)."""
     check_trace_kernel(trace_kernel)
     if trace_kernel != "auto":
         return trace_kernel
-    if not device.type & cl.device_type.CPU:
+    if not device.type & cl.device_type.CPU or has_bvh:
         return "megakernel"
     if scene is not None and (
         len(scene.triangles) or np.any(scene.emitters["shape"] != EMITTER_SHAPES["quad"])
@@ -161,8 +164,10 @@ class PathTracer:
     """A scene uploaded once to the device, and the path-tracing kernel for it: trace_kernel
     "megakernel" (one path a work-item), "simd" (SIMD_WIDTH paths a work-item, one a vector
     lane; simd_defines {"SIMD_WIDTH": 8} or {"SIMD_PORTABLE": True} build variants) or "auto"
-    (choose_trace_kernel: simd on CPU devices); `.trace_kernel` is the one chosen. Both give
-    every sample the same radiance to the bit, and count the same rays."""
+    (choose_trace_kernel: simd on a CPU device for a scene without triangles, BVH or emitters
+    other than quads); `.trace_kernel` is the one chosen. Both give every sample the same
+    radiance to the bit, and count the same rays. The default is the megakernel: benchmarks and
+    tests name their kernel; renders ask for "auto" (clrender.render's trace_kernel)."""
 
     def __init__(
         self,
@@ -173,11 +178,11 @@ class PathTracer:
         next_event_estimation: bool = True,
         profile_defines: dict[str, object] | None = None,
         brute_force_limit: int = BRUTE_FORCE_LIMIT,
-        trace_kernel: str = "auto",
+        trace_kernel: str = "megakernel",
         simd_defines: dict[str, object] | None = None,
     ):
         check_max_depth(max_depth)
-        trace_kernel = choose_trace_kernel(runtime.device, trace_kernel, scene)
+        check_trace_kernel(trace_kernel)
         self.runtime = runtime
         self.scene = scene
         self.max_depth = int(max_depth)
@@ -202,6 +207,9 @@ class PathTracer:
         # Profiling builds only (bench/trace_throughput.py --profile), e.g.
         # {"PROFILE_SKIP_SHADOW_RAYS": True}: shadow rays counted but not traced.
         # simd_defines: the simd kernel's build options (SIMD_WIDTH 8 or 16, SIMD_PORTABLE).
+        trace_kernel = choose_trace_kernel(
+            runtime.device, trace_kernel, scene, has_bvh=len(self.bvh_nodes) > 0
+        )
         self.trace_kernel = trace_kernel
         if trace_kernel == "simd":
             defines = dict(profile_defines or {}) | dict(simd_defines or {})

@@ -171,7 +171,7 @@ CL_INLINE float3 Integrator_Li(const SceneData *scene, float3 origin, float3 dir
 }
 
 // The image position (in pixels) of traced sample i of a launch, its pixel's slot in the launch
-// and its index in the pixel (trace_paths' first step, for each lane of trace_paths_simd's).
+// and its index in the pixel (trace_paths' first step; trace_simd.cl does it on lanes).
 CL_INLINE float2 Integrator_SamplePosition(__global const float2 *positions,
                                            __global const uint *traced_offsets,
                                            __global const uint *pixels, uint pixel_count,

@@ -207,8 +207,8 @@ __kernel void wavefront_intersect(uint ray_count, __global const uint *queue,
     ray->prim = prim;
 }
 
-// Stage (c): one vertex of each queued path (the body of integrator.cl's Integrator_Li loop at
-// depth `depth`): emission, a light sample to the shadow queue, a BSDF sample to the next queue.
+// Stage (c): one vertex of each queued path (integrator.h's Integrator_Li loop body,
+// Integrator_Vertex, at depth `depth`): emission, a light sample to the shadow queue, a BSDF sample to the next queue.
 __kernel void wavefront_shade(int depth, int max_depth, int nee, int russian_roulette,
                               uint ray_count, int paths_kind, uint seed, uint fixed_count,
                               uint strata, uint zsobol_bits, __global const uint *queue,

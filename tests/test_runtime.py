@@ -27,15 +27,21 @@ def test_first_device_by_default(monkeypatch):
 
 
 def test_device_by_index_and_by_name_substring():
-    first = rt.list_devices()[0]
+    devices = rt.list_devices()
+    first = devices[0]
     assert rt.select_device("0") == first
-    assert rt.select_device(first.name.strip().upper()) == first  # a whole name
-    others = [rt.describe_device(device).lower() for device in rt.list_devices()[1:]]
-    description = rt.describe_device(first).lower()
+    descriptions = [rt.describe_device(device).lower() for device in devices]
+    if descriptions.count(descriptions[0]) > 1:
+        pytest.skip("two devices alike here: only an index tells them apart")
+    names = [device.name.strip().lower() for device in devices]
+    if names.count(names[0]) == 1:
+        assert rt.select_device(first.name.strip().upper()) == first  # a whole name
+    description = descriptions[0]
     unique = next(
-        description[i : i + 6]
-        for i in range(len(description) - 5)
-        if not any(description[i : i + 6] in other for other in others)
+        description[i : i + length]
+        for length in range(6, len(description) + 1)
+        for i in range(len(description) - length + 1)
+        if not any(description[i : i + length] in other for other in descriptions[1:])
     )
     assert rt.select_device(unique) == first
 

@@ -131,3 +131,23 @@ def test_a_cluster_job_carries_the_request_and_reports_the_tasks_kernel(runtime)
         assert result.trace_kernel == asked
         images[asked] = result.image
     np.testing.assert_array_equal(images["simd"], images["megakernel"])
+
+
+def test_a_path_tracer_is_the_megakernel_unless_asked(runtime):
+    # benchmarks and tests compare against PathTracer(runtime, scene): the megakernel
+    scene = load_scene("mitsuba-cbox")
+    assert PathTracer(runtime, scene).trace_kernel == "megakernel"
+    is_cpu = bool(runtime.device.type & cl.device_type.CPU)
+    expected = "simd" if is_cpu else "megakernel"
+    assert PathTracer(runtime, scene, trace_kernel="auto").trace_kernel == expected
+
+
+def test_auto_leaves_a_scene_in_a_bvh_to_the_megakernel(runtime):
+    # cornell-box's sphere put in a BVH (as 97 quads or more would be, or many spheres): the
+    # simd kernel would intersect it lane by lane
+    scene = load_scene("cornell-box")
+    tracer = PathTracer(runtime, scene, trace_kernel="auto", brute_force_limit=-1)
+    assert len(tracer.bvh_nodes) > 0
+    assert tracer.trace_kernel == "megakernel"
+    assert choose_trace_kernel(CPU, "auto", scene, has_bvh=True) == "megakernel"
+    assert choose_trace_kernel(CPU, "simd", scene, has_bvh=True) == "simd"
