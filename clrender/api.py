@@ -98,13 +98,14 @@ def render(
     samples (`.images[name]`, one image each; see clrender.pipeline for redrawn pixels);
     resolution: None for the scene's own size, a width N (the scene's aspect ratio) or (width,
     height); device: an OpenCL device's index, whole name or a part of its description no
-    other device shares (default PYOPENCL_CTX, else the first device); max_depth: scattering vertices per path; russian_roulette: end
-    paths at random from their second vertex on (pbrt-v4's rule, unbiased; off by default, as
-    in the paper; refused for analytic images, which have no paths); trace_kernel: "auto" (the
-    simd kernel on a CPU device for a scene without triangles, BVH or emitters other than
-    quads, the megakernel otherwise: clrender.trace.choose_trace_kernel), "megakernel" or "simd": the same
-    image to the bit, at different speeds (clrender.trace.PathTracer; `.trace_kernel` says which
-    ran); progress: a callable
+    other device shares (default PYOPENCL_CTX, else the first device); max_depth: scattering
+    vertices per path; russian_roulette: end paths at random from their second vertex on
+    (pbrt-v4's rule, unbiased; off by default, as in the paper; refused for analytic images,
+    which have no paths); trace_kernel: "auto" (the simd kernel on a CPU device for a scene
+    without triangles, BVH or emitters other than quads, the megakernel otherwise:
+    clrender.trace.choose_trace_kernel), "megakernel" or "simd": the same image to the bit, at
+    different speeds (clrender.trace.PathTracer; `.trace_kernel` says which ran); progress: a
+    callable
     progress(done_pixels, total_pixels), called after each tile (each task on a cluster), or
     True for a progress bar (tqdm's: on a terminal or in Jupyter), None or False for none;
     overlap: True or False; executor: a
