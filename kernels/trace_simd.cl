@@ -909,9 +909,21 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
                  __global const uint *bvh_prims, __global float *radiance,
                  __global uint *counters)
 {
+#ifdef CLRENDER_SPREAD_WORK_ITEMS
+    // Busy work-items spread over the whole launch, one every `stride`: PoCL's pthread device
+    // deals runs of consecutive work-groups to its threads, and a small launch's busy
+    // work-items packed at its front would all sit in the first run, on one thread
+    uint chunks = traced_total / SIMD_WIDTH + (traced_total % SIMD_WIDTH != 0u);
+    uint stride = chunks ? (uint)get_global_size(0) / chunks : 1u;
+    uint item = (uint)get_global_id(0);
+    if (chunks == 0u || item % stride != 0u || item / stride >= chunks)
+        return;
+    uint first = item / stride * SIMD_WIDTH;
+#else
     uint first = get_global_id(0) * SIMD_WIDTH;
     if (first >= traced_total)
         return;
+#endif
     SceneData scene = SCENE_DATA_OF_ARGUMENTS;
     uint lane_count = traced_total - first < SIMD_WIDTH ? traced_total - first : SIMD_WIDTH;
 

@@ -355,6 +355,10 @@ def test_platform_defines_give_the_clang_builtins_to_pocl_only():
     assert "-DCLRENDER_CLANG_BUILTINS" in build_options((), "Portable Computing Language")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Oclgrind")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Intel(R) OpenCL")
+    # the SIMD trace kernel spreads its busy work-items for PoCL's scheduler only (Intel's
+    # runtime ran the probe's spread layout at a sixth of its packed speed)
+    assert "-DCLRENDER_SPREAD_WORK_ITEMS" in build_options((), "Portable Computing Language")
+    assert "-DCLRENDER_SPREAD_WORK_ITEMS" not in build_options((), "Intel(R) OpenCL")
 
 
 def test_programs_are_cached_per_kernels_folder(runtime, tmp_path, monkeypatch):
