@@ -33,7 +33,9 @@ def draw(runtime, sampler, seed, size=SIZE, spp=SPP):
 def assert_same_trace(runtime, scene, sets, seed, size=SIZE, simd_defines=None, **options):
     """Both kernels' radiance bit for bit, rays and non-finite counts; returns the megakernel's
     radiance and result."""
-    mega = PathTracer(runtime, scene, **options)
+    # The megakernel named: "auto" (the default) takes simd on CPU devices
+    mega = PathTracer(runtime, scene, trace_kernel="megakernel", **options)
+    assert mega.trace_kernel == "megakernel"
     simd = PathTracer(runtime, scene, trace_kernel="simd", simd_defines=simd_defines, **options)
     a = mega.trace(sets, seed, size, size)
     b = simd.trace(sets, seed, size, size)
