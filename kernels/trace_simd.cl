@@ -16,7 +16,9 @@
 //   vertices      vector: diffuse surfaces and pure emitters; other materials (dielectric,
 //                 rough conductor): the whole vertex by Integrator_Vertex per lane;
 //   emission      vector: quad and triangle emitters; spheres' pdf: Light_HitPdfW per lane;
-//   samples       vector: the independent sampler (Philox on lanes); others: Sampler_Bounce;
+//   samples       vector: the independent sampler (Philox on lanes), sobol and zsobol (their
+//                 hashes, Owen scrambles and digit permutations on lanes); stratified:
+//                 Sampler_Bounce;
 //   NEE           vector: quad emitters (one emitter: its record read once; several: Light_Pick
 //                 and a gather per lane); sphere and triangle emitters: Integrator_SampleDirect
 //                 per lane; shadow rays: vector brute force as above, else Scene_Occluded;
@@ -193,6 +195,124 @@ SIMD_FN void V_Uniform4(uint seed, vuint pixel, vuint sample, uint dim, vuint re
     *u1 = (TO_VFLOAT(c1 >> 9) + 0.5f) * 0x1p-23f;
     *u2 = (TO_VFLOAT(c2 >> 9) + 0.5f) * 0x1p-23f;
     *u3 = (TO_VFLOAT(c3 >> 9) + 0.5f) * 0x1p-23f;
+}
+
+// ----------------------------------------------------------------------------- samplers
+
+// sampler.h and lowdiscrepancy.h on lanes: the same integer operations, so every lane's bits
+// are its scalar Sampler's.
+
+// Sampler_Hash
+SIMD_FN vuint V_Hash(vuint x)
+{
+    x ^= x >> 16;
+    x *= 0x21f0aaadu;
+    x ^= x >> 15;
+    x *= 0x735a2d97u;
+    x ^= x >> 15;
+    return x;
+}
+
+// LD_ReverseBits
+SIMD_FN vuint V_ReverseBits(vuint x)
+{
+    x = (x << 16) | (x >> 16);
+    x = ((x & 0x00FF00FFu) << 8) | ((x >> 8) & 0x00FF00FFu);
+    x = ((x & 0x0F0F0F0Fu) << 4) | ((x >> 4) & 0x0F0F0F0Fu);
+    x = ((x & 0x33333333u) << 2) | ((x >> 2) & 0x33333333u);
+    x = ((x & 0x55555555u) << 1) | ((x >> 1) & 0x55555555u);
+    return x;
+}
+
+// LD_NestedHash
+SIMD_FN vuint V_NestedHash(vuint x, vuint seed)
+{
+    x += seed;
+    x ^= x * 0x6c50b47cu;
+    x ^= x * 0xb82f1e52u;
+    x ^= x * 0xc7afe638u;
+    x ^= x * 0x8d22f6e6u;
+    return x;
+}
+
+// Sobol_Dimension1Reversed
+SIMD_FN vuint V_Dimension1Reversed(vuint index)
+{
+    index ^= (index >> 1) & 0x55555555u;
+    index ^= (index >> 2) & 0x33333333u;
+    index ^= (index >> 4) & 0x0F0F0F0Fu;
+    index ^= (index >> 8) & 0x00FF00FFu;
+    index ^= (index >> 16) & 0x0000FFFFu;
+    return index;
+}
+
+// LD_PermuteDigit4: which = 24 hash / 2^32 from 16-bit halves (exact: the high half's product
+// is an integer), and LD_DIGIT_PERMUTATIONS as six words of four bytes, picked by selects
+// instead of a gather.
+SIMD_FN vuint V_PermuteDigit4(vuint hash, vuint digit)
+{
+    vuint which = ((hash >> 16) * 24u + (((hash & 0xFFFFu) * 24u) >> 16)) >> 16;
+    vuint word = which >> 2;
+    vuint table = word == 0u ? (vuint)0x78d8b4e4u : (vuint)0xb1e16c9cu;
+    table = word == 2u ? (vuint)0x2d8d39c9u : table;
+    table = word == 3u ? (vuint)0x36c672d2u : table;
+    table = word == 4u ? (vuint)0x63931e4eu : table;
+    table = word == 5u ? (vuint)0x1b4b2787u : table;
+    return (table >> (((which & 3u) << 3) + 2u * digit)) & 3u;
+}
+
+// Each lane's Sampler fields that the sobol and zsobol samplers read.
+typedef struct {
+    int kind;           // PATHS_SOBOL or PATHS_ZSOBOL
+    uint zsobol_bits;   // the launch's
+    vuint key_x, key_y; // Sampler.key
+    vuint index;        // sobol: Sampler.sample; zsobol: Sampler.zsobol_index
+} SobolLanes;
+
+// Sampler_SobolIndex
+SIMD_FN vuint V_SobolIndex(const SobolLanes *s, vuint key)
+{
+    if (s->kind != PATHS_ZSOBOL)
+        return V_ReverseBits(V_NestedHash(V_ReverseBits(s->index), key));
+    vuint index = s->index;
+    vuint permuted = (vuint)0u;
+    int shift = (int)s->zsobol_bits - 2;
+    for (; shift >= 0; shift -= 2) {
+        vuint higher = shift >= 30 ? (vuint)0u : index >> (uint)(shift + 2);
+        vuint hash = V_Hash((higher ^ key) + (uint)shift * 0x9E3779B9u);
+        permuted |= V_PermuteDigit4(hash, (index >> (uint)shift) & 3u) << (uint)shift;
+    }
+    if (shift == -1)
+        permuted |= (index ^ V_Hash(((index >> 1) ^ key) + 0xFFFFFFFFu * 0x9E3779B9u)) & 1u;
+    return permuted;
+}
+
+// Sampler_Sobol1 (y null) and Sampler_Sobol2 of dimension dim, as unit floats (Rng_ToUnit).
+SIMD_FN void V_Sobol(const SobolLanes *s, uint dim, vfloat *x, vfloat *y)
+{
+    // Sampler_Keys: .x, .z and .w (.y is the stratified sampler's)
+    vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
+    vuint index = V_SobolIndex(s, h);
+    vuint bits = V_ReverseBits(V_NestedHash(index, V_Hash(h ^ 0xb5297a4du)));
+    *x = (TO_VFLOAT(bits >> 9) + 0.5f) * 0x1p-23f;
+    if (y) {
+        vuint bits1 = V_ReverseBits(
+            V_NestedHash(V_Dimension1Reversed(index), V_Hash(h ^ 0x1b56c4e9u)));
+        *y = (TO_VFLOAT(bits1 >> 9) + 0.5f) * 0x1p-23f;
+    }
+}
+
+// Sampler_Bounce of the sobol and zsobol samplers on lanes.
+SIMD_FN void V_SobolBounce(const SobolLanes *s, uint depth, vfloat *u_choice, vfloat *u_point0,
+                           vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0, vfloat *u_dir1,
+                           vfloat *u_roulette)
+{
+    uint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
+    V_Sobol(s, dim, u_choice, 0);
+    V_Sobol(s, dim + 1u, u_point0, u_point1);
+    V_Sobol(s, dim + 3u, u_lobe, 0);
+    V_Sobol(s, dim + 4u, u_dir0, u_dir1);
+    V_Sobol(s, dim + 6u, u_roulette, 0);
 }
 
 // ----------------------------------------------------------------------------- geometry
@@ -385,6 +505,7 @@ typedef struct {
     int max_depth, nee, russian_roulette, paths_kind;
     uint seed;
     vuint pixel, sample, redraw; // the independent sampler's Philox streams
+    SobolLanes sobol;            // the sobol and zsobol samplers'
     Sampler sampler[SIMD_WIDTH];
 } Lanes;
 
@@ -657,8 +778,8 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat t_z = -n_y;
     vfloat wo_lz = V_Dot3(wo_x, wo_y, wo_z, n_x, n_y, n_z);
 
-    // The vertex's random numbers (Sampler_Bounce: Philox on lanes for the independent
-    // sampler, lane by lane for the others)
+    // The vertex's random numbers (Sampler_Bounce: on lanes for the independent, sobol and
+    // zsobol samplers, lane by lane for stratified)
     vfloat u_choice, u_point0, u_point1, u_roulette, u_dir0, u_dir1, u_lobe;
     if (lanes->paths_kind == PATHS_INDEPENDENT) {
         V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 1u + 2u * (uint)depth,
@@ -666,6 +787,9 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
         vfloat unused;
         V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 2u + 2u * (uint)depth,
                    lanes->redraw, &u_dir0, &u_dir1, &u_lobe, &unused);
+    } else if (lanes->paths_kind == PATHS_SOBOL || lanes->paths_kind == PATHS_ZSOBOL) {
+        V_SobolBounce(&lanes->sobol, (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe,
+                      &u_dir0, &u_dir1, &u_roulette);
     } else {
         u_choice = u_point0 = u_point1 = u_roulette = u_dir0 = u_dir1 = u_lobe = (vfloat)(0.5f);
         FOR_EACH_LANE(j, on_bits)
@@ -931,7 +1055,7 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     paths.prev_pdfW = (vfloat)(0.0f);
     paths.eta_scale = (vfloat)(1.0f);
     paths.specular = (vint)(0);
-    LANES(uint, vuint) pixel_l, sample_l, redraw_l;
+    LANES(uint, vuint) pixel_l, sample_l, redraw_l, key_x_l, key_y_l, sobol_index_l;
     LANES(float, vfloat) pos_x_l, pos_y_l;
     LANES(int, vint) running_l;
     uint slot = 0u, slot_end = 0u; // the last lane's slot, and where its samples end
@@ -955,11 +1079,20 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
         lanes.sampler[j] = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot],
                                         fixed_count, strata, image_width, zsobol_log2_count,
                                         zsobol_bits);
+        key_x_l.s[j] = lanes.sampler[j].key.x;
+        key_y_l.s[j] = lanes.sampler[j].key.y;
+        sobol_index_l.s[j] =
+            paths_kind == PATHS_ZSOBOL ? lanes.sampler[j].zsobol_index : sample;
         running_l.s[j] = (uint)j < lane_count ? -1 : 0;
     }
     lanes.pixel = pixel_l.v;
     lanes.sample = sample_l.v;
     lanes.redraw = redraw_l.v;
+    lanes.sobol.kind = paths_kind;
+    lanes.sobol.zsobol_bits = zsobol_bits;
+    lanes.sobol.key_x = key_x_l.v;
+    lanes.sobol.key_y = key_y_l.v;
+    lanes.sobol.index = sobol_index_l.v;
     V_CameraRays(camera, image_width, image_height, pixel_l.v, pos_x_l.v, pos_y_l.v, &paths.dx,
                  &paths.dy, &paths.dz);
     paths.running = running_l.v;
