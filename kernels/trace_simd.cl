@@ -16,9 +16,8 @@
 //   vertices      vector: diffuse surfaces and pure emitters; other materials (dielectric,
 //                 rough conductor): the whole vertex by Integrator_Vertex per lane;
 //   emission      vector: quad and triangle emitters; spheres' pdf: Light_HitPdfW per lane;
-//   samples       vector: the independent sampler (Philox on lanes), sobol and zsobol (their
-//                 hashes, Owen scrambles and digit permutations on lanes); stratified:
-//                 Sampler_Bounce;
+//   samples       vector: every path sampler (Philox, hashes, Owen scrambles, zsobol's digit
+//                 permutations and stratified's permutation cycle walks on lanes);
 //   NEE           vector: quad emitters (one emitter: its record read once; several: Light_Pick
 //                 and a gather per lane); sphere and triangle emitters: Integrator_SampleDirect
 //                 per lane; shadow rays: vector brute force as above, else Scene_Occluded;
@@ -261,16 +260,16 @@ SIMD_FN vuint V_PermuteDigit4(vuint hash, vuint digit)
     return (table >> (((which & 3u) << 3) + 2u * digit)) & 3u;
 }
 
-// Each lane's Sampler fields that the sobol and zsobol samplers read.
+// Each lane's Sampler fields that the stratified, sobol and zsobol samplers read.
 typedef struct {
-    int kind;           // PATHS_SOBOL or PATHS_ZSOBOL
+    int kind;           // PATHS_*
     uint zsobol_bits;   // the launch's
     vuint key_x, key_y; // Sampler.key
-    vuint index;        // sobol: Sampler.sample; zsobol: Sampler.zsobol_index
-} SobolLanes;
+    vuint index;        // zsobol: Sampler.zsobol_index; the others: Sampler.sample
+} SamplerLanes;
 
 // Sampler_SobolIndex
-SIMD_FN vuint V_SobolIndex(const SobolLanes *s, vuint key)
+SIMD_FN vuint V_SobolIndex(const SamplerLanes *s, vuint key)
 {
     if (s->kind != PATHS_ZSOBOL)
         return V_ReverseBits(V_NestedHash(V_ReverseBits(s->index), key));
@@ -288,7 +287,7 @@ SIMD_FN vuint V_SobolIndex(const SobolLanes *s, vuint key)
 }
 
 // Sampler_Sobol1 (y null) and Sampler_Sobol2 of dimension dim, as unit floats (Rng_ToUnit).
-SIMD_FN void V_Sobol(const SobolLanes *s, uint dim, vfloat *x, vfloat *y)
+SIMD_FN void V_Sobol(const SamplerLanes *s, uint dim, vfloat *x, vfloat *y)
 {
     // Sampler_Keys: .x, .z and .w (.y is the stratified sampler's)
     vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
@@ -303,7 +302,7 @@ SIMD_FN void V_Sobol(const SobolLanes *s, uint dim, vfloat *x, vfloat *y)
 }
 
 // Sampler_Bounce of the sobol and zsobol samplers on lanes.
-SIMD_FN void V_SobolBounce(const SobolLanes *s, uint depth, vfloat *u_choice, vfloat *u_point0,
+SIMD_FN void V_SobolBounce(const SamplerLanes *s, uint depth, vfloat *u_choice, vfloat *u_point0,
                            vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0, vfloat *u_dir1,
                            vfloat *u_roulette)
 {
@@ -313,6 +312,126 @@ SIMD_FN void V_SobolBounce(const SobolLanes *s, uint depth, vfloat *u_choice, vf
     V_Sobol(s, dim + 3u, u_lobe, 0);
     V_Sobol(s, dim + 4u, u_dir0, u_dir1);
     V_Sobol(s, dim + 6u, u_roulette, 0);
+}
+
+// Division by a divisor shared by the lanes, exact for every 32-bit dividend (Granlund and
+// Montgomery, "Division by invariant integers using multiplication", PLDI 1994, figure 4.1):
+// q = (t + ((n - t) >> sh1)) >> sh2 with t the high half of m n. Vector integer division has no
+// instruction: the compiler would divide lane by lane.
+typedef struct {
+    uint m, sh1, sh2;
+} Divisor;
+
+CL_INLINE Divisor Divisor_Make(uint d)
+{
+    uint l = 0u; // ceil(log2 d)
+    while (l < 32u && (1ul << l) < (ulong)d)
+        ++l;
+    Divisor v;
+    v.m = (uint)((((1ul << l) - (ulong)d) << 32) / (ulong)d + 1ul);
+    v.sh1 = l < 1u ? l : 1u;
+    v.sh2 = l > 1u ? l - 1u : 0u;
+    return v;
+}
+
+SIMD_FN vuint V_Divide(vuint n, Divisor d)
+{
+    vuint t = TO_VUINT((TO_VULONG(n) * (ulong)d.m) >> 32);
+    return (t + ((n - t) >> d.sh1)) >> d.sh2;
+}
+
+// LD_PermutationElement of every lane for the shared n (mask and half_bits: its range's, as
+// there): the cycle walk goes on in the lanes still above n.
+SIMD_FN vuint V_PermutationElement(vuint i, uint n, Divisor by_n, uint mask, uint half_bits,
+                                   vuint key, vuint rotation)
+{
+    i = i < n ? i : i - V_Divide(i, by_n) * n;
+    vint walking = (vint)(-1);
+    do {
+        vuint k = ((i ^ key) * 0x9E3779B1u) & mask;
+        k ^= k >> half_bits;
+        k = ((k + (key >> 16)) * (key | 1u)) & mask;
+        k ^= k >> 1;
+        k = (k * 0x85EBCA77u) & mask;
+        k ^= k >> half_bits;
+        i = walking ? k : i;
+        walking &= i >= n;
+    } while (V_Bits(walking) != 0u);
+    i += rotation - V_Divide(rotation, by_n) * n;
+    return i >= n ? i - n : i;
+}
+
+// The stratified sampler's launch constants (Sampler.count and .strata, shared by the lanes).
+typedef struct {
+    uint count, strata, mask, half_bits;
+    Divisor by_count, by_strata;
+} Strata;
+
+CL_INLINE Strata Strata_Make(uint count, uint strata)
+{
+    Strata s;
+    s.count = count;
+    s.strata = strata;
+    uint mask = count - 1u; // LD_PermutationElement's
+    mask |= mask >> 1;
+    mask |= mask >> 2;
+    mask |= mask >> 4;
+    mask |= mask >> 8;
+    mask |= mask >> 16;
+    s.mask = mask;
+    s.half_bits = 1u;
+    for (uint m = mask; m > 1u; m >>= 2)
+        ++s.half_bits;
+    s.by_count = Divisor_Make(count);
+    s.by_strata = Divisor_Make(strata);
+    return s;
+}
+
+// The stratum of every lane's sample in dimension dim (Sampler_Keys .x and .y).
+SIMD_FN vuint V_Stratum(const SamplerLanes *s, const Strata *st, uint dim)
+{
+    vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
+    return V_PermutationElement(s->index, st->count, st->by_count, st->mask, st->half_bits, h,
+                                V_Hash(h ^ 0x68e31da4u));
+}
+
+// Sampler_Stratified1
+SIMD_FN vfloat V_Stratified1(const SamplerLanes *s, const Strata *st, uint dim, vfloat u)
+{
+    vuint stratum = V_Stratum(s, st, dim);
+    vfloat v = (TO_VFLOAT(stratum) + u) / (float)st->count;
+    return v < SAMPLER_BELOW_ONE ? v : (vfloat)(SAMPLER_BELOW_ONE);
+}
+
+// Sampler_Stratified2: u0 and u1 in, the pair out.
+SIMD_FN void V_Stratified2(const SamplerLanes *s, const Strata *st, uint dim, vfloat *u0,
+                           vfloat *u1)
+{
+    vuint stratum = V_Stratum(s, st, dim);
+    vuint row = V_Divide(stratum, st->by_strata);
+    vfloat v0 = (TO_VFLOAT(stratum - row * st->strata) + *u0) / (float)st->strata;
+    vfloat v1 = (TO_VFLOAT(row) + *u1) / (float)st->strata;
+    *u0 = v0 < SAMPLER_BELOW_ONE ? v0 : (vfloat)(SAMPLER_BELOW_ONE);
+    *u1 = v1 < SAMPLER_BELOW_ONE ? v1 : (vfloat)(SAMPLER_BELOW_ONE);
+}
+
+// Sampler_Bounce of the stratified sampler on lanes (the jitter: V_Uniform4 as Sampler_Bounce's
+// Rng_Uniform4).
+SIMD_FN void V_StratifiedBounce(const SamplerLanes *s, const Strata *st, uint seed, vuint pixel,
+                                vuint redraw, uint depth, vfloat *u_choice, vfloat *u_point0,
+                                vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0,
+                                vfloat *u_dir1, vfloat *u_roulette)
+{
+    uint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
+    vfloat unused;
+    V_Uniform4(seed, pixel, s->index, 1u + 2u * depth, redraw, u_choice, u_point0, u_point1,
+               u_roulette);
+    V_Uniform4(seed, pixel, s->index, 2u + 2u * depth, redraw, u_dir0, u_dir1, u_lobe, &unused);
+    *u_choice = V_Stratified1(s, st, dim, *u_choice);
+    V_Stratified2(s, st, dim + 1u, u_point0, u_point1);
+    *u_lobe = V_Stratified1(s, st, dim + 3u, *u_lobe);
+    V_Stratified2(s, st, dim + 4u, u_dir0, u_dir1);
+    *u_roulette = V_Stratified1(s, st, dim + 6u, *u_roulette);
 }
 
 // ----------------------------------------------------------------------------- geometry
@@ -505,7 +624,8 @@ typedef struct {
     int max_depth, nee, russian_roulette, paths_kind;
     uint seed;
     vuint pixel, sample, redraw; // the independent sampler's Philox streams
-    SobolLanes sobol;            // the sobol and zsobol samplers'
+    SamplerLanes ld;             // the stratified, sobol and zsobol samplers'
+    Strata strata;               // the stratified sampler's
     Sampler sampler[SIMD_WIDTH];
 } Lanes;
 
@@ -778,8 +898,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat t_z = -n_y;
     vfloat wo_lz = V_Dot3(wo_x, wo_y, wo_z, n_x, n_y, n_z);
 
-    // The vertex's random numbers (Sampler_Bounce: on lanes for the independent, sobol and
-    // zsobol samplers, lane by lane for stratified)
+    // The vertex's random numbers (Sampler_Bounce on lanes; lane by lane for any other kind)
     vfloat u_choice, u_point0, u_point1, u_roulette, u_dir0, u_dir1, u_lobe;
     if (lanes->paths_kind == PATHS_INDEPENDENT) {
         V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 1u + 2u * (uint)depth,
@@ -788,8 +907,12 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
         V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 2u + 2u * (uint)depth,
                    lanes->redraw, &u_dir0, &u_dir1, &u_lobe, &unused);
     } else if (lanes->paths_kind == PATHS_SOBOL || lanes->paths_kind == PATHS_ZSOBOL) {
-        V_SobolBounce(&lanes->sobol, (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe,
+        V_SobolBounce(&lanes->ld, (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe,
                       &u_dir0, &u_dir1, &u_roulette);
+    } else if (lanes->paths_kind == PATHS_STRATIFIED) {
+        V_StratifiedBounce(&lanes->ld, &lanes->strata, lanes->seed, lanes->pixel, lanes->redraw,
+                           (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe, &u_dir0,
+                           &u_dir1, &u_roulette);
     } else {
         u_choice = u_point0 = u_point1 = u_roulette = u_dir0 = u_dir1 = u_lobe = (vfloat)(0.5f);
         FOR_EACH_LANE(j, on_bits)
@@ -1088,11 +1211,13 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     lanes.pixel = pixel_l.v;
     lanes.sample = sample_l.v;
     lanes.redraw = redraw_l.v;
-    lanes.sobol.kind = paths_kind;
-    lanes.sobol.zsobol_bits = zsobol_bits;
-    lanes.sobol.key_x = key_x_l.v;
-    lanes.sobol.key_y = key_y_l.v;
-    lanes.sobol.index = sobol_index_l.v;
+    lanes.ld.kind = paths_kind;
+    lanes.ld.zsobol_bits = zsobol_bits;
+    lanes.ld.key_x = key_x_l.v;
+    lanes.ld.key_y = key_y_l.v;
+    lanes.ld.index = sobol_index_l.v;
+    if (paths_kind == PATHS_STRATIFIED)
+        lanes.strata = Strata_Make(fixed_count, strata);
     V_CameraRays(camera, image_width, image_height, pixel_l.v, pos_x_l.v, pos_y_l.v, &paths.dx,
                  &paths.dy, &paths.dz);
     paths.running = running_l.v;

@@ -110,11 +110,15 @@ def test_build_variants_match(runtime, scene_name, defines, sampler):
         ("sobol", 4, SIZE, 24),  # dimensions up to 2 + 7 x 24
         ("zsobol", 4, SIZE, 24),
         ("sobol", 1, SIZE, 8),  # one sample a pixel: every index 0
+        ("stratified", 9, SIZE, 8),  # 9 strata in a range of 16: permutations walk cycles
+        ("stratified", 25, SIZE, 24),
+        ("stratified", 1, SIZE, 8),  # one stratum: division by 1
     ],
 )
 def test_low_discrepancy_layouts_match(runtime, sampler, spp, side, depth):
-    """The sobol and zsobol samplers on lanes: zsobol's index layouts (odd bit counts, 32 bits),
-    long paths (high dimensions), a block of pixels in the middle of a large image."""
+    """The stratified, sobol and zsobol samplers on lanes: zsobol's index layouts (odd bit
+    counts, 32 bits), stratum counts that are not powers of two, long paths (high dimensions),
+    a block of pixels in the middle of a large image."""
     x0 = (side - SIZE) // 2
     pixels = rectangle_pixels(side, x0, x0, SIZE, SIZE)
     sets = generate_sample_sets(runtime, make_sampler(sampler, spp), 23, pixels, None, (side, side))
