@@ -16,7 +16,8 @@
 //   vertices      vector: diffuse surfaces and pure emitters; other materials (dielectric,
 //                 rough conductor): the whole vertex by Integrator_Vertex per lane;
 //   emission      vector: quad and triangle emitters; spheres' pdf: Light_HitPdfW per lane;
-//   samples       vector: the independent sampler (Philox on lanes); others: Sampler_Bounce;
+//   samples       vector: every path sampler (Philox, hashes, Owen scrambles, zsobol's digit
+//                 permutations and stratified's permutation cycle walks on lanes);
 //   NEE           vector: quad emitters (one emitter: its record read once; several: Light_Pick
 //                 and a gather per lane); sphere and triangle emitters: Integrator_SampleDirect
 //                 per lane; shadow rays: vector brute force as above, else Scene_Occluded;
@@ -193,6 +194,250 @@ SIMD_FN void V_Uniform4(uint seed, vuint pixel, vuint sample, uint dim, vuint re
     *u1 = (TO_VFLOAT(c1 >> 9) + 0.5f) * 0x1p-23f;
     *u2 = (TO_VFLOAT(c2 >> 9) + 0.5f) * 0x1p-23f;
     *u3 = (TO_VFLOAT(c3 >> 9) + 0.5f) * 0x1p-23f;
+}
+
+// ----------------------------------------------------------------------------- samplers
+
+// sampler.h and lowdiscrepancy.h on lanes: the same integer operations, so every lane's bits
+// are its scalar Sampler's.
+
+// Sampler_Hash
+SIMD_FN vuint V_Hash(vuint x)
+{
+    x ^= x >> 16;
+    x *= 0x21f0aaadu;
+    x ^= x >> 15;
+    x *= 0x735a2d97u;
+    x ^= x >> 15;
+    return x;
+}
+
+// LD_ReverseBits
+SIMD_FN vuint V_ReverseBits(vuint x)
+{
+    x = (x << 16) | (x >> 16);
+    x = ((x & 0x00FF00FFu) << 8) | ((x >> 8) & 0x00FF00FFu);
+    x = ((x & 0x0F0F0F0Fu) << 4) | ((x >> 4) & 0x0F0F0F0Fu);
+    x = ((x & 0x33333333u) << 2) | ((x >> 2) & 0x33333333u);
+    x = ((x & 0x55555555u) << 1) | ((x >> 1) & 0x55555555u);
+    return x;
+}
+
+// LD_NestedHash
+SIMD_FN vuint V_NestedHash(vuint x, vuint seed)
+{
+    x += seed;
+    x ^= x * 0x6c50b47cu;
+    x ^= x * 0xb82f1e52u;
+    x ^= x * 0xc7afe638u;
+    x ^= x * 0x8d22f6e6u;
+    return x;
+}
+
+// Sobol_Dimension1Reversed
+SIMD_FN vuint V_Dimension1Reversed(vuint index)
+{
+    index ^= (index >> 1) & 0x55555555u;
+    index ^= (index >> 2) & 0x33333333u;
+    index ^= (index >> 4) & 0x0F0F0F0Fu;
+    index ^= (index >> 8) & 0x00FF00FFu;
+    index ^= (index >> 16) & 0x0000FFFFu;
+    return index;
+}
+
+// LD_PermuteDigit4: which = 24 hash / 2^32 from 16-bit halves (exact: the high half's product
+// is an integer), and LD_DIGIT_PERMUTATIONS as six words of four bytes, picked by one vpermd
+// (AVX-512; elsewhere by selects) instead of a gather.
+SIMD_FN vuint V_PermuteDigit4(vuint hash, vuint digit)
+{
+    vuint which = ((hash >> 16) * 24u + (((hash & 0xFFFFu) * 24u) >> 16)) >> 16;
+    vuint word = which >> 2;
+#if defined(__AVX512F__) && SIMD_WIDTH == 16 && !defined(SIMD_PORTABLE)
+    const int16 words = (int16)(0x78d8b4e4, 0xb1e16c9c, 0x2d8d39c9, 0x36c672d2, 0x63931e4e,
+                                0x1b4b2787, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0);
+    vuint table = AS_VUINT(__builtin_ia32_permvarsi512(words, as_int16(word)));
+#else
+    vuint table = word == 0u ? (vuint)0x78d8b4e4u : (vuint)0xb1e16c9cu;
+    table = word == 2u ? (vuint)0x2d8d39c9u : table;
+    table = word == 3u ? (vuint)0x36c672d2u : table;
+    table = word == 4u ? (vuint)0x63931e4eu : table;
+    table = word == 5u ? (vuint)0x1b4b2787u : table;
+#endif
+    return (table >> (((which & 3u) << 3) + 2u * digit)) & 3u;
+}
+
+// Each lane's Sampler fields that the stratified, sobol and zsobol samplers read.
+typedef struct {
+    int kind;           // PATHS_*
+    uint zsobol_bits;   // the launch's
+    vuint key_x, key_y; // Sampler.key
+    vuint index;        // zsobol: Sampler.zsobol_index; the others: Sampler.sample
+} SamplerLanes;
+
+// Sampler_SobolIndex
+SIMD_FN vuint V_SobolIndex(const SamplerLanes *s, vuint key)
+{
+    if (s->kind != PATHS_ZSOBOL)
+        return V_ReverseBits(V_NestedHash(V_ReverseBits(s->index), key));
+    vuint index = s->index;
+    vuint permuted = (vuint)0u;
+    int shift = (int)s->zsobol_bits - 2;
+    for (; shift >= 0; shift -= 2) {
+        vuint higher = shift >= 30 ? (vuint)0u : index >> (uint)(shift + 2);
+        vuint hash = V_Hash((higher ^ key) + (uint)shift * 0x9E3779B9u);
+        permuted |= V_PermuteDigit4(hash, (index >> (uint)shift) & 3u) << (uint)shift;
+    }
+    if (shift == -1)
+        permuted |= (index ^ V_Hash(((index >> 1) ^ key) + 0xFFFFFFFFu * 0x9E3779B9u)) & 1u;
+    return permuted;
+}
+
+// Sampler_Sobol1 (y null) and Sampler_Sobol2 of dimension dim, as unit floats (Rng_ToUnit).
+SIMD_FN void V_Sobol(const SamplerLanes *s, uint dim, vfloat *x, vfloat *y)
+{
+    // Sampler_Keys: .x, .z and .w (.y is the stratified sampler's)
+    vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
+    vuint index = V_SobolIndex(s, h);
+    vuint bits = V_ReverseBits(V_NestedHash(index, V_Hash(h ^ 0xb5297a4du)));
+    *x = (TO_VFLOAT(bits >> 9) + 0.5f) * 0x1p-23f;
+    if (y) {
+        vuint bits1 = V_ReverseBits(
+            V_NestedHash(V_Dimension1Reversed(index), V_Hash(h ^ 0x1b56c4e9u)));
+        *y = (TO_VFLOAT(bits1 >> 9) + 0.5f) * 0x1p-23f;
+    }
+}
+
+// Sampler_Bounce of the sobol and zsobol samplers on lanes.
+SIMD_FN void V_SobolBounce(const SamplerLanes *s, uint depth, vfloat *u_choice, vfloat *u_point0,
+                           vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0, vfloat *u_dir1,
+                           vfloat *u_roulette)
+{
+    uint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
+    V_Sobol(s, dim, u_choice, 0);
+    V_Sobol(s, dim + 1u, u_point0, u_point1);
+    V_Sobol(s, dim + 3u, u_lobe, 0);
+    V_Sobol(s, dim + 4u, u_dir0, u_dir1);
+    V_Sobol(s, dim + 6u, u_roulette, 0);
+}
+
+// Division by a divisor shared by the lanes, exact for every 32-bit dividend (Granlund and
+// Montgomery, "Division by invariant integers using multiplication", PLDI 1994, figure 4.1):
+// q = (t + ((n - t) >> sh1)) >> sh2 with t the high half of m n. Vector integer division has no
+// instruction: the compiler would divide lane by lane.
+typedef struct {
+    uint m, sh1, sh2;
+} Divisor;
+
+CL_INLINE Divisor Divisor_Make(uint d)
+{
+    uint l = 0u; // ceil(log2 d)
+    while (l < 32u && (1ul << l) < (ulong)d)
+        ++l;
+    Divisor v;
+    v.m = (uint)((((1ul << l) - (ulong)d) << 32) / (ulong)d + 1ul);
+    v.sh1 = l < 1u ? l : 1u;
+    v.sh2 = l > 1u ? l - 1u : 0u;
+    return v;
+}
+
+SIMD_FN vuint V_Divide(vuint n, Divisor d)
+{
+    vuint t = TO_VUINT((TO_VULONG(n) * (ulong)d.m) >> 32);
+    return (t + ((n - t) >> d.sh1)) >> d.sh2;
+}
+
+// LD_PermutationElement of every lane for the shared n (mask and half_bits: its range's, as
+// there): the cycle walk goes on in the lanes still above n.
+SIMD_FN vuint V_PermutationElement(vuint i, uint n, Divisor by_n, uint mask, uint half_bits,
+                                   vuint key, vuint rotation)
+{
+    i = i < n ? i : i - V_Divide(i, by_n) * n;
+    vint walking = (vint)(-1);
+    do {
+        vuint k = ((i ^ key) * 0x9E3779B1u) & mask;
+        k ^= k >> half_bits;
+        k = ((k + (key >> 16)) * (key | 1u)) & mask;
+        k ^= k >> 1;
+        k = (k * 0x85EBCA77u) & mask;
+        k ^= k >> half_bits;
+        i = walking ? k : i;
+        walking &= i >= n;
+    } while (V_Bits(walking) != 0u);
+    i += rotation - V_Divide(rotation, by_n) * n;
+    return i >= n ? i - n : i;
+}
+
+// The stratified sampler's launch constants (Sampler.count and .strata, shared by the lanes).
+typedef struct {
+    uint count, strata, mask, half_bits;
+    Divisor by_count, by_strata;
+} Strata;
+
+CL_INLINE Strata Strata_Make(uint count, uint strata)
+{
+    Strata s;
+    s.count = count;
+    s.strata = strata;
+    uint mask = count - 1u; // LD_PermutationElement's
+    mask |= mask >> 1;
+    mask |= mask >> 2;
+    mask |= mask >> 4;
+    mask |= mask >> 8;
+    mask |= mask >> 16;
+    s.mask = mask;
+    s.half_bits = 1u;
+    for (uint m = mask; m > 1u; m >>= 2)
+        ++s.half_bits;
+    s.by_count = Divisor_Make(count);
+    s.by_strata = Divisor_Make(strata);
+    return s;
+}
+
+// The stratum of every lane's sample in dimension dim (Sampler_Keys .x and .y).
+SIMD_FN vuint V_Stratum(const SamplerLanes *s, const Strata *st, uint dim)
+{
+    vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
+    return V_PermutationElement(s->index, st->count, st->by_count, st->mask, st->half_bits, h,
+                                V_Hash(h ^ 0x68e31da4u));
+}
+
+// Sampler_Stratified1
+SIMD_FN vfloat V_Stratified1(const SamplerLanes *s, const Strata *st, uint dim, vfloat u)
+{
+    vuint stratum = V_Stratum(s, st, dim);
+    vfloat v = (TO_VFLOAT(stratum) + u) / (float)st->count;
+    return v < SAMPLER_BELOW_ONE ? v : (vfloat)(SAMPLER_BELOW_ONE);
+}
+
+// Sampler_Stratified2: u0 and u1 in, the pair out.
+SIMD_FN void V_Stratified2(const SamplerLanes *s, const Strata *st, uint dim, vfloat *u0,
+                           vfloat *u1)
+{
+    vuint stratum = V_Stratum(s, st, dim);
+    vuint row = V_Divide(stratum, st->by_strata);
+    vfloat v0 = (TO_VFLOAT(stratum - row * st->strata) + *u0) / (float)st->strata;
+    vfloat v1 = (TO_VFLOAT(row) + *u1) / (float)st->strata;
+    *u0 = v0 < SAMPLER_BELOW_ONE ? v0 : (vfloat)(SAMPLER_BELOW_ONE);
+    *u1 = v1 < SAMPLER_BELOW_ONE ? v1 : (vfloat)(SAMPLER_BELOW_ONE);
+}
+
+// Sampler_Bounce of the stratified sampler on lanes (the jitter: V_Uniform4 as Sampler_Bounce's
+// Rng_Uniform4).
+SIMD_FN void V_StratifiedBounce(const SamplerLanes *s, const Strata *st, uint seed, vuint pixel,
+                                vuint redraw, uint depth, vfloat *u_choice, vfloat *u_point0,
+                                vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0,
+                                vfloat *u_dir1, vfloat *u_roulette)
+{
+    uint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
+    vfloat unused;
+    V_Uniform4(seed, pixel, s->index, 1u + 2u * depth, redraw, u_choice, u_point0, u_point1,
+               u_roulette);
+    V_Uniform4(seed, pixel, s->index, 2u + 2u * depth, redraw, u_dir0, u_dir1, u_lobe, &unused);
+    *u_choice = V_Stratified1(s, st, dim, *u_choice);
+    V_Stratified2(s, st, dim + 1u, u_point0, u_point1);
+    *u_lobe = V_Stratified1(s, st, dim + 3u, *u_lobe);
+    V_Stratified2(s, st, dim + 4u, u_dir0, u_dir1);
+    *u_roulette = V_Stratified1(s, st, dim + 6u, *u_roulette);
 }
 
 // ----------------------------------------------------------------------------- geometry
@@ -385,6 +630,8 @@ typedef struct {
     int max_depth, nee, russian_roulette, paths_kind;
     uint seed;
     vuint pixel, sample, redraw; // the independent sampler's Philox streams
+    SamplerLanes ld;             // the stratified, sobol and zsobol samplers'
+    Strata strata;               // the stratified sampler's
     Sampler sampler[SIMD_WIDTH];
 } Lanes;
 
@@ -657,8 +904,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat t_z = -n_y;
     vfloat wo_lz = V_Dot3(wo_x, wo_y, wo_z, n_x, n_y, n_z);
 
-    // The vertex's random numbers (Sampler_Bounce: Philox on lanes for the independent
-    // sampler, lane by lane for the others)
+    // The vertex's random numbers (Sampler_Bounce on lanes; lane by lane for any other kind)
     vfloat u_choice, u_point0, u_point1, u_roulette, u_dir0, u_dir1, u_lobe;
     if (lanes->paths_kind == PATHS_INDEPENDENT) {
         V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 1u + 2u * (uint)depth,
@@ -666,6 +912,13 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
         vfloat unused;
         V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 2u + 2u * (uint)depth,
                    lanes->redraw, &u_dir0, &u_dir1, &u_lobe, &unused);
+    } else if (lanes->paths_kind == PATHS_SOBOL || lanes->paths_kind == PATHS_ZSOBOL) {
+        V_SobolBounce(&lanes->ld, (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe,
+                      &u_dir0, &u_dir1, &u_roulette);
+    } else if (lanes->paths_kind == PATHS_STRATIFIED) {
+        V_StratifiedBounce(&lanes->ld, &lanes->strata, lanes->seed, lanes->pixel, lanes->redraw,
+                           (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe, &u_dir0,
+                           &u_dir1, &u_roulette);
     } else {
         u_choice = u_point0 = u_point1 = u_roulette = u_dir0 = u_dir1 = u_lobe = (vfloat)(0.5f);
         FOR_EACH_LANE(j, on_bits)
@@ -943,7 +1196,7 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     paths.prev_pdfW = (vfloat)(0.0f);
     paths.eta_scale = (vfloat)(1.0f);
     paths.specular = (vint)(0);
-    LANES(uint, vuint) pixel_l, sample_l, redraw_l;
+    LANES(uint, vuint) pixel_l, sample_l, redraw_l, key_x_l, key_y_l, sobol_index_l;
     LANES(float, vfloat) pos_x_l, pos_y_l;
     LANES(int, vint) running_l;
     uint slot = 0u, slot_end = 0u; // the last lane's slot, and where its samples end
@@ -967,11 +1220,22 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
         lanes.sampler[j] = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot],
                                         fixed_count, strata, image_width, zsobol_log2_count,
                                         zsobol_bits);
+        key_x_l.s[j] = lanes.sampler[j].key.x;
+        key_y_l.s[j] = lanes.sampler[j].key.y;
+        sobol_index_l.s[j] =
+            paths_kind == PATHS_ZSOBOL ? lanes.sampler[j].zsobol_index : sample;
         running_l.s[j] = (uint)j < lane_count ? -1 : 0;
     }
     lanes.pixel = pixel_l.v;
     lanes.sample = sample_l.v;
     lanes.redraw = redraw_l.v;
+    lanes.ld.kind = paths_kind;
+    lanes.ld.zsobol_bits = zsobol_bits;
+    lanes.ld.key_x = key_x_l.v;
+    lanes.ld.key_y = key_y_l.v;
+    lanes.ld.index = sobol_index_l.v;
+    if (paths_kind == PATHS_STRATIFIED)
+        lanes.strata = Strata_Make(fixed_count, strata);
     V_CameraRays(camera, image_width, image_height, pixel_l.v, pos_x_l.v, pos_y_l.v, &paths.dx,
                  &paths.dy, &paths.dz);
     paths.running = running_l.v;

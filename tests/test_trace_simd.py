@@ -33,7 +33,9 @@ def draw(runtime, sampler, seed, size=SIZE, spp=SPP):
 def assert_same_trace(runtime, scene, sets, seed, size=SIZE, simd_defines=None, **options):
     """Both kernels' radiance bit for bit, rays and non-finite counts; returns the megakernel's
     radiance and result."""
-    mega = PathTracer(runtime, scene, **options)
+    # The megakernel named: "auto" (the default) takes simd on CPU devices
+    mega = PathTracer(runtime, scene, trace_kernel="megakernel", **options)
+    assert mega.trace_kernel == "megakernel"
     simd = PathTracer(runtime, scene, trace_kernel="simd", simd_defines=simd_defines, **options)
     a = mega.trace(sets, seed, size, size)
     b = simd.trace(sets, seed, size, size)
@@ -92,10 +94,37 @@ def test_integrator_options_match(runtime, scene_name, depth, nee, roulette):
     ids=["width8", "portable", "portable-width8"],
 )
 @pytest.mark.parametrize("scene_name", ["mitsuba-cbox", "cornell-box-glossy"])
-def test_build_variants_match(runtime, scene_name, defines):
+@pytest.mark.parametrize("sampler", ["independent", "zsobol"])
+def test_build_variants_match(runtime, scene_name, defines, sampler):
     """Width 8, and the portable code (no x86 builtins) a compiler without AVX would get."""
-    sets = draw(runtime, "independent", 17)
+    sets = draw(runtime, sampler, 17)
     assert_same_trace(runtime, load_scene(scene_name), sets, 17, simd_defines=defines)
+
+
+@pytest.mark.parametrize(
+    ("sampler", "spp", "side", "depth"),
+    [
+        ("zsobol", 8, SIZE, 8),  # 2 x 4 + 3 = 11 index bits: the last binary digit
+        ("zsobol", 4, 2**15, 8),  # 32 bits: the top digit has no digits above it
+        ("zsobol", 2, 2**15, 8),  # 31 bits: the top digit and the last binary digit
+        ("sobol", 4, SIZE, 24),  # dimensions up to 2 + 7 x 24
+        ("zsobol", 4, SIZE, 24),
+        ("sobol", 1, SIZE, 8),  # one sample a pixel: every index 0
+        ("stratified", 9, SIZE, 8),  # 9 strata in a range of 16: permutations walk cycles
+        ("stratified", 25, SIZE, 24),
+        ("stratified", 1, SIZE, 8),  # one stratum: division by 1
+    ],
+)
+def test_low_discrepancy_layouts_match(runtime, sampler, spp, side, depth):
+    """The stratified, sobol and zsobol samplers on lanes: zsobol's index layouts (odd bit
+    counts, 32 bits), stratum counts that are not powers of two, long paths (high dimensions),
+    a block of pixels in the middle of a large image."""
+    x0 = (side - SIZE) // 2
+    pixels = rectangle_pixels(side, x0, x0, SIZE, SIZE)
+    sets = generate_sample_sets(runtime, make_sampler(sampler, spp), 23, pixels, None, (side, side))
+    options = {"max_depth": depth, "russian_roulette": depth > 8}
+    radiance, _ = assert_same_trace(runtime, load_scene("cornell-box"), sets, 23, side, **options)
+    assert np.count_nonzero(radiance.sum(axis=1)) > len(radiance) // 4
 
 
 def write_scene(tmp_path, text, name):
