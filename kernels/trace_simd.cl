@@ -669,7 +669,7 @@ CL_INLINE void Paths_SetLane(Paths *paths, uint j, const PathState *path, bool r
 }
 
 // Whether the scene is traced by the vector brute force (no triangles, no BVH).
-CL_INLINE bool Scene_VectorGeometry(const SceneData *scene)
+CL_INLINE bool V_SceneOnLanes(const SceneData *scene)
 {
     return scene->bvh_node_count == 0u && scene->triangle_count == 0u;
 }
@@ -697,7 +697,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     // Find the closest surface along the rays (by brute force on lanes, else lane by lane)
     vint prim = (vint)(-1);
     vfloat t = (vfloat)(INFINITY);
-    if (Scene_VectorGeometry(scene)) {
+    if (V_SceneOnLanes(scene)) {
         t = V_Intersect(scene, running, &ray, &prim);
     }
     else {
@@ -841,10 +841,10 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
             sphere_lanes = (vint)(e->shape == EMITTER_SPHERE ? -1 : 0);
         } else {
             LANES(float, vfloat) Le_r_l, Le_g_l, Le_b_l, pick_pdf_l, area_l;
-            LANES(int, vint) emitter_l, sphere_l;
-            emitter_l.v = emitter;
+            LANES(int, vint) hit_emitter_l, sphere_l;
+            hit_emitter_l.v = emitter;
             for (int j = 0; j < SIMD_WIDTH; ++j) {
-                int k = emitter_l.s[j];
+                int k = hit_emitter_l.s[j];
                 __global const Emitter *e = &scene->emitters[k >= 0 ? k : 0];
                 Le_r_l.s[j] = e->radiance[0];
                 Le_g_l.s[j] = e->radiance[1];
@@ -1059,7 +1059,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
             vfloat tmax = dist - 2.0f * (error + light_error);
             *rays += (uint)popcount(lit_bits);
 #ifndef PROFILE_SKIP_SHADOW_RAYS // profiling build: every shadow ray counts as unblocked
-            if (Scene_VectorGeometry(scene)) {
+            if (V_SceneOnLanes(scene)) {
                 shadow.ix = 1.0f / wi_x;
                 shadow.iy = 1.0f / wi_y;
                 shadow.iz = 1.0f / wi_z;
