@@ -52,7 +52,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from common import machine
+from common import machine, thread_seconds
 
 from clrender.estimators import device_cells
 from clrender.estimators.device_cells import device_sppp_cells, resolve_precision
@@ -202,18 +202,6 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
         )
     traced = default_layout.traced_total
     return {"n": n, "pixels": pixels, "traced_nuclei": traced, "variants": rows}
-
-
-def thread_seconds() -> dict[str, float]:
-    """CPU seconds each thread of this process has run (Linux; empty elsewhere)."""
-    seconds = {}
-    tasks = Path("/proc/self/task")
-    for task in tasks.iterdir() if tasks.is_dir() else ():
-        try:
-            seconds[task.name] = int((task / "schedstat").read_text().split()[0]) * 1e-9
-        except (OSError, ValueError, IndexError):
-            continue
-    return seconds
 
 
 def stage_accounting(runtime, n: int, repeats: int) -> dict:

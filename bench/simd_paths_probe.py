@@ -29,6 +29,7 @@ import argparse
 import json
 import os
 import statistics
+import sys
 import threading
 import time
 from pathlib import Path
@@ -36,10 +37,14 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
-from clrender.runtime import create_runtime, launch_global_size
-from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels
-from clrender.scene import load_scene
-from clrender.trace import PathTracer
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import thread_seconds  # noqa: E402
+
+from clrender.runtime import create_runtime, launch_global_size  # noqa: E402
+from clrender.sampling import generate_sample_sets, make_sampler, rectangle_pixels  # noqa: E402
+from clrender.scene import load_scene  # noqa: E402
+from clrender.trace import PathTracer  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "simd_paths_probe.json"
 COUNTERS = (
@@ -248,18 +253,6 @@ def compare(reference: np.ndarray, other: np.ndarray) -> dict:
         "mean_prototype": other_mean.tolist(),
         "mean_difference_in_stderr": ((other_mean - ref_mean) / stderr).tolist(),
     }
-
-
-def thread_seconds() -> dict[str, float]:
-    """CPU seconds each thread of this process has run (Linux; empty elsewhere)."""
-    seconds = {}
-    tasks = Path("/proc/self/task")
-    for task in tasks.iterdir() if tasks.is_dir() else ():
-        try:
-            seconds[task.name] = int((task / "schedstat").read_text().split()[0]) * 1e-9
-        except (OSError, ValueError, IndexError):
-            continue
-    return seconds
 
 
 def pocl_deals(groups: int, threads: int = 2) -> list[int]:
