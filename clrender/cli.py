@@ -530,7 +530,7 @@ def command_render(args: argparse.Namespace) -> int:
         rendered = max(film.rendered_count for film in result.films.values())
         if result.stats.interrupted and rendered == 0:
             # Nothing to save: an all-black partial image would replace the previous one
-            signum = interrupts.last_signal()
+            signum = interrupts.interrupting_signal()
             print(
                 f"clrender: interrupted ({signal.Signals(signum).name}) before any pixel was "
                 "finished: nothing written (a previous image there is kept)",
@@ -623,7 +623,8 @@ def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> in
             f"{held} of {result.film.pixel_count} pixels (partial=1)",
             file=sys.stderr,
         )
-        signum = held_signals[-1] if held_signals else interrupts.last_signal()
+        # The signal that interrupted the render; else the one held while writing
+        signum = interrupts.interrupting_signal() if result.stats.interrupted else held_signals[-1]
         return interrupts.exit_status(signum)
     if result.stats.nonfinite_samples or result.film.flagged_count:
         print(

@@ -1,10 +1,13 @@
 """Signals that end a command the way Ctrl-C does.
 
-SIGTERM (a job scheduler, `kill`) and SIGHUP (a closed terminal) raise SignalInterrupt, a
-KeyboardInterrupt, in the main thread (unless the process started with them ignored, as under
-`nohup`: they stay ignored): a render stops between device calls and the command
-writes the finished pixels (partial=1), exactly as after Ctrl-C. The command then exits with
-128 + the signal number, as a shell reports a process the signal ended (130 for Ctrl-C).
+Ctrl-C (SIGINT), SIGTERM (a job scheduler, `kill`) and SIGHUP (a closed terminal) raise
+SignalInterrupt, a KeyboardInterrupt, in the main thread (unless the process started with them
+ignored, as under `nohup` or in a shell's background: they stay ignored): a render stops
+between device calls and the command writes the finished pixels (partial=1). The command then
+exits with 128 + the number of the signal that interrupted it, as a shell reports a process the
+signal ended (130 for Ctrl-C). Only the first one interrupts: one that comes while the render
+finishes its work in flight and the images are written is reported and does not lose them
+(SIGQUIT, Ctrl-\\, still quits at once).
 While the images are written every one of these signals is held (`signals_held`) and reported
 after the files are complete. While libraries load, the runtime is set up and OpenCL programs
 build, the signals are blocked (`signals_blocked`): a signal there interrupted an extension
@@ -27,21 +30,29 @@ ENDING_SIGNALS = tuple(
 
 
 class SignalInterrupt(KeyboardInterrupt):
-    """SIGTERM or SIGHUP arrived: handled wherever Ctrl-C is."""
+    """An ending signal arrived: handled wherever Ctrl-C is."""
 
     def __init__(self, signum: int):
         super().__init__(signal.Signals(signum).name)
         self.signum = signum
 
 
-# The SIGTERM and SIGHUP this process received (a render catches the interrupt itself and
-# only reports that it was interrupted: the command asks here which signal it was).
+# The ending signals this process received (a render catches the interrupt itself and only
+# reports that it was interrupted: the command asks here which signal it was).
 _received: list[int] = []
 
 
-def _raise(signum: int, frame) -> None:
+def _interrupt_once(signum: int, frame) -> None:
+    """The first ending signal interrupts; a later one only says that the finished work is
+    being saved (raised there, it would stop the saving and lose it)."""
     _received.append(signum)
-    raise SignalInterrupt(signum)
+    if len(_received) == 1:
+        raise SignalInterrupt(signum)
+    print(
+        f"clrender: interrupted again ({signal.Signals(signum).name}): still saving the finished "
+        "pixels (SIGQUIT, Ctrl-\\, quits without them)",
+        file=sys.stderr,
+    )
 
 
 @contextlib.contextmanager
@@ -57,11 +68,11 @@ def _handlers(signals: tuple[int, ...], handler) -> Iterator[None]:
 
 @contextlib.contextmanager
 def ending_signals_interrupt() -> Iterator[None]:
-    """SIGTERM and SIGHUP raise SignalInterrupt while the block runs (main thread only), unless
-    the process was started with them ignored (`nohup` ignores SIGHUP): those stay ignored, as
-    Python leaves an ignored SIGINT."""
+    """The first SIGINT, SIGTERM or SIGHUP raises SignalInterrupt while the block runs (main
+    thread only), later ones are reported (`_interrupt_once`); signals the process was started
+    with ignored (`nohup` ignores SIGHUP, a background job SIGINT) stay ignored."""
     _received.clear()
-    with _handlers(tuple(s for s in _not_ignored() if s != signal.SIGINT), _raise):
+    with _handlers(_not_ignored(), _interrupt_once):
         yield
 
 
@@ -93,9 +104,10 @@ def signals_blocked() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
-def last_signal() -> int:
-    """The last SIGTERM or SIGHUP received, else SIGINT (Ctrl-C, Python's KeyboardInterrupt)."""
-    return _received[-1] if _received else int(signal.SIGINT)
+def interrupting_signal() -> int:
+    """The first ending signal received (the one that interrupted), else SIGINT (Python's own
+    KeyboardInterrupt, outside ending_signals_interrupt)."""
+    return _received[0] if _received else int(signal.SIGINT)
 
 
 def exit_status(signum: int) -> int:

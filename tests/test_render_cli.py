@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clrender import cli
+from clrender import cli, interrupts
 from clrender.errors import ParameterError
 from clrender.estimators import ESTIMATORS
 from clrender.film import Film
@@ -220,14 +220,19 @@ def test_exit_status(capsys, strict, nonfinite, flagged, interrupted, status):
         assert "5 samples had NaN or infinite radiance; 2 pixels flagged" in err
 
 
-def test_a_signal_held_while_writing_gives_its_own_status(capsys):
+def test_a_signal_held_while_writing_gives_its_own_status(capsys, monkeypatch):
     args = cli.build_parser().parse_args(["render"])
     held = [int(signal.SIGTERM)]
     assert cli.exit_status(args, fake_result(0, 0, False), held_signals=held) == 143
     # The render was complete: so are its images (not "partial")
     assert "while the finished images were written: they are complete" in capsys.readouterr().err
-    assert cli.exit_status(args, fake_result(0, 0, True), held_signals=held) == 143
+    # An interrupted render: the status is the interrupting signal's (Python's own Ctrl-C
+    # here, none recorded), not the later one's
+    monkeypatch.setattr(interrupts, "_received", [])
+    assert cli.exit_status(args, fake_result(0, 0, True), held_signals=held) == 130
     assert "interrupted: the image holds" in capsys.readouterr().err
+    monkeypatch.setattr(interrupts, "_received", [int(signal.SIGHUP), int(signal.SIGTERM)])
+    assert cli.exit_status(args, fake_result(0, 0, True), held_signals=held) == 129
 
 
 def read_until(fd: int, marker: bytes) -> bytes:
@@ -419,6 +424,60 @@ def test_a_signal_after_the_last_pixel_still_writes_the_finished_image(tmp_path)
         "complete\n"
     )
     assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
+
+
+@pytest.mark.device
+def test_a_second_signal_while_finishing_keeps_the_finished_pixels(tmp_path):
+    # Ctrl-C as tile 3 starts interrupts the render; SIGTERM comes while the render waits for
+    # tile 2's estimate, still in flight on its thread (before: raised there, it ended the
+    # command with nothing written). That estimate sends it once the main thread waits for
+    # it (seen in its stack), and only then finishes: no timing guesses.
+    script = """
+import os, signal, sys, threading, time
+import clrender.pipeline
+TilePipeline = clrender.pipeline.TilePipeline
+real_tile_pixels, real_estimate = clrender.pipeline.tile_pixels, TilePipeline.estimate
+tiles, estimates = [], []
+def tile_pixels(*args, **kwargs):
+    tiles.append(1)
+    if len(tiles) == 3:
+        while len(estimates) < 2:  # tile 2's estimate has begun: it cannot be cancelled
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGINT)
+    return real_tile_pixels(*args, **kwargs)
+def main_thread_waits():
+    frame = sys._current_frames()[threading.main_thread().ident]
+    while frame is not None and frame.f_code.co_name != "result":
+        frame = frame.f_back
+    return frame is not None
+def estimate(self, tile):
+    estimates.append(1)
+    if len(estimates) == 2:
+        while not main_thread_waits():
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGTERM)
+    return real_estimate(self, tile)
+clrender.pipeline.tile_pixels = tile_pixels
+TilePipeline.estimate = estimate
+sys.argv = ["clrender", "render", "cornell-box", "--res", "32", "--spp", "8", "--tile-samples",
+            "2048", "-o", "out.exr"]
+from clrender.__main__ import run
+sys.exit(run())
+"""
+    child = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        preexec_fn=default_signals,
+    )
+    assert child.returncode == 130, child.stderr  # the status of the signal that interrupted
+    assert "clrender: interrupted again (SIGTERM): still saving the finished pixels" in (
+        child.stderr
+    )
+    assert "Traceback" not in child.stderr, child.stderr
+    pixels, meta = read_exr(tmp_path / "out.exr")
+    assert meta["partial"] == 1 and 0 < meta["rendered_pixels"] < 32 * 32, child.stderr
 
 
 @pytest.mark.device
