@@ -16,6 +16,7 @@ The command line (`python -m clrender render`) goes through the same functions.
 from __future__ import annotations
 
 import functools
+import os
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -229,10 +230,15 @@ def check_progress(progress: object) -> None:
     )
 
 
-@functools.cache
 def runtime_for(device: str | None) -> Runtime:
     """One OpenCL runtime per device request and process (its programs are built once; not
-    for concurrent use from several threads)."""
+    for concurrent use from several threads). The default device is PYOPENCL_CTX's as it is
+    now: a changed variable gets the runtime of the device it names."""
+    return _runtime_for(device, os.environ.get("PYOPENCL_CTX", ""))
+
+
+@functools.cache
+def _runtime_for(device: str | None, pyopencl_ctx: str) -> Runtime:
     return create_runtime(device)
 
 

@@ -26,7 +26,7 @@ import pyopencl as cl
 
 from clrender import __version__, interrupts
 from clrender.errors import ClrenderError, ParameterError
-from clrender.runtime import create_runtime, describe_device, list_devices
+from clrender.runtime import describe_device, list_devices
 from clrender.trace import DEFAULT_MAX_DEPTH, MAX_DEPTH_LIMIT
 
 EXIT_USAGE = 2
@@ -258,7 +258,9 @@ def command_devices(args: argparse.Namespace) -> int:
     print("OpenCL devices:")
     for index, device in enumerate(devices):
         print(f"  [{index}] {describe_device(device)}, {device.max_compute_units} compute units")
-    runtime = create_runtime(args.device)
+    from clrender.api import runtime_for
+
+    runtime = runtime_for(args.device)
     print(f"selected: {runtime.describe()}")
     ok, message = run_self_check(runtime)
     print(f"self-check: {message}: {'ok' if ok else 'FAILED'}")
@@ -499,7 +501,9 @@ def command_render(args: argparse.Namespace) -> int:
 
             size = image_size(scene or args.scene, parse_resolution(args.res))
         else:
-            runtime = create_runtime(args.device)
+            from clrender.api import runtime_for
+
+            runtime = runtime_for(args.device)  # one per process: its programs build once
             built = thread_build_seconds()
             source = make_source(args, runtime, scene)
             setup_compile = thread_build_seconds() - built

@@ -41,16 +41,15 @@ def runtime():
 @pytest.fixture
 def shared_cli_runtime(runtime, monkeypatch):
     """The in-process command line (clrender.cli.main) renders on the session's runtime instead
-    of a new one per call, so its programs are built once per session, not once per test: for
-    tests of what a render writes and says, not of a new process's first builds (those run
-    the command line in child processes, or without this fixture). A --device request still
-    gets its own runtime."""
-    from clrender import cli
+    of the process's own (clrender.api.runtime_for), so its programs are built once per
+    session: for tests of what a render writes and says, not of a process's first builds
+    (those run the command line in child processes, or without this fixture). A --device
+    request still gets its own runtime."""
+    from clrender import api
 
+    real = api.runtime_for
     monkeypatch.setattr(
-        cli,
-        "create_runtime",
-        lambda request=None: runtime if request is None else create_runtime(request),
+        api, "runtime_for", lambda request=None: runtime if request is None else real(request)
     )
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 from scene_texts import MINIMAL_SCENE
 
-from clrender import cli
+from clrender import api, cli
 from clrender.imageio import read_exr
 
 SCENE = MINIMAL_SCENE
@@ -204,7 +204,7 @@ def no_device(*args, **kwargs):
 
 
 def test_read_only_output_directory_fails_before_rendering(capsys, tmp_path, monkeypatch):
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     directory = tmp_path / "read-only"
     directory.mkdir()
     directory.chmod(0o555)
@@ -221,7 +221,7 @@ def test_read_only_output_directory_fails_before_rendering(capsys, tmp_path, mon
 
 
 def test_output_path_that_is_a_directory_fails_before_rendering(capsys, tmp_path, monkeypatch):
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     target = tmp_path / "image.exr"
     target.mkdir()
     status, _, err = run_cli(capsys, "render", "analytic", "-o", str(target))
@@ -405,7 +405,7 @@ def deeply_nested(depth: int) -> bytes:
     ],
 )
 def test_unreadable_scene_files_are_one_line(capsys, tmp_path, monkeypatch, content, fragment):
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     scene = tmp_path / "bad.toml"
     scene.write_bytes(content)
     status, _, err = run_cli(capsys, "render", str(scene), *FAST, "-o", str(tmp_path / "o"))
@@ -413,7 +413,7 @@ def test_unreadable_scene_files_are_one_line(capsys, tmp_path, monkeypatch, cont
 
 
 def test_a_scene_argument_that_is_no_regular_file(capsys, tmp_path, monkeypatch):
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     os.mkfifo(tmp_path / "pipe.toml")
     (tmp_path / "folder.toml").mkdir()
     out = str(tmp_path / "o")
@@ -437,7 +437,7 @@ def test_a_scene_argument_that_is_no_regular_file(capsys, tmp_path, monkeypatch)
 def test_output_names_that_cannot_be_written_are_one_line(
     capsys, tmp_path, monkeypatch, output, fragment
 ):
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     monkeypatch.chdir(tmp_path)
     (tmp_path / "d").mkdir()
     status, _, err = run_cli(capsys, "render", "analytic", *FAST[:-2], "-o", output)
@@ -448,7 +448,7 @@ def test_output_names_that_cannot_be_written_are_one_line(
 
 
 def test_a_resolution_beyond_the_machine_is_refused_before_any_device(capsys, monkeypatch):
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     status, _, err = run_cli(capsys, "render", "analytic", "--res", "65536x65536")
     assert_one_line_error(status, err, "a 65536x65536 image needs about 468.0 GiB")
 
@@ -458,7 +458,7 @@ def test_a_pixel_whose_samples_cannot_fit_is_refused_before_any_device(
 ):
     import clrender.pipeline as pipeline
 
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     monkeypatch.setattr(pipeline, "physical_memory", lambda: 2**30)
     # 60 M samples of one pixel at >= 20 B each: 1.1 GiB, over the 1 GiB given
     argv = ["render", "analytic", "--res", "1x1", "--sampler", "independent"]
@@ -497,7 +497,7 @@ def test_running_out_of_host_memory_is_one_line(capsys, monkeypatch):
     def exhausted(*args, **kwargs):
         raise MemoryError("Unable to allocate 3.20 GiB for an array")
 
-    monkeypatch.setattr(cli, "create_runtime", exhausted)
+    monkeypatch.setattr(api, "runtime_for", exhausted)
     status, _, err = run_cli(capsys, "render", "analytic", *FAST[:-2], "-o", "unused.exr")
     assert_one_line_error(status, err, "out of host memory (Unable to allocate 3.20 GiB")
 

@@ -1,6 +1,7 @@
 """`python -m clrender render`: outputs and metadata, one-line errors and exit codes, Ctrl-C."""
 
 import fcntl
+import functools
 import os
 import pty
 import signal
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from clrender import cli, interrupts
+from clrender import api, cli, interrupts
 from clrender.errors import ParameterError
 from clrender.estimators import ESTIMATORS
 from clrender.film import Film
@@ -162,7 +163,7 @@ def test_output_under_a_file_fails_before_any_device_work(capsys, tmp_path, monk
     def no_device(*args, **kwargs):
         raise AssertionError("a runtime was created before the output path was checked")
 
-    monkeypatch.setattr(cli, "create_runtime", no_device)
+    monkeypatch.setattr(api, "runtime_for", no_device)
     (tmp_path / "notes.txt").write_text("x")
     target = tmp_path / "notes.txt" / "deeper" / "out.exr"
     status, _, err = run_cli(capsys, "render", "-o", str(target))
@@ -554,3 +555,29 @@ def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(tmp_path):
         os.close(writer)
     assert child.returncode == 141, child.stderr
     assert child.stderr == ""
+
+
+@pytest.mark.device
+def test_in_process_commands_share_one_runtime(capsys, tmp_path, monkeypatch, runtime):
+    # Without the session fixture: a second command in the same process renders on the first
+    # one's runtime (clrender.api.runtime_for, one per device request), so its programs are not
+    # built again (before: a new context per call, about 0.2 s of builds for a tiny render)
+    from clrender import api
+
+    made = []
+
+    def counted(request=None):
+        made.append((request, os.environ.get("PYOPENCL_CTX")))
+        return runtime
+
+    monkeypatch.setattr(api, "create_runtime", counted)
+    monkeypatch.setattr(api, "_runtime_for", functools.cache(api._runtime_for.__wrapped__))
+    monkeypatch.setenv("PYOPENCL_CTX", "0")
+    for name in ("a", "b"):
+        argv = ["render", "analytic", "--res", "4", "--spp", "4", "-o", str(tmp_path / name)]
+        assert run_cli(capsys, *argv)[0] == 0
+    assert made == [(None, "0")]
+    # A changed PYOPENCL_CTX is a new request (its device may be another)
+    monkeypatch.setenv("PYOPENCL_CTX", "1")
+    assert run_cli(capsys, "render", "analytic", "--res", "4", "-o", str(tmp_path / "c"))[0] == 0
+    assert made == [(None, "0"), (None, "1")]
