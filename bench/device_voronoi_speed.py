@@ -48,6 +48,7 @@ import json
 import os
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -129,6 +130,22 @@ def parse_defines(variant: str) -> dict[str, object]:
     return defines
 
 
+@contextmanager
+def kernels_folder(folder: str | None):
+    """CLRENDER_KERNELS_DIR set to folder (None: left as it is) for the kernels looked up inside:
+    the runtime caches them per folder, so a variant's every launch must see its folder."""
+    saved = os.environ.get(KERNELS_DIR_VARIABLE)
+    if folder:
+        os.environ[KERNELS_DIR_VARIABLE] = folder
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(KERNELS_DIR_VARIABLE, None)
+        else:
+            os.environ[KERNELS_DIR_VARIABLE] = saved
+
+
 def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     """CPU seconds of the grid build and cell kernel per tile for each variant's build options,
     alternating in one process; ratios to the first variant within each round."""
@@ -153,18 +170,10 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     outputs = []
     for defines, layout, folder in zip(options, layouts, folders, strict=True):
         # Builds the kernels (from the variant's folder); the results to compare
-        saved = os.environ.get(KERNELS_DIR_VARIABLE)
-        if folder:
-            os.environ[KERNELS_DIR_VARIABLE] = folder
-        try:
+        with kernels_folder(folder):
             areas_buf, status_buf, _, _ = device_cells._enqueue_cells(
                 runtime, layout, box, defines, size
             )
-        finally:
-            if saved is None:
-                os.environ.pop(KERNELS_DIR_VARIABLE, None)
-            else:
-                os.environ[KERNELS_DIR_VARIABLE] = saved
         areas = np.empty(layout.traced_total, real)
         status = np.empty(layout.traced_total, np.uint8)
         cl.enqueue_copy(runtime.queue, areas, areas_buf)
@@ -175,10 +184,13 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
         order = range(len(options)) if r % 2 == 0 else reversed(range(len(options)))
         for k in order:
             runtime.queue.finish()
-            cpu0 = time.process_time()
-            device_cells._enqueue_cells(runtime, layouts[k], box, options[k], size)
-            runtime.queue.finish()
-            cpu[k, r] = time.process_time() - cpu0
+            # (in the variant's folder: elsewhere the lookup built the variant's options from
+            # the default folder's sources, and timed that program instead)
+            with kernels_folder(folders[k]):
+                cpu0 = time.process_time()
+                device_cells._enqueue_cells(runtime, layouts[k], box, options[k], size)
+                runtime.queue.finish()
+                cpu[k, r] = time.process_time() - cpu0
     rows = []
     first_areas, first_status = outputs[0]
     for k, variant in enumerate(variants):

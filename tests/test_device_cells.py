@@ -685,8 +685,9 @@ def small_block_kernels(tmp_path_factory) -> Path:
 # each other in one process and tells which give the first variant's cells bit for bit: the
 # default spelled out does; a block too small for any walk (the clipping search, the same cells
 # within rounding) does not, nor a 1 x 1 grid (GRID_SIDE: the whole set one block, over the
-# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS)
-def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory):
+# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS),
+# whose kernels are also the ones timed (the timing rounds once launched the default folder's)
+def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory, monkeypatch):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     import device_voronoi_speed
 
@@ -700,7 +701,19 @@ def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory)
         "GRID_SIDE=1",
         f"KERNELS={small_block}",
     ]
+    folders = []  # (a KERNELS variant's call?, the kernels folder it looked its kernels up in)
+    enqueue = device_cells._enqueue_cells
+
+    def recording(runtime, layout, box, defines, area_bytes):
+        folders.append(("CLRENDER_BENCH_KERNELS" in defines, kernels_dir()))
+        return enqueue(runtime, layout, box, defines, area_bytes)
+
+    monkeypatch.setattr(device_cells, "_enqueue_cells", recording)
     report = device_voronoi_speed.compare_variants(runtime, 16, variants, 2)
+    default = kernels_dir()
+    assert len(folders) == 3 * len(variants)  # the results' run, then 2 rounds
+    assert [folder for bench, folder in folders if bench] == [small_block] * 3
+    assert {folder for bench, folder in folders if not bench} == {default} != {small_block}
     rows = report["variants"]
     assert [row["identical_to_first"] for row in rows] == [True, True, False, False, False]
     assert rows[0]["ratio_to_first"] == [1.0, 1.0, 1.0]
