@@ -724,6 +724,35 @@ def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory,
         assert row["largest_relative_area_difference"] < 1e-4
 
 
+# 16b. --variants --processes pools the rounds of several processes and keeps each process's
+# medians, so that one process that ran a variant slower throughout stands out
+def test_variant_runs_of_several_processes_pool_their_rounds():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import device_voronoi_speed
+
+    def report(first, second, identical=True):
+        return {
+            "variants": [
+                {"variant": "-", "cpu_s_per_round": first, "identical_to_first": True},
+                {"variant": "X", "cpu_s_per_round": second, "identical_to_first": identical},
+            ]
+        }
+
+    fast = report([0.2, 0.4, 0.2], [0.2, 0.4, 0.2])
+    slow = report([0.2, 0.2, 0.2], [0.24, 0.24, 0.24], identical=False)
+    pooled = device_voronoi_speed.pool_variant_runs([fast, fast, slow])
+    base, other = pooled["variants"]
+    assert pooled["processes"] == 3
+    assert base["ratio_to_first"] == [1.0, 1.0, 1.0] and base["identical_to_first"]
+    np.testing.assert_allclose(other["process_median_ratio_to_first"], [1.0, 1.0, 1.2])
+    np.testing.assert_allclose(other["process_median_cpu_s_per_tile"], [0.2, 0.2, 0.24])
+    assert other["median_cpu_s_per_tile"] == 0.2  # the median process, not the slow one
+    np.testing.assert_allclose(other["ratio_to_first"], [1.0, 1.0, 1.2])  # 9 rounds: 3 at 1.2
+    assert not other["identical_to_first"]
+    with pytest.raises(ValueError, match="reports of different variants"):
+        device_voronoi_speed.pool_variant_runs([fast, {"variants": fast["variants"][:1]}])
+
+
 # 17. On a CPU, kernels of one work-item per pixel spread their pixels evenly over the whole
 # padded launch (kernels/voronoi_common.h Voronoi_SpreadPixel): PoCL deals work-groups to its
 # threads in chunks from the front, so pixels packed at the front (a tile's 4096 in a launch of
