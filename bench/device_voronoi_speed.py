@@ -45,9 +45,11 @@ what walking a grid cell's nuclei two at a time saves (kernels/voronoi_cells.cl)
 runs that comparison in 4 fresh processes, one after another, and pools their rounds: per
 variant the ratio quartiles over all rounds, each process's median ratio and median CPU per tile
 (a process that ran one variant slower throughout stands out there). Separate processes of one
-kernel differ by up to 10 % (the cell kernel: 189 to 214 CPU-ns per traced cell over 38
-processes on both PoCLs), builds of one kernel within a process by 1 to 5 %: compare figures
-of separate processes only as medians over several.
+kernel differ by up to 10 % (the cell kernel's median: 189 to 214 CPU-ns per traced cell over
+38 processes on both PoCLs; its least 187 to 208) and one process drifts as much within a
+minute (medians of 30 rounds from 203 down to 189), while builds of one kernel, or copies of its
+buffers, alternated within a process agree within 1 to 5 %: the machine's load and its host's,
+not the build or where the memory lies. Compare separate processes only as medians over several.
 """
 
 from __future__ import annotations
