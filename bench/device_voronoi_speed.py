@@ -39,6 +39,17 @@ differ and by how much at most (relative). On a shared machine separate runs of 
 differ by 10 % and more; ratios within a round resolve 1 to 2 % (at load 4 to 6, medians over
 40 to 60 rounds still moved by 2 to 3 % between runs). `--variants VORONOI_NO_PAIRS -` gives
 what walking a grid cell's nuclei two at a time saves (kernels/voronoi_cells.cl).
+
+    python bench/device_voronoi_speed.py --variants - KERNELS=DIR --processes 4 [--repeats K]
+
+runs that comparison in 4 fresh processes, one after another, and pools their rounds: per
+variant the ratio quartiles over all rounds, each process's median ratio and median CPU per tile
+(a process that ran one variant slower throughout stands out there). Separate processes of one
+kernel differ by up to 10 % (the cell kernel's median: 189 to 214 CPU-ns per traced cell over
+38 processes on both PoCLs; its least 187 to 208) and one process drifts as much within a
+minute (medians of 30 rounds from 203 down to 189), while builds of one kernel, or copies of its
+buffers, alternated within a process agree within 1 to 5 %: the machine's load and its host's,
+not the build or where the memory lies. Compare separate processes only as medians over several.
 """
 
 from __future__ import annotations
@@ -46,8 +57,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
+import sys
+import tempfile
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -129,6 +144,22 @@ def parse_defines(variant: str) -> dict[str, object]:
     return defines
 
 
+@contextmanager
+def kernels_folder(folder: str | None):
+    """CLRENDER_KERNELS_DIR set to folder (None: left as it is) for the kernels looked up inside:
+    the runtime caches them per folder, so a variant's every launch must see its folder."""
+    saved = os.environ.get(KERNELS_DIR_VARIABLE)
+    if folder:
+        os.environ[KERNELS_DIR_VARIABLE] = folder
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(KERNELS_DIR_VARIABLE, None)
+        else:
+            os.environ[KERNELS_DIR_VARIABLE] = saved
+
+
 def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     """CPU seconds of the grid build and cell kernel per tile for each variant's build options,
     alternating in one process; ratios to the first variant within each round."""
@@ -153,18 +184,10 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
     outputs = []
     for defines, layout, folder in zip(options, layouts, folders, strict=True):
         # Builds the kernels (from the variant's folder); the results to compare
-        saved = os.environ.get(KERNELS_DIR_VARIABLE)
-        if folder:
-            os.environ[KERNELS_DIR_VARIABLE] = folder
-        try:
+        with kernels_folder(folder):
             areas_buf, status_buf, _, _ = device_cells._enqueue_cells(
                 runtime, layout, box, defines, size
             )
-        finally:
-            if saved is None:
-                os.environ.pop(KERNELS_DIR_VARIABLE, None)
-            else:
-                os.environ[KERNELS_DIR_VARIABLE] = saved
         areas = np.empty(layout.traced_total, real)
         status = np.empty(layout.traced_total, np.uint8)
         cl.enqueue_copy(runtime.queue, areas, areas_buf)
@@ -175,10 +198,13 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
         order = range(len(options)) if r % 2 == 0 else reversed(range(len(options)))
         for k in order:
             runtime.queue.finish()
-            cpu0 = time.process_time()
-            device_cells._enqueue_cells(runtime, layouts[k], box, options[k], size)
-            runtime.queue.finish()
-            cpu[k, r] = time.process_time() - cpu0
+            # (in the variant's folder: elsewhere the lookup built the variant's options from
+            # the default folder's sources, and timed that program instead)
+            with kernels_folder(folders[k]):
+                cpu0 = time.process_time()
+                device_cells._enqueue_cells(runtime, layouts[k], box, options[k], size)
+                runtime.queue.finish()
+                cpu[k, r] = time.process_time() - cpu0
     rows = []
     first_areas, first_status = outputs[0]
     for k, variant in enumerate(variants):
@@ -193,6 +219,7 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
                 "median_cpu_s_per_tile": float(np.median(cpu[k])),
                 "least_cpu_s_per_tile": float(cpu[k].min()),
                 "ratio_to_first": [float(np.quantile(ratio, q)) for q in (0.25, 0.5, 0.75)],
+                "cpu_s_per_round": [float(x) for x in cpu[k]],
                 "identical_to_first": bool(
                     not differ.any() and np.array_equal(status, first_status)
                 ),
@@ -202,6 +229,47 @@ def compare_variants(runtime, n: int, variants: list[str], rounds: int) -> dict:
         )
     traced = default_layout.traced_total
     return {"n": n, "pixels": pixels, "traced_nuclei": traced, "variants": rows}
+
+
+def pool_variant_runs(reports: list[dict]) -> dict:
+    """The --variants reports of several processes (same variants) as one: per variant the
+    median of the processes' median CPU per tile, the ratio quartiles over every round of every
+    process, and each process's median CPU and median ratio (to tell a slow process apart)."""
+    names = [row["variant"] for row in reports[0]["variants"]]
+    for report in reports[1:]:
+        if [row["variant"] for row in report["variants"]] != names:
+            raise ValueError(f"reports of different variants: {names} and {report['variants']}")
+    first = [np.array(report["variants"][0]["cpu_s_per_round"]) for report in reports]
+    rows = []
+    for k, name in enumerate(names):
+        own = [np.array(report["variants"][k]["cpu_s_per_round"]) for report in reports]
+        ratios = [cpu / base for cpu, base in zip(own, first, strict=True)]
+        pooled = np.concatenate(ratios)
+        process_medians = [float(np.median(cpu)) for cpu in own]
+        rows.append(
+            {
+                "variant": name,
+                "median_cpu_s_per_tile": float(np.median(process_medians)),
+                "process_median_cpu_s_per_tile": process_medians,
+                "ratio_to_first": [float(np.quantile(pooled, q)) for q in (0.25, 0.5, 0.75)],
+                "process_median_ratio_to_first": [float(np.median(r)) for r in ratios],
+                "identical_to_first": all(r["variants"][k]["identical_to_first"] for r in reports),
+            }
+        )
+    return {"processes": len(reports), "variants": rows}
+
+
+def variants_in_processes(args: argparse.Namespace) -> dict:
+    """--variants in args.processes fresh processes, one at a time; their reports pooled."""
+    reports = []
+    with tempfile.TemporaryDirectory() as folder:
+        for _ in range(args.processes):
+            out = Path(folder) / DEFAULT_OUT.name  # (--variants writes beside it)
+            command = [sys.executable, __file__, "--variants", *args.variants, "--n", str(args.n)]
+            command += ["--repeats", str(args.repeats), "--out", str(out)]
+            subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+            reports.append(json.loads(out.with_name("device_voronoi_variants.json").read_text()))
+    return pool_variant_runs(reports)
 
 
 def stage_accounting(runtime, n: int, repeats: int) -> dict:
@@ -316,7 +384,30 @@ def main(argv: list[str] | None = None) -> None:
         "--variants", nargs="+", metavar="DEFINES", help="cell kernel build options to compare"
     )
     parser.add_argument("--n", type=int, default=256, help="SPPP n of --variants")
+    parser.add_argument(
+        "--processes", type=int, default=1, help="--variants in this many fresh processes, pooled"
+    )
     args = parser.parse_args(argv)
+    if args.processes > 1:
+        if not args.variants:
+            parser.error("--processes goes with --variants")
+        before = machine()
+        report = variants_in_processes(args)
+        for row in report["variants"]:
+            q25, median, q75 = row["ratio_to_first"]
+            per_process = ", ".join(f"{r:.3f}" for r in row["process_median_ratio_to_first"])
+            cpu = ", ".join(f"{1e3 * c:.1f}" for c in row["process_median_cpu_s_per_tile"])
+            print(
+                f"{row['variant']:32s} {1e3 * row['median_cpu_s_per_tile']:8.1f} ms CPU per tile"
+                f" ({cpu})  ratio to first {median:.3f} [{q25:.3f}, {q75:.3f}]"
+                f" per process ({per_process})  identical: {row['identical_to_first']}"
+            )
+        out = args.out.with_name("device_voronoi_variants_pooled.json")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        report.update(rounds=args.repeats, machine_before=before, machine_after=machine())
+        out.write_text(json.dumps(report, indent=2) + "\n")
+        print(f"wrote {out}")
+        return
     runtime = create_runtime()
     before = machine()
     repeats = 3 if args.quick else args.repeats

@@ -685,8 +685,9 @@ def small_block_kernels(tmp_path_factory) -> Path:
 # each other in one process and tells which give the first variant's cells bit for bit: the
 # default spelled out does; a block too small for any walk (the clipping search, the same cells
 # within rounding) does not, nor a 1 x 1 grid (GRID_SIDE: the whole set one block, over the
-# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS)
-def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory):
+# block's capacity), nor a copy of the kernels folder whose block is that small (KERNELS),
+# whose kernels are also the ones timed (the timing rounds once launched the default folder's)
+def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory, monkeypatch):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     import device_voronoi_speed
 
@@ -700,7 +701,19 @@ def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory)
         "GRID_SIDE=1",
         f"KERNELS={small_block}",
     ]
+    folders = []  # (a KERNELS variant's call?, the kernels folder it looked its kernels up in)
+    enqueue = device_cells._enqueue_cells
+
+    def recording(runtime, layout, box, defines, area_bytes):
+        folders.append(("CLRENDER_BENCH_KERNELS" in defines, kernels_dir()))
+        return enqueue(runtime, layout, box, defines, area_bytes)
+
+    monkeypatch.setattr(device_cells, "_enqueue_cells", recording)
     report = device_voronoi_speed.compare_variants(runtime, 16, variants, 2)
+    default = kernels_dir()
+    assert len(folders) == 3 * len(variants)  # the results' run, then 2 rounds
+    assert [folder for bench, folder in folders if bench] == [small_block] * 3
+    assert {folder for bench, folder in folders if not bench} == {default} != {small_block}
     rows = report["variants"]
     assert [row["identical_to_first"] for row in rows] == [True, True, False, False, False]
     assert rows[0]["ratio_to_first"] == [1.0, 1.0, 1.0]
@@ -709,6 +722,35 @@ def test_variant_timing_tells_identical_kernels_apart(runtime, tmp_path_factory)
         # The same cells: areas within rounding (single precision's at most)
         assert (row["areas_differing"] > 0) == (not row["identical_to_first"])
         assert row["largest_relative_area_difference"] < 1e-4
+
+
+# 16b. --variants --processes pools the rounds of several processes and keeps each process's
+# medians, so that one process that ran a variant slower throughout stands out
+def test_variant_runs_of_several_processes_pool_their_rounds():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    import device_voronoi_speed
+
+    def report(first, second, identical=True):
+        return {
+            "variants": [
+                {"variant": "-", "cpu_s_per_round": first, "identical_to_first": True},
+                {"variant": "X", "cpu_s_per_round": second, "identical_to_first": identical},
+            ]
+        }
+
+    fast = report([0.2, 0.4, 0.2], [0.2, 0.4, 0.2])
+    slow = report([0.2, 0.2, 0.2], [0.24, 0.24, 0.24], identical=False)
+    pooled = device_voronoi_speed.pool_variant_runs([fast, fast, slow])
+    base, other = pooled["variants"]
+    assert pooled["processes"] == 3
+    assert base["ratio_to_first"] == [1.0, 1.0, 1.0] and base["identical_to_first"]
+    np.testing.assert_allclose(other["process_median_ratio_to_first"], [1.0, 1.0, 1.2])
+    np.testing.assert_allclose(other["process_median_cpu_s_per_tile"], [0.2, 0.2, 0.24])
+    assert other["median_cpu_s_per_tile"] == 0.2  # the median process, not the slow one
+    np.testing.assert_allclose(other["ratio_to_first"], [1.0, 1.0, 1.2])  # 9 rounds: 3 at 1.2
+    assert not other["identical_to_first"]
+    with pytest.raises(ValueError, match="reports of different variants"):
+        device_voronoi_speed.pool_variant_runs([fast, {"variants": fast["variants"][:1]}])
 
 
 # 17. On a CPU, kernels of one work-item per pixel spread their pixels evenly over the whole
