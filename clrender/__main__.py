@@ -2,9 +2,10 @@
 
 The host does no large linear algebra: one BLAS thread, so that idle OpenBLAS workers do not
 spin on the cores the OpenCL CPU device works on (set before NumPy loads; the user's own
-setting wins). SIGTERM and SIGHUP end the command as Ctrl-C does (clrender.interrupts), from
-the first moment: the signals are blocked while the libraries load, so that an interrupt there
-ends the command in one line once they are loaded, never with a traceback.
+setting wins). Ctrl-C, SIGTERM and SIGHUP end the command alike (clrender.interrupts), from the
+first moment: the signals are blocked while the libraries load, so that an interrupt there
+ends the command in one line once they are loaded, never with a traceback. Only the first one
+interrupts; a later one, while the finished pixels are saved, is reported.
 """
 
 import os

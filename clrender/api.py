@@ -234,7 +234,7 @@ def runtime_for(device: str | None) -> Runtime:
     """One OpenCL runtime per device request and process (its programs are built once; not
     for concurrent use from several threads). The default device is PYOPENCL_CTX's as it is
     now: a changed variable gets the runtime of the device it names."""
-    return _runtime_for(device, os.environ.get("PYOPENCL_CTX", ""))
+    return _runtime_for(device, os.environ.get("PYOPENCL_CTX", "").strip())
 
 
 @functools.cache

@@ -48,11 +48,13 @@ def _interrupt_once(signum: int, frame) -> None:
     _received.append(signum)
     if len(_received) == 1:
         raise SignalInterrupt(signum)
-    print(
-        f"clrender: interrupted again ({signal.Signals(signum).name}): still saving the finished "
-        "pixels (SIGQUIT, Ctrl-\\, quits without them)",
-        file=sys.stderr,
-    )
+    # (stderr may be a terminal that closed, the SIGHUP: the saving goes on)
+    with contextlib.suppress(OSError):
+        print(
+            f"clrender: interrupted again ({signal.Signals(signum).name}): still finishing, "
+            "finished pixels are saved (SIGQUIT, Ctrl-\\, quits at once)",
+            file=sys.stderr,
+        )
 
 
 @contextlib.contextmanager

@@ -2,6 +2,7 @@
 
 import fcntl
 import functools
+import io
 import os
 import pty
 import signal
@@ -473,7 +474,7 @@ sys.exit(run())
         preexec_fn=default_signals,
     )
     assert child.returncode == 130, child.stderr  # the status of the signal that interrupted
-    assert "clrender: interrupted again (SIGTERM): still saving the finished pixels" in (
+    assert "clrender: interrupted again (SIGTERM): still finishing, finished pixels are saved" in (
         child.stderr
     )
     assert "Traceback" not in child.stderr, child.stderr
@@ -581,3 +582,16 @@ def test_in_process_commands_share_one_runtime(capsys, tmp_path, monkeypatch, ru
     monkeypatch.setenv("PYOPENCL_CTX", "1")
     assert run_cli(capsys, "render", "analytic", "--res", "4", "-o", str(tmp_path / "c"))[0] == 0
     assert made == [(None, "0"), (None, "1")]
+
+
+def test_a_second_signal_with_stderr_gone_does_not_raise(monkeypatch):
+    # After SIGHUP from a closed terminal, writing to it fails (EIO): the report of a second
+    # signal must not raise there, in the middle of saving the finished pixels
+    class ClosedTerminal(io.TextIOBase):
+        def write(self, text):
+            raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(interrupts, "_received", [int(signal.SIGHUP)])
+    monkeypatch.setattr(sys, "stderr", ClosedTerminal())
+    interrupts._interrupt_once(int(signal.SIGTERM), None)
+    assert interrupts._received == [int(signal.SIGHUP), int(signal.SIGTERM)]
