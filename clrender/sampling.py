@@ -119,6 +119,9 @@ RENAMED_SAMPLERS = {"uniform": "independent"}
 MAX_SAMPLES_PER_PIXEL = 0x40000000
 # Strata of float32 jitter stay distinct well below 2^24 of them.
 MAX_STRATIFIED_SAMPLES = 1 << 20
+# Samples per work-item of fill_traced_from_sampler (kernels/sampling.cl: SIMD_WIDTH, the
+# default of kernels/simd_lanes.h).
+FILL_LANES = 16
 # zsobol's image-wide index: Morton bits of the padded resolution, then log2(n) sample bits.
 ZSOBOL_INDEX_BITS = 32
 
@@ -371,21 +374,20 @@ def _launch_fill(
     path_arguments: tuple,
     image_width: int,
 ) -> None:
-    """Fill the traced samples (a work-item per 8 samples of a pixel, or per sample for a path
-    sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel)."""
+    """Fill the traced samples (a work-item per 8 samples of a pixel, or per FILL_LANES for a
+    path sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel)."""
     pixel_count, traced_total = len(offsets) - 1, int(offsets[-1])
     if traced_total and config.kind.positions == POSITIONS_FROM_SAMPLER:
         fill = runtime.kernel("sampling.cl", "fill_traced_from_sampler")
         runtime.launch_1d(
             fill,
-            traced_total,
+            pixel_count * -(-config.n // FILL_LANES),
             np.uint32(pixel_count),
             np.uint32(seed),
             *path_arguments[:3],
             np.uint32(image_width),
             *path_arguments[3:],
             np.int32(config.toroidal_shift),
-            np.uint32(traced_total),
             pixels_buf,
             redraws_buf,
             offsets_buf,
