@@ -44,10 +44,13 @@ with its neighbours' nuclei, in the estimator stage (clrender.estimators.image_d
 with a cell it cannot certify go to Qhull). With "qhull" the host computes all cells with
 Qhull.
 
-Timing (RenderStats): the main thread's time per device stage (stage_seconds: sample
-sets, tracing, voronoi, readback; each ends with the device done with it; device_seconds is
-their sum), the estimator stage's own time per group of estimators sharing a tessellation
-(estimator_seconds; host_seconds is their sum with the redraws' host part), and
+Timing (RenderStats): the time of each device stage (stage_seconds: sample sets, tracing,
+voronoi, moments, readback; device_seconds is their sum) on the device's own clock, from the
+device being free for the stage to its commands done (StageClock: profiling markers; a tile's
+stages are queued back to back and the tile waits once, for its results; on a queue without
+profiling, the main thread's time, each stage ending with a wait), the estimator stage's own
+time per group of estimators sharing a tessellation (estimator_seconds; host_seconds is their
+sum with the redraws' host part), and
 compile_seconds, the program builds and kernel creation met on the way (first uses in a
 process: programs are cached), taken out of the stages (PoCL's code generation at a kernel's
 first launch is not seen: on a cold cache it stays in that launch's stage); run_seconds is
@@ -100,7 +103,7 @@ from clrender.estimators.registry import Estimator, PixelSums, check_compatible
 from clrender.estimators.variance import PixelMoments, mc_variance
 from clrender.film import Film, PixelLayers, check_image_memory, physical_memory
 from clrender.radiance import RadianceSource
-from clrender.runtime import Runtime, describe_device, thread_build_seconds
+from clrender.runtime import Runtime, describe_device, profiling_queue, thread_build_seconds
 from clrender.samples import SampleSets
 from clrender.sampling import SamplerConfig, check_seed, generate_sample_sets, make_sampler
 from clrender.sppp import auxiliary_count
@@ -138,7 +141,7 @@ MIN_TILE_PIXELS = 256
 # makes itself: the driver starts at the first redraw.
 REDRAWS_BEFORE_ENLARGE = 3 - 1
 MAX_REDRAW_ROUNDS = 12 - 1
-# The device stages a render times on its main thread (RenderStats.stage_seconds).
+# The device stages a render times (RenderStats.stage_seconds, StageClock).
 DEVICE_STAGES = ("sample_sets", "tracing", "voronoi", "moments", "readback")
 
 ProgressCallback = Callable[[int, int], None]
@@ -280,8 +283,9 @@ class RenderStats:
     # a cluster render's wait for its workers' set-up (clrender.cluster.render_on): in
     # wall_seconds, out of run_seconds
     worker_setup_seconds: float = 0.0
-    # main-thread seconds per device stage (DEVICE_STAGES): drawing sample sets, tracing,
-    # device Voronoi cells and sums (with the host's settling of undecided pixels), read-back
+    # seconds per device stage (DEVICE_STAGES; StageClock: the device's clock): drawing sample
+    # sets, tracing, device Voronoi cells and sums (with the host's settling of undecided
+    # pixels), the plain sums, read-back
     stage_seconds: dict[str, float] = field(
         default_factory=lambda: dict.fromkeys(DEVICE_STAGES, 0.0)
     )
@@ -530,25 +534,53 @@ def tile_pixels(settings: RenderSettings, start: int, end: int | None = None) ->
 
 
 class StageClock:
-    """Main-thread seconds per device stage, with the thread's program builds taken out and
-    counted as compile time. Each stage ends with the device done with it (a blocking call),
-    so the device's time is not charged to a later stage."""
+    """Seconds per device stage, with the main thread's program builds taken out and counted as
+    compile time. On a queue that records when its commands run (Runtime.profiled: the
+    runtimes clrender makes), a stage is timed on the device's clock, between a marker queued
+    as it starts and one queued as it ends: from the device being free for it (done with the
+    work queued before it, or idle) until its commands are done. Its commands are queued
+    without a wait: the device runs a tile's stages back to back and the tile waits once, for
+    its results; settle() then adds the stages' times to the stats. On another queue each
+    stage ends with a wait for the device and takes the main thread's time."""
 
-    def __init__(self, stats: RenderStats):
+    def __init__(self, stats: RenderStats, queue: cl.CommandQueue | None = None):
         self.stats = stats
+        self.queue = queue
+        profiling = cl.command_queue_properties.PROFILING_ENABLE
+        self.profiled = queue is not None and bool(queue.properties & profiling)
+        # stages queued and not yet settled: (name, start marker, end marker, builds' seconds)
+        self.queued: list[tuple[str, cl.Event, cl.Event, float]] = []
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
         start, built = time.perf_counter(), thread_build_seconds()
+        first = cl.enqueue_marker(self.queue) if self.profiled else None
         try:
             yield
         finally:
             compile_seconds = thread_build_seconds() - built
-            seconds = time.perf_counter() - start - compile_seconds
             self.stats.compile_seconds += compile_seconds
             self.stats.main_compile_seconds += compile_seconds
-            self.stats.stage_seconds[name] += seconds
-            self.stats.device_seconds += seconds
+            if first is not None:
+                last = cl.enqueue_marker(self.queue)
+                self.queued.append((name, first, last, compile_seconds))
+            else:
+                if self.queue is not None:
+                    self.queue.finish()
+                self.add(name, time.perf_counter() - start - compile_seconds)
+
+    def settle(self) -> None:
+        """Wait for the queued stages (done already after a blocking read of their results)
+        and add their device times to the stats."""
+        for name, first, last, compile_seconds in self.queued:
+            last.wait()
+            device = (last.profile.end - first.profile.end) * 1e-9
+            self.add(name, max(device - compile_seconds, 0.0))
+        self.queued.clear()
+
+    def add(self, name: str, seconds: float) -> None:
+        self.stats.stage_seconds[name] += seconds
+        self.stats.device_seconds += seconds
 
 
 # --- the two stages ----------------------------------------------------------------------
@@ -572,15 +604,14 @@ def trace_tile(
     pixels with Qhull); "plain" forms each pixel's sum f and sum f^2 alone (RenderSettings.
     device_sum_kinds). With host_samples (or without device kinds) the sample sets and radiance
     come to the host as well."""
-    clock = clock or StageClock(RenderStats())
+    clock = clock or StageClock(RenderStats(), runtime.queue)
     with clock.stage("sample_sets"):
         device_sets = generate_sample_sets(
             runtime, sampler, seed, pixels, redraws, (source.width, source.height)
         )
-        runtime.queue.finish()
     with clock.stage("tracing"):
         pending = source.trace(device_sets, seed)
-        radiance = pending.to_device(runtime)  # reads the ray counters: waits for the trace
+        radiance = pending.to_device(runtime)  # the ray counters are read later
     sums: dict[str, DeviceSums] = {}
     for kind in device_kinds:
         with clock.stage("moments" if kind == "plain" else "voronoi"):
@@ -607,6 +638,7 @@ def trace_tile(
                     box = sppp_box(sampler) if kind == "sppp" else None
                     sums[kind] = settle_undecided(device, sets, finite, box, kind)
     keep_samples = host_samples or not device_kinds
+    clock.settle()
     return TileSamples(
         pixels,
         redraws,
@@ -735,7 +767,7 @@ def sibling_runtime(runtime: Runtime) -> Runtime:
     per runtime, so that its programs are built once per process too."""
     if runtime.sibling is None:
         context = cl.Context([runtime.device])
-        queue = cl.CommandQueue(context)
+        queue = profiling_queue(context)
         runtime.sibling = Runtime(runtime.device, context, queue, runtime.local_size)
     return runtime.sibling
 
@@ -769,7 +801,7 @@ class TilePipeline:
         kinds = settings.device_sum_kinds
         self.device_kinds = () if kinds == ("plain",) and self.host_samples else kinds
         self.stats = RenderStats()
-        self.clock = StageClock(self.stats)
+        self.clock = StageClock(self.stats, runtime.queue)
         self.in_flight: Future | None = None  # the estimate of the previous tile
         needs_device = image_level and settings.overlap
         self.host_runtime = sibling_runtime(runtime) if needs_device else runtime

@@ -274,6 +274,9 @@ class DeviceSampleSets:
     pixels_buffer: cl.Buffer  # pixels as uint32, on the device
     redraws_buffer: cl.Buffer  # redraws as uint32, on the device
     image_size: tuple[int, int] | None = None  # (width, height) if the launch was given it
+    # the uploads' events (each holds its host array, and dropping it waits for the copy): kept
+    # with the sets, so that drawing them does not wait for the device
+    uploads: tuple = ()
 
     @property
     def pixel_count(self) -> int:
@@ -315,9 +318,9 @@ def generate_sample_sets(
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
     image_size (width, height): needed by zsobol, whose sequence spans the image. Only SPPP
     counts on the device (N ~ Poisson(n)); the fixed-count samplers' n needs no count pass and
-    no read-back. The uploads are enqueued without a wait each: the queue runs them in order
-    before the kernels, and dropping a copy's event at return waits for that copy (its host
-    array must live until then)."""
+    no read-back. The uploads are enqueued without a wait: the queue runs them in order before
+    the kernels, and the sets keep their events (dropping one waits for its copy, whose host
+    array must live until then), so nothing here waits for the device."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
     path_arguments = config.path_arguments(image_size)
     image_width = 1 if image_size is None else int(image_size[0])
@@ -325,8 +328,8 @@ def generate_sample_sets(
         raise ParameterError(
             f"pixel index {int(pixels.max())} outside the {image_width} x {image_size[1]} image"
         )
-    pixels_buf, _pixels_copy = runtime.upload_async(pixels)
-    redraws_buf, _redraws_copy = runtime.upload_async(redraws)
+    pixels_buf, pixels_copy = runtime.upload_async(pixels)
+    redraws_buf, redraws_copy = runtime.upload_async(redraws)
     if config.is_sppp:
         counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
     else:
@@ -334,7 +337,7 @@ def generate_sample_sets(
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     if offsets[-1] >= 2**32:
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
-    offsets_buf, _offsets_copy = runtime.upload_async(offsets.astype(np.uint32))
+    offsets_buf, offsets_copy = runtime.upload_async(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
     positions = runtime.allocate(8 * total)
     _launch_fill(
@@ -359,6 +362,7 @@ def generate_sample_sets(
         pixels_buf,
         redraws_buf,
         None if image_size is None else (int(image_size[0]), int(image_size[1])),
+        (pixels_copy, redraws_copy, offsets_copy),
     )
 
 

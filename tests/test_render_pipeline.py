@@ -203,3 +203,37 @@ def test_interrupted_render_keeps_finished_tiles_and_leaves_the_rest_black(runti
     done = film.rendered
     assert np.array_equal(film.pixels[done], full.pixels[done])
     assert np.all(film.pixels[~done] == 0.0)
+
+
+def test_stages_are_timed_on_the_device_clock_without_a_wait_each(runtime):
+    """On a profiling queue (the runtimes clrender makes) a stage queues its commands and
+    returns without waiting for them; settle() then adds the device's time from the stage's
+    start (the device free for it) to its commands' end: at least the commands' own profiled
+    durations. On a queue without profiling, each stage waits for the device as before."""
+    import pyopencl as cl
+
+    from clrender.pipeline import RenderStats, StageClock
+
+    assert runtime.profiled
+    host = np.zeros(1 << 20, np.float32)
+    device = runtime.allocate(host.nbytes)
+    stats = RenderStats()
+    clock = StageClock(stats, runtime.queue)
+    gate = cl.UserEvent(runtime.context)  # holds the queue until the stage has returned
+    with clock.stage("tracing"):
+        cl.enqueue_barrier(runtime.queue, wait_for=[gate])
+        copies = [cl.enqueue_copy(runtime.queue, device, host, is_blocking=False) for _ in range(4)]
+    assert copies[-1].command_execution_status != cl.command_execution_status.COMPLETE
+    assert stats.stage_seconds["tracing"] == 0.0
+    gate.set_status(cl.command_execution_status.COMPLETE)
+    clock.settle()
+    busy = sum(copy.profile.end - copy.profile.start for copy in copies) * 1e-9
+    assert 0.0 < busy <= stats.stage_seconds["tracing"] == stats.device_seconds
+    assert not clock.queued
+    # A queue that does not profile: the stage waits for its commands
+    plain = cl.CommandQueue(runtime.context)
+    other = StageClock(RenderStats(), plain)
+    with other.stage("tracing"):
+        copy = cl.enqueue_copy(plain, device, host, is_blocking=False)
+    assert copy.command_execution_status == cl.command_execution_status.COMPLETE
+    assert other.stats.stage_seconds["tracing"] > 0.0
