@@ -68,6 +68,11 @@ class PendingRadiance(Protocol):
         """The radiance as a device buffer of `runtime` (no copy if it is already there)."""
         ...
 
+    def queue_to_host(self) -> Callable[[], SampleRadiance]:
+        """Queue what to_host reads without waiting for it (a source computed on the host may
+        compute it now); the function returned waits for it and gives to_host's result."""
+        ...
+
 
 class RadianceSource(Protocol):
     """Anything that turns sample positions into radiance values, for one image size."""
@@ -87,8 +92,12 @@ class PendingTrace:
     result: TraceResult
 
     def to_host(self) -> SampleRadiance:
-        values = self.result.to_host()
-        return SampleRadiance(values, self.result.rays, self.result.nonfinite)
+        return self.queue_to_host()()
+
+    def queue_to_host(self) -> Callable[[], SampleRadiance]:
+        result = self.result
+        values = result.queue_to_host()
+        return lambda: SampleRadiance(values(), result.rays, result.nonfinite)
 
     def to_device(self, runtime: Runtime) -> DeviceRadiance:
         result = self.result

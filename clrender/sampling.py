@@ -34,6 +34,7 @@ tile and a set of rejected pixels to redraw use the same path, and every number 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -292,19 +293,31 @@ class DeviceSampleSets:
 
     def to_host(self, queue: cl.CommandQueue) -> SampleSets:
         """The host copy (float32 positions, as on the device), in one read-back."""
+        return self.queue_to_host(queue)()
+
+    def queue_to_host(self, queue: cl.CommandQueue) -> Callable[[], SampleSets]:
+        """Queue to_host's read-back without a wait; the function returned waits for it and
+        gives the host copy (it holds the array the read fills)."""
         flat = np.empty((self.traced_total + self.aux_total, 2), np.float32)
-        if len(flat):
-            cl.enqueue_copy(queue, flat, self.positions)
-        aux_offsets = np.arange(self.pixel_count + 1, dtype=np.int64) * self.config.n_aux
-        return SampleSets(
-            flat[: self.traced_total],
-            self.traced_offsets,
-            self.config.n,
-            flat[self.traced_total :],
-            aux_offsets,
-            self.config.eps if self.config.is_sppp else None,
-            self.redraws,
+        read = (
+            cl.enqueue_copy(queue, flat, self.positions, is_blocking=False) if len(flat) else None
         )
+        aux_offsets = np.arange(self.pixel_count + 1, dtype=np.int64) * self.config.n_aux
+
+        def host() -> SampleSets:
+            if read is not None:
+                read.wait()
+            return SampleSets(
+                flat[: self.traced_total],
+                self.traced_offsets,
+                self.config.n,
+                flat[self.traced_total :],
+                aux_offsets,
+                self.config.eps if self.config.is_sppp else None,
+                self.redraws,
+            )
+
+        return host
 
 
 def generate_sample_sets(

@@ -17,6 +17,7 @@ and counted in `TraceResult.nonfinite`: report it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -63,10 +64,22 @@ class TraceResult:
     _counter_read: tuple[np.ndarray, cl.Event] | None = field(default=None, repr=False)
 
     def to_host(self) -> np.ndarray:
+        return self.queue_to_host()()
+
+    def queue_to_host(self) -> Callable[[], np.ndarray]:
+        """Queue to_host's read-back without a wait; the function returned waits for it and
+        gives the (T, 3) float32 radiance (it holds the array the read fills)."""
         out = np.empty((self.sample_count, 3), np.float32)
+        read = None
         if self.sample_count:
-            cl.enqueue_copy(self.queue, out, self.radiance)
-        return out
+            read = cl.enqueue_copy(self.queue, out, self.radiance, is_blocking=False)
+
+        def host() -> np.ndarray:
+            if read is not None:
+                read.wait()
+            return out
+
+        return host
 
     def enqueue_counter_read(self) -> None:
         """Queue the counters' read-back without waiting: nonfinite and rays then wait for it
