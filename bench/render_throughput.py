@@ -28,7 +28,9 @@ instead: each repeat renders every configuration once (after a warm-up render of
 new process per tree, with that tree's package and kernels (PYTHONPATH, CLRENDER_KERNELS_DIR),
 the trees' order reversed every other repeat; per tree and configuration it reports medians of
 wall and CPU time, and the median over repeats of each configuration's ratio to the first
-configuration's render in the same process (e.g. vor_sn / mc_n). Mitsuba is not run.
+configuration's render in the same process (e.g. vor_sn / mc_n), and of the render against its
+tracing stage (a tree's own stage clock: before the stages were timed on the device's clock,
+the tracing stage also held the main thread's wait for it). Mitsuba is not run.
 
     python bench/render_throughput.py --trees /work/main . --spp 256 --repeats 4 \
         --configs sppp/mc_n sppp/vor_sn
@@ -157,8 +159,9 @@ def summarise(rows: list[dict]) -> dict:
         "load_1min": median(r["load_1min"] for r in rows),
     }
     if rows[0]["renderer"] == "clrender":
-        for key in ("tracing_s", "sample_sets_s", "voronoi_s", "readback_s", "host_s"):
-            summary[key] = median(r[key] for r in rows)
+        for key in ("tracing_s", "sample_sets_s", "voronoi_s", "moments_s", "readback_s"):
+            summary[key] = median(r.get(key, 0.0) for r in rows)
+        summary["host_s"] = median(r["host_s"] for r in rows)
         summary["render_over_tracing"] = median(r["call_s"] / r["tracing_s"] for r in rows)
         summary["untimed_s"] = median(
             r["call_s"] - sum(r[f"{stage}_s"] for stage in STAGES) - r["host_s"] for r in rows
@@ -210,6 +213,7 @@ def compare_trees(args, argv) -> None:
                     "cpu_s": median(r["cpu_s"] for r in group),
                     "voronoi_s": median(r["voronoi_s"] for r in group),
                     "tracing_s": median(r["tracing_s"] for r in group),
+                    "render_over_tracing": median(r["call_s"] / r["tracing_s"] for r in group),
                     "load_1min": median(r["load_1min"] for r in group),
                     "wall_ratio_to_first": median(
                         r["call_s"] / first[r["process"]]["call_s"] for r in group
@@ -221,7 +225,8 @@ def compare_trees(args, argv) -> None:
                 points[config] = point
                 print(
                     f"{tree}: {spp} spp {config}: wall {point['wall_s']:.2f} s, CPU "
-                    f"{point['cpu_s']:.2f} s (Voronoi stage {point['voronoi_s']:.2f} s), / "
+                    f"{point['cpu_s']:.2f} s (Voronoi stage {point['voronoi_s']:.2f} s, render/"
+                    f"tracing {point['render_over_tracing']:.3f}), / "
                     f"{args.configs[0]}: {point['wall_ratio_to_first']:.3f} wall, "
                     f"{point['cpu_ratio_to_first']:.3f} CPU, load {point['load_1min']:.1f}"
                 )

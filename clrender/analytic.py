@@ -18,6 +18,7 @@ Scene names: `analytic` (= analytic:mix) and `analytic:KIND` for each kind above
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -240,6 +241,11 @@ class PendingAnalytic:
         host = sets.to_host(self.queue)
         x, y = sample_image_positions(sets.pixels, host.offsets, host.traced, self.width)
         return SampleRadiance(self.image.radiance(x, y), ray_count=0)
+
+    def queue_to_host(self) -> Callable[[], SampleRadiance]:
+        """Evaluated on the host now (it waits for the sample sets)."""
+        radiance = self.to_host()
+        return lambda: radiance
 
     def to_device(self, runtime: Runtime) -> DeviceRadiance:
         """Evaluated on the host, then uploaded as float32."""

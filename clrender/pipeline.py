@@ -23,7 +23,11 @@ A tile is a run of consecutive pixels (scanline order) holding about `tile_sampl
 so memory stays bounded whatever the resolution and spp. With `overlap`, the host estimator of
 tile k runs on a worker thread while the main thread has the device draw and trace tile k + 1;
 pyopencl, NumPy and Qhull release the GIL in their long calls, so wall time approaches
-max(device, host) instead of their sum.
+max(device, host) instead of their sum. The device is kept fed: tile k + 1's sample sets,
+trace, device sums and reads are queued (queue_tile) before the host waits for tile k's results
+(QueuedTile.collect), so the device does not idle while the host reads one tile and prepares
+the next; at most two tiles are held at once. (SPPP's sample sets read their Poisson counts
+back before the fill, which waits for the work queued before them.)
 
 Rejections: a pixel whose SPPP tessellation leaves a nucleus of W with an unbounded cell is
 redrawn through clrender.estimators.estimate_with_redraw: its sample set is generated again with
@@ -44,10 +48,13 @@ with its neighbours' nuclei, in the estimator stage (clrender.estimators.image_d
 with a cell it cannot certify go to Qhull). With "qhull" the host computes all cells with
 Qhull.
 
-Timing (RenderStats): the main thread's time per device stage (stage_seconds: sample
-sets, tracing, voronoi, readback; each ends with the device done with it; device_seconds is
-their sum), the estimator stage's own time per group of estimators sharing a tessellation
-(estimator_seconds; host_seconds is their sum with the redraws' host part), and
+Timing (RenderStats): the time of each device stage (stage_seconds: sample sets, tracing,
+voronoi, moments, readback; device_seconds is their sum) on the device's own clock, from the
+device being free for the stage to its commands done (StageClock: profiling markers; a tile's
+stages are queued back to back and the tile waits once, for its results; on a queue without
+profiling, the main thread's time, each stage ending with a wait), the estimator stage's own
+time per group of estimators sharing a tessellation (estimator_seconds; host_seconds is their
+sum with the redraws' host part), and
 compile_seconds, the program builds and kernel creation met on the way (first uses in a
 process: programs are cached), taken out of the stages (PoCL's code generation at a kernel's
 first launch is not seen: on a cold cache it stays in that launch's stage); run_seconds is
@@ -87,10 +94,8 @@ from clrender.estimators.device_cells import (
     MIRROR_COPIES,
     TORUS_COPIES,
     DeviceSums,
-    device_clipped_sums,
-    device_periodic_sums,
-    device_plain_sums,
-    device_sppp_sums,
+    PendingSums,
+    queue_device_sums,
     resolve_precision,
     settle_undecided,
 )
@@ -99,10 +104,16 @@ from clrender.estimators.redraw import estimate_with_redraw
 from clrender.estimators.registry import Estimator, PixelSums, check_compatible
 from clrender.estimators.variance import PixelMoments, mc_variance
 from clrender.film import Film, PixelLayers, check_image_memory, physical_memory
-from clrender.radiance import RadianceSource
-from clrender.runtime import Runtime, describe_device, thread_build_seconds
+from clrender.radiance import DeviceRadiance, PendingRadiance, RadianceSource, SampleRadiance
+from clrender.runtime import Runtime, describe_device, profiling_queue, thread_build_seconds
 from clrender.samples import SampleSets
-from clrender.sampling import SamplerConfig, check_seed, generate_sample_sets, make_sampler
+from clrender.sampling import (
+    DeviceSampleSets,
+    SamplerConfig,
+    check_seed,
+    generate_sample_sets,
+    make_sampler,
+)
 from clrender.sppp import auxiliary_count
 
 DEFAULT_TILE_SAMPLES = 4_000_000
@@ -138,7 +149,7 @@ MIN_TILE_PIXELS = 256
 # makes itself: the driver starts at the first redraw.
 REDRAWS_BEFORE_ENLARGE = 3 - 1
 MAX_REDRAW_ROUNDS = 12 - 1
-# The device stages a render times on its main thread (RenderStats.stage_seconds).
+# The device stages a render times (RenderStats.stage_seconds, StageClock).
 DEVICE_STAGES = ("sample_sets", "tracing", "voronoi", "moments", "readback")
 
 ProgressCallback = Callable[[int, int], None]
@@ -280,8 +291,9 @@ class RenderStats:
     # a cluster render's wait for its workers' set-up (clrender.cluster.render_on): in
     # wall_seconds, out of run_seconds
     worker_setup_seconds: float = 0.0
-    # main-thread seconds per device stage (DEVICE_STAGES): drawing sample sets, tracing,
-    # device Voronoi cells and sums (with the host's settling of undecided pixels), read-back
+    # seconds per device stage (DEVICE_STAGES; StageClock: the device's clock): drawing sample
+    # sets, tracing, device Voronoi cells and sums (with the host's settling of undecided
+    # pixels), the plain sums, read-back
     stage_seconds: dict[str, float] = field(
         default_factory=lambda: dict.fromkeys(DEVICE_STAGES, 0.0)
     )
@@ -530,25 +542,60 @@ def tile_pixels(settings: RenderSettings, start: int, end: int | None = None) ->
 
 
 class StageClock:
-    """Main-thread seconds per device stage, with the thread's program builds taken out and
-    counted as compile time. Each stage ends with the device done with it (a blocking call),
-    so the device's time is not charged to a later stage."""
+    """Seconds per device stage, with the main thread's program builds taken out and counted as
+    compile time. On a queue that records when its commands run (Runtime.profiled: the
+    runtimes clrender makes), a stage is timed on the device's clock, between a marker queued
+    as it starts and one queued as it ends: from the device being free for it (done with the
+    work queued before it, or idle) until its commands are done. Its commands are queued
+    without a wait: the device runs a tile's stages back to back and the tile waits once, for
+    its results; settle() then adds the stages' times to the stats. On another queue each
+    stage ends with a wait for the device and takes the main thread's time."""
 
-    def __init__(self, stats: RenderStats):
+    def __init__(self, stats: RenderStats, queue: cl.CommandQueue | None = None):
         self.stats = stats
+        self.queue = queue
+        profiling = cl.command_queue_properties.PROFILING_ENABLE
+        self.profiled = queue is not None and bool(queue.properties & profiling)
+        # stages queued and not yet settled: (name, start marker, end marker, builds' seconds)
+        self.queued: list[tuple[str, cl.Event, cl.Event, float]] = []
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
         start, built = time.perf_counter(), thread_build_seconds()
+        first = cl.enqueue_marker(self.queue) if self.profiled else None
         try:
             yield
         finally:
             compile_seconds = thread_build_seconds() - built
-            seconds = time.perf_counter() - start - compile_seconds
             self.stats.compile_seconds += compile_seconds
             self.stats.main_compile_seconds += compile_seconds
-            self.stats.stage_seconds[name] += seconds
-            self.stats.device_seconds += seconds
+            if first is not None:
+                last = cl.enqueue_marker(self.queue)
+                self.queued.append((name, first, last, compile_seconds))
+            else:
+                if self.queue is not None:
+                    self.queue.finish()
+                self.add(name, time.perf_counter() - start - compile_seconds)
+
+    def take(self) -> list[tuple[str, cl.Event, cl.Event, float]]:
+        """The stages queued so far, to settle later (a queued tile's: QueuedTile)."""
+        taken, self.queued = self.queued, []
+        return taken
+
+    def settle(self, stages: list[tuple[str, cl.Event, cl.Event, float]] | None = None) -> None:
+        """Wait for the given stages (taken earlier), or for those queued since the last take,
+        and add their device times to the stats. Done already after a blocking read of their
+        results; a later tile's stages queued behind them are not waited for."""
+        if stages is None:
+            stages = self.take()
+        for name, first, last, compile_seconds in stages:
+            last.wait()
+            device = (last.profile.end - first.profile.end) * 1e-9
+            self.add(name, max(device - compile_seconds, 0.0))
+
+    def add(self, name: str, seconds: float) -> None:
+        self.stats.stage_seconds[name] += seconds
+        self.stats.device_seconds += seconds
 
 
 # --- the two stages ----------------------------------------------------------------------
@@ -571,51 +618,106 @@ def trace_tile(
     the kernel left pixels undecided, the samples come back too and the host settles those
     pixels with Qhull); "plain" forms each pixel's sum f and sum f^2 alone (RenderSettings.
     device_sum_kinds). With host_samples (or without device kinds) the sample sets and radiance
-    come to the host as well."""
-    clock = clock or StageClock(RenderStats())
+    come to the host as well. queue_tile, then QueuedTile.collect."""
+    clock = clock or StageClock(RenderStats(), runtime.queue)
+    args = (runtime, source, sampler, seed, pixels, redraws, device_kinds, host_samples)
+    return queue_tile(*args, clock).collect(clock)
+
+
+def queue_tile(
+    runtime: Runtime,
+    source: RadianceSource,
+    sampler: SamplerConfig,
+    seed: int,
+    pixels: np.ndarray,
+    redraws: np.ndarray,
+    device_kinds: Sequence[str],
+    host_samples: bool,
+    clock: StageClock,
+) -> QueuedTile:
+    """trace_tile's device work queued without a wait (sample sets, trace, device sums and the
+    reads of what comes to the host): the host may queue the next tile's before it waits for
+    this one's (QueuedTile.collect). A source computed on the host (an analytic image) waits
+    for the sample sets here."""
     with clock.stage("sample_sets"):
         device_sets = generate_sample_sets(
             runtime, sampler, seed, pixels, redraws, (source.width, source.height)
         )
-        runtime.queue.finish()
     with clock.stage("tracing"):
         pending = source.trace(device_sets, seed)
-        radiance = pending.to_device(runtime)  # reads the ray counters: waits for the trace
-    sums: dict[str, DeviceSums] = {}
+        radiance = pending.to_device(runtime)  # the ray counters are read later
+    sums: dict[str, PendingSums] = {}
     for kind in device_kinds:
         with clock.stage("moments" if kind == "plain" else "voronoi"):
-            if kind == "plain":
-                sums[kind] = device_plain_sums(runtime, device_sets, radiance.buffer)
-            elif kind == "periodic":
-                sums[kind] = device_periodic_sums(runtime, device_sets, radiance.buffer)
-            elif kind == "clipped":
-                sums[kind] = device_clipped_sums(runtime, device_sets, radiance.buffer)
-            else:
-                sums[kind] = device_sppp_sums(
-                    runtime, device_sets, radiance.buffer, sppp_box(sampler)
-                )
-    sets = values = None
-    if host_samples or not device_kinds or any(s.fallback.any() for s in sums.values()):
-        with clock.stage("readback"):
-            sets = device_sets.to_host(runtime.queue)
-            values = pending.to_host().values
-    if any(s.fallback.any() for s in sums.values()):
-        with clock.stage("voronoi"):
-            finite = zero_nonfinite(values)
-            for kind, device in sums.items():
-                if device.fallback.any():
-                    box = sppp_box(sampler) if kind == "sppp" else None
-                    sums[kind] = settle_undecided(device, sets, finite, box, kind)
+            box = sppp_box(sampler) if kind == "sppp" else None
+            sums[kind] = queue_device_sums(runtime, kind, device_sets, radiance.buffer, box)
     keep_samples = host_samples or not device_kinds
-    return TileSamples(
+    reads = None
+    if keep_samples:
+        with clock.stage("readback"):
+            reads = (device_sets.queue_to_host(runtime.queue), pending.queue_to_host())
+    return QueuedTile(
+        runtime,
+        sampler,
         pixels,
         redraws,
-        sets if keep_samples else None,
-        values if keep_samples else None,
-        radiance.ray_count,
-        radiance.device_nonfinite,
+        device_sets,
+        pending,
+        radiance,
         sums,
+        reads,
+        keep_samples,
+        clock.take(),
     )
+
+
+@dataclass
+class QueuedTile:
+    """A tile whose device work is queued (queue_tile): until collect() it holds the tile's
+    device buffers and the host arrays its reads fill."""
+
+    runtime: Runtime
+    sampler: SamplerConfig
+    pixels: np.ndarray
+    redraws: np.ndarray
+    device_sets: DeviceSampleSets
+    pending: PendingRadiance
+    radiance: DeviceRadiance
+    sums: dict[str, PendingSums]
+    reads: tuple[Callable[[], SampleSets], Callable[[], SampleRadiance]] | None
+    keep_samples: bool
+    stages: list  # the clock's stages of the queued work (StageClock.take)
+
+    def collect(self, clock: StageClock) -> TileSamples:
+        """Wait for the tile's results (the device may go on with work queued after them) and
+        make its TileSamples; pixels the device cells left undecided are settled here (their
+        samples read back, behind whatever was queued since)."""
+        sums = {kind: pending.result() for kind, pending in self.sums.items()}
+        sets = values = None
+        if self.reads is not None:
+            sets, values = self.reads[0](), self.reads[1]().values
+        clock.settle(self.stages)
+        if any(s.fallback.any() for s in sums.values()):
+            if sets is None:
+                with clock.stage("readback"):
+                    sets = self.device_sets.to_host(self.runtime.queue)
+                    values = self.pending.to_host().values
+            with clock.stage("voronoi"):
+                finite = zero_nonfinite(values)
+                for kind, device in sums.items():
+                    if device.fallback.any():
+                        box = sppp_box(self.sampler) if kind == "sppp" else None
+                        sums[kind] = settle_undecided(device, sets, finite, box, kind)
+            clock.settle()
+        return TileSamples(
+            self.pixels,
+            self.redraws,
+            sets if self.keep_samples else None,
+            values if self.keep_samples else None,
+            self.radiance.ray_count,
+            self.radiance.device_nonfinite,
+            sums,
+        )
 
 
 def sppp_box(sampler: SamplerConfig) -> float:
@@ -735,7 +837,7 @@ def sibling_runtime(runtime: Runtime) -> Runtime:
     per runtime, so that its programs are built once per process too."""
     if runtime.sibling is None:
         context = cl.Context([runtime.device])
-        queue = cl.CommandQueue(context)
+        queue = profiling_queue(context)
         runtime.sibling = Runtime(runtime.device, context, queue, runtime.local_size)
     return runtime.sibling
 
@@ -769,7 +871,7 @@ class TilePipeline:
         kinds = settings.device_sum_kinds
         self.device_kinds = () if kinds == ("plain",) and self.host_samples else kinds
         self.stats = RenderStats()
-        self.clock = StageClock(self.stats)
+        self.clock = StageClock(self.stats, runtime.queue)
         self.in_flight: Future | None = None  # the estimate of the previous tile
         needs_device = image_level and settings.overlap
         self.host_runtime = sibling_runtime(runtime) if needs_device else runtime
@@ -778,12 +880,13 @@ class TilePipeline:
     def film(self) -> Film:
         return self.films[self.settings.estimator.name]
 
-    def trace(
+    def queue(
         self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
-    ) -> TileSamples:
+    ) -> QueuedTile:
+        """Queue a tile's device work (collect: wait for it)."""
         # Tiles use the device cells if configured; redraws go through Qhull in the driver.
         redraw = sampler is not None
-        tile = trace_tile(
+        return queue_tile(
             self.runtime,
             self.source,
             sampler or self.settings.sampler,
@@ -794,9 +897,17 @@ class TilePipeline:
             redraw or self.host_samples,
             self.clock,
         )
+
+    def collect(self, queued: QueuedTile) -> TileSamples:
+        tile = queued.collect(self.clock)
         self.stats.traced_samples += tile.traced_count
         self.stats.rays += tile.rays
         return tile
+
+    def trace(
+        self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
+    ) -> TileSamples:
+        return self.collect(self.queue(pixels, redraws, sampler))
 
     def estimate(self, tile: TileSamples) -> TileEstimate:
         """The host stage (on the worker thread when overlapping: it touches no stats)."""
@@ -886,16 +997,28 @@ class TilePipeline:
         self.stats.redraw_host_seconds += host
 
     def run(self, tiles: range, progress: ProgressCallback | None, end: int | None = None) -> None:
-        """Trace tile k + 1 while tile k is estimated (on a worker thread if overlapping); tiles
-        are clipped to pixel `end` when they cover a range of the image (clrender.cluster)."""
+        """With overlap, trace tile k + 1 while tile k is estimated on a worker thread, and
+        keep the device fed: once tile k - 1 is recorded, tile k + 1's work is queued before the
+        host waits for tile k's results (so at most two tiles are held: one queued, the other
+        queued or being estimated). Without overlap, one tile at a time: its device work, then
+        its estimate. Tiles are clipped to pixel `end` when they cover a range of the image
+        (clrender.cluster)."""
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
+                queued: QueuedTile | None = None
                 for start in tiles:
-                    pixels = tile_pixels(self.settings, start, end)
-                    tile = self.trace(pixels, np.zeros(len(pixels), np.uint32))
                     self.finish_in_flight(progress)
-                    self.in_flight = self.start_estimate(pool, tile)
+                    pixels = tile_pixels(self.settings, start, end)
+                    following = self.queue(pixels, np.zeros(len(pixels), np.uint32))
+                    if not self.settings.overlap:
+                        queued, following = following, None
+                    if queued is not None:
+                        self.in_flight = self.start_estimate(pool, self.collect(queued))
+                    queued = following
+                self.finish_in_flight(progress)
+                if queued is not None:
+                    self.in_flight = self.start_estimate(pool, self.collect(queued))
                 self.finish_in_flight(progress)
             except KeyboardInterrupt:
                 self.stats.interrupted = True

@@ -9,6 +9,7 @@ OpenCL kernel runs while the host does other work. Two sources exist: the path t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -28,13 +29,34 @@ class SampleRadiance:
     device_nonfinite: int = 0  # non-finite samples the source counted (and may have zeroed)
 
 
-@dataclass
 class DeviceRadiance:
-    """Radiance of a launch's traced samples left on the device: a (T, 3) float32 buffer."""
+    """Radiance of a launch's traced samples left on the device: a (T, 3) float32 buffer, with
+    the launch's counts, or a function that reads them when first asked (a tracer's counters:
+    read then, so that handing the buffer on does not wait for the trace)."""
 
-    buffer: object  # a pyopencl buffer
-    ray_count: int
-    device_nonfinite: int = 0
+    def __init__(
+        self,
+        buffer,
+        ray_count: int = 0,
+        device_nonfinite: int = 0,
+        counts: Callable[[], tuple[int, int]] | None = None,
+    ):
+        self.buffer = buffer  # a pyopencl buffer
+        self._counts = (ray_count, device_nonfinite) if counts is None else None
+        self._read_counts = counts
+
+    def _resolved(self) -> tuple[int, int]:
+        if self._counts is None:
+            self._counts = self._read_counts()
+        return self._counts
+
+    @property
+    def ray_count(self) -> int:
+        return self._resolved()[0]
+
+    @property
+    def device_nonfinite(self) -> int:
+        return self._resolved()[1]
 
 
 class PendingRadiance(Protocol):
@@ -44,6 +66,11 @@ class PendingRadiance(Protocol):
 
     def to_device(self, runtime: Runtime) -> DeviceRadiance:
         """The radiance as a device buffer of `runtime` (no copy if it is already there)."""
+        ...
+
+    def queue_to_host(self) -> Callable[[], SampleRadiance]:
+        """Queue what to_host reads without waiting for it (a source computed on the host may
+        compute it now); the function returned waits for it and gives to_host's result."""
         ...
 
 
@@ -65,11 +92,17 @@ class PendingTrace:
     result: TraceResult
 
     def to_host(self) -> SampleRadiance:
-        values = self.result.to_host()
-        return SampleRadiance(values, self.result.rays, self.result.nonfinite)
+        return self.queue_to_host()()
+
+    def queue_to_host(self) -> Callable[[], SampleRadiance]:
+        result = self.result
+        values = result.queue_to_host()
+        return lambda: SampleRadiance(values(), result.rays, result.nonfinite)
 
     def to_device(self, runtime: Runtime) -> DeviceRadiance:
-        return DeviceRadiance(self.result.radiance, self.result.rays, self.result.nonfinite)
+        result = self.result
+        result.enqueue_counter_read()
+        return DeviceRadiance(result.radiance, counts=lambda: (result.rays, result.nonfinite))
 
 
 @dataclass

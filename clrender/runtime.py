@@ -269,11 +269,22 @@ class Runtime:
     def describe(self) -> str:
         return describe_device(self.device)
 
+    @property
+    def profiled(self) -> bool:
+        """Whether the queue records when its commands run (profiling_queue)."""
+        return bool(self.queue.properties & cl.command_queue_properties.PROFILING_ENABLE)
+
 
 def create_runtime(request: str | None = None) -> Runtime:
     device = select_device(request)
     context = cl.Context([device])
-    return Runtime(device, context, cl.CommandQueue(context), device_local_size(device))
+    return Runtime(device, context, profiling_queue(context), device_local_size(device))
+
+
+def profiling_queue(context: cl.Context) -> cl.CommandQueue:
+    """An in-order queue that records when its commands run (a render times its device stages
+    by the device's own clock, without a wait per stage: clrender.pipeline.StageClock)."""
+    return cl.CommandQueue(context, properties=cl.command_queue_properties.PROFILING_ENABLE)
 
 
 @functools.cache

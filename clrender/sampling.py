@@ -34,6 +34,7 @@ tile and a set of rejected pixels to redraw use the same path, and every number 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -119,6 +120,9 @@ RENAMED_SAMPLERS = {"uniform": "independent"}
 MAX_SAMPLES_PER_PIXEL = 0x40000000
 # Strata of float32 jitter stay distinct well below 2^24 of them.
 MAX_STRATIFIED_SAMPLES = 1 << 20
+# Samples per work-item of fill_traced_from_sampler (kernels/sampling.cl: SIMD_WIDTH, the
+# default of kernels/simd_lanes.h).
+FILL_LANES = 16
 # zsobol's image-wide index: Morton bits of the padded resolution, then log2(n) sample bits.
 ZSOBOL_INDEX_BITS = 32
 
@@ -271,6 +275,9 @@ class DeviceSampleSets:
     pixels_buffer: cl.Buffer  # pixels as uint32, on the device
     redraws_buffer: cl.Buffer  # redraws as uint32, on the device
     image_size: tuple[int, int] | None = None  # (width, height) if the launch was given it
+    # the uploads' events (each holds its host array, and dropping it waits for the copy): kept
+    # with the sets, so that drawing them does not wait for the device
+    uploads: tuple = ()
 
     @property
     def pixel_count(self) -> int:
@@ -286,19 +293,31 @@ class DeviceSampleSets:
 
     def to_host(self, queue: cl.CommandQueue) -> SampleSets:
         """The host copy (float32 positions, as on the device), in one read-back."""
+        return self.queue_to_host(queue)()
+
+    def queue_to_host(self, queue: cl.CommandQueue) -> Callable[[], SampleSets]:
+        """Queue to_host's read-back without a wait; the function returned waits for it and
+        gives the host copy (it holds the array the read fills)."""
         flat = np.empty((self.traced_total + self.aux_total, 2), np.float32)
-        if len(flat):
-            cl.enqueue_copy(queue, flat, self.positions)
-        aux_offsets = np.arange(self.pixel_count + 1, dtype=np.int64) * self.config.n_aux
-        return SampleSets(
-            flat[: self.traced_total],
-            self.traced_offsets,
-            self.config.n,
-            flat[self.traced_total :],
-            aux_offsets,
-            self.config.eps if self.config.is_sppp else None,
-            self.redraws,
+        read = (
+            cl.enqueue_copy(queue, flat, self.positions, is_blocking=False) if len(flat) else None
         )
+        aux_offsets = np.arange(self.pixel_count + 1, dtype=np.int64) * self.config.n_aux
+
+        def host() -> SampleSets:
+            if read is not None:
+                read.wait()
+            return SampleSets(
+                flat[: self.traced_total],
+                self.traced_offsets,
+                self.config.n,
+                flat[self.traced_total :],
+                aux_offsets,
+                self.config.eps if self.config.is_sppp else None,
+                self.redraws,
+            )
+
+        return host
 
 
 def generate_sample_sets(
@@ -312,9 +331,9 @@ def generate_sample_sets(
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
     image_size (width, height): needed by zsobol, whose sequence spans the image. Only SPPP
     counts on the device (N ~ Poisson(n)); the fixed-count samplers' n needs no count pass and
-    no read-back. The uploads are enqueued without a wait each: the queue runs them in order
-    before the kernels, and dropping a copy's event at return waits for that copy (its host
-    array must live until then)."""
+    no read-back. The uploads are enqueued without a wait: the queue runs them in order before
+    the kernels, and the sets keep their events (dropping one waits for its copy, whose host
+    array must live until then), so nothing here waits for the device."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
     path_arguments = config.path_arguments(image_size)
     image_width = 1 if image_size is None else int(image_size[0])
@@ -322,8 +341,8 @@ def generate_sample_sets(
         raise ParameterError(
             f"pixel index {int(pixels.max())} outside the {image_width} x {image_size[1]} image"
         )
-    pixels_buf, _pixels_copy = runtime.upload_async(pixels)
-    redraws_buf, _redraws_copy = runtime.upload_async(redraws)
+    pixels_buf, pixels_copy = runtime.upload_async(pixels)
+    redraws_buf, redraws_copy = runtime.upload_async(redraws)
     if config.is_sppp:
         counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
     else:
@@ -331,7 +350,7 @@ def generate_sample_sets(
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     if offsets[-1] >= 2**32:
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
-    offsets_buf, _offsets_copy = runtime.upload_async(offsets.astype(np.uint32))
+    offsets_buf, offsets_copy = runtime.upload_async(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
     positions = runtime.allocate(8 * total)
     _launch_fill(
@@ -356,6 +375,7 @@ def generate_sample_sets(
         pixels_buf,
         redraws_buf,
         None if image_size is None else (int(image_size[0]), int(image_size[1])),
+        (pixels_copy, redraws_copy, offsets_copy),
     )
 
 
@@ -371,21 +391,20 @@ def _launch_fill(
     path_arguments: tuple,
     image_width: int,
 ) -> None:
-    """Fill the traced samples (a work-item per 8 samples of a pixel, or per sample for a path
-    sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel)."""
+    """Fill the traced samples (a work-item per 8 samples of a pixel, or per FILL_LANES for a
+    path sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel)."""
     pixel_count, traced_total = len(offsets) - 1, int(offsets[-1])
     if traced_total and config.kind.positions == POSITIONS_FROM_SAMPLER:
         fill = runtime.kernel("sampling.cl", "fill_traced_from_sampler")
         runtime.launch_1d(
             fill,
-            traced_total,
+            pixel_count * -(-config.n // FILL_LANES),
             np.uint32(pixel_count),
             np.uint32(seed),
             *path_arguments[:3],
             np.uint32(image_width),
             *path_arguments[3:],
             np.int32(config.toroidal_shift),
-            np.uint32(traced_total),
             pixels_buf,
             redraws_buf,
             offsets_buf,

@@ -17,6 +17,7 @@ and counted in `TraceResult.nonfinite`: report it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,18 +61,40 @@ class TraceResult:
     counter_count: int
     event: cl.Event | None
     _counts: np.ndarray | None = field(default=None, repr=False)
+    _counter_read: tuple[np.ndarray, cl.Event] | None = field(default=None, repr=False)
 
     def to_host(self) -> np.ndarray:
+        return self.queue_to_host()()
+
+    def queue_to_host(self) -> Callable[[], np.ndarray]:
+        """Queue to_host's read-back without a wait; the function returned waits for it and
+        gives the (T, 3) float32 radiance (it holds the array the read fills)."""
         out = np.empty((self.sample_count, 3), np.float32)
+        read = None
         if self.sample_count:
-            cl.enqueue_copy(self.queue, out, self.radiance)
-        return out
+            read = cl.enqueue_copy(self.queue, out, self.radiance, is_blocking=False)
+
+        def host() -> np.ndarray:
+            if read is not None:
+                read.wait()
+            return out
+
+        return host
+
+    def enqueue_counter_read(self) -> None:
+        """Queue the counters' read-back without waiting: nonfinite and rays then wait for it
+        alone (after a later blocking call on the queue, not at all)."""
+        if self._counts is None and self._counter_read is None:
+            counts = np.empty(self.counter_count, np.uint32)
+            event = cl.enqueue_copy(self.queue, counts, self.counters, is_blocking=False)
+            self._counter_read = counts, event
 
     def _read_counters(self) -> np.ndarray:
         if self._counts is None:
-            counts = np.empty(self.counter_count, np.uint32)
-            cl.enqueue_copy(self.queue, counts, self.counters)
-            self._counts = counts.astype(np.int64)
+            self.enqueue_counter_read()
+            counts, event = self._counter_read
+            event.wait()
+            self._counts, self._counter_read = counts.astype(np.int64), None
         return self._counts
 
     @property
@@ -301,7 +324,8 @@ class PathTracer:
         global_size = launch_global_size(-(-count // self.samples_per_item), local)
         groups = global_size // local
         radiance = runtime.allocate(12 * count)
-        counters = runtime.upload(np.zeros(1 + groups, np.uint32))
+        counters = runtime.allocate(4 * (1 + groups))
+        cl.enqueue_fill_buffer(queue, counters, np.uint32(0), 0, 4 * (1 + groups))  # no wait
         if count == 0:
             return TraceResult(radiance, 0, queue, counters, 1 + groups, None)
         event = self._kernel(

@@ -214,18 +214,29 @@ inline BounceSamples Sampler_Bounce(const Sampler *s, uint depth)
     return b;
 }
 
-// A toroidal (Cranley-Patterson) shift of the pixel's whole point set, one per (pixel, redraw):
-// torus Voronoi cell areas do not change under it, so pvor stays unbiased over any point set.
-inline float2 Sampler_ToroidalShift(uint seed, uint pixel, uint redraw, float2 position)
+// A position moved by `shift` on the torus W, strictly inside W.
+inline float2 Sampler_ShiftOnTorus(float2 position, float2 shift)
 {
-    float4 u = Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, SAMPLER_SHIFT_DIMENSION, redraw);
-    float2 shifted = position + u.xy;
+    float2 shifted = position + shift;
     shifted.x = shifted.x >= 0.5f ? shifted.x - 1.0f : shifted.x;
     shifted.y = shifted.y >= 0.5f ? shifted.y - 1.0f : shifted.y;
     // Rounding may land on the edge -1/2: keep the point strictly inside W
     shifted.x = shifted.x > -SAMPLER_BELOW_HALF ? shifted.x : -SAMPLER_BELOW_HALF;
     shifted.y = shifted.y > -SAMPLER_BELOW_HALF ? shifted.y : -SAMPLER_BELOW_HALF;
     return shifted;
+}
+
+// The shift of the pixel's whole point set, one per (pixel, redraw).
+inline float2 Sampler_ShiftOf(uint seed, uint pixel, uint redraw)
+{
+    return Rng_Uniform4(seed, pixel, RNG_PIXEL_STREAM, SAMPLER_SHIFT_DIMENSION, redraw).xy;
+}
+
+// A toroidal (Cranley-Patterson) shift of the pixel's whole point set, one per (pixel, redraw):
+// torus Voronoi cell areas do not change under it, so pvor stays unbiased over any point set.
+inline float2 Sampler_ToroidalShift(uint seed, uint pixel, uint redraw, float2 position)
+{
+    return Sampler_ShiftOnTorus(position, Sampler_ShiftOf(seed, pixel, redraw));
 }
 
 #endif

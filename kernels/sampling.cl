@@ -6,8 +6,8 @@
 //   (the host turns the counts into offsets with a prefix sum)
 //   fill_traced: one work-item per 8 traced samples of a pixel writes them (8-wide vectors;
 //   SPPP's groups found from per-pixel group offsets, a second prefix sum on the host);
-//   fill_traced_from_sampler: one work-item per traced sample whose position comes from a path
-//   sampler; fill_auxiliary: one per 8 auxiliary nuclei of a pixel writes them (8-wide vectors).
+//   fill_traced_from_sampler: one work-item per SIMD_WIDTH traced samples of a pixel whose
+//   positions come from a path sampler (on vector lanes, kernels/sampler_lanes.h); fill_auxiliary: one per 8 auxiliary nuclei of a pixel writes them (8-wide vectors).
 // Output layout, one contiguous float2 buffer: all traced samples, pixel by pixel
 // (traced_offsets), then all auxiliary nuclei, pixel by pixel (n_aux each). Auxiliary nuclei are
 // never traced; they only shape Voronoi cells.
@@ -20,6 +20,7 @@
 #include "poisson.h"
 #include "sampler.h"
 #pragma clang attribute pop
+#include "sampler_lanes.h"
 #include "launch.h"
 #include "vecmath.h"
 
@@ -168,29 +169,65 @@ __kernel void fill_traced(uint pixel_count, uint seed, int positions_kind, uint 
     }
 }
 
-// Traced sample s of pixel p, for positions from a path sampler (dimensions 0 and 1 of its
-// sample: stratified, sobol, zsobol; kernels/sampler.h): one work-item per sample.
-__kernel void fill_traced_from_sampler(uint pixel_count, uint seed, int paths_kind,
-                                       uint fixed_count, uint strata, uint image_width,
-                                       uint zsobol_log2_count, uint zsobol_bits,
-                                       int toroidal_shift, uint traced_total,
-                                       __global const uint *pixels, __global const uint *redraws,
-                                       __global const uint *traced_offsets,
-                                       __global float2 *positions)
+// Traced samples SIMD_WIDTH g .. SIMD_WIDTH (g + 1) - 1 of pixel p (those below n), for
+// positions from a path sampler (dimensions 0 and 1 of its sample: stratified, sobol, zsobol;
+// Sampler_Position of kernels/sampler.h on lanes, kernels/sampler_lanes.h), one lane a sample.
+__kernel SIMD_ATTR void fill_traced_from_sampler(uint pixel_count, uint seed, int paths_kind,
+                                                 uint fixed_count, uint strata,
+                                                 uint image_width, uint zsobol_log2_count,
+                                                 uint zsobol_bits, int toroidal_shift,
+                                                 __global const uint *pixels,
+                                                 __global const uint *redraws,
+                                                 __global const uint *traced_offsets,
+                                                 __global float2 *positions)
 {
-    uint i = get_global_id(0);
-    if (i >= traced_total)
+    uint groups = (fixed_count + SIMD_WIDTH - 1u) / SIMD_WIDTH;
+    uint id = get_global_id(0);
+    if (id >= groups * pixel_count)
         return;
-    uint p = i / fixed_count;
-    uint s = i - traced_offsets[p];
+    uint p = id / groups;
+    uint first = SIMD_WIDTH * (id - p * groups);
     uint pixel = pixels[p], redraw = redraws[p];
-    // Its position from the path sampler
-    Sampler sampler = Sampler_Make(paths_kind, seed, pixel, s, redraw, fixed_count, strata,
-                                   image_width, zsobol_log2_count, zsobol_bits);
-    float2 position = Sampler_Position(&sampler);
-    // The pixel's toroidal shift, if asked for
-    positions[i] = toroidal_shift ? Sampler_ToroidalShift(seed, pixel, redraw, position)
-                                  : position;
+    uint count = fixed_count - first < SIMD_WIDTH ? fixed_count - first : SIMD_WIDTH;
+    // The lanes' samples (lanes past the pixel's last sample repeat it, and are not stored)
+    LANES(uint, vuint) sample_l;
+    for (uint j = 0; j < SIMD_WIDTH; ++j)
+        sample_l.s[j] = first + (j < count ? j : count - 1u);
+    vuint sample = sample_l.v;
+    // The pixel's Sampler (its key; zsobol's Morton code above the sample bits), then the lanes'
+    Sampler base = Sampler_Make(paths_kind, seed, pixel, 0u, redraw, fixed_count, strata,
+                                image_width, zsobol_log2_count, zsobol_bits);
+    SamplerLanes lanes;
+    lanes.kind = paths_kind;
+    lanes.zsobol_bits = zsobol_bits;
+    lanes.key_x = (vuint)base.key.x;
+    lanes.key_y = (vuint)base.key.y;
+    lanes.index = paths_kind == PATHS_ZSOBOL ? base.zsobol_index | sample : sample;
+    LANES(float, vfloat) x, y;
+    if (paths_kind == PATHS_STRATIFIED) {
+        // The jitter (dimension 0's Philox uniforms), then the grid cell of dimension pair 0;
+        // below 1 stays below 1/2 once centred, a tiny value may round to -1/2: kept inside
+        Strata st = Strata_Make(fixed_count, strata);
+        vfloat u2, u3;
+        V_Uniform4(seed, (vuint)pixel, sample, 0u, (vuint)redraw, &x.v, &y.v, &u2, &u3);
+        V_Stratified2(&lanes, &st, 0u, &x.v, &y.v);
+        x.v -= 0.5f;
+        y.v -= 0.5f;
+        x.v = x.v > -SAMPLER_BELOW_HALF ? x.v : (vfloat)(-SAMPLER_BELOW_HALF);
+        y.v = y.v > -SAMPLER_BELOW_HALF ? y.v : (vfloat)(-SAMPLER_BELOW_HALF);
+    } else {
+        vuint bits_x, bits_y;
+        V_SobolBits(&lanes, 0u, &bits_x, &bits_y);
+        x.v = V_ToCentered(bits_x);
+        y.v = V_ToCentered(bits_y);
+    }
+    // Stored lane by lane, with the pixel's toroidal shift if asked for
+    __global float2 *out = positions + traced_offsets[p] + first;
+    float2 shift = toroidal_shift ? Sampler_ShiftOf(seed, pixel, redraw) : (float2)(0.0f);
+    for (uint j = 0; j < count; ++j) {
+        float2 position = (float2)(x.s[j], y.s[j]);
+        out[j] = toroidal_shift ? Sampler_ShiftOnTorus(position, shift) : position;
+    }
 }
 
 // Auxiliary nuclei 8 g .. 8 g + 7 of pixel p (those below n_aux), written after all traced

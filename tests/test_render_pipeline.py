@@ -203,3 +203,125 @@ def test_interrupted_render_keeps_finished_tiles_and_leaves_the_rest_black(runti
     done = film.rendered
     assert np.array_equal(film.pixels[done], full.pixels[done])
     assert np.all(film.pixels[~done] == 0.0)
+
+
+def test_stages_are_timed_on_the_device_clock_without_a_wait_each(runtime):
+    """On a profiling queue (the runtimes clrender makes) a stage queues its commands and
+    returns without waiting for them; settle() then adds the device's time from the stage's
+    start (the device free for it) to its commands' end: at least the commands' own profiled
+    durations. On a queue without profiling, each stage waits for the device as before."""
+    import pyopencl as cl
+
+    from clrender.pipeline import RenderStats, StageClock
+
+    assert runtime.profiled
+    host = np.zeros(1 << 20, np.float32)
+    device = runtime.allocate(host.nbytes)
+    stats = RenderStats()
+    clock = StageClock(stats, runtime.queue)
+    gate = cl.UserEvent(runtime.context)  # holds the queue until the stage has returned
+    with clock.stage("tracing"):
+        cl.enqueue_barrier(runtime.queue, wait_for=[gate])
+        copies = [cl.enqueue_copy(runtime.queue, device, host, is_blocking=False) for _ in range(4)]
+    assert copies[-1].command_execution_status != cl.command_execution_status.COMPLETE
+    assert stats.stage_seconds["tracing"] == 0.0
+    gate.set_status(cl.command_execution_status.COMPLETE)
+    clock.settle()
+    busy = sum(copy.profile.end - copy.profile.start for copy in copies) * 1e-9
+    assert 0.0 < busy <= stats.stage_seconds["tracing"] == stats.device_seconds
+    assert not clock.queued
+    # A queue that does not profile: the stage waits for its commands
+    plain = cl.CommandQueue(runtime.context)
+    other = StageClock(RenderStats(), plain)
+    with other.stage("tracing"):
+        copy = cl.enqueue_copy(plain, device, host, is_blocking=False)
+    assert copy.command_execution_status == cl.command_execution_status.COMPLETE
+    assert other.stats.stage_seconds["tracing"] > 0.0
+
+
+@pytest.mark.parametrize(
+    "sampler, estimators, backend",
+    [
+        ("independent", ["mc"], "device"),  # the plain sums on the device
+        ("sobol", ["mc", "mc_n"], "device"),
+        ("stratified", ["pvor", "mc"], "device"),  # device cells
+        ("independent", ["cvor"], "device"),
+        ("stratified", ["pvor", "mc_n"], "qhull"),  # the samples read back
+    ],
+)
+def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
+    runtime, monkeypatch, sampler, estimators, backend
+):
+    """The device is kept fed: tile 1's sample sets and trace are queued while tile 0 is held
+    on the device (its trace waits for a user event), i.e. before the host waits for tile 0's
+    results; the images are those rendered without the hold. Tile 1's trace opens the gate;
+    so does any wait for the device before it (a blocking copy, a wait for events or for a
+    read, a read's event dropped), so that a pipeline that waits for each tile before it
+    queues the next does not hang but fails.
+    (SPPP's sample sets read their Poisson counts back before the fill: they wait there.)"""
+    import pyopencl as cl
+
+    from clrender.api import radiance_source
+    from clrender.scene import load_scene
+
+    size = dict(width=16, height=8, tile_samples=32 * 4, voronoi_backend=backend)
+    config = settings(sampler, estimators, spp=4, **size)
+    source = radiance_source(runtime, load_scene("cornell-box"), (16, 8), 3)
+    reference = render(runtime, source, config).images
+    gate = cl.UserEvent(runtime.context)
+    opened = []
+
+    def open_gate(by):
+        if not opened:
+            opened.append(by)
+            gate.set_status(cl.command_execution_status.COMPLETE)
+
+    traced = []
+    trace = source.trace
+
+    def gated_trace(sample_sets, seed):
+        traced.append(sample_sets.pixels[0])
+        if len(traced) == 1:
+            cl.enqueue_barrier(runtime.queue, wait_for=[gate])
+        elif len(traced) == 2:
+            open_gate("the second tile's trace")
+        return trace(sample_sets, seed)
+
+    copy, wait_for_events = cl.enqueue_copy, cl.wait_for_events
+
+    class HeldRead:
+        """A non-blocking read's event: waiting for it or dropping it (which waits for the
+        read) opens the gate first."""
+
+        def __init__(self, event):
+            self.event = event
+
+        def wait(self):
+            open_gate("a wait for a read")
+            self.event.wait()
+
+        def __getattr__(self, name):
+            return getattr(self.event, name)
+
+        def __del__(self):
+            open_gate("a dropped read")
+
+    def copy_opening(queue, dest, src, **kwargs):
+        if kwargs.get("is_blocking", True):
+            open_gate("a blocking copy")
+            return copy(queue, dest, src, **kwargs)
+        event = copy(queue, dest, src, **kwargs)
+        return HeldRead(event) if isinstance(dest, np.ndarray) else event
+
+    def wait_opening(events):
+        open_gate("a wait for events")
+        return wait_for_events([getattr(event, "event", event) for event in events])
+
+    monkeypatch.setattr(source, "trace", gated_trace)
+    monkeypatch.setattr(cl, "enqueue_copy", copy_opening)
+    monkeypatch.setattr(cl, "wait_for_events", wait_opening)
+    result = render(runtime, source, config)
+    assert opened == ["the second tile's trace"]
+    assert result.stats.tiles > 2 and len(traced) == result.stats.tiles
+    for name, image in reference.items():
+        assert np.array_equal(result.images[name], image), name

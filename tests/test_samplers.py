@@ -15,6 +15,7 @@ import pytest
 from scipy import stats
 from scipy.stats import qmc
 
+from clrender import rng
 from clrender.sampling import generate_sample_sets, make_sampler
 
 P_MIN = 1e-4
@@ -300,3 +301,41 @@ def test_sppp_sobol_path_dimensions_are_independent_of_positions(runtime):
     taken = np.concatenate([many[k, : min(counts[k], 32)] for k in range(500)])
     for c in (column(0, DIRECTION), column(0, LOBE)):
         assert stats.kstest(taken[:, c], "uniform").pvalue > P_MIN
+
+
+# --- the path samplers' pixel positions, drawn on lanes ---------------------------------------
+
+
+@pytest.mark.parametrize(
+    "sampler, counts",
+    [
+        ("stratified", [1, 4, 9, 16, 25, 64, 81, 289]),
+        ("sobol", [1, 3, 15, 16, 17, 33, 64, 100]),
+        ("zsobol", [1, 2, 8, 16, 32, 64]),
+    ],
+)
+@pytest.mark.parametrize("toroidal_shift", [False, True])
+def test_path_sampler_positions_equal_the_scalar_sampler(runtime, sampler, counts, toroidal_shift):
+    """fill_traced_from_sampler draws 16 samples of a pixel per work-item, one a vector lane
+    (kernels/sampler_lanes.h): every sample's position, partial last groups included, must be
+    the scalar Sampler_Position's (sampler_test.cl, one sample a work-item) to the bit, under
+    several seeds and redraw numbers, then shifted on the torus as the NumPy reference."""
+    rs = np.random.default_rng(13)
+    size = (100, 60)
+    pixels = rs.choice(size[0] * size[1], 19, replace=False).astype(np.uint32)
+    redraws = rs.integers(0, 5, len(pixels)).astype(np.uint32)
+    for n in counts:
+        config = make_sampler(sampler, n, toroidal_shift=toroidal_shift)
+        for seed in (0, 77, 2**32 - 1):
+            sets = generate_sample_sets(runtime, config, seed, pixels, redraws, size)
+            traced = sets.to_host(runtime.queue).traced
+            scalar = dimensions(runtime, sampler, n, pixels, seed, 0, redraws, size)
+            expected = scalar[:, :, :2].astype(np.float32).reshape(-1, 2)
+            if toroidal_shift:
+                shift = rng.uniform4(
+                    seed, np.repeat(pixels, n), 0xFFFFFFFF, 0x7FFFFFFF, np.repeat(redraws, n)
+                )[:, :2]
+                expected = expected + shift
+                expected = np.where(expected >= np.float32(0.5), expected - np.float32(1), expected)
+                expected = np.maximum(expected, np.float32(-0.5 + 2.0**-25))
+            np.testing.assert_array_equal(traced, expected, err_msg=f"n={n} seed={seed}")

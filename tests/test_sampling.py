@@ -385,9 +385,13 @@ def test_traced_positions_equal_the_numpy_reference(runtime, sampler, counts, to
             np.testing.assert_array_equal(sets.traced, expected, err_msg=f"n={n} seed={seed}")
 
 
-@pytest.mark.parametrize("sampler, n", [("independent", 13), ("stratified-pixel", 9), ("sppp", 13)])
+@pytest.mark.parametrize(
+    "sampler, n",
+    [("independent", 13), ("stratified-pixel", 9), ("sppp", 13), ("stratified", 9), ("sobol", 13)],
+)
 def test_traced_positions_stay_inside_their_pixels_range(runtime, sampler, n):
-    """A pixel's last group of 8 holds fewer samples: its work-item must store those alone.
+    """A pixel's last group of 8 (16 for a path sampler's positions) holds fewer samples: its
+    work-item must store those alone.
     Each pixel is filled on its own into a buffer followed by guard words (no auxiliary nuclei
     after it to overwrite a stray store): the guard stays intact, the samples are the
     reference's."""
@@ -416,7 +420,7 @@ def test_traced_positions_stay_inside_their_pixels_range(runtime, sampler, n):
             offsets,
             runtime.upload(offsets),
             positions,
-            (),
+            config.path_arguments((1024, 1024)),
             1024,
         )
         cl.enqueue_copy(runtime.queue, out, positions)

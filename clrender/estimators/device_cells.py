@@ -25,6 +25,10 @@ Entry points:
   device_plain_sums(runtime, sample_sets, radiance, precision)
                                                    no cells: each pixel's sum f and sum f^2
                                                    alone (mc, mc_n, the variance layer)
+  queue_device_sums(runtime, kind, sample_sets, radiance, box)
+                                                   any of the sums above ("plain", "sppp",
+                                                   "periodic", "clipped") queued with their
+                                                   read-back, not waited for (PendingSums)
   device_periodic_cells_from_arrays(runtime, positions, offsets)
   device_periodic_sums(runtime, sample_sets, radiance)
                                                    the same for pvor's cells on the torus W
@@ -66,7 +70,7 @@ precision, sample by sample in sample order (so they do not depend on the launch
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -284,7 +288,7 @@ def device_sppp_sums(
     """The PixelSums of vor, vor_sn and fvor for a launch's SPPP sample sets, with their cells
     and radiance ((T, 3) float32 device buffer, traced-sample order) kept on the device: only
     SUMS_PER_PIXEL values and a flag byte per pixel come back. box = 1/2 + eps (W')."""
-    return _device_sums(runtime, _sample_set_layout(sample_sets), radiance, box, precision)
+    return queue_device_sums(runtime, "sppp", sample_sets, radiance, box, precision).result()
 
 
 def device_periodic_sums(
@@ -293,7 +297,7 @@ def device_periodic_sums(
     """The PixelSums of pvor (area and weighted; no kept sums: NaN, as on the host) for a
     launch's sample sets, from their cells on the torus W, all on the device. No pixel is
     redrawn: a cell the kernel leaves undecided or unbounded flags its pixel as fallback."""
-    return _copies_sums(runtime, sample_sets, radiance, precision, "periodic")
+    return queue_device_sums(runtime, "periodic", sample_sets, radiance, None, precision).result()
 
 
 def device_clipped_sums(
@@ -302,12 +306,53 @@ def device_clipped_sums(
     """The PixelSums of cvor (area and weighted; no kept sums: NaN, as on the host) for a
     launch's sample sets, from their cells clipped to W, all on the device; as
     device_periodic_sums otherwise."""
-    return _copies_sums(runtime, sample_sets, radiance, precision, "clipped")
+    return queue_device_sums(runtime, "clipped", sample_sets, radiance, None, precision).result()
+
+
+class PendingSums:
+    """Device sums queued with the reads of their results, not waited for: result() waits for
+    the reads (once) and makes the DeviceSums. It holds the host arrays the reads fill (and
+    their events: dropping one waits for its read)."""
+
+    def __init__(self, make: Callable[[], DeviceSums], events: Sequence[cl.Event] = ()):
+        self._make: Callable[[], DeviceSums] | None = make
+        self._events = [event for event in events if event is not None]
+        self._result: DeviceSums | None = None
+
+    def result(self) -> DeviceSums:
+        if self._result is None:
+            if self._events:
+                cl.wait_for_events(self._events)
+            self._result, self._make, self._events = self._make(), None, []
+        return self._result
+
+
+def queue_device_sums(
+    runtime: Runtime,
+    kind: str,
+    sample_sets: DeviceSampleSets,
+    radiance,
+    box: float | None = None,
+    precision: str = "auto",
+) -> PendingSums:
+    """Queue a launch's per-pixel sums of one kind ("plain": device_plain_sums; "sppp" with
+    box: device_sppp_sums; "periodic", "clipped") and their read-back, without a wait: the
+    in-order queue may take the next launch's work before PendingSums.result() is asked."""
+    if kind == "plain":
+        return _plain_sums(runtime, sample_sets, radiance, precision)
+    if kind == "sppp":
+        layout = _sample_set_layout(sample_sets)
+        return _device_sums(runtime, layout, radiance, box, precision)
+    if kind in BOUNDED_KINDS:
+        return _copies_sums(runtime, sample_sets, radiance, precision, kind)
+    raise ParameterError(
+        f"unknown kind of device sums {kind!r}; accepted: plain, {', '.join(CELL_KINDS)}"
+    )
 
 
 def _copies_sums(
     runtime: Runtime, sample_sets: DeviceSampleSets, radiance, precision: str, kind: str
-) -> DeviceSums:
+) -> PendingSums:
     """device_periodic_sums or device_clipped_sums (kind)."""
     defines = kernel_defines(runtime, precision)
     layout = _copies_layout(
@@ -318,11 +363,16 @@ def _copies_sums(
         defines,
         kind,
     )
-    device = _device_sums(runtime, layout, radiance, None, precision)
-    nan = np.full(layout.pixel_count, np.nan)
-    sums = replace(device.sums, kept_area=nan, kept_weighted=np.full((len(nan), 3), np.nan))
-    fallback = device.fallback | device.redraw
-    return replace(device, sums=sums, redraw=np.zeros_like(fallback), fallback=fallback)
+    pending = _device_sums(runtime, layout, radiance, None, precision)
+
+    def make() -> DeviceSums:
+        device = pending.result()
+        nan = np.full(layout.pixel_count, np.nan)
+        sums = replace(device.sums, kept_area=nan, kept_weighted=np.full((len(nan), 3), np.nan))
+        fallback = device.fallback | device.redraw
+        return replace(device, sums=sums, redraw=np.zeros_like(fallback), fallback=fallback)
+
+    return PendingSums(make)
 
 
 def device_plain_sums(
@@ -332,6 +382,13 @@ def device_plain_sums(
     launch's radiance ((T, 3) float32 device buffer, traced-sample order) left on the device:
     the plain sums of device_sppp_sums, the same arithmetic (bit-identical), without cells. No
     pixel is redrawn or recomputed."""
+    return _plain_sums(runtime, sample_sets, radiance, precision).result()
+
+
+def _plain_sums(
+    runtime: Runtime, sample_sets: DeviceSampleSets, radiance, precision: str
+) -> PendingSums:
+    """device_plain_sums, queued (queue_device_sums)."""
     pixels = sample_sets.pixel_count
     defines, real = precision_setup(runtime, precision)
     moments = np.zeros((pixels, MOMENTS_PER_PIXEL), real)
@@ -349,29 +406,32 @@ def device_plain_sums(
             moments_buf,
             nonfinite_buf,
         )
-        # One wait: the in-order queue finishes the copies in order
-        cl.enqueue_copy(runtime.queue, moments, moments_buf, is_blocking=False)
-        cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
-    moments = moments.astype(np.float64)
-    none = np.zeros(pixels, bool)
-    sums = PixelSums(
-        np.diff(np.asarray(sample_sets.traced_offsets, np.int64)),
-        sample_sets.config.n,
-        value=moments[:, 0:3],
-        square=moments[:, 3:6],
-    )
-    return DeviceSums(sums, none, none.copy(), nonfinite.astype(np.int64))
+        events = [
+            cl.enqueue_copy(runtime.queue, moments, moments_buf, is_blocking=False),
+            cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf, is_blocking=False),
+        ]
+    counts = np.diff(np.asarray(sample_sets.traced_offsets, np.int64))
+    n = sample_sets.config.n
+
+    def make() -> DeviceSums:
+        values = moments.astype(np.float64)
+        sums = PixelSums(counts, n, value=values[:, 0:3], square=values[:, 3:6])
+        none = np.zeros(pixels, bool)
+        return DeviceSums(sums, none, none.copy(), nonfinite.astype(np.int64))
+
+    return PendingSums(make, events if sample_sets.traced_total and pixels else ())
 
 
 def _device_sums(
     runtime: Runtime, layout: CellLayout, radiance, box: float | None, precision: str
-) -> DeviceSums:
-    """Cells and per-pixel sums of a layout on the device (see device_sppp_sums)."""
+) -> PendingSums:
+    """Cells and per-pixel sums of a layout on the device (see device_sppp_sums), queued."""
     pixels = layout.pixel_count
     defines, real = precision_setup(runtime, precision)
     sums = np.zeros((pixels, SUMS_PER_PIXEL), real)
     flags = np.zeros(pixels, np.uint8)
     nonfinite = np.zeros(pixels, np.uint32)
+    events = []
     if layout.traced_total and pixels:
         areas, status, offsets, upload = _enqueue_cells(
             runtime, layout, box, defines, np.dtype(real).itemsize
@@ -391,28 +451,33 @@ def _device_sums(
             flags_buf,
             nonfinite_buf,
         )
-        # One wait: the in-order queue finishes the copies in order
-        cl.enqueue_copy(runtime.queue, sums, sums_buf, is_blocking=False)
-        cl.enqueue_copy(runtime.queue, flags, flags_buf, is_blocking=False)
-        cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf)
-        del upload  # the blocking read above has run the upload
-    sums = sums.astype(np.float64)
-    pixel_sums = PixelSums(
-        np.diff(layout.traced_offsets),
-        layout.intensity,
-        area=sums[:, 0],
-        weighted=sums[:, 1:4],
-        kept_area=sums[:, 4],
-        kept_weighted=sums[:, 5:8],
-        value=sums[:, 8:11],
-        square=sums[:, 11:14],
-    )
-    return DeviceSums(
-        pixel_sums,
-        (flags & SUMS_REDRAW) != 0,
-        (flags & SUMS_FALLBACK) != 0,
-        nonfinite.astype(np.int64),
-    )
+        events = [  # the upload's event is held until the reads are waited for
+            upload,
+            cl.enqueue_copy(runtime.queue, sums, sums_buf, is_blocking=False),
+            cl.enqueue_copy(runtime.queue, flags, flags_buf, is_blocking=False),
+            cl.enqueue_copy(runtime.queue, nonfinite, nonfinite_buf, is_blocking=False),
+        ]
+
+    def make() -> DeviceSums:
+        values = sums.astype(np.float64)
+        pixel_sums = PixelSums(
+            np.diff(layout.traced_offsets),
+            layout.intensity,
+            area=values[:, 0],
+            weighted=values[:, 1:4],
+            kept_area=values[:, 4],
+            kept_weighted=values[:, 5:8],
+            value=values[:, 8:11],
+            square=values[:, 11:14],
+        )
+        return DeviceSums(
+            pixel_sums,
+            (flags & SUMS_REDRAW) != 0,
+            (flags & SUMS_FALLBACK) != 0,
+            nonfinite.astype(np.int64),
+        )
+
+    return PendingSums(make, events)
 
 
 def settle_undecided(
