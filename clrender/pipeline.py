@@ -548,34 +548,44 @@ class StageClock:
     as it starts and one queued as it ends: from the device being free for it (done with the
     work queued before it, or idle) until its commands are done. Its commands are queued
     without a wait: the device runs a tile's stages back to back and the tile waits once, for
-    its results; settle() then adds the stages' times to the stats. On another queue each
-    stage ends with a wait for the device and takes the main thread's time."""
+    its results; settle() then adds the stages' times to the stats. A stage that met a program
+    build (a first use in the process), and every stage on a queue without profiling, ends
+    with a wait for the device and takes the main thread's time less the builds: a build may
+    overlap the device's earlier work, so the device's clock less the build would undercount
+    (such a stage may instead include a part of the work queued before it). A device that
+    cannot report the markers' times gets the main thread's time from the stage's start to the
+    end of its queuing."""
 
     def __init__(self, stats: RenderStats, queue: cl.CommandQueue | None = None):
         self.stats = stats
         self.queue = queue
         profiling = cl.command_queue_properties.PROFILING_ENABLE
         self.profiled = queue is not None and bool(queue.properties & profiling)
-        # stages queued and not yet settled: (name, start marker, end marker, builds' seconds)
+        # stages queued and not yet settled: (name, start marker, end marker, main-thread
+        # seconds of the queuing)
         self.queued: list[tuple[str, cl.Event, cl.Event, float]] = []
 
     @contextmanager
     def stage(self, name: str) -> Iterator[None]:
         start, built = time.perf_counter(), thread_build_seconds()
-        first = cl.enqueue_marker(self.queue) if self.profiled else None
+        first = None
+        if self.profiled:
+            first = cl.enqueue_marker(self.queue)
+            self.queue.flush()  # a driver that batches commands starts the clock now
         try:
             yield
         finally:
             compile_seconds = thread_build_seconds() - built
             self.stats.compile_seconds += compile_seconds
             self.stats.main_compile_seconds += compile_seconds
-            if first is not None:
+            if first is not None and compile_seconds == 0:
                 last = cl.enqueue_marker(self.queue)
-                self.queued.append((name, first, last, compile_seconds))
+                self.queue.flush()
+                self.queued.append((name, first, last, time.perf_counter() - start))
             else:
                 if self.queue is not None:
                     self.queue.finish()
-                self.add(name, time.perf_counter() - start - compile_seconds)
+                self.add(name, max(time.perf_counter() - start - compile_seconds, 0.0))
 
     def take(self) -> list[tuple[str, cl.Event, cl.Event, float]]:
         """The stages queued so far, to settle later (a queued tile's: QueuedTile)."""
@@ -588,10 +598,13 @@ class StageClock:
         results; a later tile's stages queued behind them are not waited for."""
         if stages is None:
             stages = self.take()
-        for name, first, last, compile_seconds in stages:
+        for name, first, last, queuing_seconds in stages:
             last.wait()
-            device = (last.profile.end - first.profile.end) * 1e-9
-            self.add(name, max(device - compile_seconds, 0.0))
+            try:
+                seconds = (last.profile.end - first.profile.end) * 1e-9
+            except cl.Error:  # profiling information not available for markers here
+                seconds = queuing_seconds
+            self.add(name, seconds)
 
     def add(self, name: str, seconds: float) -> None:
         self.stats.stage_seconds[name] += seconds
@@ -1028,8 +1041,11 @@ class TilePipeline:
 
     def finish_in_flight(self, progress: ProgressCallback | None) -> None:
         if self.in_flight is not None:
-            done, self.in_flight = self.in_flight, None
-            self.finish(done.result())
+            # Cleared once its result is here: an interrupt while waiting leaves it to run()'s
+            # handler, which records it
+            estimate = self.in_flight.result()
+            self.in_flight = None
+            self.finish(estimate)
             self.report(progress)
 
     def start_estimate(self, pool: ThreadPoolExecutor, tile: TileSamples) -> Future:

@@ -483,6 +483,49 @@ sys.exit(run())
 
 
 @pytest.mark.device
+def test_ctrl_c_while_waiting_for_the_first_estimate_keeps_it(tmp_path):
+    # The main thread waits for tile 1's estimate (finish_in_flight) when Ctrl-C comes: the
+    # estimate, still running, is recorded once done (before: dropped from in_flight before
+    # the wait, so nothing was written although it finished). The estimate sends the signal
+    # once the main thread is waiting for it, and finishes after.
+    script = """
+import os, signal, sys, threading, time
+import clrender.pipeline
+TilePipeline = clrender.pipeline.TilePipeline
+real_estimate = TilePipeline.estimate
+estimates = []
+def main_thread_in(name):
+    frame = sys._current_frames()[threading.main_thread().ident]
+    while frame is not None and frame.f_code.co_name != name:
+        frame = frame.f_back
+    return frame is not None
+def estimate(self, tile):
+    estimates.append(1)
+    if len(estimates) == 1:
+        while not main_thread_in("finish_in_flight"):
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)
+    return real_estimate(self, tile)
+TilePipeline.estimate = estimate
+sys.argv = ["clrender", "render", "cornell-box", "--res", "32", "--spp", "8", "--tile-samples",
+            "2048", "-o", "out.exr"]
+from clrender.__main__ import run
+sys.exit(run())
+"""
+    child = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        preexec_fn=default_signals,
+    )
+    assert child.returncode == 130, child.stderr
+    pixels, meta = read_exr(tmp_path / "out.exr")
+    assert meta["partial"] == 1 and 0 < meta["rendered_pixels"] < 32 * 32, child.stderr
+
+
+@pytest.mark.device
 def test_a_full_disk_keeps_the_previous_image_and_exits_2(capsys, tmp_path, monkeypatch):
     import OpenEXR
 

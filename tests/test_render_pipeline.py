@@ -239,6 +239,30 @@ def test_stages_are_timed_on_the_device_clock_without_a_wait_each(runtime):
     assert other.stats.stage_seconds["tracing"] > 0.0
 
 
+def test_a_stage_that_builds_a_program_is_timed_with_a_wait(runtime, monkeypatch):
+    """A build may overlap the device's earlier work, so the device's clock less the build
+    time would undercount the stage (it came out 0 for a first tile's Voronoi stage): such a
+    stage waits for its commands and takes the main thread's time less the build."""
+    import pyopencl as cl
+
+    import clrender.pipeline as pipeline
+
+    built = [0.0]
+    monkeypatch.setattr(pipeline, "thread_build_seconds", lambda: built[0])
+    host = np.zeros(1 << 20, np.float32)
+    device = runtime.allocate(host.nbytes)
+    stats = pipeline.RenderStats()
+    clock = pipeline.StageClock(stats, runtime.queue)
+    with clock.stage("voronoi"):
+        built[0] += 1e-4  # a program build met on the way
+        copies = [cl.enqueue_copy(runtime.queue, device, host, is_blocking=False) for _ in range(4)]
+    assert all(c.command_execution_status == cl.command_execution_status.COMPLETE for c in copies)
+    assert not clock.queued
+    assert stats.compile_seconds == pytest.approx(1e-4)
+    busy = sum(copy.profile.end - copy.profile.start for copy in copies) * 1e-9
+    assert stats.stage_seconds["voronoi"] >= busy - 1e-4 > 0.0
+
+
 @pytest.mark.parametrize(
     "sampler, estimators, backend",
     [

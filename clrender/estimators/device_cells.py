@@ -639,9 +639,10 @@ def launch_cell_kernels(
         return areas, status
     areas_buf, status_buf, _, upload = _enqueue_cells(runtime, layout, box, defines, areas.itemsize)
     # One wait: the in-order queue finishes the upload and the first copy before the second
-    cl.enqueue_copy(runtime.queue, areas, areas_buf, is_blocking=False)
+    # (the first copy's event is kept until then: dropping it unfinished waits, holding the GIL)
+    first_copy = cl.enqueue_copy(runtime.queue, areas, areas_buf, is_blocking=False)
     cl.enqueue_copy(runtime.queue, status, status_buf)
-    del upload
+    del upload, first_copy
     return areas, status
 
 
