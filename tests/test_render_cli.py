@@ -428,50 +428,60 @@ def test_a_signal_after_the_last_pixel_still_writes_the_finished_image(tmp_path)
     assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
 
 
-@pytest.mark.device
-def test_a_second_signal_while_finishing_keeps_the_finished_pixels(tmp_path):
-    # Ctrl-C as tile 3 starts interrupts the render; SIGTERM comes while the render waits for
-    # tile 2's estimate, still in flight on its thread (before: raised there, it ended the
-    # command with nothing written). That estimate sends it once the main thread waits for
-    # it (seen in its stack), and only then finishes: no timing guesses.
-    script = """
+# A 32 x 32 render of many tiles in a child process whose estimator stage `estimate(self,
+# tile)` (defined by the patch, counting its calls in `estimates`) replaces TilePipeline's;
+# main_thread_in(name) tells whether the main thread is inside a function of that name.
+PATCHED_RENDER = """
 import os, signal, sys, threading, time
 import clrender.pipeline
 TilePipeline = clrender.pipeline.TilePipeline
-real_tile_pixels, real_estimate = clrender.pipeline.tile_pixels, TilePipeline.estimate
-tiles, estimates = [], []
-def tile_pixels(*args, **kwargs):
-    tiles.append(1)
-    if len(tiles) == 3:
-        while len(estimates) < 2:  # tile 2's estimate has begun: it cannot be cancelled
-            time.sleep(0.01)
-        os.kill(os.getpid(), signal.SIGINT)
-    return real_tile_pixels(*args, **kwargs)
-def main_thread_waits():
+real_estimate = TilePipeline.estimate
+estimates = []
+def main_thread_in(name):
     frame = sys._current_frames()[threading.main_thread().ident]
-    while frame is not None and frame.f_code.co_name != "result":
+    while frame is not None and frame.f_code.co_name != name:
         frame = frame.f_back
     return frame is not None
-def estimate(self, tile):
-    estimates.append(1)
-    if len(estimates) == 2:
-        while not main_thread_waits():
-            time.sleep(0.01)
-        os.kill(os.getpid(), signal.SIGTERM)
-    return real_estimate(self, tile)
-clrender.pipeline.tile_pixels = tile_pixels
+{patch}
 TilePipeline.estimate = estimate
 sys.argv = ["clrender", "render", "cornell-box", "--res", "32", "--spp", "8", "--tile-samples",
             "2048", "-o", "out.exr"]
 from clrender.__main__ import run
 sys.exit(run())
 """
-    child = subprocess.run(
-        [sys.executable, "-c", script],
+
+
+def render_with_patch(tmp_path, patch: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", PATCHED_RENDER.format(patch=patch)],
         capture_output=True,
         text=True,
         cwd=tmp_path,
         preexec_fn=default_signals,
+    )
+
+
+@pytest.mark.device
+def test_a_second_signal_while_finishing_keeps_the_finished_pixels(tmp_path):
+    # Ctrl-C interrupts the render while it waits for tile 1's estimate, still in flight on
+    # its thread; SIGTERM comes while the render still waits for it (before: raised there, it
+    # ended the command with nothing written). That estimate sends both once the main thread
+    # waits for it and finishes after them, so the second comes after the first was raised
+    # and before the writing, whenever each lands.
+    child = render_with_patch(
+        tmp_path,
+        """
+def estimate(self, tile):
+    estimates.append(1)
+    if len(estimates) == 1:
+        while not main_thread_in("finish_in_flight"):
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.2)
+    return real_estimate(self, tile)
+""",
     )
     assert child.returncode == 130, child.stderr  # the status of the signal that interrupted
     assert "clrender: interrupted again (SIGTERM): still finishing, finished pixels are saved" in (
@@ -488,17 +498,9 @@ def test_ctrl_c_while_waiting_for_the_first_estimate_keeps_it(tmp_path):
     # estimate, still running, is recorded once done (before: dropped from in_flight before
     # the wait, so nothing was written although it finished). The estimate sends the signal
     # once the main thread is waiting for it, and finishes after.
-    script = """
-import os, signal, sys, threading, time
-import clrender.pipeline
-TilePipeline = clrender.pipeline.TilePipeline
-real_estimate = TilePipeline.estimate
-estimates = []
-def main_thread_in(name):
-    frame = sys._current_frames()[threading.main_thread().ident]
-    while frame is not None and frame.f_code.co_name != name:
-        frame = frame.f_back
-    return frame is not None
+    child = render_with_patch(
+        tmp_path,
+        """
 def estimate(self, tile):
     estimates.append(1)
     if len(estimates) == 1:
@@ -507,18 +509,7 @@ def estimate(self, tile):
         os.kill(os.getpid(), signal.SIGINT)
         time.sleep(0.2)
     return real_estimate(self, tile)
-TilePipeline.estimate = estimate
-sys.argv = ["clrender", "render", "cornell-box", "--res", "32", "--spp", "8", "--tile-samples",
-            "2048", "-o", "out.exr"]
-from clrender.__main__ import run
-sys.exit(run())
-"""
-    child = subprocess.run(
-        [sys.executable, "-c", script],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        preexec_fn=default_signals,
+""",
     )
     assert child.returncode == 130, child.stderr
     pixels, meta = read_exr(tmp_path / "out.exr")
