@@ -21,12 +21,13 @@ SIMD_FN vfloat V_ToCentered(vuint bits)
     return (TO_VFLOAT(TO_VINT(bits >> 8) - 0x800000) + 0.5f) * 0x1p-24f;
 }
 
-// Rng_Uniform4 on lanes: Philox4x32-10 of counter (sample, dim, redraw, 0), key (seed, pixel).
-SIMD_FN void V_Uniform4(uint seed, vuint pixel, vuint sample, uint dim, vuint redraw, vfloat *u0,
-                        vfloat *u1, vfloat *u2, vfloat *u3)
+// Rng_Uniform4 on lanes: Philox4x32-10 of counter (sample, dim, redraw, 0), key (seed, pixel),
+// each lane at its own dimension.
+SIMD_FN void V_Uniform4Lanes(uint seed, vuint pixel, vuint sample, vuint dim, vuint redraw,
+                             vfloat *u0, vfloat *u1, vfloat *u2, vfloat *u3)
 {
     vuint c0 = sample;
-    vuint c1 = (vuint)dim;
+    vuint c1 = dim;
     vuint c2 = redraw;
     vuint c3 = (vuint)0u;
     vuint k0 = (vuint)seed;
@@ -50,6 +51,13 @@ SIMD_FN void V_Uniform4(uint seed, vuint pixel, vuint sample, uint dim, vuint re
     *u1 = V_ToUnit(c1);
     *u2 = V_ToUnit(c2);
     *u3 = V_ToUnit(c3);
+}
+
+// Rng_Uniform4 on lanes, every lane at dimension dim.
+SIMD_FN void V_Uniform4(uint seed, vuint pixel, vuint sample, uint dim, vuint redraw, vfloat *u0,
+                        vfloat *u1, vfloat *u2, vfloat *u3)
+{
+    V_Uniform4Lanes(seed, pixel, sample, (vuint)dim, redraw, u0, u1, u2, u3);
 }
 
 // Sampler_Hash

@@ -25,6 +25,7 @@
 #ifdef SIMD_NO_MIN_VECTOR_WIDTH // the experiment: --define SIMD_NO_MIN_VECTOR_WIDTH
 #define SIMD_ATTR
 #endif
+#include "sampler_lanes.h" // V_Uniform4Lanes (its lanes at different dimensions)
 #include "simd_lanes.h"
 
 #define SURFACE_ERROR_SCALE (32.0f * FLT_EPSILON)
@@ -44,40 +45,6 @@
 SIMD_FN vfloat V_SignOf(vfloat y)
 {
     return AS_VFLOAT((AS_VUINT(y) & 0x80000000u) | 0x3f800000u);
-}
-
-// ----------------------------------------------------------------------------- random numbers
-
-// Rng_Uniform4 on lanes: Philox4x32-10 of counter (sample, dim, redraw, 0), key (seed, pixel).
-SIMD_FN void V_Uniform4(uint seed, vuint pixel, vuint sample, vuint dim, vuint redraw,
-                        vfloat *u0, vfloat *u1, vfloat *u2, vfloat *u3)
-{
-    vuint c0 = sample;
-    vuint c1 = dim;
-    vuint c2 = redraw;
-    vuint c3 = (vuint)0u;
-    vuint k0 = (vuint)seed;
-    vuint k1 = pixel;
-#pragma unroll
-    for (int round = 0; round < 10; ++round) {
-        vulong product0 = TO_VULONG(c0) * (vulong)PHILOX_M0;
-        vulong product1 = TO_VULONG(c2) * (vulong)PHILOX_M1;
-        vuint n0 = TO_VUINT(product1 >> 32) ^ c1 ^ k0;
-        vuint n1 = TO_VUINT(product1);
-        vuint n2 = TO_VUINT(product0 >> 32) ^ c3 ^ k1;
-        vuint n3 = TO_VUINT(product0);
-        c0 = n0;
-        c1 = n1;
-        c2 = n2;
-        c3 = n3;
-        k0 += PHILOX_W0;
-        k1 += PHILOX_W1;
-    }
-    // Rng_ToUnit: the top 23 bits plus half a step (exact)
-    *u0 = (TO_VFLOAT(c0 >> 9) + 0.5f) * 0x1p-23f;
-    *u1 = (TO_VFLOAT(c1 >> 9) + 0.5f) * 0x1p-23f;
-    *u2 = (TO_VFLOAT(c2 >> 9) + 0.5f) * 0x1p-23f;
-    *u3 = (TO_VFLOAT(c3 >> 9) + 0.5f) * 0x1p-23f;
 }
 
 // ----------------------------------------------------------------------------- geometry
@@ -335,10 +302,10 @@ SIMD_FN void V_PathStep(const PathScene *scene, Paths *paths, LaneStats *stats)
     // and 2 + 2 depth)
     vfloat u_light0, u_light1, u_light2, u_light3, u_bsdf0, u_bsdf1, u_bsdf2, u_bsdf3;
     vuint dim = TO_VUINT(depth) * 2u + 1u;
-    V_Uniform4(scene->seed, paths->pixel, paths->sample, dim, paths->redraw, &u_light0,
-               &u_light1, &u_light2, &u_light3);
-    V_Uniform4(scene->seed, paths->pixel, paths->sample, dim + 1u, paths->redraw, &u_bsdf0,
-               &u_bsdf1, &u_bsdf2, &u_bsdf3);
+    V_Uniform4Lanes(scene->seed, paths->pixel, paths->sample, dim, paths->redraw, &u_light0,
+                    &u_light1, &u_light2, &u_light3);
+    V_Uniform4Lanes(scene->seed, paths->pixel, paths->sample, dim + 1u, paths->redraw, &u_bsdf0,
+                    &u_bsdf1, &u_bsdf2, &u_bsdf3);
 
     // Sample direct illumination from the emitter (Light_SampleLi on a quad, then
     // Integrator_SampleDirect)
