@@ -440,6 +440,7 @@ class TileEstimate:
     seconds: dict[str, float] = field(default_factory=dict)  # host time per estimator group
     layer_seconds: float = 0.0  # host time of the layers
     compile_seconds: float = 0.0  # program builds on the estimator thread
+    counted: bool = False  # its times and counts are on the render's stats (record)
 
 
 def tile_nuclei_per_pixel(settings: RenderSettings) -> int:
@@ -936,18 +937,9 @@ class TilePipeline:
         return result
 
     def record(self, result: TileEstimate) -> None:
-        """Store the accepted pixels of an estimate on the films and the layers."""
-        for name, seconds in result.seconds.items():
-            self.stats.estimator_seconds[name] = (
-                self.stats.estimator_seconds.get(name, 0.0) + seconds
-            )
-            self.stats.host_seconds += seconds
-        self.stats.layer_seconds += result.layer_seconds
-        self.stats.host_seconds += result.layer_seconds
-        self.stats.compile_seconds += result.compile_seconds
-        if not self.settings.overlap:  # the estimate ran on the main thread
-            self.stats.main_compile_seconds += result.compile_seconds
-        self.stats.nonfinite_samples += result.nonfinite_samples
+        """Store the accepted pixels of an estimate on the films and the layers, and its times
+        and counts on the stats. Recording it again (an interrupt inside the first recording,
+        finished by run()'s handler) stores the same pixels and counts nothing twice."""
         accepted = ~result.needs_redraw
         for entry in self.settings.estimators:
             keep = np.ones_like(accepted) if entry.image_level else accepted
@@ -964,10 +956,23 @@ class TilePipeline:
             self.first_draw_layers.record(
                 result.pixels, result.counts, result.redraws, result.variance
             )
+        if result.counted:
+            return
+        result.counted = True
+        for name, seconds in result.seconds.items():
+            self.stats.estimator_seconds[name] = (
+                self.stats.estimator_seconds.get(name, 0.0) + seconds
+            )
+            self.stats.host_seconds += seconds
+        self.stats.layer_seconds += result.layer_seconds
+        self.stats.host_seconds += result.layer_seconds
+        self.stats.compile_seconds += result.compile_seconds
+        if not self.settings.overlap:  # the estimate ran on the main thread
+            self.stats.main_compile_seconds += result.compile_seconds
+        self.stats.nonfinite_samples += result.nonfinite_samples
 
-    def finish(self, result: TileEstimate) -> None:
-        """Record a tile and redraw its rejected pixels (device work: on the main thread)."""
-        self.record(result)
+    def redraw_rejected(self, result: TileEstimate) -> None:
+        """Redraw a recorded tile's rejected pixels (device work: on the main thread)."""
         rejected = result.needs_redraw
         if rejected.any():
             self.redraw(result.pixels[rejected], result.redraws[rejected])
@@ -1009,13 +1014,20 @@ class TilePipeline:
         self.stats.host_seconds += host
         self.stats.redraw_host_seconds += host
 
-    def run(self, tiles: range, progress: ProgressCallback | None, end: int | None = None) -> None:
+    def run(
+        self,
+        tiles: range,
+        progress: ProgressCallback | None,
+        end: int | None = None,
+        on_done: Callable[[], None] | None = None,
+    ) -> None:
         """With overlap, trace tile k + 1 while tile k is estimated on a worker thread, and
         keep the device fed: once tile k - 1 is recorded, tile k + 1's work is queued before the
         host waits for tile k's results (so at most two tiles are held: one queued, the other
         queued or being estimated). Without overlap, one tile at a time: its device work, then
         its estimate. Tiles are clipped to pixel `end` when they cover a range of the image
-        (clrender.cluster)."""
+        (clrender.cluster). `on_done` is called as the last step of the interruptible work
+        (clrender.interrupts.work_done: the command holds the signals from there on)."""
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
@@ -1027,33 +1039,53 @@ class TilePipeline:
                     if not self.settings.overlap:
                         queued, following = following, None
                     if queued is not None:
-                        self.in_flight = self.start_estimate(pool, self.collect(queued))
+                        self.start_estimate(pool, self.collect(queued))
                     queued = following
                 self.finish_in_flight(progress)
                 if queued is not None:
-                    self.in_flight = self.start_estimate(pool, self.collect(queued))
+                    self.start_estimate(pool, self.collect(queued))
                 self.finish_in_flight(progress)
+                if on_done is not None:
+                    on_done()
             except KeyboardInterrupt:
                 self.stats.interrupted = True
-                if self.in_flight is not None and not self.in_flight.cancel():
-                    self.record(self.in_flight.result())  # finished work is kept, not redrawn
+                # The estimate handed to the thread runs to its end (the interrupt may have
+                # come as it was handed over: it is in in_flight from before), and is kept
+                # (finished work, not redrawn); one the interrupt kept from the thread never
+                # started
+                pool.shutdown(wait=True)
+                if self.in_flight is not None and self.in_flight.done():
+                    self.record(self.in_flight.result())
                 self.in_flight = None
 
     def finish_in_flight(self, progress: ProgressCallback | None) -> None:
         if self.in_flight is not None:
-            # Cleared once its result is here: an interrupt while waiting leaves it to run()'s
-            # handler, which records it
+            # Cleared once it is recorded: an interrupt before leaves it to run()'s handler,
+            # which records it (record() counts its stats once)
             estimate = self.in_flight.result()
+            self.record(estimate)
             self.in_flight = None
-            self.finish(estimate)
+            self.redraw_rejected(estimate)
             self.report(progress)
 
-    def start_estimate(self, pool: ThreadPoolExecutor, tile: TileSamples) -> Future:
+    def start_estimate(self, pool: ThreadPoolExecutor, tile: TileSamples) -> None:
+        """Estimate the tile, on the worker thread with overlap; its future is in_flight
+        before the work is handed over, so that an interrupt at any moment finds it there."""
+        self.in_flight = future = Future()
         if self.settings.overlap:
-            return pool.submit(self.estimate, tile)
-        done: Future = Future()
-        done.set_result(self.estimate(tile))
-        return done
+            pool.submit(self.estimate_into, future, tile)
+        else:  # on this thread: an interrupt inside leaves the future unfinished
+            future.set_running_or_notify_cancel()
+            future.set_result(self.estimate(tile))
+
+    def estimate_into(self, future: Future, tile: TileSamples) -> None:
+        """The worker thread's task: the tile's estimate, or its error, in `future`."""
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            future.set_result(self.estimate(tile))
+        except BaseException as err:  # noqa: BLE001 (raised on the main thread, by result())
+            future.set_exception(err)
 
     def report(self, progress: ProgressCallback | None) -> None:
         if progress is not None:

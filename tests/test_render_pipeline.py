@@ -205,6 +205,67 @@ def test_interrupted_render_keeps_finished_tiles_and_leaves_the_rest_black(runti
     assert np.all(film.pixels[~done] == 0.0)
 
 
+def test_an_interrupt_right_after_an_estimate_is_handed_over_keeps_it(runtime, monkeypatch):
+    """Ctrl-C that lands as the estimator thread takes tile 1's estimate, before the render
+    holds its future: the estimate is recorded once done (before: its future was lost, and
+    tile 1 with it). The interrupt is raised right after the submit, as the signal handler
+    raises it when the call returns."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from clrender import pipeline
+
+    config = settings("independent", "mc", tile_samples=100 * 16)
+    source = analytic_source(runtime)
+    full = render(runtime, source, config).film
+    submitted = []
+
+    class InterruptedPool(ThreadPoolExecutor):
+        def submit(self, *args, **kwargs):
+            future = super().submit(*args, **kwargs)
+            submitted.append(future)
+            if len(submitted) == 2:
+                raise KeyboardInterrupt
+            return future
+
+    monkeypatch.setattr(pipeline, "ThreadPoolExecutor", InterruptedPool)
+    result = render(runtime, source, config)
+    film = result.film
+    tiles = plan_tiles(result.settings)
+    two_tiles = tiles[2] if len(tiles) > 2 else film.pixel_count
+    assert len(submitted) == 2 and result.stats.interrupted
+    # Tiles 0 and 1, and nothing after them
+    assert film.rendered[:two_tiles].all() and not film.rendered[two_tiles:].any()
+    assert np.array_equal(film.pixels[:two_tiles], full.pixels[:two_tiles])
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_an_interrupt_while_an_estimate_is_recorded_keeps_it(runtime, monkeypatch, overlap):
+    """Ctrl-C inside the recording of tile 1's estimate (the first film write): run()'s handler
+    records it whole (before: it was taken from in_flight first, and lost)."""
+    from clrender.film import Film
+
+    config = settings("independent", "mc", tile_samples=100 * 16, overlap=overlap)
+    source = analytic_source(runtime)
+    full = render(runtime, source, config).film
+    writes = []
+    real_record = Film.record
+
+    def interrupted_record(film, *args):
+        writes.append(1)
+        if len(writes) == 2:
+            raise KeyboardInterrupt
+        return real_record(film, *args)
+
+    monkeypatch.setattr(Film, "record", interrupted_record)
+    result = render(runtime, source, config)
+    film = result.film
+    tiles = plan_tiles(result.settings)
+    two_tiles = tiles[2] if len(tiles) > 2 else film.pixel_count
+    assert result.stats.interrupted
+    assert film.rendered[:two_tiles].all() and not film.rendered[two_tiles:].any()
+    assert np.array_equal(film.pixels[:two_tiles], full.pixels[:two_tiles])
+
+
 def test_stages_are_timed_on_the_device_clock_without_a_wait_each(runtime):
     """On a profiling queue (the runtimes clrender makes) a stage queues its commands and
     returns without waiting for them; settle() then adds the device's time from the stage's
