@@ -400,6 +400,9 @@ class PixelRangeResult:
     # what kept it from its tiles: the set-up before its first tile (the job's radiance source
     # unless the worker kept it, the tile pipeline) and the program builds on its render thread
     setup_seconds: float
+    # estimator -> (P,) bool: the pixels its film holds (an interrupted task's finished tiles;
+    # None from a worker older than the field: all of them)
+    rendered: dict[str, np.ndarray] | None = None
 
 
 # The radiance source of the last job a worker process ran: (token, source)
@@ -461,6 +464,7 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
         getattr(getattr(source, "tracer", None), "trace_kernel", None),
         worker_name(),
         setup_seconds,
+        {name: film.rendered[pixels] for name, film in pipeline.films.items()},
     )
 
 
@@ -512,10 +516,12 @@ def render_on(
     tasks_by_worker: dict[str, int] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
     start = time.perf_counter()
+    parts = executor.map(render_pixels, ranges, shared)
     try:
-        for _, part in executor.map(render_pixels, ranges, shared):
+        for _, part in parts:
             for name, film in films.items():
-                film.record(part.pixels, part.values[name], part.flagged[name])
+                kept = slice(None) if part.rendered is None else part.rendered[name]
+                film.record(part.pixels[kept], part.values[name][kept], part.flagged[name][kept])
             layers.record(part.pixels, part.samples, part.redraws, part.variance)
             if first_draw is not None and part.first_draw is not None:
                 first_draw.record(part.pixels, *part.first_draw)
@@ -532,8 +538,14 @@ def render_on(
             if progress is not None:
                 first = films[job.estimators[0]]
                 progress(first.rendered_count, first.pixel_count)
+            # A task run in this process (LocalExecutor) catches Ctrl-C in its own pipeline
+            # and returns its finished tiles: the render ends there, as if interrupted here
+            if part.stats.interrupted:
+                raise KeyboardInterrupt
     except KeyboardInterrupt:
         stats.interrupted = True
+    finally:
+        parts.close()  # no further task starts (a cluster's outstanding ones are cancelled)
     stats.wall_seconds = time.perf_counter() - start
     # The workers set up at once, each before its first tile: the render waits for the longest
     stats.worker_setup_seconds = max(setup_by_worker.values(), default=0.0)

@@ -14,6 +14,7 @@ import pytest
 from clrender.api import radiance_source
 from clrender.cli import main
 from clrender.cluster import (
+    TASKS_PER_WORKER,
     ClusterError,
     ClusterTaskError,
     LocalExecutor,
@@ -23,7 +24,7 @@ from clrender.cluster import (
     split_pixels,
 )
 from clrender.errors import ClrenderError, ParameterError
-from clrender.pipeline import RenderSettings, render
+from clrender.pipeline import RenderSettings, pixels_per_tile, render
 from clrender.sampling import make_sampler
 from clrender.scene import load_scene
 from clrender.trace import DEFAULT_MAX_DEPTH
@@ -108,6 +109,41 @@ def test_interrupt_keeps_the_finished_pixels(runtime, cluster):
     local_pixels = local.film.pixels
     assert np.array_equal(partial.film.pixels[rendered], local_pixels[rendered])
     assert not partial.film.pixels[~rendered].any()
+
+
+def test_an_interrupted_task_of_the_local_executor_ends_the_render(runtime, monkeypatch):
+    """Ctrl-C during the second task of a render on the local executor (its tasks run here,
+    and a task's pipeline catches the interrupt): the render stops there and says it was
+    interrupted; the first range and the second's finished tile are kept, the rest is black
+    (before: the task's unfinished pixels were recorded as rendered black ones, the next
+    tasks ran, and the render said it was complete)."""
+    from clrender import api, pipeline
+
+    options = dict(spp=16, sampler="independent", estimator="mc", resolution=(24, 16), seed=2)
+    local = api.render("analytic:mix", tile_samples=16 * 16, **options)
+    per_tile = pixels_per_tile(local.settings)
+    ranges = split_pixels(24 * 16, TASKS_PER_WORKER)
+    second = ranges[1][0]
+    assert ranges[1][1] - second >= 3 * per_tile
+    real_tile_pixels = pipeline.tile_pixels
+    starts = []
+
+    def interrupting_tile_pixels(settings, start, end=None):
+        starts.append(start)
+        if start == second + 2 * per_tile:  # tile 2 of the second task: tile 0 recorded
+            raise KeyboardInterrupt
+        return real_tile_pixels(settings, start, end)
+
+    monkeypatch.setattr(pipeline, "tile_pixels", interrupting_tile_pixels)
+    partial = api.render("analytic:mix", tile_samples=16 * 16, executor=LocalExecutor(), **options)
+    assert partial.stats.interrupted
+    assert max(starts) == second + 2 * per_tile  # no later tile, no later task
+    kept = second + per_tile  # (tile 1, queued on the device, is dropped)
+    film = partial.film
+    assert film.rendered[:kept].all() and not film.rendered[kept:].any()
+    assert np.array_equal(film.pixels[:kept], local.film.pixels[:kept])
+    assert not film.pixels[kept:].any()
+    assert partial.layers.samples[kept:].sum() == 0
 
 
 def test_a_failing_task_names_the_worker_and_the_error_in_one_line(cluster):
