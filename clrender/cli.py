@@ -469,11 +469,11 @@ def error_lines(errors: dict[str, dict], result, reference: Reference | None) ->
 def command_render(args: argparse.Namespace) -> int:
     args.outputs_written = False  # an interrupt that escapes says whether the files were written
     with interrupts.signals_blocked():  # SciPy and OpenEXR initialise whole
+        import clrender.report  # noqa: F401 (for finish_render)
         from clrender.estimators import pairing_advice
-        from clrender.outputs import output_paths, render_labels, write_outputs
+        from clrender.outputs import output_paths, render_labels
         from clrender.pipeline import render
         from clrender.progress import ProgressBar
-        from clrender.report import json_ready, summary_json, summary_lines
         from clrender.runtime import thread_build_seconds
 
     # Set-up with the ending signals blocked: one that comes is acted on when it is done, not
@@ -514,23 +514,37 @@ def command_render(args: argparse.Namespace) -> int:
         settings = settings_from_args(args, *size)
         labels = render_labels(label, scene, max_depth, roulette)
         reference = load_reference(args, settings, labels)
-    progress = ProgressBar(
-        f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
-    )
-    try:
-        if not cluster:
-            result = render(runtime, source, settings, progress)
-            result.stats.setup_compile_seconds = setup_compile
-        else:  # its workers' devices and source builds (clrender.cluster), not this process's
-            result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
-    finally:
-        progress.close()
+    # From the end of the render's work to the command's end a signal is held (the render
+    # calls interrupts.work_done): the finished pixels are written and the summary printed,
+    # and the status reports it
+    with interrupts.held_once_done() as held:
+        progress = ProgressBar(
+            f"{label} {settings.width}x{settings.height}", enabled=False if args.quiet else None
+        )
+        try:
+            if not cluster:
+                result = render(runtime, source, settings, progress)
+                result.stats.setup_compile_seconds = setup_compile
+            else:  # its workers' devices and source builds (clrender.cluster), not this one's
+                result = render_on_cluster(args, scene, settings, max_depth, roulette, progress)
+        finally:
+            progress.close()
+        return finish_render(args, result, labels, paths, reference, held)
+
+
+def finish_render(args: argparse.Namespace, result, labels, paths, reference, held) -> int:
+    """Write a render's images and print its summary; the command's status. `held`: the
+    ending signals held since the render's work was done (more come in while writing)."""
+    from clrender.outputs import write_outputs
+    from clrender.report import json_ready, summary_json, summary_lines
+
     # the device and precision that rendered it: a cluster's, its workers'
     labels = dataclasses.replace(
         labels, device=result.device, device_precision=result.device_precision
     )
-    # From here a signal is held until the finished pixels are written (or found to be none)
-    with interrupts.signals_held() as held:
+    # Every signal is held until the finished pixels are written (or found to be none), also
+    # where none was asked to be held (in-process runs)
+    with interrupts.signals_held(held):
         rendered = max(film.rendered_count for film in result.films.values())
         if result.stats.interrupted and rendered == 0:
             # Nothing to save: an all-black partial image would replace the previous one
@@ -610,12 +624,12 @@ def command_scenes(args: argparse.Namespace) -> int:
 
 
 def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> int:
-    """The command's status; held_signals: the signals that came while the images were
-    written (the render itself reports an interrupt in its stats)."""
+    """The command's status; held_signals: the signals that came once the render's work was
+    done (the render itself reports an interrupt in its stats)."""
     if held_signals and not result.stats.interrupted:
         print(
-            f"clrender: interrupted ({signal.Signals(held_signals[-1]).name}) while the "
-            "finished images were written: they are complete",
+            f"clrender: interrupted ({signal.Signals(held_signals[-1]).name}) after the last "
+            "pixel: the images are complete",
             file=sys.stderr,
         )
         return interrupts.exit_status(held_signals[-1])

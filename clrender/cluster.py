@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from clrender import interrupts
 from clrender.errors import ClrenderError, ParameterError
 from clrender.film import Film, PixelLayers
 from clrender.pipeline import (
@@ -542,6 +543,7 @@ def render_on(
             # and returns its finished tiles: the render ends there, as if interrupted here
             if part.stats.interrupted:
                 raise KeyboardInterrupt
+        interrupts.work_done()  # a command holds the signals from here (clrender.interrupts)
     except KeyboardInterrupt:
         stats.interrupted = True
     finally:

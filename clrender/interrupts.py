@@ -8,12 +8,14 @@ exits with 128 + the number of the signal that interrupted it, as a shell report
 signal ended (130 for Ctrl-C). Only the first one interrupts: one that comes while the render
 finishes its work in flight and the images are written is reported and does not lose them
 (SIGQUIT, Ctrl-\\, still quits at once).
-While the images are written every one of these signals is held (`signals_held`) and reported
-after the files are complete. While libraries load, the runtime is set up and OpenCL programs
-build, the signals are blocked (`signals_blocked`): a signal there interrupted an extension
-module's initialisation (an ImportError traceback) or a system call inside the OpenCL
-compiler ("1 error generated."); blocked, it is delivered, and ends the command in one line,
-right after that step.
+From the moment the render's work is done (`work_done`, called by the render) to the command's
+end every one of these signals is held (`held_once_done`; `signals_held` while the images are
+written) and reported after the files are complete; after the command, as the process ends, a
+signal takes its default action (it ends the process: no traceback). While libraries load, the
+runtime is set up and OpenCL programs build, the signals are blocked (`signals_blocked`): a
+signal there interrupted an extension module's initialisation (an ImportError traceback) or a
+system call inside the OpenCL compiler ("1 error generated."); blocked, it is delivered, and
+ends the command in one line, right after that step.
 """
 
 from __future__ import annotations
@@ -42,10 +44,20 @@ class SignalInterrupt(KeyboardInterrupt):
 _received: list[int] = []
 
 
+# A command's hold after its render (`held_once_done`): the list its signals go to while it
+# waits for the render ([] outside), and the same list once the render's work is done.
+_asked: list[list[int]] = []
+_holding: list[list[int]] = []
+
+
 def _interrupt_once(signum: int, frame) -> None:
     """The first ending signal interrupts; a later one only says that the finished work is
-    being saved (raised there, it would stop the saving and lose it)."""
+    being saved (raised there, it would stop the saving and lose it). Once a render's work is
+    done in a command that holds the signals from there (`held_once_done`), one is held."""
     _received.append(signum)
+    if _holding:
+        _holding[0].append(signum)
+        return
     if len(_received) == 1:
         raise SignalInterrupt(signum)
     # (stderr may be a terminal that closed, the SIGHUP: the saving goes on)
@@ -58,24 +70,51 @@ def _interrupt_once(signum: int, frame) -> None:
 
 
 @contextlib.contextmanager
-def _handlers(signals: tuple[int, ...], handler) -> Iterator[None]:
-    """`handler` for the signals while the block runs; the previous handlers after it."""
+def _handlers(signals: tuple[int, ...], handler, after=None) -> Iterator[None]:
+    """`handler` for the signals while the block runs; after it `after`, else the previous
+    handlers."""
     previous = {signum: signal.signal(signum, handler) for signum in signals}
     try:
         yield
     finally:
         for signum, old in previous.items():
-            signal.signal(signum, old)
+            signal.signal(signum, old if after is None else after)
 
 
 @contextlib.contextmanager
 def ending_signals_interrupt() -> Iterator[None]:
     """The first SIGINT, SIGTERM or SIGHUP raises SignalInterrupt while the block runs (main
     thread only), later ones are reported (`_interrupt_once`); signals the process was started
-    with ignored (`nohup` ignores SIGHUP, a background job SIGINT) stay ignored."""
+    with ignored (`nohup` ignores SIGHUP, a background job SIGINT) stay ignored. After the
+    block (the command's end: the process exits) they take their default action: one that
+    comes as the interpreter shuts down ends the process, and the shell reports the signal
+    (Python's own SIGINT handler printed a KeyboardInterrupt traceback there)."""
     _received.clear()
-    with _handlers(_not_ignored(), _interrupt_once):
+    with _handlers(_not_ignored(), _interrupt_once, after=signal.SIG_DFL):
         yield
+
+
+@contextlib.contextmanager
+def held_once_done() -> Iterator[list[int]]:
+    """For a command that renders, then saves and reports: from the moment its render's work
+    is done (the render calls `work_done`) to the block's end, an ending signal does not
+    interrupt (under ending_signals_interrupt): it is added to the list the block gets, for the
+    command to report once its files are written. Before that moment the first one interrupts
+    the render, which returns its finished work."""
+    held: list[int] = []
+    _asked[:] = [held]
+    try:
+        yield held
+    finally:
+        _asked.clear()
+        _holding.clear()
+
+
+def work_done() -> None:
+    """A render's interruptible work is done: called as its last step inside its own interrupt
+    handling (an interrupt before the call is the render's), it starts the hold of a command
+    that asked for one (`held_once_done`); elsewhere it does nothing."""
+    _holding[:] = _asked  # one step: a signal finds the hold either not begun or begun
 
 
 def _not_ignored() -> tuple[int, ...]:
@@ -84,9 +123,10 @@ def _not_ignored() -> tuple[int, ...]:
 
 
 @contextlib.contextmanager
-def signals_held() -> Iterator[list[int]]:
-    """Hold SIGINT, SIGTERM and SIGHUP while the block runs; the list gets those that came."""
-    received: list[int] = []
+def signals_held(received: list[int] | None = None) -> Iterator[list[int]]:
+    """Hold SIGINT, SIGTERM and SIGHUP while the block runs; the list (`received`, else a new
+    one) gets those that came."""
+    received = [] if received is None else received
     with _handlers(_not_ignored(), lambda number, frame: received.append(number)):
         yield received
 

@@ -88,6 +88,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pyopencl as cl
 
+from clrender import interrupts
 from clrender.errors import ParameterError
 from clrender.estimators import image
 from clrender.estimators.device_cells import (
@@ -1138,7 +1139,7 @@ def render(
     pipeline = TilePipeline(runtime, source, settings)
     tiles = plan_tiles(pipeline.settings)
     start = time.perf_counter()
-    pipeline.run(tiles, progress)
+    pipeline.run(tiles, progress, on_done=interrupts.work_done)
     pipeline.stats.wall_seconds = time.perf_counter() - start
     tracer = getattr(source, "tracer", None)
     return RenderResult(

@@ -227,7 +227,7 @@ def test_a_signal_held_while_writing_gives_its_own_status(capsys, monkeypatch):
     held = [int(signal.SIGTERM)]
     assert cli.exit_status(args, fake_result(0, 0, False), held_signals=held) == 143
     # The render was complete: so are its images (not "partial")
-    assert "while the finished images were written: they are complete" in capsys.readouterr().err
+    assert "after the last pixel: the images are complete" in capsys.readouterr().err
     # An interrupted render: the status is the interrupting signal's (Python's own Ctrl-C
     # here, none recorded), not the later one's
     monkeypatch.setattr(interrupts, "_received", [])
@@ -406,25 +406,63 @@ def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment
     assert (tmp_path / "old.exr").read_bytes() == b"a previous image"
 
 
+# The moments after the render's last pixel where a signal is sent (the first call of a
+# function met there): the estimator thread still joined as the render's thread pool closes,
+# the result built, the progress bar closed, the images written (the errors against a
+# reference computed), the summary printed
+AFTER_THE_LAST_PIXEL = {
+    "pool-closing": "class Pool(clrender.pipeline.ThreadPoolExecutor):\n"
+    "    __exit__ = interrupting(clrender.pipeline.ThreadPoolExecutor.__exit__)\n"
+    "clrender.pipeline.ThreadPoolExecutor = Pool",
+    "result": "clrender.pipeline.RenderResult = interrupting(clrender.pipeline.RenderResult)",
+    "progress-bar": "import clrender.progress\nclrender.progress.ProgressBar.close = "
+    "interrupting(clrender.progress.ProgressBar.close)",
+    "writing": "import clrender.cli\n"
+    "clrender.cli.reference_errors = interrupting(clrender.cli.reference_errors)",
+    "summary": "import clrender.report\n"
+    "clrender.report.summary_lines = interrupting(clrender.report.summary_lines)",
+}
+
+
 @pytest.mark.device
-def test_a_signal_after_the_last_pixel_still_writes_the_finished_image(tmp_path):
-    # It comes after the render returned and before the files are written: held, the complete
-    # image is written and the command says so (before: nothing written, the render lost)
+@pytest.mark.parametrize("moment", list(AFTER_THE_LAST_PIXEL))
+def test_a_signal_after_the_last_pixel_still_writes_the_finished_image(tmp_path, moment):
+    # It comes after the render's work is done: held, the complete image is written, the
+    # summary printed and the command says so (before: up to the writing, the interrupt ended
+    # the command with nothing written, the render lost; in the summary, it cut it short)
     (tmp_path / "old.exr").write_bytes(b"a previous image")
-    patch = "import clrender.cli\n" + (
-        "clrender.cli.reference_errors = interrupting(clrender.cli.reference_errors)"
+    child = subprocess.run(
+        [sys.executable, "-c", INTERRUPT_AT.format(patch=AFTER_THE_LAST_PIXEL[moment])],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        preexec_fn=default_signals,
     )
+    assert child.returncode == 143, child.stderr
+    assert (
+        child.stderr
+        == "clrender: interrupted (SIGTERM) after the last pixel: the images are complete\n"
+    )
+    assert "wrote old.exr and old.png" in child.stdout
+    assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
+
+
+@pytest.mark.device
+def test_a_signal_as_the_process_exits_ends_it_without_a_traceback(tmp_path):
+    # Ctrl-C after the command returned, as the interpreter shuts down (sent from an atexit
+    # function): the signal's default action ends the process, which the shell reports as
+    # 130 (before: Python's own handler raised a KeyboardInterrupt there, and its traceback
+    # was printed)
+    patch = "import atexit\natexit.register(os.kill, os.getpid(), signal.SIGINT)"
     child = subprocess.run(
         [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
         capture_output=True,
         text=True,
         cwd=tmp_path,
+        preexec_fn=default_signals,
     )
-    assert child.returncode == 143, child.stderr
-    assert child.stderr == (
-        "clrender: interrupted (SIGTERM) while the finished images were written: they are "
-        "complete\n"
-    )
+    assert child.returncode == -signal.SIGINT and child.stderr == "", child.stderr
+    assert "wrote old.exr and old.png" in child.stdout
     assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
 
 
