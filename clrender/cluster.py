@@ -40,7 +40,8 @@ function of the job and the tiles, so the image does not change). A task that ra
 reported in one line naming the worker and the error (`ClusterTaskError`), on the client: the
 task returns its failure as a value, so the workers log no traceback for it. Ctrl-C cancels
 the outstanding tasks; the finished pixels are returned with `stats.interrupted` set, as a
-local render returns its finished tiles.
+local render returns its finished tiles. On LocalExecutor a task's own pipeline catches Ctrl-C:
+its interrupted result ends the render the same way (no later task runs).
 """
 
 from __future__ import annotations
