@@ -49,7 +49,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
@@ -150,6 +152,7 @@ class DaskExecutor(ClosingExecutor):
                 processes=True,
                 dashboard_address=":0",
                 silence_logs=logging.ERROR,
+                preload=[__name__],  # dask_setup: the workers leave Ctrl-C to this process
             )
             self.client = Client(self.cluster, timeout=CONNECT_TIMEOUT_S)
 
@@ -202,6 +205,15 @@ class DaskExecutor(ClosingExecutor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def dask_setup(worker) -> None:
+    """Run in each worker process of a LocalCluster this process starts (its preload module),
+    on the worker's main thread: Ctrl-C at a terminal reaches the whole process group, and this
+    process handles it (it cancels the tasks and closes the cluster), so the workers ignore
+    SIGINT (each printed a KeyboardInterrupt traceback as it stopped)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def task_placement(nthreads: dict[str, int], tasks: int) -> list[str] | None:

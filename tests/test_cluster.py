@@ -146,6 +146,14 @@ def test_an_interrupted_task_of_the_local_executor_ends_the_render(runtime, monk
     assert partial.layers.samples[kept:].sum() == 0
 
 
+def test_local_cluster_workers_leave_ctrl_c_to_the_client(cluster):
+    # Ctrl-C at a terminal reaches the workers of a LocalCluster too (one process group): they
+    # ignore it, the client cancels the tasks and closes the cluster (before: each worker
+    # printed a KeyboardInterrupt traceback)
+    handlers = cluster.client.run(lambda: signal.getsignal(signal.SIGINT))
+    assert len(handlers) == 2 and set(handlers.values()) == {signal.SIG_IGN}
+
+
 def test_a_failing_task_names_the_worker_and_the_error_in_one_line(cluster):
     job = RenderJob(
         "analytic:mix", 8, 8, make_sampler("sppp", 4), ("vor_sn",), device="no-such-device"
