@@ -12,11 +12,15 @@ import os
 import sys
 
 
-def run() -> int:
+def run(exiting: bool = False) -> int:
+    """The command line's command; its exit status. exiting: the command is the whole process
+    (the `clrender` script, `python -m clrender`), whose ending signals then take their
+    default action (clrender.interrupts.ending_signals_interrupt); else the caller's handlers
+    come back."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from clrender import interrupts
 
-    with interrupts.ending_signals_interrupt():
+    with interrupts.ending_signals_interrupt(exiting):
         try:
             with interrupts.signals_blocked():  # NumPy, pyopencl, OpenEXR initialise whole
                 from clrender.cli import main
@@ -30,5 +34,20 @@ def run() -> int:
             return 141  # 128 + SIGPIPE, as a shell reports a writer the pipe ended
 
 
+def entry() -> None:
+    """The `clrender` script: the command is the whole process."""
+    sys.exit(run(exiting=True))
+
+
+def _run_by_python_m() -> bool:
+    """Whether this process is `python [options] -m clrender` (IPython's `%run -m clrender`
+    runs this module as __main__ too, inside a process that goes on)."""
+    arguments = getattr(sys, "orig_argv", [])
+    return any(
+        argument == "-mclrender" or (argument == "-m" and following == "clrender")
+        for argument, following in zip(arguments, [*arguments[1:], ""], strict=True)
+    )
+
+
 if __name__ == "__main__":
-    sys.exit(run())
+    sys.exit(run(exiting=_run_by_python_m()))

@@ -569,7 +569,7 @@ def finish_render(args: argparse.Namespace, result, labels, paths, reference, he
         print("\n".join(summary_lines(result, labels) + error_lines(errors, result, reference)))
         for pair in outputs.values():
             print(f"wrote {pair.exr} and {pair.png}")
-    return exit_status(args, result, held)
+    return exit_status(args, result, interrupts.take_held(held))
 
 
 def render_on_cluster(args: argparse.Namespace, scene, settings, max_depth, roulette, progress):

@@ -46,6 +46,7 @@ its interrupted result ends the render the same way (no later task runs).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -446,7 +447,6 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
     those of a local render of the whole image."""
     set_up = time.perf_counter()
     from clrender.api import runtime_for
-    from clrender.estimators.device_cells import resolve_precision
 
     first, end = pixel_range
     built = thread_build_seconds()
@@ -456,12 +456,37 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
     pipeline = TilePipeline(runtime, source, job.settings())
     start = time.perf_counter()
     pipeline.run(range(first, end, pixels_per_tile(pipeline.settings)), None, end)
+    # Its finished range is handed back whole: a signal while it is gathered (a task run in
+    # this process's main thread, LocalExecutor) is held and ends the render after this task
+    with _held_in_main_thread() as held:
+        result = _range_result(pipeline, source, runtime, (first, end), start, set_up)
+    result.stats.setup_compile_seconds = source_builds
+    result.stats.interrupted |= bool(held)
+    return result
+
+
+@contextlib.contextmanager
+def _held_in_main_thread() -> Iterator[list[int]]:
+    """interrupts.signals_held on the main thread (signal handlers are set there only);
+    elsewhere nothing is held (a signal reaches the main thread)."""
+    if threading.current_thread() is threading.main_thread():
+        with interrupts.signals_held() as held:
+            yield held
+    else:
+        yield []
+
+
+def _range_result(
+    pipeline: TilePipeline, source, runtime, pixel_range: tuple[int, int], start, set_up
+) -> PixelRangeResult:
+    from clrender.estimators.device_cells import resolve_precision
+
+    first, end = pixel_range
     pipeline.stats.wall_seconds = time.perf_counter() - start
-    pipeline.stats.setup_compile_seconds = source_builds
     setup_seconds = start - set_up + pipeline.stats.main_compile_seconds
     pixels = np.arange(first, end, dtype=np.int64)
     layers = pipeline.layers
-    first = pipeline.first_draw_layers
+    first_draw = pipeline.first_draw_layers
     return PixelRangeResult(
         pixels,
         {name: film.pixels[pixels] for name, film in pipeline.films.items()},
@@ -470,8 +495,8 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
         layers.redraws[pixels],
         layers.variance[pixels],
         None
-        if first is None
-        else (first.samples[pixels], first.redraws[pixels], first.variance[pixels]),
+        if first_draw is None
+        else (first_draw.samples[pixels], first_draw.redraws[pixels], first_draw.variance[pixels]),
         pipeline.stats,
         runtime.describe(),
         resolve_precision(runtime, "auto"),

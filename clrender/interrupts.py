@@ -10,8 +10,12 @@ finishes its work in flight and the images are written is reported and does not 
 (SIGQUIT, Ctrl-\\, still quits at once).
 From the moment the render's work is done (`work_done`, called by the render) to the command's
 end every one of these signals is held (`held_once_done`; `signals_held` while the images are
-written) and reported after the files are complete; after the command, as the process ends, a
-signal takes its default action (it ends the process: no traceback). While libraries load, the
+written) and reported after the files are complete; one that comes after the command took its
+status is delivered again as the command ends (`ending_signals_interrupt`), so that it is
+never lost. Where the command is the whole process (`exiting`: the `clrender` script,
+`python -m clrender`) the signals then take their default action, the output flushed first: one
+that comes as the interpreter shuts down ends the process, no traceback; a program that runs
+the command itself keeps its own handlers. While libraries load, the
 runtime is set up and OpenCL programs build, the signals are blocked (`signals_blocked`): a
 signal there interrupted an extension module's initialisation (an ImportError traceback) or a
 system call inside the OpenCL compiler ("1 error generated."); blocked, it is delivered, and
@@ -45,9 +49,12 @@ _received: list[int] = []
 
 
 # A command's hold after its render (`held_once_done`): the list its signals go to while it
-# waits for the render ([] outside), and the same list once the render's work is done.
+# waits for the render ([] outside), and the same list once the render's work is done (kept
+# until ending_signals_interrupt ends, which delivers what the command did not take).
 _asked: list[list[int]] = []
 _holding: list[list[int]] = []
+# Whether ending_signals_interrupt is on (its handler feeds the hold until it ends)
+_interrupting: list[bool] = []
 
 
 def _interrupt_once(signum: int, frame) -> None:
@@ -70,44 +77,80 @@ def _interrupt_once(signum: int, frame) -> None:
 
 
 @contextlib.contextmanager
-def _handlers(signals: tuple[int, ...], handler, after=None) -> Iterator[None]:
-    """`handler` for the signals while the block runs; after it `after`, else the previous
-    handlers."""
+def _handlers(signals: tuple[int, ...], handler) -> Iterator[None]:
+    """`handler` for the signals while the block runs; the previous handlers after it."""
     previous = {signum: signal.signal(signum, handler) for signum in signals}
     try:
         yield
     finally:
         for signum, old in previous.items():
-            signal.signal(signum, old if after is None else after)
+            signal.signal(signum, old)
 
 
 @contextlib.contextmanager
-def ending_signals_interrupt() -> Iterator[None]:
+def ending_signals_interrupt(exiting: bool = False) -> Iterator[None]:
     """The first SIGINT, SIGTERM or SIGHUP raises SignalInterrupt while the block runs (main
     thread only), later ones are reported (`_interrupt_once`); signals the process was started
     with ignored (`nohup` ignores SIGHUP, a background job SIGINT) stay ignored. After the
-    block (the command's end: the process exits) they take their default action: one that
-    comes as the interpreter shuts down ends the process, and the shell reports the signal
-    (Python's own SIGINT handler printed a KeyboardInterrupt traceback there)."""
+    block the previous handlers come back, or with `exiting` (the block is the whole process)
+    the default actions, stdout and stderr flushed first: a signal as the interpreter shuts
+    down then ends the process, and the shell reports it (Python's own SIGINT handler printed
+    a KeyboardInterrupt traceback, and a signal's default action drops unflushed output). A
+    signal a command held after it took its status (`take_held`) is then delivered again."""
     _received.clear()
-    with _handlers(_not_ignored(), _interrupt_once, after=signal.SIG_DFL):
+    signals = _not_ignored()
+    previous = {signum: signal.signal(signum, _interrupt_once) for signum in signals}
+    _interrupting[:] = [True]
+    try:
         yield
+    finally:
+        if exiting:
+            for stream in (sys.stdout, sys.stderr):
+                with contextlib.suppress(OSError, ValueError, AttributeError):
+                    stream.flush()
+        for signum, old in previous.items():
+            signal.signal(signum, signal.SIG_DFL if exiting else old)
+        # (the handlers are replaced: nothing joins the hold from here)
+        late = list(_holding[0]) if _holding else []
+        _interrupting.clear()
+        _asked.clear()
+        _holding.clear()
+        if late:
+            with contextlib.suppress(OSError):
+                print(
+                    f"clrender: interrupted ({signal.Signals(late[-1]).name}) after the last "
+                    "pixel: the images are complete",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            signal.raise_signal(late[-1])
 
 
 @contextlib.contextmanager
 def held_once_done() -> Iterator[list[int]]:
     """For a command that renders, then saves and reports: from the moment its render's work
-    is done (the render calls `work_done`) to the block's end, an ending signal does not
+    is done (the render calls `work_done`) to the command's end, an ending signal does not
     interrupt (under ending_signals_interrupt): it is added to the list the block gets, for the
-    command to report once its files are written. Before that moment the first one interrupts
-    the render, which returns its finished work."""
+    command to take (`take_held`) and report once its files are written; one that comes
+    after that is delivered as ending_signals_interrupt ends. Before that moment the first one
+    interrupts the render, which returns its finished work."""
     held: list[int] = []
     _asked[:] = [held]
     try:
         yield held
     finally:
         _asked.clear()
-        _holding.clear()
+        if not _interrupting:  # else the hold goes on to the end of ending_signals_interrupt
+            _holding.clear()
+
+
+def take_held(held: list[int]) -> list[int]:
+    """The signals held so far, taken off the list (the command reports them; later ones stay
+    and are delivered as the command ends)."""
+    count = len(held)
+    taken = held[:count]
+    del held[:count]
+    return taken
 
 
 def work_done() -> None:

@@ -1032,6 +1032,10 @@ class TilePipeline:
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
+                if self.settings.overlap:
+                    # The thread starts before a tile is handed over: the pool joins only the
+                    # threads it has listed, which an interrupt inside Thread.start leaves out
+                    pool.submit(int).result()
                 queued: QueuedTile | None = None
                 for start in tiles:
                     self.finish_in_flight(progress)

@@ -146,6 +146,38 @@ def test_an_interrupted_task_of_the_local_executor_ends_the_render(runtime, monk
     assert partial.layers.samples[kept:].sum() == 0
 
 
+def test_a_signal_as_a_local_task_hands_its_range_back_keeps_it(runtime, monkeypatch):
+    """Ctrl-C while the second task of a render on the local executor gathers its finished
+    range (after its pipeline returned): the range is kept whole and the render stops there,
+    interrupted (before: the interrupt lost the whole range)."""
+    from clrender import api, cluster
+
+    options = dict(spp=16, sampler="independent", estimator="mc", resolution=(24, 16), seed=2)
+    local = api.render("analytic:mix", tile_samples=16 * 16, **options)
+    real_result, calls = cluster.PixelRangeResult, []
+
+    def interrupted_result(*args):
+        calls.append(1)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+        return real_result(*args)
+
+    monkeypatch.setattr(cluster, "PixelRangeResult", interrupted_result)
+    # Ctrl-C as at a terminal (a test run in the background ignores SIGINT)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        partial = api.render(
+            "analytic:mix", tile_samples=16 * 16, executor=LocalExecutor(), **options
+        )
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    kept = split_pixels(24 * 16, TASKS_PER_WORKER)[1][1]
+    assert partial.stats.interrupted and len(calls) == 2
+    assert partial.film.rendered[:kept].all() and not partial.film.rendered[kept:].any()
+    assert np.array_equal(partial.film.pixels[:kept], local.film.pixels[:kept])
+
+
 def test_local_cluster_workers_leave_ctrl_c_to_the_client(cluster):
     # Ctrl-C at a terminal reaches the workers of a LocalCluster too (one process group): they
     # ignore it, the client cancels the tasks and closes the cluster (before: each worker

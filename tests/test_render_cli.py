@@ -343,7 +343,7 @@ sent = []
 builtins.__import__ = interrupting_import
 sys.argv = ["clrender", "render", "analytic", "--res", "8", "-o", "never.exr"]
 from clrender.__main__ import run
-sys.exit(run())
+sys.exit(run(exiting=True))
 """
 
 
@@ -381,7 +381,7 @@ sent = []
 {patch}
 sys.argv = ["clrender", "render", "cornell-box", "--res", "8", "--spp", "8", "-o", "old.exr"]
 from clrender.__main__ import run
-sys.exit(run())
+sys.exit(run(exiting=True))
 """
 PATCHES = {
     "building": "cl.Program.build = interrupting(cl.Program.build)",
@@ -466,6 +466,95 @@ def test_a_signal_as_the_process_exits_ends_it_without_a_traceback(tmp_path):
     assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
 
 
+def test_a_signal_after_the_status_is_delivered_as_the_command_ends(tmp_path):
+    # SIGTERM once the command has taken its status (the held signals reported): it is
+    # delivered again as the command ends, the signal's default action ends the process, and
+    # the line says the images are complete (before: held and dropped, status 0, no line)
+    patch = (
+        "import clrender.cli\n"
+        "clrender.cli.exit_status = (lambda real: lambda *a: (real(*a), "
+        "os.kill(os.getpid(), signal.SIGTERM))[0])(clrender.cli.exit_status)"
+    )
+    child = subprocess.run(
+        [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        preexec_fn=default_signals,
+    )
+    assert child.returncode == -signal.SIGTERM, child.stderr
+    assert (
+        child.stderr
+        == "clrender: interrupted (SIGTERM) after the last pixel: the images are complete\n"
+    )
+    assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
+
+
+# The command inside a program that goes on (as IPython's `%run -m clrender`, runpy): its
+# handlers come back, and a signal after the command reaches them
+RUN_INSIDE_A_PROGRAM = """
+import os, signal, sys, time
+sys.argv = ["clrender", "render", "analytic", "--res", "8", "--spp", "4", "--json", "-o", "a.exr"]
+from clrender.__main__ import run
+status = run()
+print("handler back:", signal.getsignal(signal.SIGINT) is signal.default_int_handler)
+try:
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)  # (the handler runs at once: the sleep ends with its KeyboardInterrupt)
+except KeyboardInterrupt:
+    print("the program caught Ctrl-C after the command, status", status)
+"""
+
+
+def test_the_command_inside_a_program_gives_its_handlers_back(tmp_path):
+    child = subprocess.run(
+        [sys.executable, "-c", RUN_INSIDE_A_PROGRAM],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        preexec_fn=default_signals,
+    )
+    assert child.returncode == 0, child.stderr
+    assert "handler back: True" in child.stdout
+    assert "the program caught Ctrl-C after the command, status 0" in child.stdout
+
+
+def test_the_output_is_flushed_before_the_signals_take_their_default_action(tmp_path):
+    # Ctrl-C right after the command returned, stdout a pipe (block-buffered): the summary is
+    # out before the default action can end the process (before: the JSON was lost)
+    script = RUN_INSIDE_A_PROGRAM.split("status = run()")[0] + (
+        "status = run(exiting=True)\nos.kill(os.getpid(), signal.SIGINT)\n"
+    )
+    environment = {key: value for key, value in os.environ.items() if key != "PYTHONUNBUFFERED"}
+    child = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env=environment,
+        preexec_fn=default_signals,
+    )
+    assert child.returncode == -signal.SIGINT, child.stderr
+    assert '"partial": 0' in child.stdout or '"partial": false' in child.stdout, child.stdout
+
+
+@pytest.mark.parametrize(
+    "arguments, expected",
+    [
+        (["python", "-m", "clrender", "render"], True),
+        (["python", "-X", "dev", "-mclrender"], True),
+        (["python", "/usr/bin/ipython", "-c", "%run -m clrender"], False),
+        (["python", "-m", "clrender.__main__"], False),
+        (["python", "-c", "import clrender"], False),
+    ],
+)
+def test_the_process_is_python_m_clrender(monkeypatch, arguments, expected):
+    from clrender.__main__ import _run_by_python_m
+
+    monkeypatch.setattr(sys, "orig_argv", arguments)
+    assert _run_by_python_m() is expected
+
+
 # A 32 x 32 render of many tiles in a child process whose estimator stage `estimate(self,
 # tile)` (defined by the patch, counting its calls in `estimates`) replaces TilePipeline's;
 # main_thread_in(name) tells whether the main thread is inside a function of that name.
@@ -485,7 +574,7 @@ TilePipeline.estimate = estimate
 sys.argv = ["clrender", "render", "cornell-box", "--res", "32", "--spp", "8", "--tile-samples",
             "2048", "-o", "out.exr"]
 from clrender.__main__ import run
-sys.exit(run())
+sys.exit(run(exiting=True))
 """
 
 

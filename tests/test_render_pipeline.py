@@ -220,8 +220,10 @@ def test_an_interrupt_right_after_an_estimate_is_handed_over_keeps_it(runtime, m
     submitted = []
 
     class InterruptedPool(ThreadPoolExecutor):
-        def submit(self, *args, **kwargs):
-            future = super().submit(*args, **kwargs)
+        def submit(self, function, *args, **kwargs):
+            future = super().submit(function, *args, **kwargs)
+            if function is int:  # (the thread's start)
+                return future
             submitted.append(future)
             if len(submitted) == 2:
                 raise KeyboardInterrupt
@@ -264,6 +266,68 @@ def test_an_interrupt_while_an_estimate_is_recorded_keeps_it(runtime, monkeypatc
     assert result.stats.interrupted
     assert film.rendered[:two_tiles].all() and not film.rendered[two_tiles:].any()
     assert np.array_equal(film.pixels[:two_tiles], full.pixels[:two_tiles])
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_an_estimate_recorded_again_after_an_interrupt_counts_once(runtime, monkeypatch, overlap):
+    """Ctrl-C after tile 1's estimate was recorded, before the render let go of it: run()'s
+    handler records it again (same pixels) and its counts are on the stats once."""
+    from clrender.pipeline import TilePipeline
+
+    config = settings("independent", "mc", tile_samples=100 * 16, overlap=overlap)
+    real_estimate, real_record = TilePipeline.estimate, TilePipeline.record
+    records = []
+
+    def estimate(pipeline, tile):
+        result = real_estimate(pipeline, tile)
+        result.nonfinite_samples = 1  # one per tile, to count the recordings by
+        return result
+
+    def record(pipeline, result):
+        real_record(pipeline, result)
+        records.append(1)
+        if len(records) == 2:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(TilePipeline, "estimate", estimate)
+    monkeypatch.setattr(TilePipeline, "record", record)
+    result = render(runtime, analytic_source(runtime), config)
+    assert result.stats.interrupted and len(records) == 3
+    assert result.stats.nonfinite_samples == 2
+
+
+def test_an_interrupt_as_the_estimator_thread_starts_leaves_no_estimate_running(
+    runtime, monkeypatch
+):
+    """Ctrl-C inside the estimator thread's start (as its pool lists it): no tile has been
+    handed over, and none is estimated after the render returned (before: tile 0's estimate
+    ran on in a thread the pool did not join, and was not kept)."""
+    import threading
+    import time
+
+    from clrender.pipeline import TilePipeline
+
+    config = settings("independent", "mc", tile_samples=100 * 16, overlap=True)
+    real_estimate, real_start = TilePipeline.estimate, threading.Thread.start
+    estimates, starts = [], []
+
+    def estimate(pipeline, tile):
+        estimates.append(1)
+        return real_estimate(pipeline, tile)
+
+    def start(thread):
+        real_start(thread)
+        starts.append(1)
+        if len(starts) == 1:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(TilePipeline, "estimate", estimate)
+    monkeypatch.setattr(threading.Thread, "start", start)
+    result = render(runtime, analytic_source(runtime), config)
+    returned_with = len(estimates)
+    time.sleep(0.3)
+    assert result.stats.interrupted and result.film.rendered_count == 0
+    assert returned_with == len(estimates) == 0
 
 
 def test_stages_are_timed_on_the_device_clock_without_a_wait_each(runtime):
