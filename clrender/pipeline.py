@@ -27,7 +27,8 @@ max(device, host) instead of their sum. The device is kept fed: tile k + 1's sam
 trace, device sums and reads are queued (queue_tile) before the host waits for tile k's results
 (QueuedTile.collect), so the device does not idle while the host reads one tile and prepares
 the next; at most two tiles are held at once. (SPPP's sample sets read their Poisson counts
-back before the fill, which waits for the work queued before them.)
+back before the fill: the count pass runs on the runtime's side queue, so that read waits for
+it alone, not for the tile in flight.)
 
 Rejections: a pixel whose SPPP tessellation leaves a nucleus of W with an unbounded cell is
 redrawn through clrender.estimators.estimate_with_redraw: its sample set is generated again with
@@ -546,7 +547,10 @@ class StageClock:
     compile time. On a queue that records when its commands run (Runtime.profiled: the
     runtimes clrender makes), a stage is timed on the device's clock, between a marker queued
     as it starts and one queued as it ends: from the device being free for it (done with the
-    work queued before it, or idle) until its commands are done. Its commands are queued
+    work queued before it, or idle) until its commands are done, plus the device time of the
+    commands it ran on another queue and handed to the clock (`with clock.stage(name) as side:
+    side.append(event)`; SPPP's count pass on Runtime.side_queue, which may run beside the
+    work queued before the stage). Its commands are queued
     without a wait: the device runs a tile's stages back to back and the tile waits once, for
     its results; settle() then adds the stages' times to the stats. A stage that met a program
     build (a first use in the process), and every stage on a queue without profiling, ends
@@ -562,18 +566,21 @@ class StageClock:
         profiling = cl.command_queue_properties.PROFILING_ENABLE
         self.profiled = queue is not None and bool(queue.properties & profiling)
         # stages queued and not yet settled: (name, start marker, end marker, main-thread
-        # seconds of the queuing)
-        self.queued: list[tuple[str, cl.Event, cl.Event, float]] = []
+        # seconds of the queuing, the events of its commands on other queues)
+        self.queued: list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]] = []
 
     @contextmanager
-    def stage(self, name: str) -> Iterator[None]:
+    def stage(self, name: str) -> Iterator[list[cl.Event]]:
+        """Time the commands queued inside the block as the stage `name`; the block may append
+        to the list it is given the events of commands it ran on another queue."""
         start, built = time.perf_counter(), thread_build_seconds()
         first = None
+        side: list[cl.Event] = []
         if self.profiled:
             first = cl.enqueue_marker(self.queue)
             self.queue.flush()  # a driver that batches commands starts the clock now
         try:
-            yield
+            yield side
         finally:
             compile_seconds = thread_build_seconds() - built
             self.stats.compile_seconds += compile_seconds
@@ -581,28 +588,32 @@ class StageClock:
             if first is not None and compile_seconds == 0:
                 last = cl.enqueue_marker(self.queue)
                 self.queue.flush()
-                self.queued.append((name, first, last, time.perf_counter() - start))
+                self.queued.append((name, first, last, time.perf_counter() - start, side))
             else:
                 if self.queue is not None:
                     self.queue.finish()
                 self.add(name, max(time.perf_counter() - start - compile_seconds, 0.0))
 
-    def take(self) -> list[tuple[str, cl.Event, cl.Event, float]]:
+    def take(self) -> list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]]:
         """The stages queued so far, to settle later (a queued tile's: QueuedTile)."""
         taken, self.queued = self.queued, []
         return taken
 
-    def settle(self, stages: list[tuple[str, cl.Event, cl.Event, float]] | None = None) -> None:
+    def settle(
+        self, stages: list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]] | None = None
+    ) -> None:
         """Wait for the given stages (taken earlier), or for those queued since the last take,
         and add their device times to the stats. Done already after a blocking read of their
         results; a later tile's stages queued behind them are not waited for."""
         if stages is None:
             stages = self.take()
-        for name, first, last, queuing_seconds in stages:
-            last.wait()
+        for name, first, last, queuing_seconds, side in stages:
+            for event in (last, *side):
+                event.wait()
             try:
                 seconds = (last.profile.end - first.profile.end) * 1e-9
-            except cl.Error:  # profiling information not available for markers here
+                seconds += sum(event.profile.end - event.profile.start for event in side) * 1e-9
+            except cl.Error:  # profiling information not available here
                 seconds = queuing_seconds
             self.add(name, seconds)
 
@@ -652,10 +663,11 @@ def queue_tile(
     reads of what comes to the host): the host may queue the next tile's before it waits for
     this one's (QueuedTile.collect). A source computed on the host (an analytic image) waits
     for the sample sets here."""
-    with clock.stage("sample_sets"):
+    with clock.stage("sample_sets") as side:
         device_sets = generate_sample_sets(
             runtime, sampler, seed, pixels, redraws, (source.width, source.height)
         )
+        side.extend(device_sets.side_events)
     with clock.stage("tracing"):
         pending = source.trace(device_sets, seed)
         radiance = pending.to_device(runtime)  # the ray counters are read later

@@ -439,9 +439,9 @@ def test_only_sppp_launches_the_count_pass(runtime, monkeypatch, sampler, counte
     launched = []
     launch = runtime.launch_1d
 
-    def recording(kernel, count, *args):
+    def recording(kernel, count, *args, **kwargs):
         launched.append(kernel.function_name)
-        return launch(kernel, count, *args)
+        return launch(kernel, count, *args, **kwargs)
 
     monkeypatch.setattr(runtime, "launch_1d", recording)
     config = make_sampler(sampler, 16)
