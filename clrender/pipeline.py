@@ -26,9 +26,11 @@ pyopencl, NumPy and Qhull release the GIL in their long calls, so wall time appr
 max(device, host) instead of their sum. The device is kept fed: tile k + 1's sample sets,
 trace, device sums and reads are queued (queue_tile) before the host waits for tile k's results
 (QueuedTile.collect), so the device does not idle while the host reads one tile and prepares
-the next; at most two tiles are held at once. (SPPP's sample sets read their Poisson counts
-back before the fill: the count pass runs on the runtime's side queue, so that read waits for
-it alone, not for the tile in flight.)
+the next; at most two tiles are held at once. SPPP's sample sets read their Poisson counts
+back before the fill: the count pass runs on the runtime's side queue, and tile k + 1's is
+queued before tile k's fill and trace, so its read waits for it alone, not for the tile in
+flight (a device that runs commands in the order they became ready, as PoCL's CPU device,
+would otherwise run it after tile k's trace).
 
 Rejections: a pixel whose SPPP tessellation leaves a nucleus of W with an unbounded cell is
 redrawn through clrender.estimators.estimate_with_redraw: its sample set is generated again with
@@ -110,10 +112,12 @@ from clrender.runtime import Runtime, describe_device, profiling_queue, thread_b
 from clrender.samples import SampleSets
 from clrender.sampling import (
     DeviceSampleSets,
+    PendingCounts,
     SamplerConfig,
     check_seed,
     generate_sample_sets,
     make_sampler,
+    queue_counts,
 )
 from clrender.sppp import auxiliary_count
 
@@ -658,14 +662,22 @@ def queue_tile(
     device_kinds: Sequence[str],
     host_samples: bool,
     clock: StageClock,
+    queued_counts: PendingCounts | None = None,
 ) -> QueuedTile:
     """trace_tile's device work queued without a wait (sample sets, trace, device sums and the
     reads of what comes to the host): the host may queue the next tile's before it waits for
     this one's (QueuedTile.collect). A source computed on the host (an analytic image) waits
-    for the sample sets here."""
+    for the sample sets here. queued_counts: the tile's SPPP count pass, queued earlier
+    (clrender.sampling.queue_counts)."""
     with clock.stage("sample_sets") as side:
         device_sets = generate_sample_sets(
-            runtime, sampler, seed, pixels, redraws, (source.width, source.height)
+            runtime,
+            sampler,
+            seed,
+            pixels,
+            redraws,
+            (source.width, source.height),
+            queued_counts,
         )
         side.extend(device_sets.side_events)
     with clock.stage("tracing"):
@@ -906,9 +918,14 @@ class TilePipeline:
         return self.films[self.settings.estimator.name]
 
     def queue(
-        self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
+        self,
+        pixels: np.ndarray,
+        redraws: np.ndarray,
+        sampler: SamplerConfig | None = None,
+        queued_counts: PendingCounts | None = None,
     ) -> QueuedTile:
-        """Queue a tile's device work (collect: wait for it)."""
+        """Queue a tile's device work (collect: wait for it); queued_counts: its SPPP count
+        pass, queued ahead (count_ahead)."""
         # Tiles use the device cells if configured; redraws go through Qhull in the driver.
         redraw = sampler is not None
         return queue_tile(
@@ -921,7 +938,18 @@ class TilePipeline:
             () if redraw else self.device_kinds,
             redraw or self.host_samples,
             self.clock,
+            queued_counts,
         )
+
+    def count_ahead(self, tiles: range, index: int, end: int | None) -> PendingCounts | None:
+        """Queue the SPPP count pass of tile `index` of `tiles` (None past the last tile or
+        for a sampler with fixed counts)."""
+        sampler = self.settings.sampler
+        if not sampler.is_sppp or index >= len(tiles):
+            return None
+        pixels = tile_pixels(self.settings, tiles[index], end)
+        zeros = np.zeros(len(pixels), np.uint32)
+        return queue_counts(self.runtime, sampler, self.settings.seed, pixels, zeros)
 
     def collect(self, queued: QueuedTile) -> TileSamples:
         tile = queued.collect(self.clock)
@@ -1027,15 +1055,18 @@ class TilePipeline:
         host waits for tile k's results (so at most two tiles are held: one queued, the other
         queued or being estimated). Without overlap, one tile at a time: its device work, then
         its estimate. Tiles are clipped to pixel `end` when they cover a range of the image
-        (clrender.cluster)."""
+        (clrender.cluster). SPPP's count pass of tile k + 1 is queued before tile k's work."""
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
             try:
                 queued: QueuedTile | None = None
-                for start in tiles:
+                ahead = self.count_ahead(tiles, 0, end)
+                for index, start in enumerate(tiles):
                     self.finish_in_flight(progress)
                     pixels = tile_pixels(self.settings, start, end)
-                    following = self.queue(pixels, np.zeros(len(pixels), np.uint32))
+                    counts, ahead = ahead, self.count_ahead(tiles, index + 1, end)
+                    zeros = np.zeros(len(pixels), np.uint32)
+                    following = self.queue(pixels, zeros, queued_counts=counts)
                     if not self.settings.overlap:
                         queued, following = following, None
                     if queued is not None:

@@ -323,6 +323,57 @@ class DeviceSampleSets:
         return host
 
 
+@dataclass
+class PendingCounts:
+    """SPPP's count pass of a launch, queued on the runtime's side queue with its read
+    (queue_counts): until result() it holds the buffers and the array the read fills."""
+
+    n: int
+    seed: int
+    pixels: np.ndarray
+    redraws: np.ndarray
+    counts: np.ndarray
+    read: cl.Event | None
+    kernel_event: cl.Event | None
+    buffers: tuple = ()
+
+    def matches(self, config: SamplerConfig, seed: int, pixels: np.ndarray, redraws) -> bool:
+        """Whether these are the counts of that launch (they depend on n, the seed, the pixels
+        and their redraw numbers only, not on eps)."""
+        return (
+            config.is_sppp
+            and (self.n, self.seed) == (config.n, seed)
+            and np.array_equal(self.pixels, pixels)
+            and np.array_equal(self.redraws, redraws)
+        )
+
+    def result(self) -> tuple[np.ndarray, cl.Event | None]:
+        """The counts, once read (a wait for the side queue alone), and the count kernel's
+        event."""
+        if self.read is not None:
+            self.read.wait()
+        self.buffers = ()
+        return self.counts, self.kernel_event
+
+
+def queue_counts(
+    runtime: Runtime,
+    config: SamplerConfig,
+    seed: int,
+    pixels: np.ndarray,
+    redraws: np.ndarray | None = None,
+) -> PendingCounts:
+    """Queue SPPP's count pass of a launch and its read on the runtime's side queue without a
+    wait, to hand to generate_sample_sets later (the render queues the next tile's before this
+    tile's fill and trace: a device that runs commands in the order they became ready, as
+    PoCL's CPU device does, then runs it before that trace, and the next tile's sample sets
+    wait for nothing)."""
+    if not config.is_sppp:
+        raise ParameterError(f"only SPPP samplers count samples on the device, not {config.name}")
+    pixels, redraws = _check_launch(seed, pixels, redraws)
+    return _queue_count(runtime, config, seed, pixels, redraws)
+
+
 def generate_sample_sets(
     runtime: Runtime,
     config: SamplerConfig,
@@ -330,12 +381,15 @@ def generate_sample_sets(
     pixels: np.ndarray,
     redraws: np.ndarray | None = None,
     image_size: tuple[int, int] | None = None,
+    queued_counts: PendingCounts | None = None,
 ) -> DeviceSampleSets:
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
     image_size (width, height): needed by zsobol, whose sequence spans the image. Only SPPP
     counts on the device (N ~ Poisson(n)); the fixed-count samplers' n needs no count pass and
     no read-back. SPPP's count pass runs on the runtime's side queue, and the host waits for
-    it alone, not for the work queued before it on the main queue (the tile in flight's trace).
+    it alone, not for the work queued before it on the main queue (the tile in flight's trace);
+    queued_counts, that pass queued earlier (queue_counts), is used when it is this launch's (a
+    ParameterError otherwise).
     The main queue's uploads are enqueued without a wait: the queue runs them in order before
     the kernels, and the sets keep their events (dropping one waits for its copy, whose host
     array must live until then), so nothing else here waits for the device."""
@@ -347,8 +401,14 @@ def generate_sample_sets(
             f"pixel index {int(pixels.max())} outside the {image_width} x {image_size[1]} image"
         )
     side_events: tuple = ()
+    if queued_counts is not None and not queued_counts.matches(config, seed, pixels, redraws):
+        raise ParameterError(
+            "the counts queued ahead (queue_counts) are not those of this launch's sampler, "
+            "seed, pixels and redraws"
+        )
     if config.is_sppp:
-        counts, count_event = _launch_count(runtime, config, seed, pixels, redraws)
+        pending = queued_counts or _queue_count(runtime, config, seed, pixels, redraws)
+        counts, count_event = pending.result()
         side_events = () if count_event is None else (count_event,)
     else:
         counts = np.full(len(pixels), config.n, np.uint32)
@@ -484,21 +544,20 @@ def count_samples(
 ) -> np.ndarray:
     """Only the first pass: each pixel's number of traced samples (N ~ Poisson(n) for SPPP)."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
-    return _launch_count(runtime, config, seed, pixels, redraws)[0]
+    return _queue_count(runtime, config, seed, pixels, redraws).result()[0]
 
 
-def _launch_count(
+def _queue_count(
     runtime: Runtime, config: SamplerConfig, seed: int, pixels: np.ndarray, redraws: np.ndarray
-) -> tuple[np.ndarray, cl.Event | None]:
-    """Each pixel's traced-sample count, from the count kernel on the runtime's side queue:
-    the read waits for the count pass alone, not for the work queued before it on the main
-    queue. Its buffers are plain ones made from the host arrays (copied as they are made), not
-    the pool's (Runtime.side_queue). Returns the counts and the kernel's event (None for no
-    pixels)."""
+) -> PendingCounts:
+    """Each pixel's traced-sample count, from the count kernel on the runtime's side queue,
+    read without a wait: the read waits for the count pass alone, not for the work queued
+    before it on the main queue. Its buffers are plain ones made from the host arrays (copied
+    as they are made), not the pool's (Runtime.side_queue)."""
     pixel_count = len(pixels)
     counts = np.empty(pixel_count, np.uint32)
     if not pixel_count:
-        return counts, None
+        return PendingCounts(config.n, seed, pixels, redraws, counts, None, None)
     queue = runtime.side_queue
     copy_in = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
     pixels_buf = cl.Buffer(runtime.context, copy_in, hostbuf=pixels)
@@ -518,8 +577,10 @@ def _launch_count(
         counts_buf,
         queue=queue,
     )
-    cl.enqueue_copy(queue, counts, counts_buf)
-    return counts, event
+    read = cl.enqueue_copy(queue, counts, counts_buf, is_blocking=False)
+    queue.flush()  # a driver that batches commands starts it now
+    buffers = (pixels_buf, redraws_buf, counts_buf)
+    return PendingCounts(config.n, seed, pixels, redraws, counts, read, event, buffers)
 
 
 def _check_launch(

@@ -354,3 +354,51 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
     assert result.stats.tiles > 2 and len(traced) == result.stats.tiles
     for name, image in reference.items():
         assert np.array_equal(result.images[name], image), name
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_sppp_counts_of_the_next_tile_are_queued_before_a_tile_is_traced(
+    runtime, monkeypatch, overlap
+):
+    """Tile k + 1's count pass runs on the side queue and is queued before tile k's trace (a
+    device that runs commands in the order they became ready, as PoCL's CPU device, then runs
+    it before that trace, and tile k + 1's sample sets wait for nothing); no count pass runs on
+    the main queue. The image is the one drawn without counts queued ahead."""
+    import clrender.pipeline as pipeline
+
+    config = settings("sppp", ["mc_n", "vor_sn"], spp=4, tile_samples=40 * 4, overlap=overlap)
+    source = analytic_source(runtime)
+    events = []
+    launch, trace, queue = runtime.launch_1d, source.trace, pipeline.queue_counts
+
+    def recording_launch(kernel, count, *args, **kwargs):
+        if kernel.function_name == "count_samples":
+            side = kwargs.get("queue") is runtime.side_queue
+            events.append(("count",) if side else ("main-queue count",))
+        return launch(kernel, count, *args, **kwargs)
+
+    def recording_trace(sample_sets, seed):
+        events.append(("trace", int(sample_sets.pixels[0])))
+        return trace(sample_sets, seed)
+
+    def recording_queue(runtime, sampler, seed, pixels, redraws):
+        events.append(("queued", int(pixels[0])))
+        return queue(runtime, sampler, seed, pixels, redraws)
+
+    monkeypatch.setattr(runtime, "launch_1d", recording_launch)
+    monkeypatch.setattr(source, "trace", recording_trace)
+    monkeypatch.setattr(pipeline, "queue_counts", recording_queue)
+    result = render(runtime, source, config)
+    monkeypatch.undo()
+    tiles = list(plan_tiles(result.settings))
+    assert result.stats.tiles == len(tiles) > 2 and result.stats.redrawn_pixels == 0
+    assert ("main-queue count",) not in events
+    assert events.count(("count",)) == len(tiles)  # each tile counted once
+    queued = [event[1] for event in events if event[0] == "queued"]
+    assert queued == tiles
+    for k, start in enumerate(tiles[:-1]):
+        assert events.index(("queued", tiles[k + 1])) < events.index(("trace", start)), k
+    monkeypatch.setattr(pipeline.TilePipeline, "count_ahead", lambda *args: None)
+    reference = render(runtime, source, config)
+    for name, image in reference.images.items():
+        assert np.array_equal(result.images[name], image), name
