@@ -26,8 +26,11 @@ pyopencl, NumPy and Qhull release the GIL in their long calls, so wall time appr
 max(device, host) instead of their sum. The device is kept fed: tile k + 1's sample sets,
 trace, device sums and reads are queued (queue_tile) before the host waits for tile k's results
 (QueuedTile.collect), so the device does not idle while the host reads one tile and prepares
-the next; at most two tiles are held at once. (SPPP's sample sets read their Poisson counts
-back before the fill, which waits for the work queued before them.)
+the next; at most two tiles are held at once. SPPP's sample sets read their Poisson counts
+back before the fill: the count pass runs on the runtime's side queue, and tile k + 1's is
+queued before tile k's fill and trace, so its read waits for it alone, not for the tile in
+flight (a device that runs commands in the order they became ready, as PoCL's CPU device,
+would otherwise run it after tile k's trace).
 
 Rejections: a pixel whose SPPP tessellation leaves a nucleus of W with an unbounded cell is
 redrawn through clrender.estimators.estimate_with_redraw: its sample set is generated again with
@@ -110,10 +113,12 @@ from clrender.runtime import Runtime, describe_device, profiling_queue, thread_b
 from clrender.samples import SampleSets
 from clrender.sampling import (
     DeviceSampleSets,
+    PendingCounts,
     SamplerConfig,
     check_seed,
     generate_sample_sets,
     make_sampler,
+    queue_counts,
 )
 from clrender.sppp import auxiliary_count
 
@@ -548,7 +553,10 @@ class StageClock:
     compile time. On a queue that records when its commands run (Runtime.profiled: the
     runtimes clrender makes), a stage is timed on the device's clock, between a marker queued
     as it starts and one queued as it ends: from the device being free for it (done with the
-    work queued before it, or idle) until its commands are done. Its commands are queued
+    work queued before it, or idle) until its commands are done, plus the device time of the
+    commands it ran on another queue and handed to the clock (`with clock.stage(name) as side:
+    side.append(event)`; SPPP's count pass on Runtime.side_queue, which may run beside the
+    work queued before the stage). Its commands are queued
     without a wait: the device runs a tile's stages back to back and the tile waits once, for
     its results; settle() then adds the stages' times to the stats. A stage that met a program
     build (a first use in the process), and every stage on a queue without profiling, ends
@@ -564,18 +572,21 @@ class StageClock:
         profiling = cl.command_queue_properties.PROFILING_ENABLE
         self.profiled = queue is not None and bool(queue.properties & profiling)
         # stages queued and not yet settled: (name, start marker, end marker, main-thread
-        # seconds of the queuing)
-        self.queued: list[tuple[str, cl.Event, cl.Event, float]] = []
+        # seconds of the queuing, the events of its commands on other queues)
+        self.queued: list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]] = []
 
     @contextmanager
-    def stage(self, name: str) -> Iterator[None]:
+    def stage(self, name: str) -> Iterator[list[cl.Event]]:
+        """Time the commands queued inside the block as the stage `name`; the block may append
+        to the list it is given the events of commands it ran on another queue."""
         start, built = time.perf_counter(), thread_build_seconds()
         first = None
+        side: list[cl.Event] = []
         if self.profiled:
             first = cl.enqueue_marker(self.queue)
             self.queue.flush()  # a driver that batches commands starts the clock now
         try:
-            yield
+            yield side
         finally:
             compile_seconds = thread_build_seconds() - built
             self.stats.compile_seconds += compile_seconds
@@ -583,28 +594,32 @@ class StageClock:
             if first is not None and compile_seconds == 0:
                 last = cl.enqueue_marker(self.queue)
                 self.queue.flush()
-                self.queued.append((name, first, last, time.perf_counter() - start))
+                self.queued.append((name, first, last, time.perf_counter() - start, side))
             else:
                 if self.queue is not None:
                     self.queue.finish()
                 self.add(name, max(time.perf_counter() - start - compile_seconds, 0.0))
 
-    def take(self) -> list[tuple[str, cl.Event, cl.Event, float]]:
+    def take(self) -> list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]]:
         """The stages queued so far, to settle later (a queued tile's: QueuedTile)."""
         taken, self.queued = self.queued, []
         return taken
 
-    def settle(self, stages: list[tuple[str, cl.Event, cl.Event, float]] | None = None) -> None:
+    def settle(
+        self, stages: list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]] | None = None
+    ) -> None:
         """Wait for the given stages (taken earlier), or for those queued since the last take,
         and add their device times to the stats. Done already after a blocking read of their
         results; a later tile's stages queued behind them are not waited for."""
         if stages is None:
             stages = self.take()
-        for name, first, last, queuing_seconds in stages:
-            last.wait()
+        for name, first, last, queuing_seconds, side in stages:
+            for event in (last, *side):
+                event.wait()
             try:
                 seconds = (last.profile.end - first.profile.end) * 1e-9
-            except cl.Error:  # profiling information not available for markers here
+                seconds += sum(event.profile.end - event.profile.start for event in side) * 1e-9
+            except cl.Error:  # profiling information not available here
                 seconds = queuing_seconds
             self.add(name, seconds)
 
@@ -649,15 +664,24 @@ def queue_tile(
     device_kinds: Sequence[str],
     host_samples: bool,
     clock: StageClock,
+    queued_counts: PendingCounts | None = None,
 ) -> QueuedTile:
     """trace_tile's device work queued without a wait (sample sets, trace, device sums and the
     reads of what comes to the host): the host may queue the next tile's before it waits for
     this one's (QueuedTile.collect). A source computed on the host (an analytic image) waits
-    for the sample sets here."""
-    with clock.stage("sample_sets"):
+    for the sample sets here. queued_counts: the tile's SPPP count pass, queued earlier
+    (clrender.sampling.queue_counts)."""
+    with clock.stage("sample_sets") as side:
         device_sets = generate_sample_sets(
-            runtime, sampler, seed, pixels, redraws, (source.width, source.height)
+            runtime,
+            sampler,
+            seed,
+            pixels,
+            redraws,
+            (source.width, source.height),
+            queued_counts,
         )
+        side.extend(device_sets.side_events)
     with clock.stage("tracing"):
         pending = source.trace(device_sets, seed)
         radiance = pending.to_device(runtime)  # the ray counters are read later
@@ -896,9 +920,14 @@ class TilePipeline:
         return self.films[self.settings.estimator.name]
 
     def queue(
-        self, pixels: np.ndarray, redraws: np.ndarray, sampler: SamplerConfig | None = None
+        self,
+        pixels: np.ndarray,
+        redraws: np.ndarray,
+        sampler: SamplerConfig | None = None,
+        queued_counts: PendingCounts | None = None,
     ) -> QueuedTile:
-        """Queue a tile's device work (collect: wait for it)."""
+        """Queue a tile's device work (collect: wait for it); queued_counts: its SPPP count
+        pass, queued ahead (count_ahead)."""
         # Tiles use the device cells if configured; redraws go through Qhull in the driver.
         redraw = sampler is not None
         return queue_tile(
@@ -911,7 +940,18 @@ class TilePipeline:
             () if redraw else self.device_kinds,
             redraw or self.host_samples,
             self.clock,
+            queued_counts,
         )
+
+    def count_ahead(self, tiles: range, index: int, end: int | None) -> PendingCounts | None:
+        """Queue the SPPP count pass of tile `index` of `tiles` (None past the last tile or
+        for a sampler with fixed counts)."""
+        sampler = self.settings.sampler
+        if not sampler.is_sppp or index >= len(tiles):
+            return None
+        pixels = tile_pixels(self.settings, tiles[index], end)
+        zeros = np.zeros(len(pixels), np.uint32)
+        return queue_counts(self.runtime, sampler, self.settings.seed, pixels, zeros)
 
     def collect(self, queued: QueuedTile) -> TileSamples:
         tile = queued.collect(self.clock)
@@ -1027,7 +1067,8 @@ class TilePipeline:
         host waits for tile k's results (so at most two tiles are held: one queued, the other
         queued or being estimated). Without overlap, one tile at a time: its device work, then
         its estimate. Tiles are clipped to pixel `end` when they cover a range of the image
-        (clrender.cluster). `on_done` is called as the last step of the interruptible work
+        (clrender.cluster). SPPP's count pass of tile k + 1 is queued before tile k's work.
+        `on_done` is called as the last step of the interruptible work
         (clrender.interrupts.work_done: the command holds the signals from there on)."""
         self.stats.tiles = len(tiles)
         with ThreadPoolExecutor(max_workers=1, thread_name_prefix="estimator") as pool:
@@ -1037,10 +1078,13 @@ class TilePipeline:
                     # threads it has listed, which an interrupt inside Thread.start leaves out
                     pool.submit(int).result()
                 queued: QueuedTile | None = None
-                for start in tiles:
+                ahead = self.count_ahead(tiles, 0, end)
+                for index, start in enumerate(tiles):
                     self.finish_in_flight(progress)
                     pixels = tile_pixels(self.settings, start, end)
-                    following = self.queue(pixels, np.zeros(len(pixels), np.uint32))
+                    counts, ahead = ahead, self.count_ahead(tiles, index + 1, end)
+                    zeros = np.zeros(len(pixels), np.uint32)
+                    following = self.queue(pixels, zeros, queued_counts=counts)
                     if not self.settings.overlap:
                         queued, following = following, None
                     if queued is not None:

@@ -188,6 +188,8 @@ class Runtime:
     pool: cl_tools.MemoryPool = field(init=False, repr=False)
     # a second context on the device, for another thread (clrender.pipeline.sibling_runtime)
     sibling: Runtime | None = field(default=None, init=False, repr=False)
+    # side_queue's, made at its first use
+    _side_queue: cl.CommandQueue | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.pool = cl_tools.MemoryPool(cl_tools.ImmediateAllocator(self.queue))
@@ -237,11 +239,28 @@ class Runtime:
         memory: a GPU may limit a large kernel below the device's maximum)."""
         return min(self.local_size, _kernel_work_group_size(kernel, self.device))
 
-    def launch_1d(self, kernel: cl.Kernel, count: int, *args) -> cl.Event:
+    def launch_1d(
+        self, kernel: cl.Kernel, count: int, *args, queue: cl.CommandQueue | None = None
+    ) -> cl.Event:
         """Enqueue kernel over count work-items (launch_global_size: padded; the kernel skips
-        the padding itself) on this runtime's queue."""
+        the padding itself) on this runtime's queue, or on `queue` (side_queue)."""
         local = self.kernel_local_size(kernel)
-        return kernel(self.queue, (launch_global_size(count, local),), (local,), *args)
+        queue = self.queue if queue is None else queue
+        return kernel(queue, (launch_global_size(count, local),), (local,), *args)
+
+    @property
+    def side_queue(self) -> cl.CommandQueue:
+        """A second in-order queue on this context (made once, with the main queue's
+        properties), for short work whose result the host waits for and which must not wait
+        behind the work queued on `queue`: SPPP's Poisson counts (clrender.sampling), read
+        while the tile before is traced. Its buffers are plain cl.Buffers, not the pool's: a
+        pooled buffer goes back to the pool when dropped and may be handed out again at once
+        for work on the main queue, which only that queue's order keeps apart from its earlier
+        use. A buffer written on one queue may be read by work queued on the other only after
+        the host has seen the write complete (a blocking read, or an event waited for)."""
+        if self._side_queue is None:
+            self._side_queue = cl.CommandQueue(self.context, properties=self.queue.properties)
+        return self._side_queue
 
     def allocate(self, nbytes: int) -> cl.MemoryObjectHolder:
         """A read-write device buffer of at least nbytes (at least 16) from the pool; it goes

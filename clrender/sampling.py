@@ -278,6 +278,9 @@ class DeviceSampleSets:
     # the uploads' events (each holds its host array, and dropping it waits for the copy): kept
     # with the sets, so that drawing them does not wait for the device
     uploads: tuple = ()
+    # the events of the work drawing them ran on the runtime's side queue (SPPP's count pass:
+    # complete once the sets are made), for a clock that times the device stages
+    side_events: tuple = ()
 
     @property
     def pixel_count(self) -> int:
@@ -320,6 +323,57 @@ class DeviceSampleSets:
         return host
 
 
+@dataclass
+class PendingCounts:
+    """SPPP's count pass of a launch, queued on the runtime's side queue with its read
+    (queue_counts): until result() it holds the buffers and the array the read fills."""
+
+    n: int
+    seed: int
+    pixels: np.ndarray
+    redraws: np.ndarray
+    counts: np.ndarray
+    read: cl.Event | None
+    kernel_event: cl.Event | None
+    buffers: tuple = ()
+
+    def matches(self, config: SamplerConfig, seed: int, pixels: np.ndarray, redraws) -> bool:
+        """Whether these are the counts of that launch (they depend on n, the seed, the pixels
+        and their redraw numbers only, not on eps)."""
+        return (
+            config.is_sppp
+            and (self.n, self.seed) == (config.n, seed)
+            and np.array_equal(self.pixels, pixels)
+            and np.array_equal(self.redraws, redraws)
+        )
+
+    def result(self) -> tuple[np.ndarray, cl.Event | None]:
+        """The counts, once read (a wait for the side queue alone), and the count kernel's
+        event."""
+        if self.read is not None:
+            self.read.wait()
+        self.buffers = ()
+        return self.counts, self.kernel_event
+
+
+def queue_counts(
+    runtime: Runtime,
+    config: SamplerConfig,
+    seed: int,
+    pixels: np.ndarray,
+    redraws: np.ndarray | None = None,
+) -> PendingCounts:
+    """Queue SPPP's count pass of a launch and its read on the runtime's side queue without a
+    wait, to hand to generate_sample_sets later (the render queues the next tile's before this
+    tile's fill and trace: a device that runs commands in the order they became ready, as
+    PoCL's CPU device does, then runs it before that trace, and the next tile's sample sets
+    wait for nothing)."""
+    if not config.is_sppp:
+        raise ParameterError(f"only SPPP samplers count samples on the device, not {config.name}")
+    pixels, redraws = _check_launch(seed, pixels, redraws)
+    return _queue_count(runtime, config, seed, pixels, redraws)
+
+
 def generate_sample_sets(
     runtime: Runtime,
     config: SamplerConfig,
@@ -327,13 +381,18 @@ def generate_sample_sets(
     pixels: np.ndarray,
     redraws: np.ndarray | None = None,
     image_size: tuple[int, int] | None = None,
+    queued_counts: PendingCounts | None = None,
 ) -> DeviceSampleSets:
     """Draw the sample sets of the given pixels on the device (count, prefix sum, fill).
     image_size (width, height): needed by zsobol, whose sequence spans the image. Only SPPP
     counts on the device (N ~ Poisson(n)); the fixed-count samplers' n needs no count pass and
-    no read-back. The uploads are enqueued without a wait: the queue runs them in order before
+    no read-back. SPPP's count pass runs on the runtime's side queue, and the host waits for
+    it alone, not for the work queued before it on the main queue (the tile in flight's trace);
+    queued_counts, that pass queued earlier (queue_counts), is used when it is this launch's (a
+    ParameterError otherwise).
+    The main queue's uploads are enqueued without a wait: the queue runs them in order before
     the kernels, and the sets keep their events (dropping one waits for its copy, whose host
-    array must live until then), so nothing here waits for the device."""
+    array must live until then), so nothing else here waits for the device."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
     path_arguments = config.path_arguments(image_size)
     image_width = 1 if image_size is None else int(image_size[0])
@@ -341,19 +400,27 @@ def generate_sample_sets(
         raise ParameterError(
             f"pixel index {int(pixels.max())} outside the {image_width} x {image_size[1]} image"
         )
-    pixels_buf, pixels_copy = runtime.upload_async(pixels)
-    redraws_buf, redraws_copy = runtime.upload_async(redraws)
+    side_events: tuple = ()
+    if queued_counts is not None and not queued_counts.matches(config, seed, pixels, redraws):
+        raise ParameterError(
+            "the counts queued ahead (queue_counts) are not those of this launch's sampler, "
+            "seed, pixels and redraws"
+        )
     if config.is_sppp:
-        counts = _launch_count(runtime, config, seed, pixels_buf, redraws_buf, len(pixels))
+        pending = queued_counts or _queue_count(runtime, config, seed, pixels, redraws)
+        counts, count_event = pending.result()
+        side_events = () if count_event is None else (count_event,)
     else:
         counts = np.full(len(pixels), config.n, np.uint32)
+    pixels_buf, pixels_copy = runtime.upload_async(pixels)
+    redraws_buf, redraws_copy = runtime.upload_async(redraws)
     offsets = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)])
     if offsets[-1] >= 2**32:
         raise ParameterError("too many samples in one launch (over 2^32): use smaller tiles")
     offsets_buf, offsets_copy = runtime.upload_async(offsets.astype(np.uint32))
     total = int(offsets[-1]) + config.n_aux * len(pixels)
     positions = runtime.allocate(8 * total)
-    _launch_fill(
+    group_copy = _launch_fill(
         runtime,
         config,
         seed,
@@ -375,7 +442,8 @@ def generate_sample_sets(
         pixels_buf,
         redraws_buf,
         None if image_size is None else (int(image_size[0]), int(image_size[1])),
-        (pixels_copy, redraws_copy, offsets_copy),
+        (pixels_copy, redraws_copy, offsets_copy, group_copy),
+        side_events,
     )
 
 
@@ -390,10 +458,13 @@ def _launch_fill(
     positions: cl.Buffer,
     path_arguments: tuple,
     image_width: int,
-) -> None:
+) -> cl.Event | None:
     """Fill the traced samples (a work-item per 8 samples of a pixel, or per FILL_LANES for a
-    path sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel)."""
+    path sampler's positions), then the auxiliary nuclei (a work-item per 8 of a pixel).
+    Returns the event of the upload it queued (SPPP's group offsets), to keep as
+    upload_async's are kept, or None."""
     pixel_count, traced_total = len(offsets) - 1, int(offsets[-1])
+    group_copy = None
     if traced_total and config.kind.positions == POSITIONS_FROM_SAMPLER:
         fill = runtime.kernel("sampling.cl", "fill_traced_from_sampler")
         runtime.launch_1d(
@@ -411,7 +482,9 @@ def _launch_fill(
             positions,
         )
     elif traced_total:
-        group_total, group_offsets_buf = _traced_groups(runtime, config, offsets, offsets_buf)
+        group_total, group_offsets_buf, group_copy = _traced_groups(
+            runtime, config, offsets, offsets_buf
+        )
         fill = runtime.kernel("sampling.cl", "fill_traced")
         runtime.launch_1d(
             fill,
@@ -443,20 +516,23 @@ def _launch_fill(
             redraws_buf,
             positions,
         )
+    return group_copy
 
 
 def _traced_groups(
     runtime: Runtime, config: SamplerConfig, offsets: np.ndarray, offsets_buf: cl.Buffer
-) -> tuple[int, cl.Buffer]:
+) -> tuple[int, cl.Buffer, cl.Event | None]:
     """fill_traced's work: the number of groups of up to 8 traced samples of one pixel, and for
-    SPPP (variable counts) each pixel's first group, a prefix sum of ceil(count / 8) (fixed
-    counts find the pixel by a division: the traced offsets stand in, unread)."""
+    SPPP (variable counts) each pixel's first group, a prefix sum of ceil(count / 8), uploaded
+    without a wait (its event returned; fixed counts find the pixel by a division: the traced
+    offsets stand in, unread)."""
     pixel_count = len(offsets) - 1
     if not config.is_sppp:
-        return (config.n + 7) // 8 * pixel_count, offsets_buf
+        return (config.n + 7) // 8 * pixel_count, offsets_buf, None
     group_offsets = np.zeros(pixel_count + 1, np.int64)
     np.cumsum((np.diff(offsets) + 7) // 8, out=group_offsets[1:])
-    return int(group_offsets[-1]), runtime.upload(group_offsets.astype(np.uint32))
+    buffer, copy = runtime.upload_async(group_offsets.astype(np.uint32))
+    return int(group_offsets[-1]), buffer, copy
 
 
 def count_samples(
@@ -468,22 +544,27 @@ def count_samples(
 ) -> np.ndarray:
     """Only the first pass: each pixel's number of traced samples (N ~ Poisson(n) for SPPP)."""
     pixels, redraws = _check_launch(seed, pixels, redraws)
-    return _launch_count(
-        runtime, config, seed, runtime.upload(pixels), runtime.upload(redraws), len(pixels)
-    )
+    return _queue_count(runtime, config, seed, pixels, redraws).result()[0]
 
 
-def _launch_count(
-    runtime: Runtime,
-    config: SamplerConfig,
-    seed: int,
-    pixels_buf: cl.Buffer,
-    redraws_buf: cl.Buffer,
-    pixel_count: int,
-) -> np.ndarray:
-    counts_buf = runtime.allocate(4 * pixel_count)
+def _queue_count(
+    runtime: Runtime, config: SamplerConfig, seed: int, pixels: np.ndarray, redraws: np.ndarray
+) -> PendingCounts:
+    """Each pixel's traced-sample count, from the count kernel on the runtime's side queue,
+    read without a wait: the read waits for the count pass alone, not for the work queued
+    before it on the main queue. Its buffers are plain ones made from the host arrays (copied
+    as they are made), not the pool's (Runtime.side_queue)."""
+    pixel_count = len(pixels)
+    counts = np.empty(pixel_count, np.uint32)
+    if not pixel_count:
+        return PendingCounts(config.n, seed, pixels, redraws, counts, None, None)
+    queue = runtime.side_queue
+    copy_in = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
+    pixels_buf = cl.Buffer(runtime.context, copy_in, hostbuf=pixels)
+    redraws_buf = cl.Buffer(runtime.context, copy_in, hostbuf=redraws)
+    counts_buf = cl.Buffer(runtime.context, cl.mem_flags.WRITE_ONLY, counts.nbytes)
     count = runtime.kernel("sampling.cl", "count_samples")
-    runtime.launch_1d(
+    event = runtime.launch_1d(
         count,
         pixel_count,
         np.uint32(pixel_count),
@@ -494,10 +575,12 @@ def _launch_count(
         pixels_buf,
         redraws_buf,
         counts_buf,
+        queue=queue,
     )
-    counts = np.empty(pixel_count, np.uint32)
-    cl.enqueue_copy(runtime.queue, counts, counts_buf)
-    return counts
+    read = cl.enqueue_copy(queue, counts, counts_buf, is_blocking=False)
+    queue.flush()  # a driver that batches commands starts it now
+    buffers = (pixels_buf, redraws_buf, counts_buf)
+    return PendingCounts(config.n, seed, pixels, redraws, counts, read, event, buffers)
 
 
 def _check_launch(

@@ -396,6 +396,8 @@ def test_a_stage_that_builds_a_program_is_timed_with_a_wait(runtime, monkeypatch
         ("stratified", ["pvor", "mc"], "device"),  # device cells
         ("independent", ["cvor"], "device"),
         ("stratified", ["pvor", "mc_n"], "qhull"),  # the samples read back
+        ("sppp", ["mc_n"], "device"),  # Poisson counts read back before the fill
+        ("sppp", ["vor_sn", "mc"], "device"),
     ],
 )
 def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
@@ -406,8 +408,9 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
     results; the images are those rendered without the hold. Tile 1's trace opens the gate;
     so does any wait for the device before it (a blocking copy, a wait for events or for a
     read, a read's event dropped), so that a pipeline that waits for each tile before it
-    queues the next does not hang but fails.
-    (SPPP's sample sets read their Poisson counts back before the fill: they wait there.)"""
+    queues the next does not hang but fails. A copy on another queue (SPPP's Poisson counts,
+    read back before the fill from the runtime's side queue) waits for that queue alone and
+    leaves the gate shut."""
     import pyopencl as cl
 
     from clrender.api import radiance_source
@@ -456,6 +459,8 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
             open_gate("a dropped read")
 
     def copy_opening(queue, dest, src, **kwargs):
+        if queue is not runtime.queue:
+            return copy(queue, dest, src, **kwargs)
         if kwargs.get("is_blocking", True):
             open_gate("a blocking copy")
             return copy(queue, dest, src, **kwargs)
@@ -473,4 +478,52 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
     assert opened == ["the second tile's trace"]
     assert result.stats.tiles > 2 and len(traced) == result.stats.tiles
     for name, image in reference.items():
+        assert np.array_equal(result.images[name], image), name
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_sppp_counts_of_the_next_tile_are_queued_before_a_tile_is_traced(
+    runtime, monkeypatch, overlap
+):
+    """Tile k + 1's count pass runs on the side queue and is queued before tile k's trace (a
+    device that runs commands in the order they became ready, as PoCL's CPU device, then runs
+    it before that trace, and tile k + 1's sample sets wait for nothing); no count pass runs on
+    the main queue. The image is the one drawn without counts queued ahead."""
+    import clrender.pipeline as pipeline
+
+    config = settings("sppp", ["mc_n", "vor_sn"], spp=4, tile_samples=40 * 4, overlap=overlap)
+    source = analytic_source(runtime)
+    events = []
+    launch, trace, queue = runtime.launch_1d, source.trace, pipeline.queue_counts
+
+    def recording_launch(kernel, count, *args, **kwargs):
+        if kernel.function_name == "count_samples":
+            side = kwargs.get("queue") is runtime.side_queue
+            events.append(("count",) if side else ("main-queue count",))
+        return launch(kernel, count, *args, **kwargs)
+
+    def recording_trace(sample_sets, seed):
+        events.append(("trace", int(sample_sets.pixels[0])))
+        return trace(sample_sets, seed)
+
+    def recording_queue(runtime, sampler, seed, pixels, redraws):
+        events.append(("queued", int(pixels[0])))
+        return queue(runtime, sampler, seed, pixels, redraws)
+
+    monkeypatch.setattr(runtime, "launch_1d", recording_launch)
+    monkeypatch.setattr(source, "trace", recording_trace)
+    monkeypatch.setattr(pipeline, "queue_counts", recording_queue)
+    result = render(runtime, source, config)
+    monkeypatch.undo()
+    tiles = list(plan_tiles(result.settings))
+    assert result.stats.tiles == len(tiles) > 2 and result.stats.redrawn_pixels == 0
+    assert ("main-queue count",) not in events
+    assert events.count(("count",)) == len(tiles)  # each tile counted once
+    queued = [event[1] for event in events if event[0] == "queued"]
+    assert queued == tiles
+    for k, start in enumerate(tiles[:-1]):
+        assert events.index(("queued", tiles[k + 1])) < events.index(("trace", start)), k
+    monkeypatch.setattr(pipeline.TilePipeline, "count_ahead", lambda *args: None)
+    reference = render(runtime, source, config)
+    for name, image in reference.images.items():
         assert np.array_equal(result.images[name], image), name

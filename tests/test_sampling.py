@@ -16,6 +16,7 @@ from clrender.sampling import (
     count_samples,
     generate_sample_sets,
     make_sampler,
+    queue_counts,
     rectangle_pixels,
 )
 from clrender.sppp import auxiliary_count, rejection_bound, sppp_eps
@@ -439,9 +440,9 @@ def test_only_sppp_launches_the_count_pass(runtime, monkeypatch, sampler, counte
     launched = []
     launch = runtime.launch_1d
 
-    def recording(kernel, count, *args):
+    def recording(kernel, count, *args, **kwargs):
         launched.append(kernel.function_name)
-        return launch(kernel, count, *args)
+        return launch(kernel, count, *args, **kwargs)
 
     monkeypatch.setattr(runtime, "launch_1d", recording)
     config = make_sampler(sampler, 16)
@@ -449,3 +450,36 @@ def test_only_sppp_launches_the_count_pass(runtime, monkeypatch, sampler, counte
     sets = host_sets(runtime, config, 2, pixels)
     assert ("count_samples" in launched) == counted
     np.testing.assert_array_equal(sets.counts, count_samples(runtime, config, 2, pixels))
+
+
+def test_counts_queued_ahead_give_the_same_sets(runtime):
+    """SPPP's count pass queued ahead (queue_counts, on the side queue) stands in for the one
+    the launch would run: the same sets to the bit; counts of another launch (pixels, redraws,
+    seed or n) are refused, and a fixed-count sampler has no count pass to queue. The counts do
+    not depend on eps (a redraw's widened eps keeps them)."""
+    config = make_sampler("sppp", 9)
+    pixels = np.arange(300, 420, dtype=np.uint32)
+    redraws = (pixels % 3).astype(np.uint32)
+    reference = host_sets(runtime, config, 4, pixels, redraws)
+    ahead = queue_counts(runtime, config, 4, pixels, redraws)
+    sets = generate_sample_sets(runtime, config, 4, pixels, redraws, (1024, 1024), ahead)
+    drawn = sets.to_host(runtime.queue)
+    np.testing.assert_array_equal(drawn.offsets, reference.offsets)
+    np.testing.assert_array_equal(drawn.traced, reference.traced)
+    np.testing.assert_array_equal(drawn.aux, reference.aux)
+    wider = make_sampler("sppp", 9, eps=0.3)
+    ahead = queue_counts(runtime, config, 4, pixels, redraws)
+    sets = generate_sample_sets(runtime, wider, 4, pixels, redraws, (1024, 1024), ahead)
+    np.testing.assert_array_equal(sets.traced_offsets, reference.offsets)
+    others = [
+        (config, 4, pixels + 1, redraws),
+        (config, 4, pixels, redraws + 1),
+        (config, 5, pixels, redraws),
+        (make_sampler("sppp", 10), 4, pixels, redraws),
+    ]
+    for other, seed, other_pixels, other_redraws in others:
+        ahead = queue_counts(runtime, config, 4, pixels, redraws)
+        with pytest.raises(ParameterError, match="counts queued ahead"):
+            generate_sample_sets(runtime, other, seed, other_pixels, other_redraws, None, ahead)
+    with pytest.raises(ParameterError, match="only SPPP samplers count"):
+        queue_counts(runtime, make_sampler("independent", 9), 4, pixels)
