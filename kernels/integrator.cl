@@ -16,7 +16,7 @@
 #include "integrator.h"
 
 // One work-item per traced sample: radiance (RGB float) to radiance[3 i .. 3 i + 2].
-__kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
+__kernel KERNEL_SCALAR_WORK_ITEMS void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
                           uint image_height, int max_depth, int nee, int russian_roulette,
                           int paths_kind, uint fixed_count, uint strata,
                           uint zsobol_log2_count, uint zsobol_bits,
