@@ -741,7 +741,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
 
 // One work-item per SIMD_WIDTH consecutive traced samples, a path a lane until all have ended:
 // radiance (RGB float) to radiance[3 i .. 3 i + 2], as trace_paths.
-__kernel SIMD_ATTR void
+__kernel SIMD_ATTR KERNEL_SCALAR_WORK_ITEMS void
 trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_width,
                  uint image_height, int max_depth, int nee, int russian_roulette,
                  int paths_kind, uint fixed_count, uint strata, uint zsobol_log2_count,
