@@ -60,7 +60,7 @@ class TraceResult:
     counters: cl.Buffer  # uint32: non-finite count, rays per work-group, then extra_counters
     counter_count: int
     event: cl.Event | None
-    # Counters after the rays (the simd kernel: its queue's chunks taken, its steps)
+    # Counters after the rays (the simd kernel: its steps)
     extra_counters: int = 0
     _counts: np.ndarray | None = field(default=None, repr=False)
     _counter_read: tuple[np.ndarray, cl.Event] | None = field(default=None, repr=False)
@@ -330,12 +330,12 @@ class PathTracer:
         queue = runtime.queue
         count = sample_sets.traced_total
         local = runtime.kernel_local_size(self._kernel)
-        # simd: a work-item per samples_per_item samples (the first of each work-group takes
-        # chunks of samples from the launch's queue until none are left: trace_simd.cl)
+        # simd: a work-item per samples_per_item samples (the work-items that run a chunk of
+        # samples spread over them: trace_simd.cl)
         global_size = launch_global_size(-(-count // self.samples_per_item), local)
         groups = global_size // local
-        # simd: its queue's counter and its steps after the rays (trace_simd.cl)
-        extra = 2 if self.trace_kernel == "simd" else 0
+        # simd: its steps after the rays (trace_simd.cl)
+        extra = 1 if self.trace_kernel == "simd" else 0
         slots = 1 + groups + extra
         radiance = runtime.allocate(12 * count)
         counters = runtime.allocate(4 * slots)

@@ -25,11 +25,11 @@
 // Also per lane: the sampler's set-up and the tiny or huge vectors where Length3 or Normalize3
 // fall back to the builtin.
 //
-// Path regeneration: a work-item takes chunks of consecutive traced samples from a queue (an
-// atomic counter), and a lane whose path ends takes the next sample, so each lane has its own
-// depth (its own sampler dimensions). Arguments and radiance layout: trace_paths'; counters:
-// trace_paths' (non-finite count, rays per work-group), then the queue's counter and the steps
-// taken (COUNTER_NEXT_CHUNK, COUNTER_STEPS: the host allocates two more, zeroed).
+// Path regeneration: a work-item traces a chunk of consecutive traced samples, and a lane whose
+// path ends takes the chunk's next sample, so each lane has its own depth (its own sampler
+// dimensions). Arguments and radiance layout: trace_paths'; counters: trace_paths' (non-finite
+// count, rays per work-group), then the steps taken (COUNTER_STEPS: the host allocates one
+// more, zeroed).
 //
 // Build options: SIMD_WIDTH 16 (default) or 8. SIMD_PORTABLE: no x86 builtins (sqrt and the
 // lane mask's bits by portable code), as a compiler without __AVX512F__ / __AVX__ gets anyway.
@@ -746,37 +746,46 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
 
 // ----------------------------------------------------------------------------- the kernel
 
-// Samples a work-item takes at a time from the launch's queue: SIMD_CHUNK lanes' worth.
+// Samples a work-item traces: SIMD_CHUNK lanes' worth.
 #ifndef SIMD_CHUNK
 #define SIMD_CHUNK 32
 #endif
 #define CHUNK_SAMPLES (SIMD_WIDTH * SIMD_CHUNK)
 
-// The launch's queue of chunks: counters[COUNTER_RAYS + groups] counts the chunks taken (the
-// host allocates it past the per-group ray counts, zeroed), and [COUNTER_RAYS + groups + 1]
-// sums the work-items' steps (V_PathStep calls), for lane occupancy figures and tests.
-#define COUNTER_NEXT_CHUNK(groups) (COUNTER_RAYS + (groups))
-#define COUNTER_STEPS(groups) (COUNTER_RAYS + (groups) + 1u)
+// counters[COUNTER_RAYS + groups] (the host allocates it past the per-group ray counts,
+// zeroed) sums the work-items' steps (V_PathStep calls), for lane occupancy figures and tests.
+#define COUNTER_STEPS(groups) (COUNTER_RAYS + (groups))
 
-// The traced samples [*next, *end) of the next chunk of the queue; false when none are left.
-CL_INLINE bool Simd_TakeChunk(__global uint *next_chunk, uint traced_total, uint *next,
-                              uint *end)
+// The traced samples [*first, *end) of this work-item's chunk; false if it has none. With
+// CLRENDER_SPREAD_WORK_ITEMS (PoCL) chunk c runs on work-item floor(c G / C) of the G launched
+// (C chunks, C <= G: the host launches a work-item per SIMD_WIDTH samples), so busy work-items
+// spread over the whole launch: PoCL's pthread device deals runs of consecutive work-groups to
+// its threads, and a launch's busy work-items packed at its front would all sit in the first
+// run, on one thread. Otherwise work-item g runs chunk g. (A queue of chunks taken with
+// atomic_inc kept both threads as busy, and Debian's and pip's PoCL then crashed at times as
+// the process released the kernel after compiling it: tests/test_trace_simd.py.)
+CL_INLINE bool Simd_Chunk(uint traced_total, uint *first, uint *end)
 {
     uint chunks = traced_total / CHUNK_SAMPLES + (traced_total % CHUNK_SAMPLES != 0u);
-    uint chunk = atomic_inc(next_chunk);
+#ifdef CLRENDER_SPREAD_WORK_ITEMS
+    ulong g = get_global_id(0), size = get_global_size(0);
+    ulong chunk = (g * chunks + size - 1u) / size;
+    if (chunk >= chunks || chunk * size / chunks != g)
+        return false;
+#else
+    ulong chunk = get_global_id(0);
     if (chunk >= chunks)
         return false;
-    *next = chunk * CHUNK_SAMPLES;
-    *end = traced_total - *next > CHUNK_SAMPLES ? *next + CHUNK_SAMPLES : traced_total;
+#endif
+    *first = (uint)chunk * CHUNK_SAMPLES;
+    *end = traced_total - *first > CHUNK_SAMPLES ? *first + CHUNK_SAMPLES : traced_total;
     return true;
 }
 
-// Path regeneration: the first work-item of each work-group takes chunks of CHUNK_SAMPLES
-// consecutive traced samples from the launch's queue until none are left (so every thread
-// that runs a work-group stays busy, however the device deals work-groups to its threads), a
-// path a lane; a lane whose path ends stores its radiance (RGB float to radiance[3 i .. 3 i +
-// 2], as trace_paths) and takes the queue's next sample, so lanes idle only once the queue is
-// empty. Each lane's path is a function of its sample alone: which lane or work-item traces a
+// Path regeneration: a work-item traces a chunk of CHUNK_SAMPLES consecutive traced samples,
+// a path a lane; a lane whose path ends stores its radiance (RGB float to radiance[3 i .. 3 i
+// + 2], as trace_paths) and takes the chunk's next sample, so lanes idle only at the chunk's
+// end. Each lane's path is a function of its sample alone: which lane or work-item traces a
 // sample changes no bit of its radiance, nor the launch's ray and non-finite counts.
 __kernel SIMD_ATTR void
 trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_width,
@@ -795,18 +804,10 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
                  __global const uint *bvh_prims, __global float *radiance,
                  __global uint *counters)
 {
-    __global uint *next_chunk = &counters[COUNTER_NEXT_CHUNK(get_num_groups(0))];
     uint next, end;
-    if (get_local_id(0) != 0u || !Simd_TakeChunk(next_chunk, traced_total, &next, &end))
+    if (!Simd_Chunk(traced_total, &next, &end))
         return;
-    bool more = true; // the queue may hold more chunks
     SceneData scene = SCENE_DATA_OF_ARGUMENTS;
-#if SIMD_WIDTH == 16
-    const vuint lane_bit = (vuint)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u, 256u, 512u, 1024u, 2048u,
-                                   4096u, 8192u, 16384u, 32768u);
-#else
-    const vuint lane_bit = (vuint)(1u, 2u, 4u, 8u, 16u, 32u, 64u, 128u);
-#endif
     const uint all_lanes = (1u << SIMD_WIDTH) - 1u;
 
     // Each lane's sample: its pixel, index in the pixel, sampler and traced index (lanes that
@@ -837,15 +838,13 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
     uint slot = 0u;
     uint rays = 0u, steps = 0u, nonfinite = 0u;
     for (;;) {
-        // Start the queue's next samples in the free lanes (Launch_OwnerPixel searched only
-        // when a sample leaves the last one's pixel: a work-item's samples only increase)
+        // Start the chunk's next samples in the free lanes (Launch_OwnerPixel searched only
+        // when a sample leaves the last one's pixel)
         uint free_bits = ~V_Bits(paths.running) & all_lanes;
         uint fresh_bits = 0u;
-        while (free_bits != 0u && more) {
-            if (next >= end) {
-                more = Simd_TakeChunk(next_chunk, traced_total, &next, &end);
-                continue;
-            }
+        LANES(int, vint) fresh_l;
+        fresh_l.v = (vint)(0);
+        while (free_bits != 0u && next < end) {
             uint j = (uint)Ctz(free_bits);
             free_bits &= free_bits - 1u;
             if (next >= slot_end) {
@@ -869,10 +868,11 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
             sobol_index_l.s[j] =
                 paths_kind == PATHS_ZSOBOL ? lanes.sampler[j].zsobol_index : sample;
             fresh_bits |= 1u << j;
+            fresh_l.s[j] = -1;
             ++next;
         }
         if (fresh_bits != 0u) {
-            vint fresh = (lane_bit & fresh_bits) != 0u;
+            vint fresh = fresh_l.v;
             lanes.pixel = pixel_l.v;
             lanes.sample = sample_l.v;
             lanes.redraw = redraw_l.v;
