@@ -16,24 +16,19 @@
 #include "integrator.h"
 
 // One work-item per traced sample: radiance (RGB float) to radiance[3 i .. 3 i + 2].
-__kernel void trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width,
-                          uint image_height, int max_depth, int nee, int russian_roulette,
-                          int paths_kind, uint fixed_count, uint strata,
-                          uint zsobol_log2_count, uint zsobol_bits,
-                          __global const float2 *positions,
-                          __global const uint *traced_offsets, __global const uint *pixels,
-                          __global const uint *redraws, __global const Camera *camera,
-                          __global const Quad *quads,
-                          __global const QuadBlock *quad_blocks, uint quad_count,
-                          uint quad_block_count,
-                          __global const Sphere *spheres, uint sphere_count,
-                          __global const Material *materials,
-                          __global const Emitter *emitters, uint emitter_count,
-                          __global const Triangle *triangles, uint triangle_count,
-                          __global const TriangleNormals *triangle_normals,
-                          __global const BVHNode *bvh_nodes, uint bvh_node_count,
-                          __global const uint *bvh_prims,
-                          __global float *radiance, __global uint *counters)
+__kernel KERNEL_SCALAR_WORK_ITEMS void
+trace_paths(uint traced_total, uint pixel_count, uint seed, uint image_width, uint image_height,
+            int max_depth, int nee, int russian_roulette, int paths_kind, uint fixed_count,
+            uint strata, uint zsobol_log2_count, uint zsobol_bits, __global const float2 *positions,
+            __global const uint *traced_offsets, __global const uint *pixels,
+            __global const uint *redraws, __global const Camera *camera, __global const Quad *quads,
+            __global const QuadBlock *quad_blocks, uint quad_count, uint quad_block_count,
+            __global const Sphere *spheres, uint sphere_count, __global const Material *materials,
+            __global const Emitter *emitters, uint emitter_count,
+            __global const Triangle *triangles, uint triangle_count,
+            __global const TriangleNormals *triangle_normals, __global const BVHNode *bvh_nodes,
+            uint bvh_node_count, __global const uint *bvh_prims, __global float *radiance,
+            __global uint *counters)
 {
     uint i = get_global_id(0);
     if (i >= traced_total)

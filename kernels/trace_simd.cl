@@ -756,27 +756,21 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
 // zeroed) sums the work-items' steps (V_PathStep calls), for lane occupancy figures and tests.
 #define COUNTER_STEPS(groups) (COUNTER_RAYS + (groups))
 
-// The traced samples [*first, *end) of this work-item's chunk; false if it has none. With
-// CLRENDER_SPREAD_WORK_ITEMS (PoCL) chunk c runs on work-item floor(c G / C) of the G launched
-// (C chunks, C <= G: the host launches a work-item per SIMD_WIDTH samples), so busy work-items
-// spread over the whole launch: PoCL's pthread device deals runs of consecutive work-groups to
-// its threads, and a launch's busy work-items packed at its front would all sit in the first
-// run, on one thread. Otherwise work-item g runs chunk g. (A queue of chunks taken with
-// atomic_inc kept both threads as busy, and Debian's and pip's PoCL then crashed at times as
-// the process released the kernel after compiling it: tests/test_trace_simd.py.)
+// The traced samples [*first, *end) of this work-item's chunk; false if it has none. Chunk c
+// runs on work-item floor(c G / C) of the G launched (C chunks, C <= G: the host launches a
+// work-item per SIMD_WIDTH samples), so busy work-items spread over the whole launch: PoCL's
+// pthread device deals runs of consecutive work-groups to its threads, and a launch's busy
+// work-items packed at its front would all sit in the first run, on one thread (Intel's
+// runtime, its work-items scalar, also ran the spread chunks faster than chunk g on work-item
+// g). A queue of chunks taken with atomic_inc kept PoCL's threads as busy, and Debian's and
+// pip's PoCL then crashed at times as the process released the kernel after compiling it.
 CL_INLINE bool Simd_Chunk(uint traced_total, uint *first, uint *end)
 {
     uint chunks = traced_total / CHUNK_SAMPLES + (traced_total % CHUNK_SAMPLES != 0u);
-#ifdef CLRENDER_SPREAD_WORK_ITEMS
     ulong g = get_global_id(0), size = get_global_size(0);
     ulong chunk = (g * chunks + size - 1u) / size;
     if (chunk >= chunks || chunk * size / chunks != g)
         return false;
-#else
-    ulong chunk = get_global_id(0);
-    if (chunk >= chunks)
-        return false;
-#endif
     *first = (uint)chunk * CHUNK_SAMPLES;
     *end = traced_total - *first > CHUNK_SAMPLES ? *first + CHUNK_SAMPLES : traced_total;
     return true;
@@ -787,7 +781,7 @@ CL_INLINE bool Simd_Chunk(uint traced_total, uint *first, uint *end)
 // + 2], as trace_paths) and takes the chunk's next sample, so lanes idle only at the chunk's
 // end. Each lane's path is a function of its sample alone: which lane or work-item traces a
 // sample changes no bit of its radiance, nor the launch's ray and non-finite counts.
-__kernel SIMD_ATTR void
+__kernel SIMD_ATTR KERNEL_SCALAR_WORK_ITEMS void
 trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_width,
                  uint image_height, int max_depth, int nee, int russian_roulette,
                  int paths_kind, uint fixed_count, uint strata, uint zsobol_log2_count,

@@ -20,6 +20,18 @@
 // Device functions are always inlined: a call spills the vector registers.
 #define CL_INLINE inline __attribute__((always_inline))
 
+// Kernel attribute KERNEL_SCALAR_WORK_ITEMS: on Intel's CPU runtime (its platform define
+// CLRENDER_SCALAR_WORK_ITEMS, clrender/runtime.py PLATFORM_DEFINES) intel_vec_len_hint(1), which
+// keeps that compiler from packing work-items into vector lanes; nothing elsewhere. For kernels
+// whose work-items loop and branch apart (the trace kernels, whose SIMD twin fills its own lanes;
+// the Voronoi cells and sums): packed, they ran 2.7-11x slower there (README, Intel's CPU runtime).
+#ifdef CLRENDER_SCALAR_WORK_ITEMS
+#pragma OPENCL EXTENSION cl_intel_vec_len_hint : enable
+#define KERNEL_SCALAR_WORK_ITEMS __attribute__((intel_vec_len_hint(1)))
+#else
+#define KERNEL_SCALAR_WORK_ITEMS
+#endif
+
 // 8 floats from a 4-byte aligned address (vload8 without the call).
 typedef float Float8Unaligned __attribute__((ext_vector_type(8), aligned(4)));
 

@@ -1000,13 +1000,12 @@ CL_INLINE void VoronoiCell_ComputePair(uint i0, float2 nucleus0, uint i1, float2
 // cell's traced nuclei, which share one copy of their 3 x 3 block of grid cells. Traced nuclei
 // lie in the span_side x span_side grid cells from (span_lo, span_lo) (the host bounds them:
 // the strip's outer cells hold only auxiliary nuclei and get no work-item).
-__kernel void voronoi_cell_areas(uint pixel_count, uint traced_total,
-                                 int grid_side, int span_lo, int span_side, float half_extent,
-                                 float start_box, float inside_box, float near_length,
-                                 __global const uint *offsets, __global const uint *cell_start,
-                                 __global const float2 *sorted_points,
-                                 __global const uint *sorted_index, __global area_real *areas,
-                                 __global uchar *status)
+__kernel KERNEL_SCALAR_WORK_ITEMS void
+voronoi_cell_areas(uint pixel_count, uint traced_total, int grid_side, int span_lo, int span_side,
+                   float half_extent, float start_box, float inside_box, float near_length,
+                   __global const uint *offsets, __global const uint *cell_start,
+                   __global const float2 *sorted_points, __global const uint *sorted_index,
+                   __global area_real *areas, __global uchar *status)
 {
     // This work-item's pixel p and grid cell g (c in the grid), and where the pixel's nuclei
     // and grid are

@@ -50,12 +50,11 @@ CL_INLINE void Sums_AddPlain(area_real *plain, float r, float g, float b)
     plain[5] += (area_real)b * b;
 }
 
-__kernel void voronoi_pixel_sums(uint pixel_count, uint pixel_stride,
-                                 __global const uint *traced_offsets,
-                                 __global const float *radiance,
-                                 __global const area_real *areas,
-                                 __global const uchar *status, __global area_real *sums,
-                                 __global uchar *flags, __global uint *nonfinite)
+__kernel KERNEL_SCALAR_WORK_ITEMS void
+voronoi_pixel_sums(uint pixel_count, uint pixel_stride, __global const uint *traced_offsets,
+                   __global const float *radiance, __global const area_real *areas,
+                   __global const uchar *status, __global area_real *sums, __global uchar *flags,
+                   __global uint *nonfinite)
 {
     uint p;
     if (!Voronoi_SpreadPixel(pixel_count, pixel_stride, &p))
@@ -96,9 +95,9 @@ __kernel void voronoi_pixel_sums(uint pixel_count, uint pixel_stride,
 // The plain sums alone, one work-item per pixel (spread), for renders whose estimators need no cells
 // (mc, mc_n and the per-pixel variance layer): per pixel MOMENTS_PER_PIXEL values, the same
 // arithmetic and order as voronoi_pixel_sums' plain sums, and the non-finite sample count.
-__kernel void pixel_moments(uint pixel_count, uint pixel_stride,
-                            __global const uint *traced_offsets, __global const float *radiance,
-                            __global area_real *moments, __global uint *nonfinite)
+__kernel KERNEL_SCALAR_WORK_ITEMS void
+pixel_moments(uint pixel_count, uint pixel_stride, __global const uint *traced_offsets,
+              __global const float *radiance, __global area_real *moments, __global uint *nonfinite)
 {
     uint p;
     if (!Voronoi_SpreadPixel(pixel_count, pixel_stride, &p))

@@ -406,6 +406,17 @@ def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment
     assert (tmp_path / "old.exr").read_bytes() == b"a previous image"
 
 
+def render_at(tmp_path, patch: str) -> subprocess.CompletedProcess:
+    """INTERRUPT_AT with the patch, in a child with the signals' default actions."""
+    return subprocess.run(
+        [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        preexec_fn=default_signals,
+    )
+
+
 # The moments after the render's last pixel where a signal is sent (the first call of a
 # function met there): the estimator thread still joined as the render's thread pool closes,
 # the result built, the progress bar closed, the images written (the errors against a
@@ -431,13 +442,7 @@ def test_a_signal_after_the_last_pixel_still_writes_the_finished_image(tmp_path,
     # summary printed and the command says so (before: up to the writing, the interrupt ended
     # the command with nothing written, the render lost; in the summary, it cut it short)
     (tmp_path / "old.exr").write_bytes(b"a previous image")
-    child = subprocess.run(
-        [sys.executable, "-c", INTERRUPT_AT.format(patch=AFTER_THE_LAST_PIXEL[moment])],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        preexec_fn=default_signals,
-    )
+    child = render_at(tmp_path, AFTER_THE_LAST_PIXEL[moment])
     assert child.returncode == 143, child.stderr
     assert (
         child.stderr
@@ -454,18 +459,13 @@ def test_a_signal_as_the_process_exits_ends_it_without_a_traceback(tmp_path):
     # 130 (before: Python's own handler raised a KeyboardInterrupt there, and its traceback
     # was printed)
     patch = "import atexit\natexit.register(os.kill, os.getpid(), signal.SIGINT)"
-    child = subprocess.run(
-        [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        preexec_fn=default_signals,
-    )
+    child = render_at(tmp_path, patch)
     assert child.returncode == -signal.SIGINT and child.stderr == "", child.stderr
     assert "wrote old.exr and old.png" in child.stdout
     assert read_exr(tmp_path / "old.exr")[1]["partial"] == 0
 
 
+@pytest.mark.device
 def test_a_signal_after_the_status_is_delivered_as_the_command_ends(tmp_path):
     # SIGTERM once the command has taken its status (the held signals reported): it is
     # delivered again as the command ends, the signal's default action ends the process, and
@@ -475,13 +475,7 @@ def test_a_signal_after_the_status_is_delivered_as_the_command_ends(tmp_path):
         "clrender.cli.exit_status = (lambda real: lambda *a: (real(*a), "
         "os.kill(os.getpid(), signal.SIGTERM))[0])(clrender.cli.exit_status)"
     )
-    child = subprocess.run(
-        [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        preexec_fn=default_signals,
-    )
+    child = render_at(tmp_path, patch)
     assert child.returncode == -signal.SIGTERM, child.stderr
     assert (
         child.stderr

@@ -355,10 +355,18 @@ def test_platform_defines_give_the_clang_builtins_to_pocl_only():
     assert "-DCLRENDER_CLANG_BUILTINS" in build_options((), "Portable Computing Language")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Oclgrind")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Intel(R) OpenCL")
-    # the SIMD trace kernel spreads its busy work-items for PoCL's scheduler only (Intel's
-    # runtime ran the probe's spread layout at a sixth of its packed speed)
-    assert "-DCLRENDER_SPREAD_WORK_ITEMS" in build_options((), "Portable Computing Language")
-    assert "-DCLRENDER_SPREAD_WORK_ITEMS" not in build_options((), "Intel(R) OpenCL")
+
+
+def test_platform_defines_keep_intels_vectoriser_off_the_trace_kernels():
+    from clrender.runtime import build_options
+
+    # Intel's CPU runtime packs work-items of a kernel into vector lanes: the trace kernels
+    # ran 2.7x (SIMD) and 4x (megakernel) slower so, the Voronoi cells 4x (README: Intel's CPU
+    # runtime); its define gives them intel_vec_len_hint(1) (kernels/vecmath.h
+    # KERNEL_SCALAR_WORK_ITEMS), PoCL's and other platforms' source stays as it was
+    assert "-DCLRENDER_SCALAR_WORK_ITEMS" in build_options((), "Intel(R) OpenCL")
+    assert "-DCLRENDER_SCALAR_WORK_ITEMS" not in build_options((), "Portable Computing Language")
+    assert "-DCLRENDER_SCALAR_WORK_ITEMS" not in build_options((), "Oclgrind")
 
 
 def test_programs_are_cached_per_kernels_folder(runtime, tmp_path, monkeypatch):
