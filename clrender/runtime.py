@@ -314,15 +314,9 @@ def default_runtime() -> Runtime:
 
 # Defines per OpenCL implementation (platform name): code shapes measured faster there and
 # known to compile correctly (kernels/geometry.h BVH_FUNCTION; kernels/vecmath.h Sqrt, Floor,
-# Ctz and others: the clang builtins, which other OpenCL C compilers need not have;
-# kernels/trace_simd.cl: busy work-items spread over a launch, for PoCL's pthread scheduler,
-# which deals runs of consecutive work-groups to its threads)
+# Ctz and others: the clang builtins, which other OpenCL C compilers need not have)
 PLATFORM_DEFINES = {
-    "Portable Computing Language": (
-        "CLRENDER_BVH_CALLED",
-        "CLRENDER_CLANG_BUILTINS",
-        "CLRENDER_SPREAD_WORK_ITEMS",
-    ),
+    "Portable Computing Language": ("CLRENDER_BVH_CALLED", "CLRENDER_CLANG_BUILTINS"),
     "Intel(R) OpenCL": ("CLRENDER_SCALAR_WORK_ITEMS",),
 }
 

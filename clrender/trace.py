@@ -57,9 +57,11 @@ class TraceResult:
     radiance: cl.Buffer
     sample_count: int
     queue: cl.CommandQueue
-    counters: cl.Buffer  # uint32: non-finite count, then rays per work-group
+    counters: cl.Buffer  # uint32: non-finite count, rays per work-group, then extra_counters
     counter_count: int
     event: cl.Event | None
+    # Counters after the rays (the simd kernel: its steps)
+    extra_counters: int = 0
     _counts: np.ndarray | None = field(default=None, repr=False)
     _counter_read: tuple[np.ndarray, cl.Event] | None = field(default=None, repr=False)
 
@@ -103,7 +105,15 @@ class TraceResult:
 
     @property
     def rays(self) -> int:
-        return int(self._read_counters()[1:].sum())
+        counts = self._read_counters()
+        return int(counts[1 : len(counts) - self.extra_counters].sum())
+
+    @property
+    def steps(self) -> int | None:
+        """The simd kernel's vector steps (a vertex of each running lane's path a step): its
+        lane occupancy is (rays without shadow rays) / (steps x SIMD_WIDTH); None for the
+        megakernel."""
+        return int(self._read_counters()[-1]) if self.extra_counters else None
 
     def wait(self) -> None:
         if self.event is not None:
@@ -320,14 +330,18 @@ class PathTracer:
         queue = runtime.queue
         count = sample_sets.traced_total
         local = runtime.kernel_local_size(self._kernel)
-        # simd: a work-item per samples_per_item samples (the last one partly)
+        # simd: a work-item per samples_per_item samples (the work-items that run a chunk of
+        # samples spread over them: trace_simd.cl)
         global_size = launch_global_size(-(-count // self.samples_per_item), local)
         groups = global_size // local
+        # simd: its steps after the rays (trace_simd.cl)
+        extra = 1 if self.trace_kernel == "simd" else 0
+        slots = 1 + groups + extra
         radiance = runtime.allocate(12 * count)
-        counters = runtime.allocate(4 * (1 + groups))
-        cl.enqueue_fill_buffer(queue, counters, np.uint32(0), 0, 4 * (1 + groups))  # no wait
+        counters = runtime.allocate(4 * slots)
+        cl.enqueue_fill_buffer(queue, counters, np.uint32(0), 0, 4 * slots)  # no wait
         if count == 0:
-            return TraceResult(radiance, 0, queue, counters, 1 + groups, None)
+            return TraceResult(radiance, 0, queue, counters, slots, None, extra)
         event = self._kernel(
             queue,
             (global_size,),
@@ -350,4 +364,4 @@ class PathTracer:
             radiance,
             counters,
         )
-        return TraceResult(radiance, count, queue, counters, 1 + groups, event)
+        return TraceResult(radiance, count, queue, counters, slots, event, extra)

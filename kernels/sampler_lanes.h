@@ -151,8 +151,9 @@ SIMD_FN vuint V_SobolIndex(const SamplerLanes *s, vuint key)
     return permuted;
 }
 
-// The bits of Sampler_Sobol1 (y null) and Sampler_Sobol2 of dimension dim.
-SIMD_FN void V_SobolBits(const SamplerLanes *s, uint dim, vuint *x, vuint *y)
+// The bits of Sampler_Sobol1 (y null) and Sampler_Sobol2 of dimension dim (each lane its own:
+// regenerated paths' lanes are at different depths).
+SIMD_FN void V_SobolBits(const SamplerLanes *s, vuint dim, vuint *x, vuint *y)
 {
     // Sampler_Keys: .x, .z and .w (.y is the stratified sampler's)
     vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
@@ -163,7 +164,7 @@ SIMD_FN void V_SobolBits(const SamplerLanes *s, uint dim, vuint *x, vuint *y)
 }
 
 // Sampler_Sobol1 (y null) and Sampler_Sobol2 of dimension dim, as unit floats (Rng_ToUnit).
-SIMD_FN void V_Sobol(const SamplerLanes *s, uint dim, vfloat *x, vfloat *y)
+SIMD_FN void V_Sobol(const SamplerLanes *s, vuint dim, vfloat *x, vfloat *y)
 {
     vuint bits, bits1;
     V_SobolBits(s, dim, &bits, y ? &bits1 : 0);
@@ -172,12 +173,12 @@ SIMD_FN void V_Sobol(const SamplerLanes *s, uint dim, vfloat *x, vfloat *y)
         *y = V_ToUnit(bits1);
 }
 
-// Sampler_Bounce of the sobol and zsobol samplers on lanes.
-SIMD_FN void V_SobolBounce(const SamplerLanes *s, uint depth, vfloat *u_choice, vfloat *u_point0,
-                           vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0, vfloat *u_dir1,
-                           vfloat *u_roulette)
+// Sampler_Bounce of the sobol and zsobol samplers on lanes, each lane at its own depth.
+SIMD_FN void V_SobolBounce(const SamplerLanes *s, vuint depth, vfloat *u_choice,
+                           vfloat *u_point0, vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0,
+                           vfloat *u_dir1, vfloat *u_roulette)
 {
-    uint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
+    vuint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
     V_Sobol(s, dim, u_choice, 0);
     V_Sobol(s, dim + 1u, u_point0, u_point1);
     V_Sobol(s, dim + 3u, u_lobe, 0);
@@ -258,8 +259,8 @@ CL_INLINE Strata Strata_Make(uint count, uint strata)
     return s;
 }
 
-// The stratum of every lane's sample in dimension dim (Sampler_Keys .x and .y).
-SIMD_FN vuint V_Stratum(const SamplerLanes *s, const Strata *st, uint dim)
+// The stratum of every lane's sample in its dimension dim (Sampler_Keys .x and .y).
+SIMD_FN vuint V_Stratum(const SamplerLanes *s, const Strata *st, vuint dim)
 {
     vuint h = V_Hash(s->key_x ^ V_Hash(dim + s->key_y));
     return V_PermutationElement(s->index, st->count, st->by_count, st->mask, st->half_bits, h,
@@ -267,7 +268,7 @@ SIMD_FN vuint V_Stratum(const SamplerLanes *s, const Strata *st, uint dim)
 }
 
 // Sampler_Stratified1
-SIMD_FN vfloat V_Stratified1(const SamplerLanes *s, const Strata *st, uint dim, vfloat u)
+SIMD_FN vfloat V_Stratified1(const SamplerLanes *s, const Strata *st, vuint dim, vfloat u)
 {
     vuint stratum = V_Stratum(s, st, dim);
     vfloat v = (TO_VFLOAT(stratum) + u) / (float)st->count;
@@ -275,7 +276,7 @@ SIMD_FN vfloat V_Stratified1(const SamplerLanes *s, const Strata *st, uint dim, 
 }
 
 // Sampler_Stratified2: u0 and u1 in, the pair out.
-SIMD_FN void V_Stratified2(const SamplerLanes *s, const Strata *st, uint dim, vfloat *u0,
+SIMD_FN void V_Stratified2(const SamplerLanes *s, const Strata *st, vuint dim, vfloat *u0,
                            vfloat *u1)
 {
     vuint stratum = V_Stratum(s, st, dim);
@@ -286,18 +287,19 @@ SIMD_FN void V_Stratified2(const SamplerLanes *s, const Strata *st, uint dim, vf
     *u1 = v1 < SAMPLER_BELOW_ONE ? v1 : (vfloat)(SAMPLER_BELOW_ONE);
 }
 
-// Sampler_Bounce of the stratified sampler on lanes (the jitter: V_Uniform4 as Sampler_Bounce's
-// Rng_Uniform4).
+// Sampler_Bounce of the stratified sampler on lanes, each lane at its own depth (the jitter:
+// V_Uniform4Lanes as Sampler_Bounce's Rng_Uniform4).
 SIMD_FN void V_StratifiedBounce(const SamplerLanes *s, const Strata *st, uint seed, vuint pixel,
-                                vuint redraw, uint depth, vfloat *u_choice, vfloat *u_point0,
+                                vuint redraw, vuint depth, vfloat *u_choice, vfloat *u_point0,
                                 vfloat *u_point1, vfloat *u_lobe, vfloat *u_dir0,
                                 vfloat *u_dir1, vfloat *u_roulette)
 {
-    uint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
+    vuint dim = 2u + SAMPLER_BOUNCE_DIMENSIONS * depth;
     vfloat unused;
-    V_Uniform4(seed, pixel, s->index, 1u + 2u * depth, redraw, u_choice, u_point0, u_point1,
-               u_roulette);
-    V_Uniform4(seed, pixel, s->index, 2u + 2u * depth, redraw, u_dir0, u_dir1, u_lobe, &unused);
+    V_Uniform4Lanes(seed, pixel, s->index, 1u + 2u * depth, redraw, u_choice, u_point0,
+                    u_point1, u_roulette);
+    V_Uniform4Lanes(seed, pixel, s->index, 2u + 2u * depth, redraw, u_dir0, u_dir1, u_lobe,
+                    &unused);
     *u_choice = V_Stratified1(s, st, dim, *u_choice);
     V_Stratified2(s, st, dim + 1u, u_point0, u_point1);
     *u_lobe = V_Stratified1(s, st, dim + 3u, *u_lobe);

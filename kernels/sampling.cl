@@ -210,14 +210,14 @@ __kernel SIMD_ATTR void fill_traced_from_sampler(uint pixel_count, uint seed, in
         Strata st = Strata_Make(fixed_count, strata);
         vfloat u2, u3;
         V_Uniform4(seed, (vuint)pixel, sample, 0u, (vuint)redraw, &x.v, &y.v, &u2, &u3);
-        V_Stratified2(&lanes, &st, 0u, &x.v, &y.v);
+        V_Stratified2(&lanes, &st, (vuint)0u, &x.v, &y.v);
         x.v -= 0.5f;
         y.v -= 0.5f;
         x.v = x.v > -SAMPLER_BELOW_HALF ? x.v : (vfloat)(-SAMPLER_BELOW_HALF);
         y.v = y.v > -SAMPLER_BELOW_HALF ? y.v : (vfloat)(-SAMPLER_BELOW_HALF);
     } else {
         vuint bits_x, bits_y;
-        V_SobolBits(&lanes, 0u, &bits_x, &bits_y);
+        V_SobolBits(&lanes, (vuint)0u, &bits_x, &bits_y);
         x.v = V_ToCentered(bits_x);
         y.v = V_ToCentered(bits_y);
     }

@@ -25,12 +25,15 @@
 // Also per lane: the sampler's set-up and the tiny or huge vectors where Length3 or Normalize3
 // fall back to the builtin.
 //
-// Work-item g traces traced samples [g SIMD_WIDTH, (g + 1) SIMD_WIDTH) (the last one partly);
-// all its lanes are at the same depth (a vertex of every running path per step). Arguments,
-// counters and radiance layout: trace_paths'.
+// Path regeneration: a work-item traces a chunk of consecutive traced samples, and a lane whose
+// path ends takes the chunk's next sample, so each lane has its own depth (its own sampler
+// dimensions). Arguments and radiance layout: trace_paths'; counters: trace_paths' (non-finite
+// count, rays per work-group), then the steps taken (COUNTER_STEPS: the host allocates one
+// more, zeroed).
 //
 // Build options: SIMD_WIDTH 16 (default) or 8. SIMD_PORTABLE: no x86 builtins (sqrt and the
 // lane mask's bits by portable code), as a compiler without __AVX512F__ / __AVX__ gets anyway.
+// SIMD_CHUNK: lanes' worth of samples a work-item takes from the queue at a time (32).
 #include "integrator.h"
 
 #include "sampler_lanes.h"
@@ -218,6 +221,7 @@ typedef struct {
     vfloat beta_r, beta_g, beta_b;
     vfloat prev_pdfW, eta_scale;
     vint specular; // -1 where the last BSDF sample was specular
+    vint depth;    // each path's vertex count so far (its lane's sampler dimensions)
     vint running;  // -1 where the path goes on
 } Paths;
 
@@ -273,9 +277,9 @@ CL_INLINE bool V_SceneOnLanes(const SceneData *scene)
 // One vertex of every running path (Integrator_Li's loop, Integrator_Vertex on lanes): the
 // closest surfaces, their emission, then next event estimation and the BSDF's next directions.
 // Lanes whose path ends have running cleared; the others have their next ray.
-SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths, int depth,
-                        uint *rays)
+SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths, uint *rays)
 {
+    vint depth = paths->depth;
     vint running = paths->running;
     uint running_bits = V_Bits(running);
     *rays += (uint)popcount(running_bits);
@@ -403,7 +407,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     FOR_EACH_LANE(j, scalar_bits)
     {
         PathState path = Paths_Lane(paths, j);
-        bool goes_on = Integrator_Vertex(scene, &path, depth, t[j], prim[j], lanes->max_depth,
+        bool goes_on = Integrator_Vertex(scene, &path, depth[j], t[j], prim[j], lanes->max_depth,
                                          lanes->nee, lanes->russian_roulette,
                                          &lanes->sampler[j], rays);
         Paths_SetLane(paths, j, &path, goes_on);
@@ -456,7 +460,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
             area = area_l.v;
             sphere_lanes = sphere_l.v;
         }
-        vint full_weight = paths->specular | (vint)(depth == 0 || !lanes->nee ? -1 : 0);
+        vint full_weight = paths->specular | (depth == 0) | (vint)(!lanes->nee ? -1 : 0);
         // Light_HitPdfW: a quad's or triangle's here, a sphere's lane by lane
         vfloat light_pdfW = pick_pdf * t * t / (cos_o * area);
         uint sphere_bits = V_Bits(emitted & ~full_weight & sphere_lanes);
@@ -474,7 +478,7 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
 
     // End paths at the maximum depth, on surfaces that only emit, and one-sided surfaces
     // seen from behind
-    vint on = vector_lanes & (material >= 0) & (vint)(depth != lanes->max_depth ? -1 : 0);
+    vint on = vector_lanes & (material >= 0) & (depth != lanes->max_depth);
     vint back = cos_o < 0.0f;
     on &= ~back | (two_sided != 0);
     paths->L_r = vector_lanes ? L_r : paths->L_r;
@@ -503,23 +507,24 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     // The vertex's random numbers (Sampler_Bounce on lanes; lane by lane for any other kind)
     vfloat u_choice, u_point0, u_point1, u_roulette, u_dir0, u_dir1, u_lobe;
     if (lanes->paths_kind == PATHS_INDEPENDENT) {
-        V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 1u + 2u * (uint)depth,
-                   lanes->redraw, &u_choice, &u_point0, &u_point1, &u_roulette);
+        vuint dim = 1u + 2u * AS_VUINT(depth);
+        V_Uniform4Lanes(lanes->seed, lanes->pixel, lanes->sample, dim, lanes->redraw, &u_choice,
+                        &u_point0, &u_point1, &u_roulette);
         vfloat unused;
-        V_Uniform4(lanes->seed, lanes->pixel, lanes->sample, 2u + 2u * (uint)depth,
-                   lanes->redraw, &u_dir0, &u_dir1, &u_lobe, &unused);
+        V_Uniform4Lanes(lanes->seed, lanes->pixel, lanes->sample, dim + 1u, lanes->redraw,
+                        &u_dir0, &u_dir1, &u_lobe, &unused);
     } else if (lanes->paths_kind == PATHS_SOBOL || lanes->paths_kind == PATHS_ZSOBOL) {
-        V_SobolBounce(&lanes->ld, (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe,
+        V_SobolBounce(&lanes->ld, AS_VUINT(depth), &u_choice, &u_point0, &u_point1, &u_lobe,
                       &u_dir0, &u_dir1, &u_roulette);
     } else if (lanes->paths_kind == PATHS_STRATIFIED) {
         V_StratifiedBounce(&lanes->ld, &lanes->strata, lanes->seed, lanes->pixel, lanes->redraw,
-                           (uint)depth, &u_choice, &u_point0, &u_point1, &u_lobe, &u_dir0,
+                           AS_VUINT(depth), &u_choice, &u_point0, &u_point1, &u_lobe, &u_dir0,
                            &u_dir1, &u_roulette);
     } else {
         u_choice = u_point0 = u_point1 = u_roulette = u_dir0 = u_dir1 = u_lobe = (vfloat)(0.5f);
         FOR_EACH_LANE(j, on_bits)
         {
-            BounceSamples u = Sampler_Bounce(&lanes->sampler[j], (uint)depth);
+            BounceSamples u = Sampler_Bounce(&lanes->sampler[j], (uint)depth[j]);
             u_choice[j] = u.emitter_choice;
             u_point0[j] = u.emitter_point.x;
             u_point1[j] = u.emitter_point.y;
@@ -712,11 +717,13 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
     vfloat oz = p_z + side * ng_z;
 
     // Possibly terminate the paths with Russian roulette (Roulette_EndProbability)
-    if (lanes->russian_roulette && depth >= RUSSIAN_ROULETTE_MIN_DEPTH) {
+    vint roulette_lanes = on & (depth >= RUSSIAN_ROULETTE_MIN_DEPTH);
+    if (lanes->russian_roulette && V_Bits(roulette_lanes) != 0u) {
         vfloat rr_beta_max = V_Fmax(beta_r, V_Fmax(beta_g, beta_b));
         if (RUSSIAN_ROULETTE_ETA_SCALE)
             rr_beta_max *= paths->eta_scale;
         vfloat q = rr_beta_max < 1.0f ? V_Fmax((vfloat)(0.0f), 1.0f - rr_beta_max) : 0.0f;
+        q = roulette_lanes ? q : 0.0f;
         vint rouletted = q > 0.0f;
         sampled &= ~(rouletted & (u_roulette < q));
         beta_r = rouletted ? beta_r / (1.0f - q) : beta_r;
@@ -739,8 +746,41 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
 
 // ----------------------------------------------------------------------------- the kernel
 
-// One work-item per SIMD_WIDTH consecutive traced samples, a path a lane until all have ended:
-// radiance (RGB float) to radiance[3 i .. 3 i + 2], as trace_paths.
+// Samples a work-item traces: SIMD_CHUNK lanes' worth.
+#ifndef SIMD_CHUNK
+#define SIMD_CHUNK 32
+#endif
+#define CHUNK_SAMPLES (SIMD_WIDTH * SIMD_CHUNK)
+
+// counters[COUNTER_RAYS + groups] (the host allocates it past the per-group ray counts,
+// zeroed) sums the work-items' steps (V_PathStep calls), for lane occupancy figures and tests.
+#define COUNTER_STEPS(groups) (COUNTER_RAYS + (groups))
+
+// The traced samples [*first, *end) of this work-item's chunk; false if it has none. Chunk c
+// runs on work-item floor(c G / C) of the G launched (C chunks, C <= G: the host launches a
+// work-item per SIMD_WIDTH samples), so busy work-items spread over the whole launch: PoCL's
+// pthread device deals runs of consecutive work-groups to its threads, and a launch's busy
+// work-items packed at its front would all sit in the first run, on one thread (Intel's
+// runtime, its work-items scalar, also ran the spread chunks faster than chunk g on work-item
+// g). A queue of chunks taken with atomic_inc kept PoCL's threads as busy, and Debian's and
+// pip's PoCL then crashed at times as the process released the kernel after compiling it.
+CL_INLINE bool Simd_Chunk(uint traced_total, uint *first, uint *end)
+{
+    uint chunks = traced_total / CHUNK_SAMPLES + (traced_total % CHUNK_SAMPLES != 0u);
+    ulong g = get_global_id(0), size = get_global_size(0);
+    ulong chunk = (g * chunks + size - 1u) / size;
+    if (chunk >= chunks || chunk * size / chunks != g)
+        return false;
+    *first = (uint)chunk * CHUNK_SAMPLES;
+    *end = traced_total - *first > CHUNK_SAMPLES ? *first + CHUNK_SAMPLES : traced_total;
+    return true;
+}
+
+// Path regeneration: a work-item traces a chunk of CHUNK_SAMPLES consecutive traced samples,
+// a path a lane; a lane whose path ends stores its radiance (RGB float to radiance[3 i .. 3 i
+// + 2], as trace_paths) and takes the chunk's next sample, so lanes idle only at the chunk's
+// end. Each lane's path is a function of its sample alone: which lane or work-item traces a
+// sample changes no bit of its radiance, nor the launch's ray and non-finite counts.
 __kernel SIMD_ATTR KERNEL_SCALAR_WORK_ITEMS void
 trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_width,
                  uint image_height, int max_depth, int nee, int russian_roulette,
@@ -758,100 +798,124 @@ trace_paths_simd(uint traced_total, uint pixel_count, uint seed, uint image_widt
                  __global const uint *bvh_prims, __global float *radiance,
                  __global uint *counters)
 {
-#ifdef CLRENDER_SPREAD_WORK_ITEMS
-    // Busy work-items spread over the whole launch, one every `stride`: PoCL's pthread device
-    // deals runs of consecutive work-groups to its threads, and a small launch's busy
-    // work-items packed at its front would all sit in the first run, on one thread
-    uint chunks = traced_total / SIMD_WIDTH + (traced_total % SIMD_WIDTH != 0u);
-    uint stride = chunks ? (uint)get_global_size(0) / chunks : 1u;
-    uint item = (uint)get_global_id(0);
-    if (chunks == 0u || item % stride != 0u || item / stride >= chunks)
+    uint next, end;
+    if (!Simd_Chunk(traced_total, &next, &end))
         return;
-    uint first = item / stride * SIMD_WIDTH;
-#else
-    uint first = get_global_id(0) * SIMD_WIDTH;
-    if (first >= traced_total)
-        return;
-#endif
     SceneData scene = SCENE_DATA_OF_ARGUMENTS;
-    uint lane_count = traced_total - first < SIMD_WIDTH ? traced_total - first : SIMD_WIDTH;
+    const uint all_lanes = (1u << SIMD_WIDTH) - 1u;
 
-    // Each lane's sample: its pixel, index in the pixel, sampler and camera ray
+    // Each lane's sample: its pixel, index in the pixel, sampler and traced index (lanes that
+    // never take one keep sample 0 of pixel 0, and do not run)
     Lanes lanes;
     lanes.max_depth = max_depth;
     lanes.nee = nee;
     lanes.russian_roulette = russian_roulette;
     lanes.paths_kind = paths_kind;
     lanes.seed = seed;
+    lanes.ld.kind = paths_kind;
+    lanes.ld.zsobol_bits = zsobol_bits;
+    if (paths_kind == PATHS_STRATIFIED)
+        lanes.strata = Strata_Make(fixed_count, strata);
+    LANES(uint, vuint) pixel_l, sample_l, redraw_l, key_x_l, key_y_l, sobol_index_l, traced_l;
+    LANES(float, vfloat) pos_x_l, pos_y_l;
+    pixel_l.v = sample_l.v = redraw_l.v = key_x_l.v = key_y_l.v = sobol_index_l.v = (vuint)(0u);
+    traced_l.v = (vuint)(0u);
+    pos_x_l.v = pos_y_l.v = (vfloat)(0.0f);
     Paths paths;
-    paths.ox = (vfloat)(camera->origin[0]);
-    paths.oy = (vfloat)(camera->origin[1]);
-    paths.oz = (vfloat)(camera->origin[2]);
+    paths.ox = paths.oy = paths.oz = paths.dx = paths.dy = paths.dz = (vfloat)(0.0f);
     paths.L_r = paths.L_g = paths.L_b = (vfloat)(0.0f);
     paths.beta_r = paths.beta_g = paths.beta_b = (vfloat)(1.0f);
     paths.prev_pdfW = (vfloat)(0.0f);
     paths.eta_scale = (vfloat)(1.0f);
-    paths.specular = (vint)(0);
-    LANES(uint, vuint) pixel_l, sample_l, redraw_l, key_x_l, key_y_l, sobol_index_l;
-    LANES(float, vfloat) pos_x_l, pos_y_l;
-    LANES(int, vint) running_l;
-    uint slot = 0u, slot_end = 0u; // the last lane's slot, and where its samples end
-    for (int j = 0; j < SIMD_WIDTH; ++j) {
-        // (lanes past the launch's end repeat its last sample, and do not run)
-        uint i = (uint)j < lane_count ? first + (uint)j : traced_total - 1u;
-        // Launch_OwnerPixel, searched only when the sample leaves the last lane's slot (the
-        // lanes' samples are consecutive: most share a pixel)
-        if (j == 0 || i >= slot_end) {
-            slot = Launch_OwnerPixel(traced_offsets, pixel_count, i);
-            slot_end = slot + 1u < pixel_count ? traced_offsets[slot + 1u] : UINT_MAX;
+    paths.specular = paths.depth = paths.running = (vint)(0);
+    uint slot_end = 0u; // where the samples of the last sample's pixel end
+    uint slot = 0u;
+    uint rays = 0u, steps = 0u, nonfinite = 0u;
+    for (;;) {
+        // Start the chunk's next samples in the free lanes (Launch_OwnerPixel searched only
+        // when a sample leaves the last one's pixel)
+        uint free_bits = ~V_Bits(paths.running) & all_lanes;
+        uint fresh_bits = 0u;
+        LANES(int, vint) fresh_l;
+        fresh_l.v = (vint)(0);
+        while (free_bits != 0u && next < end) {
+            uint j = (uint)Ctz(free_bits);
+            free_bits &= free_bits - 1u;
+            if (next >= slot_end) {
+                slot = Launch_OwnerPixel(traced_offsets, pixel_count, next);
+                slot_end = slot + 1u < pixel_count ? traced_offsets[slot + 1u] : UINT_MAX;
+            }
+            uint pixel = pixels[slot];
+            uint sample = next - traced_offsets[slot];
+            pixel_l.s[j] = pixel;
+            sample_l.s[j] = sample;
+            redraw_l.s[j] = redraws[slot];
+            float2 u_pixel = positions[next];
+            pos_x_l.s[j] = u_pixel.x;
+            pos_y_l.s[j] = u_pixel.y;
+            traced_l.s[j] = next;
+            lanes.sampler[j] = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot],
+                                            fixed_count, strata, image_width, zsobol_log2_count,
+                                            zsobol_bits);
+            key_x_l.s[j] = lanes.sampler[j].key.x;
+            key_y_l.s[j] = lanes.sampler[j].key.y;
+            sobol_index_l.s[j] =
+                paths_kind == PATHS_ZSOBOL ? lanes.sampler[j].zsobol_index : sample;
+            fresh_bits |= 1u << j;
+            fresh_l.s[j] = -1;
+            ++next;
         }
-        uint pixel = pixels[slot];
-        uint sample = i - traced_offsets[slot];
-        pixel_l.s[j] = pixel;
-        sample_l.s[j] = sample;
-        redraw_l.s[j] = redraws[slot];
-        float2 u_pixel = positions[i];
-        pos_x_l.s[j] = u_pixel.x;
-        pos_y_l.s[j] = u_pixel.y;
-        lanes.sampler[j] = Sampler_Make(paths_kind, seed, pixel, sample, redraws[slot],
-                                        fixed_count, strata, image_width, zsobol_log2_count,
-                                        zsobol_bits);
-        key_x_l.s[j] = lanes.sampler[j].key.x;
-        key_y_l.s[j] = lanes.sampler[j].key.y;
-        sobol_index_l.s[j] =
-            paths_kind == PATHS_ZSOBOL ? lanes.sampler[j].zsobol_index : sample;
-        running_l.s[j] = (uint)j < lane_count ? -1 : 0;
-    }
-    lanes.pixel = pixel_l.v;
-    lanes.sample = sample_l.v;
-    lanes.redraw = redraw_l.v;
-    lanes.ld.kind = paths_kind;
-    lanes.ld.zsobol_bits = zsobol_bits;
-    lanes.ld.key_x = key_x_l.v;
-    lanes.ld.key_y = key_y_l.v;
-    lanes.ld.index = sobol_index_l.v;
-    if (paths_kind == PATHS_STRATIFIED)
-        lanes.strata = Strata_Make(fixed_count, strata);
-    V_CameraRays(camera, image_width, image_height, pixel_l.v, pos_x_l.v, pos_y_l.v, &paths.dx,
-                 &paths.dy, &paths.dz);
-    paths.running = running_l.v;
-
-    // Trace until every lane's path has ended
-    uint rays = 0u;
-    for (int depth = 0; V_Bits(paths.running) != 0u; ++depth)
-        V_PathStep(&scene, &lanes, &paths, depth, &rays);
-
-    // Store the radiance; a non-finite value is counted and stored as 0 (as pbrt does)
-    uint nonfinite = 0u;
-    for (uint j = 0; j < lane_count; ++j) {
-        float3 L = (float3)(paths.L_r[j], paths.L_g[j], paths.L_b[j]);
-        if (!all(isfinite(L))) {
-            ++nonfinite;
-            L = (float3)(0.0f);
+        if (fresh_bits != 0u) {
+            vint fresh = fresh_l.v;
+            lanes.pixel = pixel_l.v;
+            lanes.sample = sample_l.v;
+            lanes.redraw = redraw_l.v;
+            lanes.ld.key_x = key_x_l.v;
+            lanes.ld.key_y = key_y_l.v;
+            lanes.ld.index = sobol_index_l.v;
+            vfloat dx, dy, dz;
+            V_CameraRays(camera, image_width, image_height, pixel_l.v, pos_x_l.v, pos_y_l.v, &dx,
+                         &dy, &dz);
+            paths.dx = fresh ? dx : paths.dx;
+            paths.dy = fresh ? dy : paths.dy;
+            paths.dz = fresh ? dz : paths.dz;
+            paths.ox = fresh ? camera->origin[0] : paths.ox;
+            paths.oy = fresh ? camera->origin[1] : paths.oy;
+            paths.oz = fresh ? camera->origin[2] : paths.oz;
+            paths.L_r = fresh ? 0.0f : paths.L_r;
+            paths.L_g = fresh ? 0.0f : paths.L_g;
+            paths.L_b = fresh ? 0.0f : paths.L_b;
+            paths.beta_r = fresh ? 1.0f : paths.beta_r;
+            paths.beta_g = fresh ? 1.0f : paths.beta_g;
+            paths.beta_b = fresh ? 1.0f : paths.beta_b;
+            paths.prev_pdfW = fresh ? 0.0f : paths.prev_pdfW;
+            paths.eta_scale = fresh ? 1.0f : paths.eta_scale;
+            paths.specular = fresh ? 0 : paths.specular;
+            paths.depth = fresh ? 0 : paths.depth;
+            paths.running |= fresh;
         }
-        vstore3(L, first + j, radiance);
+        uint started = V_Bits(paths.running);
+        if (started == 0u)
+            break;
+        V_PathStep(&scene, &lanes, &paths, &rays);
+        paths.depth += 1;
+        ++steps;
+
+        // Store the radiance of the paths that ended; a non-finite value is counted and
+        // stored as 0 (as pbrt does)
+        uint ended = started & ~V_Bits(paths.running);
+        FOR_EACH_LANE(j, ended)
+        {
+            float3 L = (float3)(paths.L_r[j], paths.L_g[j], paths.L_b[j]);
+            if (!all(isfinite(L))) {
+                ++nonfinite;
+                L = (float3)(0.0f);
+            }
+            vstore3(L, traced_l.s[j], radiance);
+        }
     }
     if (nonfinite != 0u)
         atomic_add(&counters[COUNTER_NONFINITE], nonfinite);
     atomic_add(&counters[COUNTER_RAYS + get_group_id(0)], rays);
+    atomic_add(&counters[COUNTER_STEPS(get_num_groups(0))], steps);
 }

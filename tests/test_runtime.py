@@ -355,10 +355,6 @@ def test_platform_defines_give_the_clang_builtins_to_pocl_only():
     assert "-DCLRENDER_CLANG_BUILTINS" in build_options((), "Portable Computing Language")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Oclgrind")
     assert "-DCLRENDER_CLANG_BUILTINS" not in build_options((), "Intel(R) OpenCL")
-    # the SIMD trace kernel spreads its busy work-items for PoCL's scheduler only (Intel's
-    # runtime ran the probe's spread layout at a sixth of its packed speed)
-    assert "-DCLRENDER_SPREAD_WORK_ITEMS" in build_options((), "Portable Computing Language")
-    assert "-DCLRENDER_SPREAD_WORK_ITEMS" not in build_options((), "Intel(R) OpenCL")
 
 
 def test_platform_defines_keep_intels_vectoriser_off_the_trace_kernels():

@@ -193,6 +193,40 @@ def test_overflowing_throughput_matches(runtime):
     assert 0 < result.nonfinite < len(radiance)
 
 
+@pytest.mark.parametrize("width", [16, 8])
+def test_lanes_whose_paths_end_take_new_samples(runtime, width):
+    """Path regeneration: a work-item traces a chunk of 32 lanes' worth of samples, a lane whose
+    path ends taking the chunk's next one. Paths of 1 to 25 vertices (Russian roulette, depth
+    24, BSDF sampling only: the rays are the lanes' steps) give the megakernel's samples, and
+    the kernel's steps leave lanes idle only at each chunk's end: at most 25 steps (the longest
+    path) a chunk with an idle lane. One sample a lane until all have ended (SIMD_CHUNK 1, the
+    kernel before regeneration) needs more steps than that allows."""
+    size = 32  # 4096 samples: 8 chunks of 512 at width 16, 16 of 256 at width 8
+    sets = draw(runtime, "independent", 29, size=size)
+    scene = load_scene("cornell-box")
+    options = {"max_depth": 24, "next_event_estimation": False, "russian_roulette": True}
+    defines = {"SIMD_WIDTH": width}
+    radiance, mega = assert_same_trace(
+        runtime, scene, sets, 29, size, simd_defines=defines, **options
+    )
+    chunks = -(-len(radiance) // (32 * width))
+    steps = {}
+    for chunk in (32, 1):
+        simd = PathTracer(
+            runtime,
+            scene,
+            trace_kernel="simd",
+            simd_defines=defines | {"SIMD_CHUNK": chunk},
+            **options,
+        )
+        result = simd.trace(sets, 29, size, size)
+        assert np.array_equal(result.to_host(), radiance) and result.rays == mega.rays
+        steps[chunk] = result.steps
+    assert mega.rays >= 2 * len(radiance)  # paths of several vertices
+    assert mega.rays <= width * steps[32] <= mega.rays + width * chunks * 25
+    assert width * steps[1] > mega.rays + width * chunks * 25
+
+
 def test_empty_launch(runtime):
     """No samples: nothing traced, no rays."""
     simd = PathTracer(runtime, load_scene("mitsuba-cbox"), trace_kernel="simd")
