@@ -951,7 +951,14 @@ class TilePipeline:
             return None
         pixels = tile_pixels(self.settings, tiles[index], end)
         zeros = np.zeros(len(pixels), np.uint32)
-        return queue_counts(self.runtime, sampler, self.settings.seed, pixels, zeros)
+        # (outside a stage: a first use builds sampling.cl here, counted as compile time)
+        built = thread_build_seconds()
+        try:
+            return queue_counts(self.runtime, sampler, self.settings.seed, pixels, zeros)
+        finally:
+            compile_seconds = thread_build_seconds() - built
+            self.stats.compile_seconds += compile_seconds
+            self.stats.main_compile_seconds += compile_seconds
 
     def collect(self, queued: QueuedTile) -> TileSamples:
         tile = queued.collect(self.clock)

@@ -259,7 +259,9 @@ class Runtime:
         use. A buffer written on one queue may be read by work queued on the other only after
         the host has seen the write complete (a blocking read, or an event waited for)."""
         if self._side_queue is None:
-            self._side_queue = cl.CommandQueue(self.context, properties=self.queue.properties)
+            self._side_queue = cl.CommandQueue(
+                self.context, self.queue.device, properties=self.queue.properties
+            )
         return self._side_queue
 
     def allocate(self, nbytes: int) -> cl.MemoryObjectHolder:

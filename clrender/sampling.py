@@ -554,6 +554,7 @@ def _queue_count(
     read without a wait: the read waits for the count pass alone, not for the work queued
     before it on the main queue. Its buffers are plain ones made from the host arrays (copied
     as they are made), not the pool's (Runtime.side_queue)."""
+    pixels, redraws = pixels.copy(), redraws.copy()  # (the caller may reuse its arrays)
     pixel_count = len(pixels)
     counts = np.empty(pixel_count, np.uint32)
     if not pixel_count:

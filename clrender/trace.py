@@ -251,6 +251,12 @@ class PathTracer:
                 raise ParameterError(
                     f"SIMD_WIDTH must be one of {', '.join(map(str, SIMD_WIDTHS))}, got {width!r}"
                 )
+            chunk = defines.get("SIMD_CHUNK", 1)
+            whole = isinstance(chunk, int) and not isinstance(chunk, bool)
+            if not whole or not 0 < chunk * width < 2**31:
+                raise ParameterError(
+                    f"SIMD_CHUNK must be a positive integer below 2^31 / SIMD_WIDTH, got {chunk!r}"
+                )
             self.samples_per_item = int(width)
             self._kernel = runtime.kernel("trace_simd.cl", "trace_paths_simd", defines)
         else:

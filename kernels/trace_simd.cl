@@ -33,7 +33,8 @@
 //
 // Build options: SIMD_WIDTH 16 (default) or 8. SIMD_PORTABLE: no x86 builtins (sqrt and the
 // lane mask's bits by portable code), as a compiler without __AVX512F__ / __AVX__ gets anyway.
-// SIMD_CHUNK: lanes' worth of samples a work-item takes from the queue at a time (32).
+// SIMD_CHUNK: lanes' worth of samples in a work-item's chunk (32; the host checks it is
+// positive and SIMD_WIDTH x SIMD_CHUNK below 2^31).
 #include "integrator.h"
 
 #include "sampler_lanes.h"
@@ -749,6 +750,9 @@ SIMD_FN void V_PathStep(const SceneData *scene, const Lanes *lanes, Paths *paths
 // Samples a work-item traces: SIMD_CHUNK lanes' worth.
 #ifndef SIMD_CHUNK
 #define SIMD_CHUNK 32
+#endif
+#if SIMD_CHUNK < 1
+#error "SIMD_CHUNK must be positive"
 #endif
 #define CHUNK_SAMPLES (SIMD_WIDTH * SIMD_CHUNK)
 

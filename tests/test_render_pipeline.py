@@ -481,6 +481,28 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
         assert np.array_equal(result.images[name], image), name
 
 
+def test_a_count_pass_queued_ahead_counts_its_builds_as_compile_time(runtime, monkeypatch):
+    """The counts queued ahead of a tile are queued outside its stages: a program build there
+    (the first use of sampling.cl in a process) is compile time, not render time (before: it
+    went into the render's run time, and its paths per second)."""
+    import clrender.pipeline as pipeline
+
+    build_clock = [0.0]
+    real_queue_counts = pipeline.queue_counts
+
+    def building_queue_counts(*args):
+        build_clock[0] += 0.5  # as if each built a program for half a second
+        return real_queue_counts(*args)
+
+    monkeypatch.setattr(pipeline, "thread_build_seconds", lambda: build_clock[0])
+    monkeypatch.setattr(pipeline, "queue_counts", building_queue_counts)
+    config = settings("sppp", ["mc_n"], spp=4, tile_samples=40 * 4)
+    result = render(runtime, analytic_source(runtime), config)
+    calls = build_clock[0] / 0.5
+    assert calls == len(plan_tiles(result.settings)) > 1
+    assert result.stats.main_compile_seconds == result.stats.compile_seconds == build_clock[0]
+
+
 @pytest.mark.parametrize("overlap", [True, False])
 def test_sppp_counts_of_the_next_tile_are_queued_before_a_tile_is_traced(
     runtime, monkeypatch, overlap

@@ -481,5 +481,11 @@ def test_counts_queued_ahead_give_the_same_sets(runtime):
         ahead = queue_counts(runtime, config, 4, pixels, redraws)
         with pytest.raises(ParameterError, match="counts queued ahead"):
             generate_sample_sets(runtime, other, seed, other_pixels, other_redraws, None, ahead)
+    # The caller's arrays reused in place after the counts were queued: they are another launch
+    reused = pixels.copy()
+    ahead = queue_counts(runtime, config, 4, reused, redraws)
+    reused += 64
+    with pytest.raises(ParameterError, match="counts queued ahead"):
+        generate_sample_sets(runtime, config, 4, reused, redraws, None, ahead)
     with pytest.raises(ParameterError, match="only SPPP samplers count"):
         queue_counts(runtime, make_sampler("independent", 9), 4, pixels)

@@ -246,6 +246,9 @@ def test_empty_launch(runtime):
         ),
         ({"trace_kernel": None}, "trace_kernel must be one of"),
         ({"trace_kernel": "simd", "simd_defines": {"SIMD_WIDTH": 4}}, "SIMD_WIDTH must be one of"),
+        ({"trace_kernel": "simd", "simd_defines": {"SIMD_CHUNK": 0}}, "SIMD_CHUNK must be a"),
+        ({"trace_kernel": "simd", "simd_defines": {"SIMD_CHUNK": 2**27}}, "SIMD_CHUNK must be a"),
+        ({"trace_kernel": "simd", "simd_defines": {"SIMD_CHUNK": "8"}}, "SIMD_CHUNK must be a"),
         (
             {"trace_kernel": "megakernel", "simd_defines": {"SIMD_WIDTH": 8}},
             "simd_defines need trace_kernel='simd'",
