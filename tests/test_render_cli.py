@@ -406,15 +406,19 @@ def test_an_interrupt_before_any_pixel_keeps_the_previous_image(tmp_path, moment
     assert (tmp_path / "old.exr").read_bytes() == b"a previous image"
 
 
-def render_at(tmp_path, patch: str) -> subprocess.CompletedProcess:
-    """INTERRUPT_AT with the patch, in a child with the signals' default actions."""
+def run_child(tmp_path, script: str) -> subprocess.CompletedProcess:
+    """A Python script in a child with the signals' default actions, as at a terminal."""
     return subprocess.run(
-        [sys.executable, "-c", INTERRUPT_AT.format(patch=patch)],
+        [sys.executable, "-c", script],
         capture_output=True,
         text=True,
         cwd=tmp_path,
         preexec_fn=default_signals,
     )
+
+
+def render_at(tmp_path, patch: str) -> subprocess.CompletedProcess:
+    return run_child(tmp_path, INTERRUPT_AT.format(patch=patch))
 
 
 # The moments after the render's last pixel where a signal is sent (the first call of a
@@ -501,13 +505,7 @@ except KeyboardInterrupt:
 
 
 def test_the_command_inside_a_program_gives_its_handlers_back(tmp_path):
-    child = subprocess.run(
-        [sys.executable, "-c", RUN_INSIDE_A_PROGRAM],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        preexec_fn=default_signals,
-    )
+    child = run_child(tmp_path, RUN_INSIDE_A_PROGRAM)
     assert child.returncode == 0, child.stderr
     assert "handler back: True" in child.stdout
     assert "the program caught Ctrl-C after the command, status 0" in child.stdout
@@ -573,13 +571,7 @@ sys.exit(run(exiting=True))
 
 
 def render_with_patch(tmp_path, patch: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-c", PATCHED_RENDER.format(patch=patch)],
-        capture_output=True,
-        text=True,
-        cwd=tmp_path,
-        preexec_fn=default_signals,
-    )
+    return run_child(tmp_path, PATCHED_RENDER.format(patch=patch))
 
 
 @pytest.mark.device
