@@ -46,7 +46,6 @@ its interrupted result ends the render the same way (no later task runs).
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import os
@@ -458,22 +457,11 @@ def render_pixels(pixel_range: tuple[int, int], job: RenderJob) -> PixelRangeRes
     pipeline.run(range(first, end, pixels_per_tile(pipeline.settings)), None, end)
     # Its finished range is handed back whole: a signal while it is gathered (a task run in
     # this process's main thread, LocalExecutor) is held and ends the render after this task
-    with _held_in_main_thread() as held:
+    with interrupts.signals_held() as held:
         result = _range_result(pipeline, source, runtime, (first, end), start, set_up)
     result.stats.setup_compile_seconds = source_builds
     result.stats.interrupted |= bool(held)
     return result
-
-
-@contextlib.contextmanager
-def _held_in_main_thread() -> Iterator[list[int]]:
-    """interrupts.signals_held on the main thread (signal handlers are set there only);
-    elsewhere nothing is held (a signal reaches the main thread)."""
-    if threading.current_thread() is threading.main_thread():
-        with interrupts.signals_held() as held:
-            yield held
-    else:
-        yield []
 
 
 def _range_result(

@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import sys
+import threading
 from collections.abc import Iterator
 
 # The signals that end a command with its finished work saved (SIGHUP is POSIX only).
@@ -168,8 +169,12 @@ def _not_ignored() -> tuple[int, ...]:
 @contextlib.contextmanager
 def signals_held(received: list[int] | None = None) -> Iterator[list[int]]:
     """Hold SIGINT, SIGTERM and SIGHUP while the block runs; the list (`received`, else a new
-    one) gets those that came."""
+    one) gets those that came. Off the main thread (where handlers cannot be set, and a signal
+    reaches the main thread anyway) nothing is held."""
     received = [] if received is None else received
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
     with _handlers(_not_ignored(), lambda number, frame: received.append(number)):
         yield received
 

@@ -588,9 +588,7 @@ class StageClock:
         try:
             yield side
         finally:
-            compile_seconds = thread_build_seconds() - built
-            self.stats.compile_seconds += compile_seconds
-            self.stats.main_compile_seconds += compile_seconds
+            compile_seconds = self.add_builds(built)
             if first is not None and compile_seconds == 0:
                 last = cl.enqueue_marker(self.queue)
                 self.queue.flush()
@@ -599,6 +597,14 @@ class StageClock:
                 if self.queue is not None:
                     self.queue.finish()
                 self.add(name, max(time.perf_counter() - start - compile_seconds, 0.0))
+
+    def add_builds(self, since: float) -> float:
+        """Count the main thread's program builds since `since` (thread_build_seconds) as
+        compile time; their seconds."""
+        compile_seconds = thread_build_seconds() - since
+        self.stats.compile_seconds += compile_seconds
+        self.stats.main_compile_seconds += compile_seconds
+        return compile_seconds
 
     def take(self) -> list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]]:
         """The stages queued so far, to settle later (a queued tile's: QueuedTile)."""
@@ -956,9 +962,7 @@ class TilePipeline:
         try:
             return queue_counts(self.runtime, sampler, self.settings.seed, pixels, zeros)
         finally:
-            compile_seconds = thread_build_seconds() - built
-            self.stats.compile_seconds += compile_seconds
-            self.stats.main_compile_seconds += compile_seconds
+            self.clock.add_builds(built)
 
     def collect(self, queued: QueuedTile) -> TileSamples:
         tile = queued.collect(self.clock)
