@@ -736,12 +736,16 @@ class QueuedTile:
     def collect(self, clock: StageClock) -> TileSamples:
         """Wait for the tile's results (the device may go on with work queued after them) and
         make its TileSamples; pixels the device cells left undecided are settled here (their
-        samples read back, behind whatever was queued since)."""
+        samples read back, behind whatever was queued since). The stages are waited for first,
+        in their order, and their results after: Intel's CPU runtime runs a kernel on the
+        waiting host thread too only when the host waits for that kernel or a marker right
+        behind it, not for a read queued behind a marker (the tile's trace ran on one thread
+        instead of two)."""
+        clock.settle(self.stages)
         sums = {kind: pending.result() for kind, pending in self.sums.items()}
         sets = values = None
         if self.reads is not None:
             sets, values = self.reads[0](), self.reads[1]().values
-        clock.settle(self.stages)
         if any(s.fallback.any() for s in sums.values()):
             if sets is None:
                 with clock.stage("readback"):

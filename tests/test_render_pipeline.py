@@ -406,9 +406,9 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
     """The device is kept fed: tile 1's sample sets and trace are queued while tile 0 is held
     on the device (its trace waits for a user event), i.e. before the host waits for tile 0's
     results; the images are those rendered without the hold. Tile 1's trace opens the gate;
-    so does any wait for the device before it (a blocking copy, a wait for events or for a
-    read, a read's event dropped), so that a pipeline that waits for each tile before it
-    queues the next does not hang but fails. A copy on another queue (SPPP's Poisson counts,
+    so does any wait for the device before it (a blocking copy, a wait for events, for a read
+    or for a stage's marker, a read's event dropped), so that a pipeline that waits for each
+    tile before it queues the next does not hang but fails. A copy on another queue (SPPP's Poisson counts,
     read back before the fill from the runtime's side queue) waits for that queue alone and
     leaves the gate shut."""
     import pyopencl as cl
@@ -471,7 +471,15 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
         open_gate("a wait for events")
         return wait_for_events([getattr(event, "event", event) for event in events])
 
+    event_wait = cl.Event.wait
+
+    def event_wait_opening(event):
+        if event.command_queue.int_ptr == runtime.queue.int_ptr:
+            open_gate("a wait for an event")
+        return event_wait(event)
+
     monkeypatch.setattr(source, "trace", gated_trace)
+    monkeypatch.setattr(cl.Event, "wait", event_wait_opening)
     monkeypatch.setattr(cl, "enqueue_copy", copy_opening)
     monkeypatch.setattr(cl, "wait_for_events", wait_opening)
     result = render(runtime, source, config)
@@ -479,6 +487,63 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
     assert result.stats.tiles > 2 and len(traced) == result.stats.tiles
     for name, image in reference.items():
         assert np.array_equal(result.images[name], image), name
+
+
+@pytest.mark.parametrize(
+    "sampler, estimators, backend",
+    [
+        ("independent", ["mc"], "device"),
+        ("sppp", ["vor_sn", "mc_n"], "device"),
+        ("stratified", ["pvor", "mc_n"], "qhull"),  # the samples read back
+    ],
+)
+def test_a_tile_waits_for_its_stages_in_order_before_its_results(
+    runtime, monkeypatch, sampler, estimators, backend
+):
+    """Intel's CPU runtime runs a kernel on the waiting host thread too only when the host
+    waits for that kernel or for a marker right behind it, not for a read queued behind a
+    marker: a tile waited for its results alone traced on one thread of two. So a tile's
+    collect waits for its stages' end markers first, in the order they were queued, and only
+    then for the reads of its results (and of its samples, when kept)."""
+    import pyopencl as cl
+
+    import clrender.pipeline as pipeline
+    from clrender.api import radiance_source
+    from clrender.scene import load_scene
+
+    waits = []  # per collect: the events waited for, in order
+    event_wait, wait_for_events = cl.Event.wait, cl.wait_for_events
+
+    def recording_wait(event):
+        if waits:
+            waits[-1]["waited"].append(event.int_ptr)
+        return event_wait(event)
+
+    def recording_wait_for_events(events):
+        if waits:
+            waits[-1]["waited"].extend(event.int_ptr for event in events)
+        return wait_for_events(events)
+
+    collect = pipeline.QueuedTile.collect
+
+    def recording_collect(tile, clock):
+        # each stage's end marker, then the commands it ran on the side queue (SPPP's counts)
+        ends = [event.int_ptr for _, _, last, _, side in tile.stages for event in (last, *side)]
+        waits.append({"ends": ends, "waited": []})
+        return collect(tile, clock)
+
+    monkeypatch.setattr(cl.Event, "wait", recording_wait)
+    monkeypatch.setattr(cl, "wait_for_events", recording_wait_for_events)
+    monkeypatch.setattr(pipeline.QueuedTile, "collect", recording_collect)
+    size = dict(width=16, height=8, tile_samples=32 * 4, voronoi_backend=backend)
+    config = settings(sampler, estimators, spp=4, **size)
+    source = radiance_source(runtime, load_scene("cornell-box"), (16, 8), 3)
+    result = render(runtime, source, config)
+    assert len(waits) == result.stats.tiles > 2
+    for tile in waits:
+        ends, waited = tile["ends"], tile["waited"]
+        assert ends and waited[: len(ends)] == ends, tile
+        assert len(waited) > len(ends)  # the results' reads, after the stages
 
 
 def test_a_count_pass_queued_ahead_counts_its_builds_as_compile_time(runtime, monkeypatch):
