@@ -408,9 +408,9 @@ def test_the_next_tile_is_queued_before_the_host_waits_for_a_tile(
     results; the images are those rendered without the hold. Tile 1's trace opens the gate;
     so does any wait for the device before it (a blocking copy, a wait for events, for a read
     or for a stage's marker, a read's event dropped), so that a pipeline that waits for each
-    tile before it queues the next does not hang but fails. A copy on another queue (SPPP's Poisson counts,
-    read back before the fill from the runtime's side queue) waits for that queue alone and
-    leaves the gate shut."""
+    tile before it queues the next does not hang but fails. A copy on another queue (SPPP's
+    Poisson counts, read back before the fill from the runtime's side queue) waits for that
+    queue alone and leaves the gate shut."""
     import pyopencl as cl
 
     from clrender.api import radiance_source
