@@ -538,9 +538,20 @@ def finish_render(args: argparse.Namespace, result, labels, paths, reference, he
     from clrender.outputs import write_outputs
     from clrender.report import json_ready, summary_json, summary_lines
 
-    # the device and precision that rendered it: a cluster's, its workers'
+    # the device, precision and kernels that rendered it: a cluster's, its workers'
+    workers_kernels = result.kernels_sha256 or labels.kernels_sha256
+    if workers_kernels != labels.kernels_sha256:
+        print(
+            f"clrender: warning: the workers built other OpenCL sources (kernels "
+            f"{workers_kernels}) than this clrender ({labels.kernels_sha256}); the images "
+            "record theirs",
+            file=sys.stderr,
+        )
     labels = dataclasses.replace(
-        labels, device=result.device, device_precision=result.device_precision
+        labels,
+        device=result.device,
+        device_precision=result.device_precision,
+        kernels_sha256=workers_kernels,
     )
     # Every signal is held until the finished pixels are written (or found to be none), also
     # where none was asked to be held (in-process runs)

@@ -417,6 +417,9 @@ class PixelRangeResult:
     # estimator -> (P,) bool: the pixels its film holds (an interrupted task's finished tiles;
     # None from a worker older than the field: all of them)
     rendered: dict[str, np.ndarray] | None = None
+    # the OpenCL sources its worker built (clrender.provenance.kernels_fingerprint: its
+    # CLRENDER_KERNELS_DIR or installed package, not the client's); None from an older worker
+    kernels_sha256: str | None = None
 
 
 # The radiance source of the last job a worker process ran: (token, source)
@@ -468,6 +471,7 @@ def _range_result(
     pipeline: TilePipeline, source, runtime, pixel_range: tuple[int, int], start, set_up
 ) -> PixelRangeResult:
     from clrender.estimators.device_cells import resolve_precision
+    from clrender.provenance import kernels_fingerprint
 
     first, end = pixel_range
     pipeline.stats.wall_seconds = time.perf_counter() - start
@@ -492,6 +496,7 @@ def _range_result(
         worker_name(),
         setup_seconds,
         {name: film.rendered[pixels] for name, film in pipeline.films.items()},
+        kernels_fingerprint(),
     )
 
 
@@ -539,6 +544,7 @@ def render_on(
     devices: set[str] = set()
     precisions: set[str] = set()
     trace_kernels: set[str] = set()
+    kernels: set[str] = set()
     setup_by_worker: dict[str, float] = {}
     tasks_by_worker: dict[str, int] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
@@ -558,6 +564,7 @@ def render_on(
             # (None from an analytic image's task, or from a worker older than the field)
             if getattr(part, "trace_kernel", None) is not None:
                 trace_kernels.add(part.trace_kernel)
+            kernels.add(getattr(part, "kernels_sha256", None) or "unknown (an older worker)")
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
             )
@@ -592,4 +599,5 @@ def render_on(
         device_precision="; ".join(sorted(precisions)) or None,
         trace_kernel="; ".join(sorted(trace_kernels)) or None,
         tasks_by_worker=dict(sorted(tasks_by_worker.items())),
+        kernels_sha256="; ".join(sorted(kernels)) or None,
     )

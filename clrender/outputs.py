@@ -71,8 +71,9 @@ def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -
 
 def render_labels(label: str, scene, max_depth, roulette, result=None):
     """The render's RenderLabels: what the pipeline does not know, provenance included; the
-    device and its precision are the result's (RenderResult.device, .device_precision: for a
-    cluster render its workers', reported by its tasks), None before the render."""
+    device, its precision and the kernels' fingerprint are the result's (RenderResult.device,
+    .device_precision, .kernels_sha256: for a cluster render its workers', reported by its
+    tasks), the device and precision None before the render, the kernels this process's."""
     from clrender.provenance import kernels_fingerprint, scene_fingerprint
     from clrender.report import RenderLabels
 
@@ -83,7 +84,7 @@ def render_labels(label: str, scene, max_depth, roulette, result=None):
         roulette,
         scene_file=None if scene is None else str(Path(scene.path).resolve()),
         scene_sha256=None if scene is None else scene_fingerprint(scene),
-        kernels_sha256=kernels_fingerprint(),
+        kernels_sha256=getattr(result, "kernels_sha256", None) or kernels_fingerprint(),
         device_precision=None if result is None else result.device_precision,
     )
 

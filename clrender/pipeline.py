@@ -353,6 +353,9 @@ class RenderResult:
     # Finished tasks per worker (address: count, by address) of a render through an executor
     # (render_on: {"this process": n} on a LocalExecutor); None for a plain local render
     tasks_by_worker: dict[str, int] | None = None
+    # The fingerprint of the OpenCL sources its tasks' workers built (render_on: "; " between
+    # several, a worker that cannot tell "unknown"); None for a local render: this process's
+    kernels_sha256: str | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film

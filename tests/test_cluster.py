@@ -230,6 +230,46 @@ def test_the_recorded_device_is_the_tasks_devices_not_this_process(tmp_path, mon
     assert read_exr(out)[1]["device"] == both
 
 
+def test_the_recorded_kernels_are_the_workers_and_other_ones_are_warned_of(
+    tmp_path, monkeypatch, capsys
+):
+    # Tasks whose workers built other OpenCL sources than this process (a local executor
+    # runs them here; the fingerprint each reports is faked, one older worker reports none):
+    # the JSON and EXR record theirs, and one warning line says so
+    from clrender import cluster
+    from clrender.imageio import read_exr
+    from clrender.provenance import kernels_fingerprint
+
+    ours = kernels_fingerprint()
+    original = cluster.render_pixels
+
+    def render_with_other_kernels(pixel_range, job):
+        part = original(pixel_range, job)
+        assert part.kernels_sha256 == ours  # as a worker with this process's sources reports
+        part.kernels_sha256 = None if pixel_range[0] == 0 else "0123456789abcdef"
+        return part
+
+    monkeypatch.setattr(cluster, "render_pixels", render_with_other_kernels)
+    monkeypatch.setattr(cluster, "make_executor", lambda workers, scheduler: LocalExecutor())
+    out = tmp_path / "cluster.exr"
+    command = ["render", "analytic:mix", "--res", "16x8", "--spp", "8", "-o", str(out)]
+    assert main([*command, "--workers", "1", "--json"]) == 0
+    theirs = "0123456789abcdef; unknown (an older worker)"
+    captured = capsys.readouterr()
+    (image,) = json.loads(captured.out)["images"].values()
+    assert image["metadata"]["kernels_sha256"] == theirs
+    assert read_exr(out)[1]["kernels_sha256"] == theirs
+    warning = f"the workers built other OpenCL sources (kernels {theirs}) than this clrender"
+    assert captured.err.count("\n") == 1 and warning in captured.err, captured.err
+    # Workers with this process's sources: recorded as such, no warning
+    monkeypatch.setattr(cluster, "render_pixels", original)
+    assert main([*command, "--workers", "1", "--json"]) == 0
+    captured = capsys.readouterr()
+    (image,) = json.loads(captured.out)["images"].values()
+    assert image["metadata"]["kernels_sha256"] == ours == read_exr(out)[1]["kernels_sha256"]
+    assert "warning" not in captured.err
+
+
 def test_cluster_timings_keep_the_workers_set_up_apart(monkeypatch):
     # Two "workers" (tasks alternate between two names), each slowed by 0.2 s of set-up in
     # its first task: the render waits for the longest worker's set-up, not their sum, and
@@ -362,6 +402,7 @@ def without_local_opencl(patch) -> None:
 def test_a_client_without_opencl_renders_on_the_workers_devices(runtime, cluster, monkeypatch):
     import clrender
     from clrender.estimators.device_cells import resolve_precision
+    from clrender.provenance import kernels_fingerprint
 
     kwargs = dict(spp=8, estimators=["vor_sn", "mc_n"], resolution=12, seed=2)
     local = clrender.render("cornell-box", **kwargs)
@@ -378,6 +419,8 @@ def test_a_client_without_opencl_renders_on_the_workers_devices(runtime, cluster
     assert distributed.device_precision == precision == local.device_precision
     assert distributed.labels.device == runtime.describe()
     assert distributed.labels.device_precision == precision
+    # the kernels too: the workers' sources, here this process's
+    assert distributed.kernels_sha256 == kernels_fingerprint() == distributed.labels.kernels_sha256
 
 
 def test_a_command_line_client_without_opencl_drives_the_cluster(
