@@ -6,13 +6,16 @@ the runtime; whether the host joins can depend on what it waits for.
 
 A spinning kernel (a few ms of arithmetic per work-item, 8 work-groups) is queued tile after
 tile as clrender queues a tile's stages: a profiling marker, the kernel, a marker, a read of its
-output into host memory; the host waits for tile k once tile k + 1 is queued. Per way of
-waiting for tile k, medians over repeats of wall and CPU seconds of the whole run (CPU / wall
-near the core count: every core busy; near 1: one thread):
+output into host memory, a marker (a render's tracing stage ends behind its counters' read);
+the host waits for tile k once tile k + 1 is queued. Per way of waiting for tile k, medians
+over repeats of wall and CPU seconds of the whole run (CPU / wall near the core count: every
+core busy; near 1: one thread):
 
-- read: the read alone (clrender before 2026-11-25);
-- markers-then-read: the marker behind the kernel, then the read (QueuedTile.collect now);
-- kernel-then-read: the kernel's own event, then the read;
+- read: the read alone (clrender's tiles before 2026-11-25);
+- kernel: the kernel's own event, then the read;
+- marker: the marker right behind the kernel, then the read;
+- last-marker: the marker behind the read, then the read (a stage's end marker:
+  QueuedTile.collect now);
 - finish: the whole queue (which also waits for tile k + 1);
 - sleep: poll the read's status with a 1 ms sleep (the host outside the runtime).
 
@@ -36,7 +39,7 @@ from common import command_line, machine, write_json  # noqa: E402
 from clrender.runtime import create_runtime  # noqa: E402
 
 DEFAULT_OUTPUT = Path(__file__).resolve().parent / "results" / "host_wait"
-WAYS = ("read", "markers-then-read", "kernel-then-read", "finish", "sleep")
+WAYS = ("read", "kernel", "marker", "last-marker", "finish", "sleep")
 SPIN_SOURCE = """
 __kernel void spin(__global float *out, const int steps)
 {
@@ -58,11 +61,9 @@ def parse_args(argv=None):
     return parser.parse_args(argv)
 
 
-def wait_for_tile(way: str, queue: cl.CommandQueue, kernel, marker, read) -> None:
-    if way == "markers-then-read":
-        marker.wait()
-    elif way == "kernel-then-read":
-        kernel.wait()
+def wait_for_tile(way: str, queue: cl.CommandQueue, kernel, marker, read, last) -> None:
+    if way in ("kernel", "marker", "last-marker"):
+        {"kernel": kernel, "marker": marker, "last-marker": last}[way].wait()
     elif way == "finish":
         queue.finish()
     elif way == "sleep":
@@ -75,15 +76,16 @@ def timed_run(way: str, queue, spin, buffer, host, tiles: int, steps: int) -> tu
     """Wall and CPU seconds of `tiles` tiles, each waited for once the next is queued."""
     wall, cpu = time.perf_counter(), time.process_time()
     waiting = None
-    for _ in range(tiles + 1):
+    for index in range(tiles + 1):
         queued = None
-        if _ < tiles:
+        if index < tiles:
             cl.enqueue_marker(queue)
             kernel = spin(queue, (host.size,), (host.size // 8,), buffer, np.int32(steps))
             marker = cl.enqueue_marker(queue)
             read = cl.enqueue_copy(queue, host, buffer, is_blocking=False)
+            last = cl.enqueue_marker(queue)
             queue.flush()
-            queued = (kernel, marker, read)
+            queued = (kernel, marker, read, last)
         if waiting is not None:
             wait_for_tile(way, queue, *waiting)
         waiting = queued
@@ -109,7 +111,7 @@ def main(argv=None) -> None:
         wall = statistics.median(w for w, _ in runs[way])
         cpu = statistics.median(c for _, c in runs[way])
         results[way] = {"wall_s": wall, "cpu_s": cpu, "cpu_per_wall": cpu / wall}
-        print(f"  {way:18s} wall {wall:.3f} s, CPU {cpu:.3f} s, CPU/wall {cpu / wall:.2f}")
+        print(f"  {way:12s} wall {wall:.3f} s, CPU {cpu:.3f} s, CPU/wall {cpu / wall:.2f}")
     write_json(
         args.output / "results.json",
         {

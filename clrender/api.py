@@ -32,7 +32,12 @@ from clrender.analytic import (
 )
 from clrender.errors import ParameterError
 from clrender.estimators import Estimator, EstimatorWarning, check_compatible, pairing_advice
-from clrender.outputs import render_labels
+from clrender.outputs import (
+    KernelsWarning,
+    kernels_warning,
+    local_kernels_fingerprint,
+    render_labels,
+)
 from clrender.pipeline import (
     DEFAULT_TILE_SAMPLES,
     ProgressCallback,
@@ -180,7 +185,8 @@ def render(
     finally:
         if bar is not None:
             bar.close()
-    # the device(s) and precision that rendered it: a cluster's workers', not this process's
+    # the device(s), precision and kernels that rendered it: a cluster's workers', not this
+    # process's (warned of when its kernels differ from theirs)
     result.labels = render_labels(
         analytic_image(scene, 1, 1).name if isinstance(scene, str) else scene.name,
         None if isinstance(scene, str) else scene,
@@ -188,6 +194,9 @@ def render(
         result.russian_roulette,
         result,
     )
+    warning = kernels_warning(result.kernels_sha256, local_kernels_fingerprint())
+    if warning is not None:
+        warnings.warn(warning, KernelsWarning, stacklevel=2)
     return result
 
 

@@ -535,23 +535,18 @@ def command_render(args: argparse.Namespace) -> int:
 def finish_render(args: argparse.Namespace, result, labels, paths, reference, held) -> int:
     """Write a render's images and print its summary; the command's status. `held`: the
     ending signals held since the render's work was done (more come in while writing)."""
-    from clrender.outputs import write_outputs
+    from clrender.outputs import kernels_warning, write_outputs
     from clrender.report import json_ready, summary_json, summary_lines
 
     # the device, precision and kernels that rendered it: a cluster's, its workers'
-    workers_kernels = result.kernels_sha256 or labels.kernels_sha256
-    if workers_kernels != labels.kernels_sha256:
-        print(
-            f"clrender: warning: the workers built other OpenCL sources (kernels "
-            f"{workers_kernels}) than this clrender ({labels.kernels_sha256}); the images "
-            "record theirs",
-            file=sys.stderr,
-        )
+    warning = kernels_warning(result.kernels_sha256, labels.kernels_sha256)
+    if warning is not None:
+        print(f"clrender: warning: {warning}", file=sys.stderr)
     labels = dataclasses.replace(
         labels,
         device=result.device,
         device_precision=result.device_precision,
-        kernels_sha256=workers_kernels,
+        kernels_sha256=result.kernels_sha256 or labels.kernels_sha256,
     )
     # Every signal is held until the finished pixels are written (or found to be none), also
     # where none was asked to be held (in-process runs)

@@ -54,10 +54,10 @@ Qhull.
 Timing (RenderStats): the time of each device stage (stage_seconds: sample sets, tracing,
 voronoi, moments, readback; device_seconds is their sum) on the device's own clock, from the
 device being free for the stage to its commands done (StageClock: profiling markers; a tile's
-stages are queued back to back and the tile waits once, for its results; on a queue without
-profiling, the main thread's time, each stage ending with a wait), the estimator stage's own
-time per group of estimators sharing a tessellation (estimator_seconds; host_seconds is their
-sum with the redraws' host part), and
+stages are queued back to back and the tile waits for their end markers, in order, then for
+its results; on a queue without profiling, the main thread's time, each stage ending with a
+wait), the estimator stage's own time per group of estimators sharing a tessellation
+(estimator_seconds; host_seconds is their sum with the redraws' host part), and
 compile_seconds, the program builds and kernel creation met on the way (first uses in a
 process: programs are cached), taken out of the stages (PoCL's code generation at a kernel's
 first launch is not seen: on a cold cache it stays in that launch's stage); run_seconds is
@@ -559,11 +559,11 @@ class StageClock:
     work queued before it, or idle) until its commands are done, plus the device time of the
     commands it ran on another queue and handed to the clock (`with clock.stage(name) as side:
     side.append(event)`; SPPP's count pass on Runtime.side_queue, which may run beside the
-    work queued before the stage). Its commands are queued
-    without a wait: the device runs a tile's stages back to back and the tile waits once, for
-    its results; settle() then adds the stages' times to the stats. A stage that met a program
-    build (a first use in the process), and every stage on a queue without profiling, ends
-    with a wait for the device and takes the main thread's time less the builds: a build may
+    work queued before the stage). Its commands are queued without a wait: the device runs a
+    tile's stages back to back; settle() waits for their end markers, in order
+    (QueuedTile.collect, before the tile's results), and adds their times. A stage that met a
+    program build (a first use in the process), and every stage on a queue without profiling,
+    ends with a wait for the device and takes the main thread's time less the builds: a build may
     overlap the device's earlier work, so the device's clock less the build would undercount
     (such a stage may instead include a part of the work queued before it). A device that
     cannot report the markers' times gets the main thread's time from the stage's start to the
@@ -618,13 +618,16 @@ class StageClock:
         self, stages: list[tuple[str, cl.Event, cl.Event, float, list[cl.Event]]] | None = None
     ) -> None:
         """Wait for the given stages (taken earlier), or for those queued since the last take,
-        and add their device times to the stats. Done already after a blocking read of their
-        results; a later tile's stages queued behind them are not waited for."""
+        in their order, and add their device times to the stats; a later tile's stages queued
+        behind them are not waited for."""
         if stages is None:
             stages = self.take()
-        for name, first, last, queuing_seconds, side in stages:
+        # Every stage waited for before any is counted: an interrupt inside a wait (a tile
+        # dropped) adds none of its stages' times
+        for _, _, last, _, side in stages:
             for event in (last, *side):
                 event.wait()
+        for name, first, last, queuing_seconds, side in stages:
             try:
                 seconds = (last.profile.end - first.profile.end) * 1e-9
                 seconds += sum(event.profile.end - event.profile.start for event in side) * 1e-9
@@ -741,9 +744,9 @@ class QueuedTile:
         make its TileSamples; pixels the device cells left undecided are settled here (their
         samples read back, behind whatever was queued since). The stages are waited for first,
         in their order, and their results after: Intel's CPU runtime runs a kernel on the
-        waiting host thread too only when the host waits for that kernel or a marker right
-        behind it, not for a read queued behind a marker (the tile's trace ran on one thread
-        instead of two)."""
+        waiting host thread too when the host waits for that kernel or a marker queued after
+        it, but not for a read queued behind a marker (the tile's trace ran on one thread
+        instead of two: bench/host_wait.py)."""
         clock.settle(self.stages)
         sums = {kind: pending.result() for kind, pending in self.sums.items()}
         sets = values = None

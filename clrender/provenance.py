@@ -6,10 +6,11 @@ same name, or a changed kernel, gives another fingerprint."""
 from __future__ import annotations
 
 import hashlib
+from pathlib import Path
 
 import numpy as np
 
-from clrender.runtime import kernels_dir
+from clrender.runtime import built_sources_fingerprints, kernels_dir
 from clrender.scene import Scene
 
 FINGERPRINT_DIGITS = 16  # hex digits of SHA-256 kept: 64 bits, no collision among real scenes
@@ -29,11 +30,22 @@ def scene_fingerprint(scene: Scene) -> str:
 
 
 def kernels_fingerprint() -> str:
-    """SHA-256 of the OpenCL sources renders build (kernels_dir(): $CLRENDER_KERNELS_DIR or the
-    packaged ones; the test kernels (*_test.cl) and research probes (*_probe.cl, built by bench/
-    scripts only) left out), by file name and content."""
+    """SHA-256 of the OpenCL sources renders build from (kernels_dir(): $CLRENDER_KERNELS_DIR or
+    the packaged ones): those this process built its programs from, when it did (fingerprinted
+    at its first build from that folder; a later build that found the files changed adds its
+    own, joined by "+": the programs then come from both), else the folder's sources now. A
+    process keeps its built programs, so a source edited after the builds does not change what
+    it renders with, nor this fingerprint (clrender.runtime.built_sources_fingerprints)."""
+    folder = kernels_dir()
+    return "+".join(built_sources_fingerprints(folder)) or sources_fingerprint(folder)
+
+
+def sources_fingerprint(folder: Path) -> str:
+    """SHA-256 of the OpenCL sources in a folder as they are now, by file name and content;
+    the test kernels (*_test.cl) and research probes (*_probe.cl, built by bench/ scripts only)
+    left out."""
     digest = hashlib.sha256()
-    for source in sorted(kernels_dir().iterdir()):
+    for source in sorted(folder.iterdir()):
         if source.suffix in (".cl", ".h") and not source.stem.endswith(("_test", "_probe")):
             digest.update(source.name.encode() + b"\0" + source.read_bytes())
     return digest.hexdigest()[:FINGERPRINT_DIGITS]

@@ -63,6 +63,9 @@ SCALAR_TYPES = {
 
 # Per thread: a render's estimator thread builds on its own context (clrender.pipeline).
 _THREAD_BUILD_TIME = threading.local()
+# Per kernels folder, the fingerprints of its sources as this process's program builds found
+# them (clrender.provenance.sources_fingerprint), in build order, each once
+_BUILT_SOURCES: dict[Path, list[str]] = {}
 
 INSTALL_HINT = (
     'no OpenCL platform found: install a CPU device with `pip install "pyopencl[pocl]"` '
@@ -408,14 +411,27 @@ def _count_build_time(start: float) -> None:
     _THREAD_BUILD_TIME.seconds = thread_build_seconds() + time.perf_counter() - start
 
 
+def built_sources_fingerprints(folder: Path) -> list[str]:
+    """The fingerprints of a kernels folder's sources as this process's program builds found
+    them, in build order ([] before its first build from there): what its renders run, even
+    if the files changed since (its programs are built once)."""
+    return list(_BUILT_SOURCES.get(folder, ()))
+
+
 @functools.cache
 def _build_cached(
     context: cl.Context, folder: Path, source_file: str, defines: tuple[tuple[str, object], ...]
 ) -> cl.Program:
     """The program of folder/source_file (folder: kernels_dir() when the build was asked for,
     so that a changed CLRENDER_KERNELS_DIR builds the other folder's sources)."""
+    from clrender.provenance import sources_fingerprint  # (which imports this module)
+
     start = time.perf_counter()
     path = folder / source_file
+    built = _BUILT_SOURCES.setdefault(folder, [])
+    fingerprint = sources_fingerprint(folder)
+    if fingerprint not in built:
+        built.append(fingerprint)
     # Compile from an #include of the real file so the compiler log names it with its line.
     source = f'#include "{path.name}"\n'
     options = build_options(defines, context.devices[0].platform.name, folder)

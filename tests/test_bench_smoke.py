@@ -515,6 +515,20 @@ def test_09_cold_start_times_the_command_line_in_new_processes(tmp_path):
     assert json.loads((tmp_path / "results.json").read_text())["clrender_args"][-1] == "--json"
 
 
+@pytest.mark.device
+def test_09a_host_wait_times_every_way_of_waiting(tmp_path, capsys):
+    import host_wait
+
+    host_wait.main(["--tiles", "2", "--repeats", "1", "--steps", "1000", "--output", str(tmp_path)])
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert list(data["ways"]) == list(host_wait.WAYS)
+    for way in data["ways"].values():
+        assert way["wall_s"] > 0 and way["cpu_s"] >= 0
+    assert data["command"].startswith("python bench/host_wait.py --tiles 2")
+    printed = capsys.readouterr().out
+    assert all(f"  {way} " in printed for way in host_wait.WAYS), printed
+
+
 def test_10_kernel_structure_compares_megakernel_and_wavefront(tmp_path):
     import kernel_structure
 

@@ -270,6 +270,38 @@ def test_the_recorded_kernels_are_the_workers_and_other_ones_are_warned_of(
     assert "warning" not in captured.err
 
 
+def test_an_api_render_on_workers_with_other_kernels_warns(monkeypatch):
+    # The same through clrender.render: a KernelsWarning, the workers' fingerprint recorded;
+    # workers that match but for an older one that cannot tell get a warning that says so
+    import clrender
+    from clrender import cluster
+    from clrender.outputs import KernelsWarning
+    from clrender.provenance import kernels_fingerprint
+
+    ours = kernels_fingerprint()
+    original = cluster.render_pixels
+    reported = {"other": "0123456789abcdef", "older": None}
+    kind = []
+
+    def render_with_reported_kernels(pixel_range, job):
+        part = original(pixel_range, job)
+        if pixel_range[0] == 0:
+            part.kernels_sha256 = reported[kind[-1]]
+        return part
+
+    monkeypatch.setattr(cluster, "render_pixels", render_with_reported_kernels)
+    options = dict(spp=4, resolution=(16, 8), tile_samples=16 * 16, executor=LocalExecutor())
+    kind.append("other")
+    with pytest.warns(KernelsWarning, match="the workers built other OpenCL sources"):
+        result = clrender.render("analytic:mix", **options)
+    assert result.kernels_sha256 == result.labels.kernels_sha256
+    assert set(result.kernels_sha256.split("; ")) == {"0123456789abcdef", ours}
+    kind.append("older")
+    with pytest.warns(KernelsWarning, match="a worker could not tell which OpenCL sources"):
+        result = clrender.render("analytic:mix", **options)
+    assert result.labels.kernels_sha256 == f"{ours}; unknown (an older worker)"
+
+
 def test_cluster_timings_keep_the_workers_set_up_apart(monkeypatch):
     # Two "workers" (tasks alternate between two names), each slowed by 0.2 s of set-up in
     # its first task: the render waits for the longest worker's set-up, not their sum, and

@@ -9,7 +9,7 @@ import pytest
 from clrender import cli
 from clrender.compare import reference_warnings
 from clrender.imageio import read_exr
-from clrender.provenance import kernels_fingerprint, scene_fingerprint
+from clrender.provenance import kernels_fingerprint, scene_fingerprint, sources_fingerprint
 from clrender.runtime import kernels_dir
 from clrender.scene import load_scene
 
@@ -57,6 +57,28 @@ def test_the_kernels_fingerprint_follows_their_sources(tmp_path, monkeypatch):
     header = copy / "geometry.h"
     header.write_text(header.read_text() + "\n")
     assert kernels_fingerprint() != shipped
+
+
+def test_the_kernels_fingerprint_is_of_the_sources_the_process_built(
+    runtime, tmp_path, monkeypatch
+):
+    # Programs are built once per process: a source edited after the builds is not what its
+    # renders run, so the fingerprint stays that of the sources built; a later build that finds
+    # the files changed adds its own (the programs then come from both)
+    copy = tmp_path / "kernels"
+    shutil.copytree(kernels_dir(), copy)
+    monkeypatch.setenv("CLRENDER_KERNELS_DIR", str(copy))
+    header = copy / "geometry.h"
+    header.write_text(header.read_text() + "// first\n")
+    first = kernels_fingerprint()  # nothing built from the copy yet: its sources now
+    runtime.build("selfcheck.cl", {"CLRENDER_FINGERPRINT_TEST": 1})
+    header.write_text(header.read_text() + "// edited after the build\n")
+    edited = sources_fingerprint(copy)
+    assert edited != first and kernels_fingerprint() == first
+    runtime.build("selfcheck.cl", {"CLRENDER_FINGERPRINT_TEST": 2})  # a build of the edited ones
+    assert kernels_fingerprint() == f"{first}+{edited}"
+    runtime.build("selfcheck.cl", {"CLRENDER_FINGERPRINT_TEST": 3})  # the same sources again
+    assert kernels_fingerprint() == f"{first}+{edited}"
 
 
 @pytest.mark.usefixtures("shared_cli_runtime")
