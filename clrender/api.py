@@ -32,18 +32,14 @@ from clrender.analytic import (
 )
 from clrender.errors import ParameterError
 from clrender.estimators import Estimator, EstimatorWarning, check_compatible, pairing_advice
-from clrender.outputs import (
-    KernelsWarning,
-    kernels_warning,
-    local_kernels_fingerprint,
-    render_labels,
-)
+from clrender.outputs import render_labels
 from clrender.pipeline import (
     DEFAULT_TILE_SAMPLES,
     ProgressCallback,
     RenderResult,
     RenderSettings,
 )
+from clrender.provenance import KernelsWarning, kernels_warning, local_kernels_fingerprint
 from clrender.radiance import PathTracerSource, RadianceSource
 from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind

@@ -535,7 +535,8 @@ def command_render(args: argparse.Namespace) -> int:
 def finish_render(args: argparse.Namespace, result, labels, paths, reference, held) -> int:
     """Write a render's images and print its summary; the command's status. `held`: the
     ending signals held since the render's work was done (more come in while writing)."""
-    from clrender.outputs import kernels_warning, write_outputs
+    from clrender.outputs import write_outputs
+    from clrender.provenance import kernels_warning
     from clrender.report import json_ready, summary_json, summary_lines
 
     # the device, precision and kernels that rendered it: a cluster's, its workers'

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from clrender.errors import ClrenderError, ParameterError
+from clrender.errors import ParameterError
 
 
 @dataclass(frozen=True)
@@ -69,46 +69,13 @@ def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -
     write_all_atomically(jobs)
 
 
-class KernelsWarning(UserWarning):
-    """A render's workers built other OpenCL sources than this process (kernels_warning)."""
-
-
-def local_kernels_fingerprint() -> str | None:
-    """This process's kernels fingerprint (clrender.provenance.kernels_fingerprint), None where
-    it has no kernels folder (a cluster's client needs none: its workers build)."""
-    from clrender.provenance import kernels_fingerprint
-
-    try:
-        return kernels_fingerprint()
-    except (ClrenderError, OSError):
-        return None
-
-
-def kernels_warning(workers: str | None, ours: str | None) -> str | None:
-    """One line when a render's workers (RenderResult.kernels_sha256, None for a local render)
-    built other OpenCL sources than this process's: such an image need not equal a local
-    render's. None when they agree."""
-    if workers is None or workers == ours:
-        return None
-    known = [value for value in workers.split("; ") if not value.startswith("unknown")]
-    if all(value == ours for value in known):
-        return (
-            "a worker could not tell which OpenCL sources it built (a clrender older than "
-            f"that report): the images record kernels {workers}"
-        )
-    return (
-        f"the workers built other OpenCL sources (kernels {workers}) than this clrender "
-        f"({ours or 'no kernels folder here'}); the images record theirs"
-    )
-
-
 def render_labels(label: str, scene, max_depth, roulette, result=None):
     """The render's RenderLabels: what the pipeline does not know, provenance included; the
     device, its precision and the kernels' fingerprint are the result's (RenderResult.device,
     .device_precision, .kernels_sha256: for a cluster render its workers', reported by its
     tasks), the device and precision None before the render, the kernels this process's
     (local_kernels_fingerprint)."""
-    from clrender.provenance import scene_fingerprint
+    from clrender.provenance import local_kernels_fingerprint, scene_fingerprint
     from clrender.report import RenderLabels
 
     return RenderLabels(

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clrender.errors import ClrenderError
 from clrender.runtime import built_sources_fingerprints, kernels_dir
 from clrender.scene import Scene
 
@@ -49,3 +50,34 @@ def sources_fingerprint(folder: Path) -> str:
         if source.suffix in (".cl", ".h") and not source.stem.endswith(("_test", "_probe")):
             digest.update(source.name.encode() + b"\0" + source.read_bytes())
     return digest.hexdigest()[:FINGERPRINT_DIGITS]
+
+
+class KernelsWarning(UserWarning):
+    """A render's workers built other OpenCL sources than this process (kernels_warning)."""
+
+
+def local_kernels_fingerprint() -> str | None:
+    """This process's kernels fingerprint (clrender.provenance.kernels_fingerprint), None where
+    it has no kernels folder (a cluster's client needs none: its workers build)."""
+    try:
+        return kernels_fingerprint()
+    except (ClrenderError, OSError):
+        return None
+
+
+def kernels_warning(workers: str | None, ours: str | None) -> str | None:
+    """One line when a render's workers (RenderResult.kernels_sha256, None for a local render)
+    built other OpenCL sources than this process's: such an image need not equal a local
+    render's. None when they agree."""
+    if workers is None or workers == ours:
+        return None
+    known = [value for value in workers.split("; ") if not value.startswith("unknown")]
+    if all(value == ours for value in known):
+        return (
+            "a worker could not tell which OpenCL sources it built (a clrender older than "
+            f"that report): the images record kernels {workers}"
+        )
+    return (
+        f"the workers built other OpenCL sources (kernels {workers}) than this clrender "
+        f"({ours or 'no kernels folder here'}); the images record theirs"
+    )

@@ -275,8 +275,7 @@ def test_an_api_render_on_workers_with_other_kernels_warns(monkeypatch):
     # workers that match but for an older one that cannot tell get a warning that says so
     import clrender
     from clrender import cluster
-    from clrender.outputs import KernelsWarning
-    from clrender.provenance import kernels_fingerprint
+    from clrender.provenance import KernelsWarning, kernels_fingerprint
 
     ours = kernels_fingerprint()
     original = cluster.render_pixels
