@@ -139,7 +139,9 @@ def render(
             f"{type(scene).__name__} {scene!r}"
         )
     check_russian_roulette(russian_roulette, scene)
+    check_max_depth(max_depth)  # an analytic image has no paths, but a wrong value is wrong
     check_trace_kernel(trace_kernel)
+    check_executor(executor)
     if executor is None:
         runtime = runtime_for(device)
         built = thread_build_seconds()
@@ -149,8 +151,6 @@ def render(
         setup_compile = thread_build_seconds() - built
         width, height = source.width, source.height
     else:  # the workers choose the device and build the source: none is needed here
-        if not isinstance(scene, str):
-            check_max_depth(max_depth)
         width, height = image_size(scene, resolution)
     settings = RenderSettings(
         width,
@@ -245,6 +245,17 @@ def runtime_for(device: str | None) -> Runtime:
 @functools.cache
 def _runtime_for(device: str | None, pyopencl_ctx: str) -> Runtime:
     return create_runtime(device)
+
+
+def check_executor(executor: object) -> None:
+    """ParameterError unless executor is None or a clrender.cluster executor."""
+    from clrender.cluster import DaskExecutor, LocalExecutor
+
+    if executor is not None and not isinstance(executor, LocalExecutor | DaskExecutor):
+        raise ParameterError(
+            "executor must be None, a clrender.cluster.DaskExecutor or a LocalExecutor, got "
+            f"{type(executor).__name__} {executor!r}"
+        )
 
 
 def check_russian_roulette(russian_roulette: object, scene: Scene | str) -> None:

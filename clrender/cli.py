@@ -633,13 +633,18 @@ def command_scenes(args: argparse.Namespace) -> int:
 def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> int:
     """The command's status; held_signals: the signals that came once the render's work was
     done (the render itself reports an interrupt in its stats)."""
-    if held_signals and not result.stats.interrupted:
+    # An interrupt after the last pixel was recorded (held, or between the last tile and
+    # the end of the render) leaves complete images: they are not partial
+    complete = all(film.complete for film in result.films.values())
+    if (held_signals and not result.stats.interrupted) or (result.stats.interrupted and complete):
+        # The signal that interrupted the render; else the one held while writing
+        signum = interrupts.interrupting_signal() if result.stats.interrupted else held_signals[-1]
         print(
-            f"clrender: interrupted ({signal.Signals(held_signals[-1]).name}) after the last "
+            f"clrender: interrupted ({signal.Signals(signum).name}) after the last "
             "pixel: the images are complete",
             file=sys.stderr,
         )
-        return interrupts.exit_status(held_signals[-1])
+        return interrupts.exit_status(signum)
     if result.stats.interrupted or held_signals:
         counts = sorted({film.rendered_count for film in result.films.values()})
         held = " to ".join(str(count) for count in (counts[0], counts[-1])[: len(counts)])

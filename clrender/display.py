@@ -33,7 +33,13 @@ def tone_map(image: np.ndarray, exposure: float = 0.0) -> np.ndarray:
         raise ParameterError(
             f"preview takes a non-empty (H, W, 3) RGB image, got shape {image.shape}"
         )
-    if not np.isfinite(exposure):
+    if image.dtype.kind not in "biuf":
+        raise ParameterError(f"preview takes an image of numbers, got dtype {image.dtype}")
+    if (
+        isinstance(exposure, bool)
+        or not isinstance(exposure, int | float | np.integer | np.floating)
+        or not np.isfinite(exposure)
+    ):
         raise ParameterError(f"exposure must be a finite number of stops, got {exposure!r}")
     return srgb8(np.asarray(image, np.float64) * 2.0**exposure)
 

@@ -95,6 +95,11 @@ def test_render_equals_the_pipeline_with_the_same_settings(runtime):
         ({"resolution": "big"}, "resolution must be"),
         ({"overlap": "no"}, "overlap must be True or False"),
         ({"progress": "yes"}, "progress must be a callable"),
+        # an analytic image traces no paths, yet a wrong depth is refused as for a scene
+        ({"max_depth": -1}, "max_depth must be an integer"),
+        ({"max_depth": "x"}, "max_depth must be an integer"),
+        ({"executor": "x"}, "executor must be None"),
+        ({"executor": 3}, "executor must be None"),
     ],
 )
 def test_bad_arguments_are_one_line_errors(arguments, message):

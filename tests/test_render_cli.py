@@ -194,9 +194,13 @@ def test_debug_shows_the_traceback(argv):
         cli.main([*argv, "--spp", "0"])
 
 
-def fake_result(nonfinite: int, flagged: int, interrupted: bool = False) -> RenderResult:
+def fake_result(
+    nonfinite: int, flagged: int, interrupted: bool = False, pixels: int | None = None
+) -> RenderResult:
+    """A 4 x 2 render's result; an interrupted one holds 5 pixels unless `pixels` says."""
     film = Film(4, 2)
-    film.record(np.arange(8), np.ones((8, 3)), np.arange(8) < flagged)
+    done = (5 if interrupted else 8) if pixels is None else pixels
+    film.record(np.arange(done), np.ones((done, 3)), np.arange(done) < flagged)
     stats = RenderStats(nonfinite_samples=nonfinite, interrupted=interrupted)
     settings = cli.settings_from_args(cli.build_parser().parse_args(["render"]), 4, 2)
     assert settings.sampler == make_sampler("sppp", 64)
@@ -235,6 +239,18 @@ def test_a_signal_held_while_writing_gives_its_own_status(capsys, monkeypatch):
     assert "interrupted: the image holds" in capsys.readouterr().err
     monkeypatch.setattr(interrupts, "_received", [int(signal.SIGHUP), int(signal.SIGTERM)])
     assert cli.exit_status(args, fake_result(0, 0, True), held_signals=held) == 129
+
+
+def test_an_interrupt_after_the_last_pixel_leaves_complete_images(capsys, monkeypatch):
+    # The signal came between the last tile's recording and the end of the render: the
+    # images are whole, and said to be; the status is still the signal's
+    args = cli.build_parser().parse_args(["render"])
+    monkeypatch.setattr(interrupts, "_received", [int(signal.SIGTERM)])
+    assert cli.exit_status(args, fake_result(0, 0, True, pixels=8), held_signals=[]) == 143
+    err = capsys.readouterr().err
+    assert err == "clrender: interrupted (SIGTERM) after the last pixel: the images are complete\n"
+    assert cli.exit_status(args, fake_result(0, 0, True, pixels=7), held_signals=[]) == 143
+    assert "the image holds 7 of 8 pixels (partial=1)" in capsys.readouterr().err
 
 
 def read_until(fd: int, marker: bytes) -> bytes:
