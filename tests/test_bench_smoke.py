@@ -529,6 +529,41 @@ def test_09a_host_wait_times_every_way_of_waiting(tmp_path, capsys):
     assert all(f"  {way} " in printed for way in host_wait.WAYS), printed
 
 
+@pytest.mark.device
+def test_09b_vor_bias_measures_each_estimator_against_the_exact_mean(tmp_path, capsys):
+    import vor_bias
+
+    import clrender
+    from clrender.analytic import analytic_image
+
+    vor_bias.main(
+        ["--n", "4", "--kinds", "smooth", "--seeds", "3", "--size", "8"] + ["--out", str(tmp_path)]
+    )
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert (
+        data["command"]
+        == f"python bench/vor_bias.py --n 4 --kinds smooth --seeds 3 --size 8 --out {tmp_path}"
+    )
+    row = data["results"]["smooth n=4"]
+    # The same three renders, measured here: mean over seeds of image mean / exact mean - 1
+    exact = analytic_image("analytic:smooth", 8, 8).pixel_integrals(8, 8)[..., 0].mean()
+    for name in vor_bias.ESTIMATORS:
+        ratios = [
+            clrender.render("analytic:smooth", spp=4, estimator=name, resolution=8, seed=seed)
+            .image[..., 0]
+            .astype(np.float64)
+            .mean()
+            / exact
+            - 1.0
+            for seed in range(3)
+        ]
+        assert row[name]["bias"] == pytest.approx(np.mean(ratios), rel=1e-12, abs=1e-15)
+        assert row[name]["standard_error"] == pytest.approx(
+            np.std(ratios, ddof=1) / np.sqrt(3), rel=1e-12
+        )
+    assert "| smooth | 4 |" in capsys.readouterr().out
+
+
 def test_10_kernel_structure_compares_megakernel_and_wavefront(tmp_path):
     import kernel_structure
 

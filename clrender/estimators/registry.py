@@ -32,8 +32,11 @@ Conventions and choices:
   (Mecke's formula: the torus cell of an added point has mean area (1 - e^-n) / n), exactly
   the pixels with N = 0, which estimate 0: a bias only at small n (pairing_advice warns).
   The same holds for every count-normalised estimator (Estimator.count_normalised: mc_n,
-  vor_sn, fvor, cvor, pvor, ivor_sn; the self-normalised ones add their ratio bias), while mc,
-  vor and ivor stay unbiased over a Poisson count.
+  vor_sn, fvor, cvor, pvor, ivor_sn; the self-normalised ones add their ratio bias), while mc
+  and ivor stay unbiased over a Poisson count. vor would be too over a process on the whole
+  plane; the paper's truncated construction (a fixed count of auxiliary nuclei in the strip,
+  none beyond, rejection) biases it by +4 % at n = 1, -0.6 % at n = 2, +0.2 % at n = 16 and
+  +0.03 % at n = 64 (bench/vor_bias.py; README, Pixel estimators).
 - ivor, ivor_sn: the pixels' nuclei together form one Poisson process of intensity n on the
   image plane; neighbours' nuclei shape the cells (clrender.estimators.image).
 
@@ -293,8 +296,10 @@ def pairing_advice(estimator: str | Estimator, sampler: str, n: int | None = Non
         return (
             f"{entry.name} over the {sampler} sampler at n = {n}: a pixel draws no sample with "
             f"probability e^-n = {empty:.2g} and then estimates 0, so {entry.name}'s mean is "
-            f"{exactly}(1 - e^-n) times the pixel's value; unbiased at this n: mc or vor over "
-            f"{sampler}, or mc over --sampler sobol"
+            f"{exactly}(1 - e^-n) times the pixel's value; unbiased at this n: mc over "
+            f"{sampler}"
+            + (", ivor" if sampler == "sppp" else "")
+            + ", or mc over --sampler sobol (vor is off by a few percent at n = 1)"
         )
     if entry.name == "mc" and sampler_kind(sampler).is_sppp:
         return (
