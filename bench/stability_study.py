@@ -1360,12 +1360,12 @@ EXPLANATIONS = {
         "of n uniform points as the baseline (paired resampling)."
     ),
     "small_n": (
-        "Under Poisson N a pixel is empty with probability exp(-n) and every estimator returns "
-        "0 there. mc (sum / n) stays unbiased, and vor nearly (its truncated construction "
-        "biases it by a few percent at n = 1: bench/vor_bias.py); the conditional forms "
-        "(mc_n, vor_sn, fvor) lose the exp(-n) mass: their expectation is (1 - exp(-n)) I "
-        "plus, for the ratio estimators, an O(1/n) term. cvor and pvor here use N = n uniform points and "
-        "never see an empty pixel."
+        "Under Poisson N a pixel is empty with probability exp(-n) and every estimator returns 0 "
+        "there. mc (sum / n) stays unbiased, and vor nearly (its truncated construction biases it"
+        " by a few percent at n = 1: bench/vor_bias.py); the conditional forms (mc_n, vor_sn, "
+        "fvor) lose the exp(-n) mass: their expectation is (1 - exp(-n)) I plus, for the ratio "
+        "estimators, an O(1/n) term. cvor and pvor here use N = n uniform points and never see an"
+        " empty pixel."
     ),
     "storm": (
         "The driver enlarges eps only after redraws_before_enlarge rounds and by a constant "
