@@ -126,10 +126,6 @@ def render(
         raise ParameterError(f"overlap must be True or False, got {overlap!r}")
     check_progress(progress)
     entries = estimator_entries(estimator, estimators, sampler)
-    for entry in entries:
-        advice = pairing_advice(entry, sampler, spp)
-        if advice:
-            warnings.warn(advice, EstimatorWarning, stacklevel=2)
     config = make_sampler(sampler, spp)
     if isinstance(scene, str | Path):
         scene = load_scene(scene)
@@ -138,10 +134,16 @@ def render(
             "render takes a Scene (clrender.load_scene), a scene name or a path, got "
             f"{type(scene).__name__} {scene!r}"
         )
+    if isinstance(scene, str):  # an analytic image's name: known, or a ParameterError
+        analytic_image(scene, 1, 1)
     check_russian_roulette(russian_roulette, scene)
     check_max_depth(max_depth)  # an analytic image has no paths, but a wrong value is wrong
     check_trace_kernel(trace_kernel)
     check_executor(executor)
+    for entry in entries:  # once every argument is known good: advice, not an error
+        advice = pairing_advice(entry, sampler, spp)
+        if advice:
+            warnings.warn(advice, EstimatorWarning, stacklevel=2)
     if executor is None:
         runtime = runtime_for(device)
         built = thread_build_seconds()

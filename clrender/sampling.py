@@ -216,11 +216,11 @@ def make_sampler(
     after repeated rejections)."""
     kind = sampler_kind(name)
     if isinstance(n, bool) or not isinstance(n, int | np.integer):
-        raise ParameterError(f"n (samples per pixel) must be a positive integer, got {n!r}")
+        raise ParameterError(f"spp (samples per pixel) must be a positive integer, got {n!r}")
     check_intensity(n)
     if n >= MAX_SAMPLES_PER_PIXEL // 2:
         raise ParameterError(
-            f"n (samples per pixel) must be below {MAX_SAMPLES_PER_PIXEL // 2}, got {n}"
+            f"spp (samples per pixel) must be below {MAX_SAMPLES_PER_PIXEL // 2}, got {n}"
         )
     check_alpha(alpha)
     n = int(n)

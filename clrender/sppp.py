@@ -27,7 +27,7 @@ MAX_EPS = 4.0
 
 def check_intensity(n: float) -> None:
     if not (isinstance(n, int | float | np.integer | np.floating) and math.isfinite(n) and n > 0):
-        raise ParameterError(f"n (samples per pixel) must be a positive number, got {n!r}")
+        raise ParameterError(f"spp (samples per pixel) must be a positive number, got {n!r}")
 
 
 def check_alpha(alpha: float) -> None:

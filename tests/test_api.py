@@ -5,6 +5,7 @@ import ast
 import re
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -190,6 +191,18 @@ def test_empty_pixel_advice_stops_where_the_empty_pixels_stop_mattering(estimato
         assert advice.startswith(f"{estimator} over the sppp sampler at n = {n}")
         assert "unbiased at this n: mc over sppp, ivor, or mc over --sampler sobol" in advice
     assert pairing_advice(estimator, "sobol", 1) is None  # fixed counts: no empty pixel
+
+
+@pytest.mark.parametrize(
+    "arguments", [{"scene": "analytic:foo"}, {"max_depth": -1}, {"executor": "x"}]
+)
+def test_bad_arguments_are_refused_before_any_advice(arguments):
+    # vor_sn at n = 2 gets the small-n advice, but only for a render that will run
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(clrender.ParameterError):
+            clrender.render(**{"scene": "analytic:edge", "spp": 2, "resolution": 4, **arguments})
+    assert caught == []
 
 
 @pytest.mark.parametrize("estimator", ["mc", "vor", "ivor"])
