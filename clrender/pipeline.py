@@ -388,6 +388,24 @@ class RenderResult:
         """Every estimator's image, by name, in the order they were named."""
         return {name: film.image() for name, film in self.films.items()}
 
+    def __repr__(self) -> str:
+        """One line: what was rendered and how it ended (the dataclass's own repr would print
+        every film's arrays)."""
+        settings, stats = self.settings, self.stats
+        done = min(film.rendered_count for film in self.films.values())
+        state = (
+            "complete"
+            if done == self.film.pixel_count
+            else f"partial {done}/{self.film.pixel_count} pixels"
+        )
+        return (
+            f"<RenderResult {settings.width}x{settings.height} {settings.sampler.name} "
+            f"{settings.sampler.n} spp seed {settings.seed} "
+            f"[{', '.join(self.films)}] {stats.wall_seconds:.3g} s {state}"
+            + (f" on {self.device}" if self.device else "")
+            + ">"
+        )
+
     def _repr_png_(self) -> bytes:
         """Jupyter's rich display: every estimator's image, named (clrender.display)."""
         import io

@@ -273,3 +273,14 @@ def test_save_needs_a_result_of_render(tmp_path):
     with pytest.raises(clrender.ParameterError, match="save the result of clrender.render"):
         result.save(tmp_path / "out.exr")
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.device
+def test_a_result_shows_itself_in_one_line():
+    result = clrender.render("analytic:edge", spp=16, estimators=["mc_n", "vor_sn"], resolution=8)
+    text = repr(result)
+    assert "\n" not in text and len(text) < 400  # no film arrays
+    assert text.startswith("<RenderResult 8x8 sppp 16 spp seed 0 [mc_n, vor_sn] ")
+    assert " complete on " in text
+    result.films["vor_sn"].rendered[:3] = False  # as an interrupted render leaves it
+    assert "partial 61/64 pixels" in repr(result)
