@@ -168,12 +168,31 @@ def relative_squared_errors(squared: np.ndarray, reference: np.ndarray) -> np.nd
     return squared / np.square(np.abs(reference) + RELATIVE_OFFSET)
 
 
-def image_errors(
-    image: np.ndarray, reference: np.ndarray, reference_noise: float | None = None
-) -> ImageErrors:
+class ReferenceWarning(UserWarning):
+    """Errors against this reference are not to be trusted as they are (reference_warnings)."""
+
+
+def image_errors(image, reference, reference_noise: float | None = None) -> ImageErrors:
     """The errors of an (H, W, 3) image against an (H, W, 3) reference, in float64.
     reference_noise: the reference's own noise (the mean per-pixel variance of its estimator),
-    if known. ParameterError on a wrong shape, differing shapes or NaN/infinite values."""
+    if known. Either may be a RenderResult (clrender.render's; its first estimator's image):
+    a reference result gives its own noise when reference_noise is None (as the command line's
+    noise_mse: clrender.report.own_noise, None where its variance layer is not its estimator's
+    unbiased variance), a partial one is refused, and a reference of another scene or of the
+    image's seed warns (ReferenceWarning), as `compare` does. ParameterError on a wrong shape,
+    differing shapes or NaN/infinite values."""
+    if is_render_result(reference) and reference_noise is None:
+        from clrender.report import own_noise
+
+        reference_noise = own_noise(reference, reference.settings.estimator.name)
+    if is_render_result(image) or is_render_result(reference):
+        import warnings
+
+        for text in reference_warnings(
+            result_metadata(image), result_metadata(reference), "(a RenderResult)"
+        ):
+            warnings.warn(text, ReferenceWarning, stacklevel=2)
+    image, reference = result_image(image, "image"), result_image(reference, "reference")
     image, reference = checked_arrays(image, reference)
     if reference_noise is not None:
         reference_noise = checked_noise(reference_noise)
@@ -194,6 +213,35 @@ def image_errors(
         pixels=pixels,
         reference_noise=reference_noise,
     )
+
+
+def is_render_result(value: object) -> bool:
+    return hasattr(value, "films") and hasattr(value, "settings")
+
+
+def result_image(value, role: str):
+    """A RenderResult's first image (ParameterError if partial); anything else as it is."""
+    if not is_render_result(value):
+        return value
+    film = value.film
+    if not film.complete:
+        raise ParameterError(
+            f"the {role} is a partial render ({film.rendered_count} of {film.pixel_count} "
+            "pixels): its unfinished pixels are black, so it has no error"
+        )
+    return value.image
+
+
+def result_metadata(value) -> dict:
+    """What reference_warnings reads (scene, scene_sha256, seed) of a RenderResult made by
+    clrender.render; {} for an array (nothing known)."""
+    if not is_render_result(value):
+        return {}
+    labels = getattr(value, "labels", None)
+    metadata = {"seed": value.settings.seed}
+    if labels is not None:
+        metadata.update(scene=labels.scene, scene_sha256=labels.scene_sha256)
+    return metadata
 
 
 def checked_noise(value: float) -> float:

@@ -284,3 +284,32 @@ def test_a_result_shows_itself_in_one_line():
     assert " complete on " in text
     result.films["vor_sn"].rendered[:3] = False  # as an interrupted render leaves it
     assert "partial 61/64 pixels" in repr(result)
+
+
+@pytest.mark.device
+def test_errors_against_a_reference_result_take_its_own_noise():
+    from clrender.compare import ReferenceWarning
+    from clrender.report import own_noise
+
+    reference = clrender.render(
+        "analytic:smooth", spp=64, sampler="independent", estimator="mc", resolution=8, seed=1
+    )
+    image = clrender.render("analytic:smooth", spp=16, estimator="vor_sn", resolution=8)
+    noise = own_noise(reference, "mc")
+    assert noise is not None and noise > 0
+    by_hand = clrender.image_errors(image.image, reference.image, noise)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # other seeds, the same scene: nothing to warn of
+        errors = clrender.image_errors(image, reference)
+    assert errors == by_hand and errors.reference_noise == noise
+    # The same seed: warned, as `compare` warns of two EXRs
+    same_seed = clrender.render("analytic:smooth", spp=16, estimator="mc_n", resolution=8, seed=1)
+    with pytest.warns(ReferenceWarning, match="same seed"):
+        clrender.image_errors(same_seed, reference)
+    # Another scene: warned; a partial result: refused
+    other = clrender.render("analytic:edge", spp=16, estimator="vor_sn", resolution=8)
+    with pytest.warns(ReferenceWarning, match="is of scene"):
+        clrender.image_errors(other, reference)
+    reference.film.rendered[0] = False
+    with pytest.raises(clrender.ParameterError, match="partial render \\(63 of 64 pixels\\)"):
+        clrender.image_errors(image, reference)
