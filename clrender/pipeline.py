@@ -1142,8 +1142,12 @@ class TilePipeline:
                 # (finished work, not redrawn); one the interrupt kept from the thread never
                 # started
                 pool.shutdown(wait=True)
-                if self.in_flight is not None and self.in_flight.done():
-                    self.record(self.in_flight.result())
+                # An estimate that failed is dropped, and the interrupt kept: a signal that
+                # came during a build on the thread may have failed that build (the compiler's
+                # signal handler removes its temporary files)
+                estimate = self.in_flight
+                if estimate is not None and estimate.done() and estimate.exception() is None:
+                    self.record(estimate.result())
                 self.in_flight = None
 
     def finish_in_flight(self, progress: ProgressCallback | None) -> None:

@@ -1,6 +1,7 @@
 """The tile pipeline: determinism across tilings and overlap, sample budgets, redraws after
 rejection, non-finite radiance, interruption."""
 
+import concurrent.futures
 from dataclasses import dataclass
 
 import numpy as np
@@ -266,6 +267,40 @@ def test_an_interrupt_while_an_estimate_is_recorded_keeps_it(runtime, monkeypatc
     assert result.stats.interrupted
     assert film.rendered[:two_tiles].all() and not film.rendered[two_tiles:].any()
     assert np.array_equal(film.pixels[:two_tiles], full.pixels[:two_tiles])
+
+
+def test_an_interrupt_is_not_replaced_by_the_estimate_it_failed(runtime, monkeypatch):
+    """A signal during a build on the estimator thread can fail that build (clang's signal
+    handler removes its temporary files) as the main thread takes the interrupt: the render
+    ends interrupted with the tiles before, not with the build error (before: run()'s handler
+    took the failed estimate's result, which raised the error)."""
+    from clrender.pipeline import TilePipeline
+    from clrender.runtime import KernelBuildError
+
+    config = settings("independent", "mc", tile_samples=100 * 16, overlap=True)
+    real_estimate, real_finish = TilePipeline.estimate, TilePipeline.finish_in_flight
+    estimates = []
+
+    def estimate(pipeline, tile):
+        estimates.append(1)
+        if len(estimates) == 2:
+            raise KernelBuildError("OpenCL build of x.cl failed: unable to rename temporary")
+        return real_estimate(pipeline, tile)
+
+    def finish_in_flight(pipeline, progress):
+        if pipeline.in_flight is not None:
+            concurrent.futures.wait([pipeline.in_flight])
+            if pipeline.in_flight.exception() is not None:
+                raise KeyboardInterrupt  # the signal reaches the main thread now
+        real_finish(pipeline, progress)
+
+    monkeypatch.setattr(TilePipeline, "estimate", estimate)
+    monkeypatch.setattr(TilePipeline, "finish_in_flight", finish_in_flight)
+    result = render(runtime, analytic_source(runtime), config)
+    film = result.film
+    one_tile = plan_tiles(result.settings)[1]
+    assert result.stats.interrupted
+    assert film.rendered[:one_tile].all() and not film.rendered[one_tile:].any()
 
 
 @pytest.mark.parametrize("overlap", [True, False])
