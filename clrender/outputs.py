@@ -4,9 +4,11 @@ OUT.png per estimator, written together and atomically. The command line and
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass
 from pathlib import Path
 
+from clrender import interrupts
 from clrender.errors import ParameterError
 
 
@@ -101,6 +103,16 @@ def save(result, output: str | Path) -> dict[str, OutputPaths]:
             "this RenderResult carries no labels (scene, device, provenance): save the result "
             "of clrender.render"
         )
+    if not any(film.rendered_count for film in result.films.values()):
+        raise ParameterError(
+            "nothing to save: the render was interrupted before any pixel was finished (an "
+            "all-black image would replace the previous one)"
+        )
     paths = output_paths(str(output), labels.scene, list(result.films), "save's path")
-    write_outputs(result, labels, paths, {})
+    # A signal while the files are replaced waits for the last one: an EXR and its PNG are
+    # both the new ones or both the old ones; then it has its usual effect
+    with interrupts.signals_held() as held:
+        write_outputs(result, labels, paths, {})
+    if held:
+        signal.raise_signal(held[0])
     return dict(zip(result.films, paths.values(), strict=True))

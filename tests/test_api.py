@@ -275,6 +275,44 @@ def test_save_needs_a_result_of_render(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_save_keeps_the_previous_files_of_a_render_with_no_pixel(tmp_path):
+    result = clrender.render("analytic:disc", spp=8, resolution=8)
+    result.save(tmp_path / "out.exr")
+    before = (tmp_path / "out.exr").read_bytes(), (tmp_path / "out.png").read_bytes()
+    result.film.rendered[:] = False  # as a render interrupted before its first tile leaves it
+    with pytest.raises(clrender.ParameterError, match="nothing to save"):
+        result.save(tmp_path / "out.exr")
+    assert ((tmp_path / "out.exr").read_bytes(), (tmp_path / "out.png").read_bytes()) == before
+
+
+def test_a_signal_while_saving_waits_for_both_files(tmp_path, monkeypatch):
+    """Ctrl-C as the EXR is renamed into place: the PNG is replaced too, then the
+    KeyboardInterrupt comes (before: the new EXR stood beside the old PNG)."""
+    import os
+    import signal
+    import time
+
+    from clrender import imageio
+
+    old = clrender.render("analytic:disc", spp=8, resolution=8, seed=1)
+    old.save(tmp_path / "out.exr")
+    old_png = (tmp_path / "out.png").read_bytes()
+    new = clrender.render("analytic:disc", spp=8, resolution=8, seed=2)
+    real_replace = os.replace
+
+    def replace(source, target):
+        real_replace(source, target)
+        if str(target).endswith(".exr"):
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.01)  # in a call: Python runs the signal's handler before it returns
+
+    monkeypatch.setattr(imageio.os, "replace", replace)
+    with pytest.raises(KeyboardInterrupt):
+        new.save(tmp_path / "out.exr")
+    assert imageio.read_exr(tmp_path / "out.exr")[1]["seed"] == 2
+    assert (tmp_path / "out.png").read_bytes() != old_png
+
+
 @pytest.mark.device
 def test_a_result_shows_itself_in_one_line():
     result = clrender.render("analytic:edge", spp=16, estimators=["mc_n", "vor_sn"], resolution=8)
