@@ -143,6 +143,16 @@ class DaskExecutor(ClosingExecutor):
                 self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
             except (OSError, TimeoutError) as err:
                 raise ClusterError(f"no Dask scheduler at {scheduler}: {err}") from None
+            except (ValueError, TypeError) as err:  # distributed's parse of the address
+                raise ParameterError(
+                    f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address "
+                    f"such as tcp://host:8786: {one_line(err)}"
+                ) from None
+            except MemoryError:  # a server that is not Dask's sent bytes read as a length
+                raise ClusterError(
+                    f"{scheduler} answered, but not as a Dask scheduler (is it the dashboard "
+                    "or another service's port?)"
+                ) from None
         else:
             if isinstance(workers, bool) or not isinstance(workers, int) or workers <= 0:
                 raise ParameterError(f"workers must be a positive integer, got {workers!r}")
@@ -192,7 +202,12 @@ class DaskExecutor(ClosingExecutor):
         index_of = {future.key: index for index, future in enumerate(futures)}
         try:
             for future in as_completed(futures):
-                result = future.result()
+                try:
+                    result = future.result()
+                except Exception as err:  # Dask's own: workers that kept dying, a lost scheduler
+                    raise ClusterError(
+                        f"the cluster failed: {type(err).__name__}: {one_line(err)}"
+                    ) from None
                 if isinstance(result, TaskFailure):
                     raise ClusterTaskError(result.message)
                 yield index_of[future.key], result
@@ -205,6 +220,15 @@ class DaskExecutor(ClosingExecutor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def one_line(err: BaseException) -> str:
+    """An exception's text on one line (its type's name if it has none, or none it can say)."""
+    try:
+        text = str(err)
+    except Exception:  # Dask's KilledWorker formats a worker it may not hold
+        text = ""
+    return " ".join(text.split()) or type(err).__name__
 
 
 def dask_setup(worker) -> None:
@@ -318,7 +342,7 @@ def _run_task(function: Callable | bytes, item: Any, *common: Any) -> Any:
             where = get_worker().address
         except ValueError:
             where = "this process"
-        text = " ".join(str(err).split()) or type(err).__name__
+        text = one_line(err)
         return TaskFailure(f"task failed on worker {where}: {type(err).__name__}: {text}")
 
 

@@ -7,6 +7,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -366,9 +367,53 @@ def test_executor_choice_and_bad_requests(monkeypatch):
     monkeypatch.setattr("clrender.cluster.CONNECT_TIMEOUT_S", 1)
     with pytest.raises(ClusterError, match=r"no Dask scheduler at tcp://127.0.0.1:9"):
         make_executor(None, "tcp://127.0.0.1:9")
+    for address in ("garbage", "", "http://x:1"):
+        with pytest.raises(ParameterError, match="is not a Dask scheduler address"):
+            make_executor(None, address)
     monkeypatch.setitem(sys.modules, "distributed", None)
     with pytest.raises(ClusterError, match=r"pip install 'dask\[distributed\]'"):
         make_executor(2, None)
+
+
+def test_a_service_that_is_not_a_scheduler_is_named_as_such():
+    """A port whose server speaks first (an SSH banner) is not Dask's: one line, not the
+    'out of host memory' of a length read from its bytes."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def banner():
+        with server:
+            connection, _ = server.accept()
+            with connection:
+                connection.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian\r\n" * 64)
+                connection.recv(1)
+
+    threading.Thread(target=banner, daemon=True).start()
+    with pytest.raises(ClusterError, match="answered, but not as a Dask scheduler"):
+        make_executor(None, f"tcp://127.0.0.1:{port}")
+
+
+def test_a_cluster_failure_is_one_line(cluster, monkeypatch):
+    """Dask's own failures (a task whose workers kept dying: KilledWorker; a lost scheduler:
+    a cancelled future) end the render with one ClusterError line, not a traceback."""
+    import distributed
+    from distributed.scheduler import KilledWorker
+
+    class Failed:
+        def __init__(self, future):
+            self.key = future.key
+
+        def result(self):
+            raise KilledWorker("clrender-x-0", SimpleNamespace(address="tcp://127.0.0.1:1"), 3)
+
+    monkeypatch.setattr(distributed, "as_completed", lambda futures: map(Failed, futures))
+    job = RenderJob("analytic:mix", 8, 8, make_sampler("sppp", 4), ("vor_sn",))
+    with pytest.raises(ClusterError, match="^the cluster failed: KilledWorker: ") as info:
+        render_on(cluster, job, tasks=1)
+    assert "\n" not in str(info.value)
 
 
 def test_command_line_render_on_two_workers_matches_the_local_one(tmp_path, capsys):
