@@ -19,6 +19,7 @@ __all__ = [
     "ESTIMATORS",
     "ClrenderError",
     "ParameterError",
+    "RenderInterrupted",
     "__version__",
     "image_errors",
     "load_scene",
@@ -31,6 +32,7 @@ __all__ = [
 _LAZY = {
     "load_scene": "clrender.api",
     "render": "clrender.api",
+    "RenderInterrupted": "clrender.api",
     "ESTIMATORS": "clrender.estimators",
     "image_errors": "clrender.compare",
     "preview": "clrender.display",

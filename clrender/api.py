@@ -192,6 +192,8 @@ def render(
         result.russian_roulette,
         result,
     )
+    if result.stats.interrupted:  # Ctrl-C stops the caller's script too, with the pixels
+        raise RenderInterrupted(result)
     warning = kernels_warning(result.kernels_sha256, local_kernels_fingerprint())
     if warning is not None:
         warnings.warn(warning, KernelsWarning, stacklevel=2)
@@ -247,6 +249,20 @@ def runtime_for(device: str | None) -> Runtime:
 @functools.cache
 def _runtime_for(device: str | None, pyopencl_ctx: str) -> Runtime:
     return create_runtime(device)
+
+
+class RenderInterrupted(KeyboardInterrupt):
+    """clrender.render was interrupted (Ctrl-C): `.result` is the RenderResult of the pixels
+    finished (stats.interrupted set; `.result.save(path)` writes them with partial=1). A
+    KeyboardInterrupt, so a script stops as it would anywhere else."""
+
+    def __init__(self, result):
+        film = result.film
+        super().__init__(
+            f"render interrupted: {film.rendered_count} of {film.pixel_count} pixels finished "
+            "(the exception's .result holds them)"
+        )
+        self.result = result
 
 
 def check_executor(executor: object) -> None:

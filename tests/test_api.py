@@ -351,3 +351,32 @@ def test_errors_against_a_reference_result_take_its_own_noise():
     reference.film.rendered[0] = False
     with pytest.raises(clrender.ParameterError, match="partial render \\(63 of 64 pixels\\)"):
         clrender.image_errors(image, reference)
+
+
+@pytest.mark.device
+def test_an_interrupted_render_stops_the_script_with_its_pixels(tmp_path, monkeypatch):
+    """Ctrl-C in clrender.render raises RenderInterrupted (a KeyboardInterrupt) holding the
+    finished pixels (before: render returned a partial image as if nothing had happened, and a
+    loop of renders went on with black images)."""
+    from clrender.film import Film
+    from clrender.imageio import read_exr
+
+    real_record, writes = Film.record, []
+
+    def interrupted_record(film, *args):
+        writes.append(1)
+        if len(writes) == 2:
+            raise KeyboardInterrupt
+        return real_record(film, *args)
+
+    monkeypatch.setattr(Film, "record", interrupted_record)
+    with pytest.raises(KeyboardInterrupt) as info:
+        clrender.render("analytic:disc", spp=16, resolution=64, tile_samples=16 * 1024)
+    assert isinstance(info.value, clrender.RenderInterrupted)
+    result = info.value.result
+    done = result.film.rendered_count
+    assert result.stats.interrupted and 0 < done < 64 * 64
+    assert str(info.value).startswith(f"render interrupted: {done} of 4096 pixels finished")
+    monkeypatch.setattr(Film, "record", real_record)
+    result.save(tmp_path / "partial.exr")
+    assert read_exr(tmp_path / "partial.exr")[1]["partial"] == 1
