@@ -136,7 +136,9 @@ def test_an_interrupted_task_of_the_local_executor_ends_the_render(runtime, monk
         return real_tile_pixels(settings, start, end)
 
     monkeypatch.setattr(pipeline, "tile_pixels", interrupting_tile_pixels)
-    partial = api.render("analytic:mix", tile_samples=16 * 16, executor=LocalExecutor(), **options)
+    with pytest.raises(api.RenderInterrupted) as info:
+        api.render("analytic:mix", tile_samples=16 * 16, executor=LocalExecutor(), **options)
+    partial = info.value.result
     assert partial.stats.interrupted
     assert max(starts) == second + 2 * per_tile  # no later tile, no later task
     kept = second + per_tile  # (tile 1, queued on the device, is dropped)
@@ -167,9 +169,9 @@ def test_a_signal_as_a_local_task_hands_its_range_back_keeps_it(runtime, monkeyp
     # Ctrl-C as at a terminal (a test run in the background ignores SIGINT)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        partial = api.render(
-            "analytic:mix", tile_samples=16 * 16, executor=LocalExecutor(), **options
-        )
+        with pytest.raises(api.RenderInterrupted) as info:
+            api.render("analytic:mix", tile_samples=16 * 16, executor=LocalExecutor(), **options)
+        partial = info.value.result
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, previous)
