@@ -139,15 +139,11 @@ class DaskExecutor(ClosingExecutor):
             raise ParameterError("give a number of local workers or a scheduler address")
         self.cluster = None
         if scheduler is not None:
+            check_scheduler_address(scheduler)
             try:
                 self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
             except (OSError, TimeoutError) as err:
                 raise ClusterError(f"no Dask scheduler at {scheduler}: {err}") from None
-            except (ValueError, TypeError) as err:  # distributed's parse of the address
-                raise ParameterError(
-                    f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address "
-                    f"such as tcp://host:8786: {one_line(err)}"
-                ) from None
             except MemoryError:  # a server that is not Dask's sent bytes read as a length
                 raise ClusterError(
                     f"{scheduler} answered, but not as a Dask scheduler (is it the dashboard "
@@ -220,6 +216,26 @@ class DaskExecutor(ClosingExecutor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def check_scheduler_address(scheduler: object) -> None:
+    """ParameterError unless scheduler is an address Dask can connect to (a known scheme, and
+    a host and port where the scheme needs them), checked before any connection is tried."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.registry import get_backend
+
+    try:
+        if not isinstance(scheduler, str):
+            raise TypeError(f"got {type(scheduler).__name__}")
+        scheme, location = parse_address(scheduler)
+        get_backend(scheme)
+        if scheme in ("tcp", "tls", "ws", "wss"):
+            parse_host_port(location)
+    except (ValueError, TypeError) as err:
+        raise ParameterError(
+            f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address such as "
+            f"tcp://host:8786: {one_line(err)}"
+        ) from None
 
 
 def one_line(err: BaseException) -> str:
