@@ -59,8 +59,8 @@ def code_fingerprint() -> str:
     of the package folder) as they were when this process imported clrender: computed once
     then, from the files' bytes (about a millisecond for its 0.8 MB), and kept
     (clrender.CODE_SHA256), so a module edited afterwards does not change it: a process keeps
-    the modules it imported. (A module first imported after such an edit would run the edited
-    code under the old fingerprint; clrender imports its modules at the first render.)"""
+    the modules it imported. (clrender imports some modules only when first used: one first
+    imported after such an edit would run the edited code under the old fingerprint.)"""
     return clrender.CODE_SHA256
 
 
@@ -123,9 +123,7 @@ def provenance_warning(
         return None
     parts = [f"the workers {' and '.join(differ)}"] if differ else []
     if unknown:
-        who = "another worker" if differ else "a worker"
-        parts.append(
-            f"{who} could not tell {' nor '.join(unknown)}: a clrender older than that report"
-        )
+        told = " nor ".join(unknown)
+        parts.append(f"a worker could not tell {told}: a clrender older than that report")
     kind = KernelsWarning if "kernels_sha256" in keys else ProvenanceWarning
     return kind("; ".join(parts) + "; the images record the workers' values")
