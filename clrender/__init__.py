@@ -12,6 +12,9 @@ clrender.ESTIMATORS lists every pixel estimator (clrender.estimators.registry); 
 can fix are clrender.ClrenderError with a one-line message.
 """
 
+import os
+
+from clrender.code_sources import python_sources_fingerprint
 from clrender.errors import ClrenderError, ParameterError
 
 __version__ = "0.1.0"
@@ -26,6 +29,10 @@ __all__ = [
     "preview",
     "render",
 ]
+
+# The fingerprint of this package's Python code as it was on import: the code this process
+# runs (clrender.provenance.code_fingerprint)
+CODE_SHA256 = python_sources_fingerprint(os.path.dirname(os.path.abspath(__file__)))
 
 # The front door is imported on first use, so that `python -m clrender` can set up the process
 # (one BLAS thread, clrender/__main__.py) before NumPy loads.

@@ -39,7 +39,7 @@ from clrender.pipeline import (
     RenderResult,
     RenderSettings,
 )
-from clrender.provenance import KernelsWarning, kernels_warning, local_kernels_fingerprint
+from clrender.provenance import REPORTED, local_fingerprints, provenance_warning
 from clrender.radiance import PathTracerSource, RadianceSource
 from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
@@ -183,8 +183,8 @@ def render(
     finally:
         if bar is not None:
             bar.close()
-    # the device(s), precision and kernels that rendered it: a cluster's workers', not this
-    # process's (warned of when its kernels differ from theirs)
+    # the device(s), precision, kernels and code that rendered it: a cluster's workers', not
+    # this process's (warned of when its kernels or code differ from theirs)
     result.labels = render_labels(
         analytic_image(scene, 1, 1).name if isinstance(scene, str) else scene.name,
         None if isinstance(scene, str) else scene,
@@ -194,9 +194,10 @@ def render(
     )
     if result.stats.interrupted:  # Ctrl-C stops the caller's script too, with the pixels
         raise RenderInterrupted(result)
-    warning = kernels_warning(result.kernels_sha256, local_kernels_fingerprint())
+    workers = {key: getattr(result, key) for key in REPORTED}
+    warning = provenance_warning(workers, local_fingerprints())
     if warning is not None:
-        warnings.warn(warning, KernelsWarning, stacklevel=2)
+        warnings.warn(warning, stacklevel=2)
     return result
 
 

@@ -536,18 +536,19 @@ def finish_render(args: argparse.Namespace, result, labels, paths, reference, he
     """Write a render's images and print its summary; the command's status. `held`: the
     ending signals held since the render's work was done (more come in while writing)."""
     from clrender.outputs import write_outputs
-    from clrender.provenance import kernels_warning
+    from clrender.provenance import REPORTED, provenance_warning
     from clrender.report import json_ready, summary_json, summary_lines
 
-    # the device, precision and kernels that rendered it: a cluster's, its workers'
-    warning = kernels_warning(result.kernels_sha256, labels.kernels_sha256)
+    # the device, precision, kernels and code that rendered it: a cluster's, its workers'
+    workers = {key: getattr(result, key) for key in REPORTED}
+    warning = provenance_warning(workers, {key: getattr(labels, key) for key in REPORTED})
     if warning is not None:
         print(f"clrender: warning: {warning}", file=sys.stderr)
     labels = dataclasses.replace(
         labels,
         device=result.device,
         device_precision=result.device_precision,
-        kernels_sha256=result.kernels_sha256 or labels.kernels_sha256,
+        **{key: value or getattr(labels, key) for key, value in workers.items()},
     )
     # Every signal is held until the finished pixels are written (or found to be none), also
     # where none was asked to be held (in-process runs)

@@ -72,6 +72,7 @@ from clrender.pipeline import (
     pixels_per_tile,
     plan_tiles,
 )
+from clrender.provenance import REPORTED
 from clrender.runtime import thread_build_seconds
 from clrender.sampling import SamplerConfig
 from clrender.scene import Scene
@@ -460,6 +461,9 @@ class PixelRangeResult:
     # the OpenCL sources its worker built (clrender.provenance.kernels_fingerprint: its
     # CLRENDER_KERNELS_DIR or installed package, not the client's); None from an older worker
     kernels_sha256: str | None = None
+    # the clrender Python code its worker ran (clrender.provenance.code_fingerprint: its
+    # install as it imported it); None from an older worker
+    code_sha256: str | None = None
 
 
 # The radiance source of the last job a worker process ran: (token, source)
@@ -511,7 +515,7 @@ def _range_result(
     pipeline: TilePipeline, source, runtime, pixel_range: tuple[int, int], start, set_up
 ) -> PixelRangeResult:
     from clrender.estimators.device_cells import resolve_precision
-    from clrender.provenance import kernels_fingerprint
+    from clrender.provenance import code_fingerprint, kernels_fingerprint
 
     first, end = pixel_range
     pipeline.stats.wall_seconds = time.perf_counter() - start
@@ -537,6 +541,7 @@ def _range_result(
         setup_seconds,
         {name: film.rendered[pixels] for name, film in pipeline.films.items()},
         kernels_fingerprint(),
+        code_fingerprint(),
     )
 
 
@@ -584,7 +589,9 @@ def render_on(
     devices: set[str] = set()
     precisions: set[str] = set()
     trace_kernels: set[str] = set()
-    kernels: set[str] = set()
+    # the fingerprints each task reports (clrender.provenance.REPORTED), a worker older than
+    # one "unknown"
+    reported: dict[str, set[str]] = {key: set() for key in REPORTED}
     setup_by_worker: dict[str, float] = {}
     tasks_by_worker: dict[str, int] = {}
     shared = executor.share(job) if isinstance(executor, DaskExecutor) else job
@@ -604,7 +611,8 @@ def render_on(
             # (None from an analytic image's task, or from a worker older than the field)
             if getattr(part, "trace_kernel", None) is not None:
                 trace_kernels.add(part.trace_kernel)
-            kernels.add(getattr(part, "kernels_sha256", None) or "unknown (an older worker)")
+            for key, values in reported.items():
+                values.add(getattr(part, key, None) or "unknown (an older worker)")
             setup_by_worker[part.worker] = (
                 setup_by_worker.get(part.worker, 0.0) + part.setup_seconds
             )
@@ -639,5 +647,5 @@ def render_on(
         device_precision="; ".join(sorted(precisions)) or None,
         trace_kernel="; ".join(sorted(trace_kernels)) or None,
         tasks_by_worker=dict(sorted(tasks_by_worker.items())),
-        kernels_sha256="; ".join(sorted(kernels)) or None,
+        **{key: "; ".join(sorted(values)) or None for key, values in reported.items()},
     )

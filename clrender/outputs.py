@@ -73,11 +73,11 @@ def write_outputs(result, labels, paths: dict[str, OutputPaths], errors: dict) -
 
 def render_labels(label: str, scene, max_depth, roulette, result=None):
     """The render's RenderLabels: what the pipeline does not know, provenance included; the
-    device, its precision and the kernels' fingerprint are the result's (RenderResult.device,
-    .device_precision, .kernels_sha256: for a cluster render its workers', reported by its
-    tasks), the device and precision None before the render, the kernels this process's
-    (local_kernels_fingerprint)."""
-    from clrender.provenance import local_kernels_fingerprint, scene_fingerprint
+    device, its precision and the kernels' and code's fingerprints are the result's
+    (RenderResult.device, .device_precision, .kernels_sha256, .code_sha256: for a cluster
+    render its workers', reported by its tasks), the device and precision None before the
+    render, the fingerprints this process's (local_kernels_fingerprint, code_fingerprint)."""
+    from clrender.provenance import code_fingerprint, local_kernels_fingerprint, scene_fingerprint
     from clrender.report import RenderLabels
 
     return RenderLabels(
@@ -89,6 +89,7 @@ def render_labels(label: str, scene, max_depth, roulette, result=None):
         scene_sha256=None if scene is None else scene_fingerprint(scene),
         kernels_sha256=getattr(result, "kernels_sha256", None) or local_kernels_fingerprint(),
         device_precision=None if result is None else result.device_precision,
+        code_sha256=getattr(result, "code_sha256", None) or code_fingerprint(),
     )
 
 

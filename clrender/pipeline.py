@@ -356,6 +356,9 @@ class RenderResult:
     # The fingerprint of the OpenCL sources its tasks' workers built (render_on: "; " between
     # several, a worker that cannot tell "unknown"); None for a local render: this process's
     kernels_sha256: str | None = None
+    # Likewise the fingerprint of the clrender Python code its tasks' workers ran
+    # (clrender.provenance.code_fingerprint)
+    code_sha256: str | None = None
 
     def __post_init__(self) -> None:
         if not self.films:  # a result made of one film

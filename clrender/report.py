@@ -23,12 +23,14 @@ class RenderLabels:
     max_depth: int | None  # None for sources without paths (analytic images)
     russian_roulette: bool | None = None  # likewise None without paths
     # Provenance (clrender.provenance), None where not known: the scene file and the scene as
-    # the device got it (none for analytic images), the kernel sources, and the precision of
-    # the device's Voronoi cells and sums ("mixed" with cl_khr_fp64, else "single")
+    # the device got it (none for analytic images), the kernel sources, the precision of the
+    # device's Voronoi cells and sums ("mixed" with cl_khr_fp64, else "single"), and
+    # clrender's Python code
     scene_file: str | None = None
     scene_sha256: str | None = None
     kernels_sha256: str | None = None
     device_precision: str | None = None
+    code_sha256: str | None = None
 
 
 def render_metadata(
@@ -85,7 +87,7 @@ def render_metadata(
     if sampler.is_sppp:
         metadata.update(sppp_alpha=sampler.alpha, sppp_eps=sampler.eps, sppp_aux=sampler.n_aux)
     metadata["voronoi_backend"] = settings.voronoi_backend
-    for key in ("scene_file", "scene_sha256", "kernels_sha256", "device_precision"):
+    for key in ("scene_file", "scene_sha256", "kernels_sha256", "code_sha256", "device_precision"):
         value = getattr(labels, key)
         if value is not None:
             metadata[key] = value

@@ -304,6 +304,93 @@ def test_an_api_render_on_workers_with_other_kernels_warns(monkeypatch):
     assert result.labels.kernels_sha256 == f"{ours}; unknown (an older worker)"
 
 
+def test_the_recorded_code_is_the_workers_and_other_code_is_warned_of(
+    tmp_path, monkeypatch, capsys
+):
+    # Tasks whose workers ran other clrender code than this process (faked as the kernels
+    # above; one older worker reports none): the JSON and EXR record theirs, one warning line
+    # says so; with the kernels differing too, the one line says both
+    from clrender import cluster
+    from clrender.imageio import read_exr
+    from clrender.provenance import code_fingerprint, kernels_fingerprint
+
+    ours = code_fingerprint()
+    original = cluster.render_pixels
+    other_kernels = []
+
+    def render_with_other_code(pixel_range, job):
+        part = original(pixel_range, job)
+        assert part.code_sha256 == ours  # as a worker running this process's code reports
+        part.code_sha256 = None if pixel_range[0] == 0 else "0123456789abcdef"
+        if other_kernels:
+            part.kernels_sha256 = "fedcba9876543210"
+        return part
+
+    monkeypatch.setattr(cluster, "render_pixels", render_with_other_code)
+    monkeypatch.setattr(cluster, "make_executor", lambda workers, scheduler: LocalExecutor())
+    out = tmp_path / "cluster.exr"
+    command = ["render", "analytic:mix", "--res", "16x8", "--spp", "8", "-o", str(out)]
+    assert main([*command, "--workers", "1", "--json"]) == 0
+    theirs = "0123456789abcdef; unknown (an older worker)"
+    captured = capsys.readouterr()
+    (image,) = json.loads(captured.out)["images"].values()
+    assert image["metadata"]["code_sha256"] == theirs == read_exr(out)[1]["code_sha256"]
+    assert image["metadata"]["kernels_sha256"] == kernels_fingerprint()
+    warning = f"the workers ran other clrender code (code {theirs}) than this clrender ({ours})"
+    assert captured.err.count("\n") == 1 and warning in captured.err, captured.err
+    assert "OpenCL" not in captured.err
+    other_kernels.append(True)
+    assert main([*command, "--workers", "1", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1 and warning in captured.err, captured.err
+    assert "built other OpenCL sources (kernels fedcba9876543210)" in captured.err
+    assert read_exr(out)[1]["kernels_sha256"] == "fedcba9876543210"
+    # Workers running this process's code: recorded as such, no warning
+    monkeypatch.setattr(cluster, "render_pixels", original)
+    assert main([*command, "--workers", "1", "--json"]) == 0
+    captured = capsys.readouterr()
+    (image,) = json.loads(captured.out)["images"].values()
+    assert image["metadata"]["code_sha256"] == ours == read_exr(out)[1]["code_sha256"]
+    assert "warning" not in captured.err
+
+
+def test_an_api_render_on_workers_with_other_code_warns(monkeypatch):
+    # The same through clrender.render: a ProvenanceWarning (not a KernelsWarning: the kernels
+    # agree), the workers' fingerprint recorded; an older worker that cannot tell is warned of
+    import warnings
+
+    import clrender
+    from clrender import cluster
+    from clrender.provenance import ProvenanceWarning, code_fingerprint
+
+    ours = code_fingerprint()
+    original = cluster.render_pixels
+    reported = {"other": "0123456789abcdef", "older": None}
+    kind = []
+
+    def render_with_reported_code(pixel_range, job):
+        part = original(pixel_range, job)
+        if pixel_range[0] == 0:
+            part.code_sha256 = reported[kind[-1]]
+        return part
+
+    monkeypatch.setattr(cluster, "render_pixels", render_with_reported_code)
+    options = dict(spp=4, resolution=(16, 8), tile_samples=16 * 16, executor=LocalExecutor())
+    for name, match in (
+        ("other", "the workers ran other clrender code"),
+        ("older", "a worker could not tell which clrender code it ran"),
+    ):
+        kind.append(name)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = clrender.render("analytic:mix", **options)
+        (provenance,) = (w.message for w in caught if isinstance(w.message, ProvenanceWarning))
+        assert type(provenance) is ProvenanceWarning and match in str(provenance)
+        assert result.code_sha256 == result.labels.code_sha256
+        other = reported[name] or "unknown (an older worker)"
+        assert set(result.code_sha256.split("; ")) == {other, ours}
+
+
 def test_cluster_timings_keep_the_workers_set_up_apart(monkeypatch):
     # Two "workers" (tasks alternate between two names), each slowed by 0.2 s of set-up in
     # its first task: the render waits for the longest worker's set-up, not their sum, and
@@ -480,7 +567,7 @@ def without_local_opencl(patch) -> None:
 def test_a_client_without_opencl_renders_on_the_workers_devices(runtime, cluster, monkeypatch):
     import clrender
     from clrender.estimators.device_cells import resolve_precision
-    from clrender.provenance import kernels_fingerprint
+    from clrender.provenance import code_fingerprint, kernels_fingerprint
 
     kwargs = dict(spp=8, estimators=["vor_sn", "mc_n"], resolution=12, seed=2)
     local = clrender.render("cornell-box", **kwargs)
@@ -499,6 +586,8 @@ def test_a_client_without_opencl_renders_on_the_workers_devices(runtime, cluster
     assert distributed.labels.device_precision == precision
     # the kernels too: the workers' sources, here this process's
     assert distributed.kernels_sha256 == kernels_fingerprint() == distributed.labels.kernels_sha256
+    # and the code: the workers import clrender from this checkout too
+    assert distributed.code_sha256 == code_fingerprint() == distributed.labels.code_sha256
 
 
 def test_a_command_line_client_without_opencl_drives_the_cluster(

@@ -1,15 +1,31 @@
 """Provenance in an image's metadata: the scene as the device got it (a file edited under the
-same name is told apart, a comment is not), the kernel sources, the Voronoi backend and the
-device's precision; a reference of an edited scene is warned about."""
+same name is told apart, a comment is not), the kernel sources, clrender's Python code, the
+Voronoi backend and the device's precision; a reference of an edited scene is warned about."""
 
+import json
+import os
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 
+import clrender
 from clrender import cli
+from clrender.code_sources import python_sources_fingerprint
 from clrender.compare import reference_warnings
 from clrender.imageio import read_exr
-from clrender.provenance import kernels_fingerprint, scene_fingerprint, sources_fingerprint
+from clrender.provenance import (
+    KernelsWarning,
+    ProvenanceWarning,
+    code_fingerprint,
+    kernels_fingerprint,
+    provenance_warning,
+    scene_fingerprint,
+    sources_fingerprint,
+)
 from clrender.runtime import kernels_dir
 from clrender.scene import load_scene
 
@@ -81,6 +97,130 @@ def test_the_kernels_fingerprint_is_of_the_sources_the_process_built(
     assert kernels_fingerprint() == f"{first}+{edited}"
 
 
+def package_copy(tmp_path) -> Path:
+    """clrender's package folder copied into tmp_path/copy/clrender, without bytecode caches."""
+    copy = tmp_path / "copy" / "clrender"
+    shutil.copytree(Path(clrender.__file__).parent, copy, ignore=shutil.ignore_patterns("*.pyc"))
+    return copy
+
+
+def imported_from(copy: Path, code: str) -> str:
+    """What `code` prints in a child process that imports clrender from the copy."""
+    env = {**os.environ, "PYTHONPATH": str(copy.parent), "PYTHONDONTWRITEBYTECODE": "1"}
+    child = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=copy.parent
+    )
+    assert child.returncode == 0, child.stderr
+    return child.stdout
+
+
+def test_the_code_fingerprint_follows_the_python_sources(tmp_path):
+    ours = code_fingerprint()
+    assert len(ours) == 16 and int(ours, 16) >= 0 and ours == clrender.CODE_SHA256
+    copy = package_copy(tmp_path)
+    # the same sources anywhere: the same fingerprint, also as the copy's own import takes it
+    assert python_sources_fingerprint(copy) == ours
+    assert imported_from(copy, "import clrender; print(clrender.CODE_SHA256)").strip() == ours
+    # bytecode, kernels and other files do not count
+    (copy / "__pycache__").mkdir(exist_ok=True)
+    (copy / "__pycache__" / "stale.py").write_text("x = 1\n")
+    (copy / "kernels").mkdir()
+    (copy / "kernels" / "rng.cl").write_text("// kernels have their own fingerprint\n")
+    (copy / "notes.txt").write_text("not code\n")
+    assert python_sources_fingerprint(copy) == ours
+    # an edited module (in a subpackage), an added one and a moved one each change it
+    fingerprints = {ours}
+    registry = copy / "estimators" / "registry.py"
+    text = registry.read_text()
+    assert text.count("np.maximum(counts, 1.0)") == 1
+    registry.write_text(text.replace("np.maximum(counts, 1.0)", "np.maximum(counts, 2.0)"))
+    fingerprints.add(python_sources_fingerprint(copy))
+    (copy / "extra.py").write_text("")
+    fingerprints.add(python_sources_fingerprint(copy))
+    (copy / "extra.py").rename(copy / "estimators" / "extra.py")
+    fingerprints.add(python_sources_fingerprint(copy))
+    assert len(fingerprints) == 4
+
+
+def test_the_code_fingerprint_is_of_the_sources_as_imported(tmp_path):
+    # A process keeps the modules it imported: a source edited afterwards changes neither
+    # what it runs nor its fingerprint, also when first asked for after the edit; the next
+    # process imports and fingerprints the edit
+    copy = package_copy(tmp_path)
+    api = copy / "api.py"
+    script = (
+        "import pathlib, clrender.api\n"
+        f"path = pathlib.Path({str(api)!r})\n"
+        "path.write_text(path.read_text() + '# edited after the import\\n')\n"
+        "from clrender.provenance import code_fingerprint\n"
+        "print(code_fingerprint(), code_fingerprint())\n"
+    )
+    assert imported_from(copy, script).split() == [code_fingerprint()] * 2
+    edited = python_sources_fingerprint(copy)
+    assert edited != code_fingerprint()
+    assert imported_from(copy, "import clrender; print(clrender.CODE_SHA256)").strip() == edited
+
+
+def test_the_provenance_warning_names_what_differs():
+    ours = {"code_sha256": "c" * 16, "kernels_sha256": "k" * 16}
+    assert provenance_warning({"code_sha256": None, "kernels_sha256": None}, ours) is None
+    assert provenance_warning(dict(ours), ours) is None
+    code = provenance_warning({**ours, "code_sha256": "0" * 16}, ours)
+    assert type(code) is ProvenanceWarning  # the kernels agree: not a KernelsWarning
+    assert str(code) == (
+        f"the workers ran other clrender code (code {'0' * 16}) than this clrender "
+        f"({'c' * 16}); the images record the workers' values"
+    )
+    both = provenance_warning({"code_sha256": "0" * 16, "kernels_sha256": "1" * 16}, ours)
+    assert isinstance(both, KernelsWarning) and isinstance(both, ProvenanceWarning)
+    assert "ran other clrender code" in str(both) and "built other OpenCL sources" in str(both)
+    older = f"{'c' * 16}; unknown (an older worker)"
+    unknown = provenance_warning({"code_sha256": older, "kernels_sha256": "k" * 16}, ours)
+    assert type(unknown) is ProvenanceWarning
+    assert str(unknown).startswith(
+        f"a worker could not tell which clrender code it ran (code {older})"
+    )
+    mixed = provenance_warning({"code_sha256": older, "kernels_sha256": "1" * 16}, ours)
+    assert type(mixed) is KernelsWarning and str(mixed).count("\n") == 0
+    assert "built other OpenCL sources" in str(mixed)
+    assert "a worker could not tell which clrender code it ran" in str(mixed)
+    client = {"code_sha256": "c" * 16, "kernels_sha256": None}  # a client without kernels
+    assert "than this clrender (no kernels folder here)" in str(provenance_warning(ours, client))
+
+
+@pytest.mark.usefixtures("shared_cli_runtime")
+@pytest.mark.device
+def test_a_render_of_other_code_records_another_fingerprint(tmp_path, capsys):
+    # The reviewer's case: a host-side estimator edited in a copy of the package halves the
+    # image, and the image's metadata says it was made by other code
+    copy = package_copy(tmp_path)
+    registry = copy / "estimators" / "registry.py"
+    registry.write_text(
+        registry.read_text().replace("np.maximum(counts, 1.0)", "np.maximum(counts, 2.0)")
+    )
+    argv = ["render", "analytic:mix", "--res", "8x4", "--spp", "1", "--sampler", "independent"]
+    argv += ["--estimator", "mc_n", "--seed", "2", "--quiet", "--json"]
+    ours, theirs = tmp_path / "ours.exr", tmp_path / "theirs.exr"
+    assert cli.main([*argv, "-o", str(ours)]) == 0
+    (image,) = json.loads(capsys.readouterr().out)["images"].values()
+    assert image["metadata"]["code_sha256"] == code_fingerprint()
+    run = f"from clrender.cli import main; raise SystemExit(main({[*argv, '-o', str(theirs)]!r}))"
+    imported_from(copy, run)
+    (ours_pixels, ours_metadata), (their_pixels, their_metadata) = (
+        read_exr(path)[:2] for path in (ours, theirs)
+    )
+    assert np.array_equal(their_pixels * 2, ours_pixels)
+    assert ours_metadata["code_sha256"] == code_fingerprint()
+    assert their_metadata["code_sha256"] == python_sources_fingerprint(copy) != code_fingerprint()
+    differ = {
+        key
+        for key in ours_metadata.keys() | their_metadata.keys()
+        if ours_metadata.get(key) != their_metadata.get(key) and not key.endswith("time_s")
+    }
+    # (the errors against the analytic image's exact integrals follow the pixels)
+    assert {key for key in differ if not key.startswith("error_")} == {"code_sha256"}
+
+
 @pytest.mark.usefixtures("shared_cli_runtime")
 @pytest.mark.device
 @pytest.mark.parametrize("backend", ["device", "qhull"])
@@ -93,6 +233,7 @@ def test_a_render_records_its_provenance(capsys, tmp_path, backend):
     assert metadata["scene_file"] == str(load_scene("cornell-box").path.resolve())
     assert metadata["scene_sha256"] == scene_fingerprint(load_scene("cornell-box"))
     assert metadata["kernels_sha256"] == kernels_fingerprint()
+    assert metadata["code_sha256"] == code_fingerprint()
     assert metadata["voronoi_backend"] == backend
     assert metadata["device_precision"] in ("mixed", "single")
 
