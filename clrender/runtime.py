@@ -16,6 +16,7 @@ cl_khr_fp64 (has_fp64; CLRENDER_NO_FP64 set makes every device count as without 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import re
@@ -90,10 +91,29 @@ def list_devices() -> list[cl.Device]:
         platforms = cl.get_platforms()
     except cl.LogicError as err:  # the ICD loader reports 'no platforms' as an error
         raise DeviceError(INSTALL_HINT) from err
-    devices = [dev for plat in platforms for dev in plat.get_devices()]
+    devices = []
+    for platform in platforms:
+        with contextlib.suppress(cl.Error):  # DEVICE_NOT_FOUND: a platform with none
+            devices += platform.get_devices()
+    if not devices and platforms:
+        names = ", ".join(platform.name for platform in platforms)
+        raise DeviceError(
+            f"the OpenCL platforms ({names}) offer no device; PoCL offers none when it cannot "
+            f"create its kernel cache: make {pocl_cache_dir()} writable, or point "
+            "POCL_CACHE_DIR at a folder that is"
+        )
     if not devices:
         raise DeviceError(INSTALL_HINT)
     return devices
+
+
+def pocl_cache_dir() -> str:
+    """Where PoCL keeps its compiled kernels: $POCL_CACHE_DIR, else $XDG_CACHE_HOME/pocl, else
+    ~/.cache/pocl (PoCL's own order)."""
+    if os.environ.get("POCL_CACHE_DIR"):
+        return os.environ["POCL_CACHE_DIR"]
+    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(cache, "pocl")
 
 
 def has_fp64(device: cl.Device) -> bool:

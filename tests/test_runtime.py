@@ -105,6 +105,29 @@ def test_no_platform_says_what_to_install(monkeypatch):
         rt.list_devices()
 
 
+def test_platforms_without_devices_name_pocls_cache(monkeypatch, tmp_path):
+    """PoCL offers no device when it cannot create its kernel cache (a read-only home): the
+    error names the platforms and the cache, not 'install OpenCL' (before)."""
+
+    class Empty:
+        name = "Portable Computing Language"
+
+        def get_devices(self):
+            raise cl.RuntimeError("clGetDeviceIDs failed: DEVICE_NOT_FOUND")
+
+    monkeypatch.setattr(cl, "get_platforms", lambda: [Empty()])
+    monkeypatch.setenv("POCL_CACHE_DIR", str(tmp_path / "ro"))
+    with pytest.raises(DeviceError) as info:
+        rt.list_devices()
+    message = str(info.value)
+    assert message.startswith("the OpenCL platforms (Portable Computing Language) offer no")
+    assert f"make {tmp_path / 'ro'} writable" in message and "\n" not in message
+    monkeypatch.delenv("POCL_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    with pytest.raises(DeviceError, match=f"make {tmp_path / 'xdg' / 'pocl'} writable"):
+        rt.list_devices()
+
+
 def test_build_failure_carries_the_compiler_log_with_file_and_line(runtime, tmp_path, monkeypatch):
     (tmp_path / "broken.cl").write_text(
         "// a kernel with a type error on line 3\n"
