@@ -29,9 +29,31 @@ def run(exiting: bool = False) -> int:
         except KeyboardInterrupt as interrupt:  # before the command's own handling
             return interrupts.report(interrupt)
         except BrokenPipeError:  # stdout's reader left (`... | head`): quietly, as cat does
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, sys.stdout.fileno())  # Python's flush at exit must not fail too
+            silence_stdout()
             return 141  # 128 + SIGPIPE, as a shell reports a writer the pipe ended
+        except OSError as err:  # stdout cannot be written (a full disk, a closed terminal)?
+            if stdout_writable():
+                raise
+            silence_stdout()
+            print(f"clrender: error: cannot write standard output: {err.strerror}", file=sys.stderr)
+            return 2
+
+
+def stdout_writable() -> bool:
+    """Whether stdout takes a line now (a probe: only after an OSError nothing else explains,
+    which goes on as a traceback when stdout is fine)."""
+    try:
+        sys.stdout.write("\n")
+        sys.stdout.flush()
+    except OSError:
+        return False
+    return True
+
+
+def silence_stdout() -> None:
+    """stdout to the null device: Python's flush at exit must not fail too."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 def entry() -> None:

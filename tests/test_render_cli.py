@@ -735,3 +735,28 @@ def test_a_second_signal_with_stderr_gone_does_not_raise(monkeypatch):
     monkeypatch.setattr(sys, "stderr", ClosedTerminal())
     interrupts._interrupt_once(int(signal.SIGTERM), None)
     assert interrupts._received == [int(signal.SIGHUP), int(signal.SIGTERM)]
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+@pytest.mark.parametrize("argv", [["scenes"], ["render", "analytic:edge", "--res", "8", "--json"]])
+def test_a_stdout_that_cannot_be_written_is_one_line(tmp_path, argv):
+    # `... > file` on a full disk: one line and status 2 (before: an OSError traceback, 1)
+    with open("/dev/full", "w") as full:
+        child = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "clrender",
+                *argv,
+                *(["-o", str(tmp_path / "o.exr")] if argv[0] == "render" else []),
+            ],
+            stdout=full,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
+    assert child.returncode == 2, child.stderr
+    assert child.stderr.endswith(
+        "clrender: error: cannot write standard output: No space left on device\n"
+    ), child.stderr
+    assert "Traceback" not in child.stderr
