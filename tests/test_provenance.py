@@ -106,7 +106,10 @@ def package_copy(tmp_path) -> Path:
 
 def imported_from(copy: Path, code: str) -> str:
     """What `code` prints in a child process that imports clrender from the copy."""
+    # The copy holds the Python package alone: its kernels are ours (an installed package
+    # finds them inside it, a checkout beside it, and the copy has neither)
     env = {**os.environ, "PYTHONPATH": str(copy.parent), "PYTHONDONTWRITEBYTECODE": "1"}
+    env["CLRENDER_KERNELS_DIR"] = str(kernels_dir())
     child = subprocess.run(
         [sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=copy.parent
     )
