@@ -21,13 +21,17 @@ def python_sources_fingerprint(folder: str | os.PathLike) -> str:
         subdirectories[:] = [name for name in subdirectories if name != "__pycache__"]
         relative = os.path.relpath(directory, root)
         for name in files:
-            if name.endswith(".py"):
+            # Modules only: not an editor's lock or backup file (Emacs' .#api.py)
+            if name.endswith(".py") and name[:-3].isidentifier():
                 path = name if relative == "." else f"{relative}/{name}".replace(os.sep, "/")
                 sources.append((path, os.path.join(directory, name)))
     digest = hashlib.sha256()
     for path, file in sorted(sources):
-        with open(file, "rb") as handle:
-            content = handle.read()
+        try:
+            with open(file, "rb") as handle:
+                content = handle.read()
+        except OSError:  # unreadable: counted as such, and the import goes on
+            content = b"\0unreadable"
         digest.update(f"{path}\0{len(content)}\0".encode())
         digest.update(content)
     return digest.hexdigest()[:FINGERPRINT_DIGITS]

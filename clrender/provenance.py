@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 import clrender
-from clrender.code_sources import FINGERPRINT_DIGITS
+from clrender.code_sources import FINGERPRINT_DIGITS, python_sources_fingerprint
 from clrender.errors import ClrenderError
 from clrender.runtime import built_sources_fingerprints, kernels_dir
 from clrender.scene import Scene
@@ -59,9 +59,13 @@ def code_fingerprint() -> str:
     of the package folder) as they were when this process imported clrender: computed once
     then, from the files' bytes (about a millisecond for its 0.8 MB), and kept
     (clrender.CODE_SHA256), so a module edited afterwards does not change it: a process keeps
-    the modules it imported. (clrender imports some modules only when first used: one first
-    imported after such an edit would run the edited code under the old fingerprint.)"""
-    return clrender.CODE_SHA256
+    the modules it imported. clrender imports some modules only when first used, so the files
+    are fingerprinted again when asked (about a millisecond): if they changed since the import
+    (edited in a notebook's session), the value is "<at import>+<now>", as the process may run
+    either."""
+    now = python_sources_fingerprint(Path(clrender.__file__).parent)
+    at_import = clrender.CODE_SHA256
+    return at_import if now == at_import else f"{at_import}+{now}"
 
 
 class ProvenanceWarning(UserWarning):
