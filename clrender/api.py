@@ -265,6 +265,9 @@ class RenderInterrupted(KeyboardInterrupt):
         )
         self.result = result
 
+    def __reduce__(self):  # pickled with its result (another process, a Dask task)
+        return RenderInterrupted, (self.result,)
+
 
 def check_executor(executor: object) -> None:
     """ParameterError unless executor is None or a clrender.cluster executor."""

@@ -145,6 +145,10 @@ class DaskExecutor(ClosingExecutor):
                 self.client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
             except (OSError, TimeoutError) as err:
                 raise ClusterError(f"no Dask scheduler at {scheduler}: {err}") from None
+            except (ValueError, TypeError) as err:  # a scheme that needs more (tls: security)
+                raise ClusterError(
+                    f"cannot connect to {scheduler}: {type(err).__name__}: {one_line(err)}"
+                ) from None
             except MemoryError:  # a server that is not Dask's sent bytes read as a length
                 raise ClusterError(
                     f"{scheduler} answered, but not as a Dask scheduler (is it the dashboard "
@@ -231,7 +235,9 @@ def check_scheduler_address(scheduler: object) -> None:
         scheme, location = parse_address(scheduler)
         get_backend(scheme)
         if scheme in ("tcp", "tls", "ws", "wss"):
-            parse_host_port(location)
+            port = parse_host_port(location)[1]
+            if not 0 < int(port) < 65536:
+                raise ValueError(f"port {port} is not in 1-65535")
     except (ValueError, TypeError) as err:
         raise ParameterError(
             f"--scheduler (scheduler=) {scheduler!r} is not a Dask scheduler address such as "

@@ -2,6 +2,7 @@
 a new estimator is one entry plus its formula."""
 
 import ast
+import pickle
 import re
 import subprocess
 import sys
@@ -307,8 +308,13 @@ def test_a_signal_while_saving_waits_for_both_files(tmp_path, monkeypatch):
             time.sleep(0.01)  # in a call: Python runs the signal's handler before it returns
 
     monkeypatch.setattr(imageio.os, "replace", replace)
-    with pytest.raises(KeyboardInterrupt):
-        new.save(tmp_path / "out.exr")
+    # Ctrl-C as at a terminal (a test run in the background ignores SIGINT)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            new.save(tmp_path / "out.exr")
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert imageio.read_exr(tmp_path / "out.exr")[1]["seed"] == 2
     assert (tmp_path / "out.png").read_bytes() != old_png
 
@@ -378,5 +384,7 @@ def test_an_interrupted_render_stops_the_script_with_its_pixels(tmp_path, monkey
     assert result.stats.interrupted and 0 < done < 64 * 64
     assert str(info.value).startswith(f"render interrupted: {done} of 4096 pixels finished")
     monkeypatch.setattr(Film, "record", real_record)
+    copied = pickle.loads(pickle.dumps(info.value))  # as another process would get it
+    assert str(copied) == str(info.value) and copied.result.film.rendered_count == done
     result.save(tmp_path / "partial.exr")
     assert read_exr(tmp_path / "partial.exr")[1]["partial"] == 1

@@ -456,9 +456,11 @@ def test_executor_choice_and_bad_requests(monkeypatch):
     monkeypatch.setattr("clrender.cluster.CONNECT_TIMEOUT_S", 1)
     with pytest.raises(ClusterError, match=r"no Dask scheduler at tcp://127.0.0.1:9"):
         make_executor(None, "tcp://127.0.0.1:9")
-    for address in ("garbage", "", "http://x:1"):
+    for address in ("garbage", "", "http://x:1", "tcp://127.0.0.1:99999"):
         with pytest.raises(ParameterError, match="is not a Dask scheduler address"):
             make_executor(None, address)
+    with pytest.raises(ClusterError, match="^cannot connect to tls://127.0.0.1:9: TypeError"):
+        make_executor(None, "tls://127.0.0.1:9")  # TLS without a security configuration
     monkeypatch.setitem(sys.modules, "distributed", None)
     with pytest.raises(ClusterError, match=r"pip install 'dask\[distributed\]'"):
         make_executor(2, None)
