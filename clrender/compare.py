@@ -362,7 +362,8 @@ def reference_warnings(
             warnings.append(
                 f"the image and the reference {reference_path} were rendered from the same seed "
                 f"({image['seed']}): the image's samples are the reference's or correlated with "
-                "them, so its errors come out too low; render the reference with another --seed"
+                "them, so its errors come out too low; render the reference with another seed "
+                "(--seed, seed=)"
             )
     return warnings
 
