@@ -562,6 +562,27 @@ def test_09b_vor_bias_measures_each_estimator_against_the_exact_mean(tmp_path, c
             np.std(ratios, ddof=1) / np.sqrt(3), rel=1e-12
         )
     assert "| smooth | 4 |" in capsys.readouterr().out
+    # The construction simulated apart from clrender: f = 1, so E_V - 1 is at most a few
+    # percent on average, far from the -1 of a sum that lost its cells
+    vor_bias.main(
+        [
+            "--n",
+            "16",
+            "--kinds",
+            "smooth",
+            "--seeds",
+            "2",
+            "--size",
+            "4",
+            "--simulate",
+            "200",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    simulated = json.loads((tmp_path / "results.json").read_text())["simulated"]["16"]
+    assert simulated["trials"] == 200 and abs(simulated["bias"]) < 0.05
+    assert 0 < simulated["standard_error"] < 0.05
 
 
 def test_10_kernel_structure_compares_megakernel_and_wavefront(tmp_path):
