@@ -39,7 +39,7 @@ from clrender.pipeline import (
     RenderResult,
     RenderSettings,
 )
-from clrender.provenance import REPORTED, local_fingerprints, provenance_warning
+from clrender.provenance import local_fingerprints, provenance_warning, reported
 from clrender.radiance import PathTracerSource, RadianceSource
 from clrender.runtime import Runtime, create_runtime, thread_build_seconds
 from clrender.sampling import make_sampler, sampler_kind
@@ -194,8 +194,7 @@ def render(
     )
     if result.stats.interrupted:  # Ctrl-C stops the caller's script too, with the pixels
         raise RenderInterrupted(result)
-    workers = {key: getattr(result, key) for key in REPORTED}
-    warning = provenance_warning(workers, local_fingerprints())
+    warning = provenance_warning(reported(result), local_fingerprints())
     if warning is not None:
         warnings.warn(warning, stacklevel=2)
     return result

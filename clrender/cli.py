@@ -536,12 +536,12 @@ def finish_render(args: argparse.Namespace, result, labels, paths, reference, he
     """Write a render's images and print its summary; the command's status. `held`: the
     ending signals held since the render's work was done (more come in while writing)."""
     from clrender.outputs import write_outputs
-    from clrender.provenance import REPORTED, provenance_warning
+    from clrender.provenance import provenance_warning, reported
     from clrender.report import json_ready, summary_json, summary_lines
 
     # the device, precision, kernels and code that rendered it: a cluster's, its workers'
-    workers = {key: getattr(result, key) for key in REPORTED}
-    warning = provenance_warning(workers, {key: getattr(labels, key) for key in REPORTED})
+    workers = reported(result)
+    warning = provenance_warning(workers, reported(labels))
     if warning is not None:
         print(f"clrender: warning: {warning}", file=sys.stderr)
     labels = dataclasses.replace(
@@ -634,28 +634,27 @@ def command_scenes(args: argparse.Namespace) -> int:
 def exit_status(args: argparse.Namespace, result, held_signals: list[int]) -> int:
     """The command's status; held_signals: the signals that came once the render's work was
     done (the render itself reports an interrupt in its stats)."""
-    # An interrupt after the last pixel was recorded (held, or between the last tile and
-    # the end of the render) leaves complete images: they are not partial
-    complete = all(film.complete for film in result.films.values())
-    if (held_signals and not result.stats.interrupted) or (result.stats.interrupted and complete):
+    interrupted = result.stats.interrupted
+    if interrupted or held_signals:
         # The signal that interrupted the render; else the one held while writing
-        signum = interrupts.interrupting_signal() if result.stats.interrupted else held_signals[-1]
-        print(
-            f"clrender: interrupted ({signal.Signals(signum).name}) after the last "
-            "pixel: the images are complete",
-            file=sys.stderr,
-        )
-        return interrupts.exit_status(signum)
-    if result.stats.interrupted or held_signals:
-        counts = sorted({film.rendered_count for film in result.films.values()})
-        held = " to ".join(str(count) for count in (counts[0], counts[-1])[: len(counts)])
-        print(
-            f"clrender: interrupted: the image{'s hold' if len(result.films) > 1 else ' holds'} "
-            f"{held} of {result.film.pixel_count} pixels (partial=1)",
-            file=sys.stderr,
-        )
-        # The signal that interrupted the render; else the one held while writing
-        signum = interrupts.interrupting_signal() if result.stats.interrupted else held_signals[-1]
+        signum = interrupts.interrupting_signal() if interrupted else held_signals[-1]
+        # An interrupt after the last pixel was recorded (held, or between the last tile and
+        # the end of the render) leaves complete images: they are not partial
+        if not interrupted or all(film.complete for film in result.films.values()):
+            print(
+                f"clrender: interrupted ({signal.Signals(signum).name}) after the last "
+                "pixel: the images are complete",
+                file=sys.stderr,
+            )
+        else:
+            counts = sorted({film.rendered_count for film in result.films.values()})
+            held = " to ".join(str(count) for count in (counts[0], counts[-1])[: len(counts)])
+            print(
+                "clrender: interrupted: the "
+                f"image{'s hold' if len(result.films) > 1 else ' holds'} "
+                f"{held} of {result.film.pixel_count} pixels (partial=1)",
+                file=sys.stderr,
+            )
         return interrupts.exit_status(signum)
     if result.stats.nonfinite_samples or result.film.flagged_count:
         print(

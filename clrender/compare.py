@@ -39,6 +39,7 @@ import json
 import math
 import os
 import sys
+import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -186,8 +187,6 @@ def image_errors(image, reference, reference_noise: float | None = None) -> Imag
 
         reference_noise = own_noise(reference, reference.settings.estimator.name)
     if is_render_result(image) or is_render_result(reference):
-        import warnings
-
         for text in reference_warnings(
             result_metadata(image), result_metadata(reference), "(a RenderResult)"
         ):
@@ -216,6 +215,8 @@ def image_errors(image, reference, reference_noise: float | None = None) -> Imag
 
 
 def is_render_result(value: object) -> bool:
+    """Whether value is a RenderResult (told by its attributes: this module imports no more
+    than NumPy)."""
     return hasattr(value, "films") and hasattr(value, "settings")
 
 
@@ -342,30 +343,30 @@ def reference_warnings(
     render's EXR attributes, or those of the image being rendered): a partial reference, a
     reference of another scene, or one rendered from the same seed (the image's samples are
     then the reference's, or correlated with them, and its errors come out too low)."""
-    warnings = []
+    found = []
     if reference.get("partial") == 1:
-        warnings.append(partial_warning("reference", reference_path))
+        found.append(partial_warning("reference", reference_path))
     image_scene, reference_scene = image.get("scene"), reference.get("scene")
     if image_scene is not None and reference_scene is not None:
         if image_scene != reference_scene:
-            warnings.append(
+            found.append(
                 f"the reference {reference_path} is of scene {reference_scene!r}, the image of "
                 f"{image_scene!r}"
             )
         elif _differ(image.get("scene_sha256"), reference.get("scene_sha256")):
-            warnings.append(
+            found.append(
                 f"the reference {reference_path} is of another scene of the same name "
                 f"{image_scene!r}: the scene the device got differs (scene_sha256 "
                 f"{reference['scene_sha256']} against the image's {image['scene_sha256']})"
             )
         elif "seed" in image and image.get("seed") == reference.get("seed"):
-            warnings.append(
+            found.append(
                 f"the image and the reference {reference_path} were rendered from the same seed "
                 f"({image['seed']}): the image's samples are the reference's or correlated with "
                 "them, so its errors come out too low; render the reference with another seed "
                 "(--seed, seed=)"
             )
-    return warnings
+    return found
 
 
 def _differ(a: object, b: object) -> bool:

@@ -17,6 +17,7 @@ from collections.abc import Mapping
 import numpy as np
 from PIL import Image, ImageDraw
 
+from clrender.compare import is_render_result
 from clrender.errors import ParameterError
 from clrender.imageio import srgb8
 
@@ -51,7 +52,7 @@ def preview(
 ) -> Image.Image:
     """A PIL image of one linear RGB image, of several ({name: image}, side by side with their
     names above), or of a RenderResult (all its estimators' images)."""
-    if hasattr(images, "images") and hasattr(images, "film"):  # a RenderResult
+    if is_render_result(images):
         images = images.images
     named = dict(images) if isinstance(images, Mapping) else {"": images}
     if not named:

@@ -96,6 +96,12 @@ REPORTED = {
 }
 
 
+def reported(carrier) -> dict[str, str | None]:
+    """The REPORTED fingerprints of a RenderResult (its workers', None for a local render) or
+    of RenderLabels, by key."""
+    return {key: getattr(carrier, key, None) for key in REPORTED}
+
+
 def local_fingerprints() -> dict[str, str | None]:
     """This process's values of the fingerprints workers report (REPORTED)."""
     return {"code_sha256": code_fingerprint(), "kernels_sha256": local_kernels_fingerprint()}

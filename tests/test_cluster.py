@@ -475,12 +475,13 @@ def test_a_service_that_is_not_a_scheduler_is_named_as_such():
     server = socket.create_server(("127.0.0.1", 0))
     port = server.getsockname()[1]
 
-    def banner():
+    def banner():  # to every connection the client tries
         with server:
-            connection, _ = server.accept()
-            with connection:
-                connection.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian\r\n" * 64)
-                connection.recv(1)
+            while True:
+                connection, _ = server.accept()
+                with connection:
+                    connection.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian\r\n" * 64)
+                    connection.recv(1)
 
     threading.Thread(target=banner, daemon=True).start()
     with pytest.raises(ClusterError, match="answered, but not as a Dask scheduler"):
