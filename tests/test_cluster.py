@@ -459,33 +459,41 @@ def test_executor_choice_and_bad_requests(monkeypatch):
     for address in ("garbage", "", "http://x:1", "tcp://127.0.0.1:99999"):
         with pytest.raises(ParameterError, match="is not a Dask scheduler address"):
             make_executor(None, address)
-    with pytest.raises(ClusterError, match="^cannot connect to tls://127.0.0.1:9: TypeError"):
-        make_executor(None, "tls://127.0.0.1:9")  # TLS without a security configuration
+    import distributed
+
+    # TLS without a security configuration: the TypeError distributed raised
+    with monkeypatch.context() as patch:
+        patch.setattr(distributed, "Client", failing_client(TypeError("TLS expects a ssl_context")))
+        with pytest.raises(ClusterError, match="^cannot connect to tls://127.0.0.1:9: TypeError"):
+            make_executor(None, "tls://127.0.0.1:9")
     monkeypatch.setitem(sys.modules, "distributed", None)
     with pytest.raises(ClusterError, match=r"pip install 'dask\[distributed\]'"):
         make_executor(2, None)
 
 
-def test_a_service_that_is_not_a_scheduler_is_named_as_such():
+def failing_client(error: BaseException):
+    """A stand-in for distributed.Client that fails as the real one did at such an address
+    (a real Client per case would start an IO loop thread each, which under a full suite's
+    load now and then failed to start within distributed's 10 s: an AssertionError)."""
+
+    def client(*args, **kwargs):
+        raise error
+
+    return client
+
+
+def test_a_service_that_is_not_a_scheduler_is_named_as_such(monkeypatch):
     """A port whose server speaks first (an SSH banner) is not Dask's: one line, not the
-    'out of host memory' of a length read from its bytes."""
-    import socket
-    import threading
+    'out of host memory' of a length read from its bytes (distributed's MemoryError, seen
+    with a real banner server: 'Unable to allocate 2.82 EiB')."""
+    import distributed
 
-    server = socket.create_server(("127.0.0.1", 0))
-    port = server.getsockname()[1]
-
-    def banner():  # to every connection the client tries
-        with server:
-            while True:
-                connection, _ = server.accept()
-                with connection:
-                    connection.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian\r\n" * 64)
-                    connection.recv(1)
-
-    threading.Thread(target=banner, daemon=True).start()
+    error = MemoryError(
+        "Unable to allocate 2.82 EiB for an array with shape (3255307777713450285,)"
+    )
+    monkeypatch.setattr(distributed, "Client", failing_client(error))
     with pytest.raises(ClusterError, match="answered, but not as a Dask scheduler"):
-        make_executor(None, f"tcp://127.0.0.1:{port}")
+        make_executor(None, "tcp://127.0.0.1:22")
 
 
 def test_a_cluster_failure_is_one_line(cluster, monkeypatch):
